@@ -1,0 +1,100 @@
+"""``styleerd <command>``: argument parsing only; the work lives in the packages."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+from styleerd.errors import StyleERDError
+
+
+def _data_prepare(args: argparse.Namespace) -> None:
+    from styleerd.data.cache import FeatureParams, prepare, summary
+    from styleerd.data.datasets import DATASETS
+
+    for dataset in args.datasets or DATASETS:
+        fs = prepare(dataset, args.data, FeatureParams(fps=args.fps), Path(args.cache) if args.cache else None, args.workers)
+        print(summary(fs))
+        print(f"cache: {fs.path}\n")
+
+
+def _info(args: argparse.Namespace) -> None:
+    from styleerd.motion import bvh
+
+    m = bvh.read(args.file)
+    sk = m.skeleton
+    print(f"{args.file}: {m.n_frames} frames at {m.fps:.6g} fps ({m.n_frames / m.fps:.2f} s), {sk.n_joints} joints, "
+          f"{sum(len(c) for c in sk.channels)} channels")
+    for j, name in enumerate(sk.names):
+        depth, p = 0, sk.parents[j]
+        while p >= 0:
+            depth, p = depth + 1, sk.parents[p]
+        print(f"  {'  ' * depth}{name}  [{' '.join(sk.channels[j])}]")
+
+
+def _resample(args: argparse.Namespace) -> None:
+    from styleerd.motion import bvh
+    from styleerd.motion.resample import resample
+
+    if not 1 <= args.fps <= 1000:
+        raise StyleERDError(f"--fps {args.fps:g} is outside [1, 1000]")
+    m = resample(bvh.read(args.input), args.fps)
+    bvh.write(args.output, m)
+    print(f"wrote {args.output}: {m.n_frames} frames at {args.fps:g} fps")
+
+
+def _demo(args: argparse.Namespace) -> None:
+    from styleerd.data.datasets import data_root
+
+    try:
+        data_root(None)
+    except StyleERDError as e:
+        print(f"demo: {e}; nothing to summarise yet")
+        return
+    _data_prepare(argparse.Namespace(data=None, cache=None, workers=None, fps=30.0, datasets=None))
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(prog="styleerd", description="Online motion style transfer (Style-ERD).")
+    sub = parser.add_subparsers(dest="command", required=True)
+
+    data = sub.add_parser("data", help="datasets").add_subparsers(dest="data_command", required=True)
+    p = data.add_parser("prepare", help="unpack, parse and cache features; print clips and frames per style x content")
+    p.add_argument("--data", help="data folder (default: $STYLEERD_DATA, else ../shared/data)")
+    p.add_argument("--cache", help="cache folder (default: $STYLEERD_CACHE, else ~/.cache/styleerd)")
+    p.add_argument("--datasets", nargs="+", metavar="NAME", help="subset of: bandai-namco-2 bandai-namco-1 xia-sample")
+    p.add_argument("--fps", type=float, default=30.0, help="frame rate of the features (default 30)")
+    p.add_argument("--workers", type=int, help="processes (default: one per core)")
+    p.set_defaults(func=_data_prepare)
+
+    p = sub.add_parser("info", help="describe a BVH file")
+    p.add_argument("file")
+    p.set_defaults(func=_info)
+
+    p = sub.add_parser("resample", help="change a BVH file's frame rate")
+    p.add_argument("input")
+    p.add_argument("--fps", type=float, required=True)
+    p.add_argument("-o", "--output", required=True)
+    p.set_defaults(func=_resample)
+
+    p = sub.add_parser("demo", help="run the main job on bundled input")
+    p.set_defaults(func=_demo)
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = build_parser().parse_args(argv)
+    try:
+        args.func(args)
+    except StyleERDError as e:
+        print(f"styleerd: error: {e}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print("styleerd: interrupted", file=sys.stderr)
+        return 130
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

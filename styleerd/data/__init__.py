@@ -1,0 +1,1 @@
+"""Datasets -> labelled clips -> causal per-frame features -> cached, split, windowed."""

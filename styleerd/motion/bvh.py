@@ -1,0 +1,336 @@
+"""Read and write BVH files of any hierarchy and channel layout.
+
+Reads any rotation channel order on any joint, position channels on any joint, End Sites,
+tabs or spaces, trailing spaces, CRLF, zero- and one-frame files. The writer reproduces the
+source layout (channel lists, which joints carry positions), so read -> write -> read keeps
+every channel value. Malformed input raises one ``BVHError`` naming file, line and problem.
+"""
+
+from __future__ import annotations
+
+import os
+import tempfile
+import warnings
+from pathlib import Path
+
+import numpy as np
+
+from styleerd.errors import StyleERDError
+from styleerd.motion import quat
+from styleerd.motion.motion import Motion
+from styleerd.motion.skeleton import CHANNELS, POSITION_CHANNELS, ROTATION_CHANNELS, Skeleton
+
+_CANONICAL = {c.lower(): c for c in CHANNELS}
+
+
+class BVHError(StyleERDError):
+    """A malformed BVH file. ``str(err)`` is ``"FILE:LINE: problem"``."""
+
+    def __init__(self, path: str | os.PathLike, line: int | None, problem: str):
+        super().__init__(str(path), line, problem)  # args stay (path, line, problem): picklable
+        self.path, self.line, self.problem = str(path), line, problem
+
+    def __str__(self) -> str:
+        where = f"{self.path}:{self.line}" if self.line is not None else self.path
+        return f"{where}: {self.problem}"
+
+
+class _Tokens:
+    """Whitespace tokens of the HIERARCHY section, each with its 1-based line number."""
+
+    def __init__(self, lines: list[str], path: str):
+        self.path = path
+        self.items = [(tok, n + 1) for n, line in enumerate(lines) for tok in line.split()]
+        self.i = 0
+        self.last_line = len(lines)
+
+    def peek(self) -> str | None:
+        return self.items[self.i][0] if self.i < len(self.items) else None
+
+    def line(self) -> int:
+        return self.items[self.i][1] if self.i < len(self.items) else self.last_line
+
+    def next(self, what: str) -> str:
+        if self.i >= len(self.items):
+            raise BVHError(self.path, self.last_line, f"unexpected end of HIERARCHY, expected {what}")
+        tok = self.items[self.i][0]
+        self.i += 1
+        return tok
+
+    def expect(self, word: str) -> None:
+        line = self.line()
+        tok = self.next(repr(word))
+        if tok != word:
+            raise BVHError(self.path, line, f"expected {word!r}, found {tok!r}")
+
+    def number(self, what: str) -> float:
+        line = self.line()
+        tok = self.next(what)
+        try:
+            value = float(tok)
+        except ValueError:
+            raise BVHError(self.path, line, f"{what}: {tok!r} is not a number") from None
+        if not np.isfinite(value):
+            raise BVHError(self.path, line, f"{what}: {tok!r} is not finite")
+        return value
+
+    def rest_of_line(self, line: int) -> list[str]:
+        out = []
+        while self.i < len(self.items) and self.items[self.i][1] == line and self.items[self.i][0] != "{":
+            out.append(self.items[self.i][0])
+            self.i += 1
+        return out
+
+
+def _parse_hierarchy(tokens: _Tokens) -> Skeleton:
+    names: list[str] = []
+    parents: list[int] = []
+    offsets: list[list[float]] = []
+    channels: list[tuple[str, ...]] = []
+    end_sites: list[tuple[int, np.ndarray]] = []
+    path = tokens.path
+
+    def offset(what: str) -> list[float]:
+        tokens.expect("OFFSET")
+        return [tokens.number(f"{what} OFFSET") for _ in range(3)]
+
+    def joint(parent: int) -> None:
+        line = tokens.line()
+        name = " ".join(tokens.rest_of_line(line))
+        if not name:
+            raise BVHError(path, line, "joint without a name")
+        if name in names:
+            raise BVHError(path, line, f"duplicate joint name {name!r}")
+        j = len(names)
+        names.append(name)
+        parents.append(parent)
+        tokens.expect("{")
+        offsets.append(offset(f"joint {name!r}"))
+        chans: tuple[str, ...] = ()
+        if tokens.peek() == "CHANNELS":
+            tokens.next("CHANNELS")
+            line = tokens.line()
+            count = tokens.number(f"joint {name!r} CHANNELS count")
+            if count != int(count) or not 0 <= count <= 6:
+                raise BVHError(path, line, f"joint {name!r}: channel count {tokens.items[tokens.i - 1][0]!r} is not 0..6")
+            listed = []
+            for _ in range(int(count)):
+                line = tokens.line()
+                tok = tokens.next(f"joint {name!r} channel name")
+                if tok.lower() not in _CANONICAL:
+                    raise BVHError(path, line, f"joint {name!r}: unknown channel name {tok!r}")
+                listed.append(_CANONICAL[tok.lower()])
+            if len(set(listed)) != len(listed):
+                raise BVHError(path, line, f"joint {name!r}: a channel is listed twice in {listed}")
+            chans = tuple(listed)
+        channels.append(chans)
+        while True:
+            line = tokens.line()
+            tok = tokens.next(f"'}}' closing joint {name!r}")
+            if tok == "}":
+                return
+            if tok == "JOINT":
+                joint(j)
+            elif tok == "End":
+                tokens.expect("Site")
+                tokens.expect("{")
+                end_sites.append((j, np.array(offset(f"End Site of {name!r}"))))
+                tokens.expect("}")
+            elif tok in ("MOTION", "ROOT"):
+                raise BVHError(path, line, f"missing '}}' closing joint {name!r} before {tok}")
+            else:
+                raise BVHError(path, line, f"expected JOINT, End Site or '}}' in joint {name!r}, found {tok!r}")
+
+    tokens.expect("HIERARCHY")
+    line = tokens.line()
+    if tokens.next("ROOT") != "ROOT":
+        raise BVHError(path, line, "expected ROOT after HIERARCHY")
+    joint(-1)
+    if tokens.peek() is not None:
+        raise BVHError(path, tokens.line(), f"unexpected {tokens.peek()!r} after the root joint (only one ROOT is supported)")
+    return Skeleton(tuple(names), np.array(parents), np.array(offsets), tuple(channels), tuple(end_sites))
+
+
+def _frame_values(lines: list[str], first_line: int, n_channels: int, path: str) -> np.ndarray:
+    """Parse frame lines into ``[T, n_channels]``; on any problem, name the exact line."""
+    if not lines:
+        return np.zeros((0, n_channels))
+    with warnings.catch_warnings():  # a non-numeric token ends parsing early: detected below
+        warnings.simplefilter("ignore", DeprecationWarning)
+        flat = np.fromstring(" ".join(lines), sep=" ")
+    if flat.size == len(lines) * n_channels:
+        rows = [len(line.split()) for line in lines] if flat.size else [0]
+        if all(r == n_channels for r in rows):
+            values = flat.reshape(len(lines), n_channels)
+            bad = ~np.isfinite(values)
+            if bad.any():
+                t, c = np.argwhere(bad)[0]
+                raise BVHError(path, first_line + t, f"frame {t}: value {lines[t].split()[c]!r} of channel {c} is not finite")
+            return values
+    for t, line in enumerate(lines):
+        toks = line.split()
+        for c, tok in enumerate(toks):
+            try:
+                v = float(tok)
+            except ValueError:
+                raise BVHError(path, first_line + t, f"frame {t}: {tok!r} is not a number") from None
+            if not np.isfinite(v):
+                raise BVHError(path, first_line + t, f"frame {t}: value {tok!r} of channel {c} is not finite")
+        if len(toks) != n_channels:
+            raise BVHError(path, first_line + t, f"frame {t}: {len(toks)} values, the hierarchy declares {n_channels} channels")
+    raise BVHError(path, first_line, "frame data could not be parsed")  # unreachable in practice
+
+
+def parse(text: str, path: str = "<string>") -> Motion:
+    """Parse BVH text. ``path`` only names the source in error messages."""
+    lines = text.splitlines()
+    starts = [n for n, line in enumerate(lines) if line.strip() == "MOTION"]
+    if not starts:
+        raise BVHError(path, len(lines), "no MOTION section")
+    m = starts[0]
+    skeleton = _parse_hierarchy(_Tokens(lines[:m], path))
+
+    def header(n: int, key: str) -> float:
+        if n >= len(lines):
+            raise BVHError(path, len(lines), f"truncated MOTION section: missing '{key}' line")
+        head, _, value = lines[n].strip().partition(":")
+        if head.strip() != key:
+            raise BVHError(path, n + 1, f"expected '{key}:', found {lines[n].strip()!r}")
+        try:
+            return float(value)
+        except ValueError:
+            raise BVHError(path, n + 1, f"'{key}:' value {value.strip()!r} is not a number") from None
+
+    frames = header(m + 1, "Frames")
+    if frames != int(frames) or frames < 0:
+        raise BVHError(path, m + 2, f"Frames: {frames!r} is not a frame count")
+    frame_time = header(m + 2, "Frame Time")
+    if not (np.isfinite(frame_time) and frame_time > 0):
+        raise BVHError(path, m + 3, f"Frame Time: {frame_time!r} must be a positive number of seconds")
+    n_frames = int(frames)
+    n_channels = sum(len(c) for c in skeleton.channels)
+    body = lines[m + 3 :]
+    if n_channels == 0:  # frame lines are empty: only the count can be checked
+        return _motion_from_channels(skeleton, np.zeros((n_frames, 0)), 1.0 / frame_time)
+    while body and not body[-1].strip():
+        body.pop()
+    blank = [n for n, line in enumerate(body) if not line.strip()]
+    if blank:
+        raise BVHError(path, m + 4 + blank[0], "blank line inside the frame data")
+    if len(body) < n_frames:
+        raise BVHError(path, len(lines), f"truncated MOTION section: Frames says {n_frames}, found {len(body)} frame lines")
+    if len(body) > n_frames:
+        raise BVHError(path, m + 4 + n_frames, f"Frames says {n_frames}, found {len(body)} frame lines")
+    values = _frame_values(body, m + 4, n_channels, path)
+    return _motion_from_channels(skeleton, values, 1.0 / frame_time)
+
+
+def _motion_from_channels(skeleton: Skeleton, values: np.ndarray, fps: float) -> Motion:
+    T, J = len(values), skeleton.n_joints
+    rotations = np.empty((T, J, 4))
+    positions = np.broadcast_to(skeleton.offsets, (T, J, 3)).copy()
+    hint = np.zeros((T, J, 3))
+    col = 0
+    for j, chans in enumerate(skeleton.channels):
+        angles = hint[:, j]
+        order = skeleton.rotation_order(j)
+        for c in chans:
+            if c in POSITION_CHANNELS:
+                positions[:, j, POSITION_CHANNELS.index(c)] = values[:, col]
+            else:
+                angles[:, order.index(c[0].lower())] = values[:, col]
+            col += 1
+        rotations[:, j] = quat.from_euler(np.radians(angles), order)
+    return Motion(skeleton, rotations, positions, fps, euler_hint=hint)
+
+
+def read(path: str | os.PathLike) -> Motion:
+    path = str(path)
+    try:
+        with open(path, "r", encoding="utf-8", errors="strict") as f:
+            text = f.read()
+    except UnicodeDecodeError as e:
+        raise BVHError(path, None, f"not a text file ({e.reason} at byte {e.start})") from None
+    except OSError as e:
+        raise BVHError(path, None, e.strerror or str(e)) from None
+    if not text.lstrip().startswith("HIERARCHY"):
+        raise BVHError(path, 1, "not a BVH file: it does not start with HIERARCHY")
+    return parse(text, path)
+
+
+def channel_values(motion: Motion) -> np.ndarray:
+    """The BVH channel values ``[T, n_channels]`` of a motion, in its skeleton's layout.
+    Euler angles follow ``motion.euler_hint`` where there is one (the source file's branches),
+    else they are unrolled over time so the curves have no +-180 degree flips."""
+    sk = motion.skeleton
+    columns = []
+    for j, chans in enumerate(sk.channels):
+        order = sk.rotation_order(j)
+        rot = [c for c in chans if c in ROTATION_CHANNELS]
+        angles = None
+        if rot:
+            e = quat.to_euler(motion.rotations[:, j], order)
+            if motion.euler_hint is None:
+                e = quat.unroll_euler(e)
+            else:
+                e = quat.nearest_euler(e, np.radians(motion.euler_hint[:, j]))
+            angles = np.degrees(e)
+        for c in chans:
+            if c in POSITION_CHANNELS:
+                columns.append(motion.positions[:, j, POSITION_CHANNELS.index(c)])
+            else:
+                columns.append(angles[:, order.index(c[0].lower())])
+    return np.stack(columns, axis=-1) if columns else np.zeros((motion.n_frames, 0))
+
+
+def format_bvh(motion: Motion, precision: int = 9) -> str:
+    sk = motion.skeleton
+    out = ["HIERARCHY"]
+    ends: dict[int, list[np.ndarray]] = {}
+    for j, o in sk.end_sites:
+        ends.setdefault(j, []).append(o)
+
+    def fmt3(v: np.ndarray) -> str:
+        return " ".join(f"{x:.{precision}g}" for x in v)
+
+    def joint(j: int, depth: int) -> None:
+        pad = "\t" * depth
+        out.append(f"{pad}{'ROOT' if depth == 0 else 'JOINT'} {sk.names[j]}")
+        out.append(f"{pad}{{")
+        out.append(f"{pad}\tOFFSET {fmt3(sk.offsets[j])}")
+        if sk.channels[j]:
+            out.append(f"{pad}\tCHANNELS {len(sk.channels[j])} {' '.join(sk.channels[j])}")
+        for c in sk.children(j):
+            joint(c, depth + 1)
+        for o in ends.get(j, []):
+            out.extend([f"{pad}\tEnd Site", f"{pad}\t{{", f"{pad}\t\tOFFSET {fmt3(o)}", f"{pad}\t}}"])
+        out.append(f"{pad}}}")
+
+    joint(0, 0)
+    values = channel_values(motion)
+    out += ["MOTION", f"Frames: {motion.n_frames}", f"Frame Time: {1.0 / motion.fps:.9g}"]
+    if values.shape[1]:
+        row = " ".join([f"%.{precision}g"] * values.shape[1])
+        out += [row % tuple(v) for v in values.tolist()]
+    else:
+        out += [""] * motion.n_frames
+    return "\n".join(out) + "\n"
+
+
+def atomic_write_text(path: str | os.PathLike, text: str) -> None:
+    """Write to a temporary file beside ``path`` and rename it into place, so a failure never
+    leaves a partly written file."""
+    path = Path(path)
+    fd, tmp = tempfile.mkstemp(dir=path.parent or ".", prefix=f".{path.name}.", suffix=".tmp")
+    try:
+        with os.fdopen(fd, "w", encoding="utf-8", newline="\n") as f:
+            f.write(text)
+        os.replace(tmp, path)
+    except BaseException:
+        os.unlink(tmp)
+        raise
+
+
+def write(path: str | os.PathLike, motion: Motion, precision: int = 9) -> None:
+    text = format_bvh(motion, precision)  # format fully before touching the file system
+    atomic_write_text(path, text)

@@ -1,0 +1,193 @@
+"""Quaternion and Euler-angle math over numpy arrays.
+
+Convention, used everywhere inside styleerd:
+- a quaternion is ``[..., 4]`` in (w, x, y, z) order (scalar first); convert only at the
+  boundaries (glTF, three.js and VMC use x, y, z, w);
+- rotations act on column vectors: ``mul_vec(q, v) = R(q) @ v``, and ``mul(a, b)`` applies
+  ``b`` first, then ``a`` (as matrices: ``R(a) @ R(b)``);
+- an Euler ``order`` is a string such as ``"zxy"`` naming the axes in the order the BVH
+  channels list them; the rotation is intrinsic, ``R = Rz(e[0]) @ Rx(e[1]) @ Ry(e[2])``
+  (scipy's uppercase ``"ZXY"``). Angles are radians.
+
+Every function broadcasts over leading ``...`` dimensions.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+ORDERS = ("xyz", "xzy", "yxz", "yzx", "zxy", "zyx")
+_AXIS = {"x": 0, "y": 1, "z": 2}
+
+
+def identity(shape: tuple[int, ...] = ()) -> np.ndarray:
+    q = np.zeros(shape + (4,))
+    q[..., 0] = 1.0
+    return q
+
+
+def mul(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    aw, ax, ay, az = a[..., 0], a[..., 1], a[..., 2], a[..., 3]
+    bw, bx, by, bz = b[..., 0], b[..., 1], b[..., 2], b[..., 3]
+    return np.stack(
+        [
+            aw * bw - ax * bx - ay * by - az * bz,
+            aw * bx + ax * bw + ay * bz - az * by,
+            aw * by - ax * bz + ay * bw + az * bx,
+            aw * bz + ax * by - ay * bx + az * bw,
+        ],
+        axis=-1,
+    )
+
+
+def inv(q: np.ndarray) -> np.ndarray:
+    """Inverse of a unit quaternion (its conjugate)."""
+    return q * np.array([1.0, -1.0, -1.0, -1.0])
+
+
+def normalize(q: np.ndarray, eps: float = 1e-12) -> np.ndarray:
+    return q / np.maximum(np.linalg.norm(q, axis=-1, keepdims=True), eps)
+
+
+def positive_w(q: np.ndarray) -> np.ndarray:
+    """The same rotation with a non-negative scalar part (a per-frame, stateless sign choice)."""
+    return np.where(q[..., :1] < 0.0, -q, q)
+
+
+def mul_vec(q: np.ndarray, v: np.ndarray) -> np.ndarray:
+    """Rotate vectors ``v [..., 3]`` by unit quaternions ``q [..., 4]``."""
+    w = q[..., :1]
+    u = q[..., 1:]
+    t = 2.0 * np.cross(u, v)
+    return v + w * t + np.cross(u, t)
+
+
+def from_angle_axis(angle: np.ndarray, axis: np.ndarray) -> np.ndarray:
+    """Rotation by ``angle [...]`` about unit ``axis [..., 3]``."""
+    half = np.asarray(angle)[..., None] / 2.0
+    return np.concatenate([np.cos(half), np.sin(half) * axis], axis=-1)
+
+
+def to_angle_axis(q: np.ndarray, eps: float = 1e-12) -> tuple[np.ndarray, np.ndarray]:
+    q = positive_w(q)
+    s = np.linalg.norm(q[..., 1:], axis=-1)
+    angle = 2.0 * np.arctan2(s, q[..., 0])
+    axis = q[..., 1:] / np.maximum(s, eps)[..., None]
+    return angle, axis
+
+
+def angle_between(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Rotation angle (radians, in [0, pi]) of ``inv(a) * b``."""
+    d = np.abs(np.sum(a * b, axis=-1))
+    return 2.0 * np.arccos(np.clip(d, 0.0, 1.0))
+
+
+def from_euler(e: np.ndarray, order: str) -> np.ndarray:
+    """Intrinsic Euler angles ``e [..., 3]`` (radians) about the axes of ``order``."""
+    q = None
+    for i, name in enumerate(order):
+        axis = np.zeros(3)
+        axis[_AXIS[name]] = 1.0
+        qi = from_angle_axis(e[..., i], axis)
+        q = qi if q is None else mul(q, qi)
+    return q
+
+
+def to_xform(q: np.ndarray) -> np.ndarray:
+    """Rotation matrices ``[..., 3, 3]`` of unit quaternions."""
+    w, x, y, z = q[..., 0], q[..., 1], q[..., 2], q[..., 3]
+    return np.stack(
+        [
+            np.stack([1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)], -1),
+            np.stack([2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)], -1),
+            np.stack([2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)], -1),
+        ],
+        axis=-2,
+    )
+
+
+def from_xform(m: np.ndarray) -> np.ndarray:
+    """Unit quaternions of rotation matrices ``[..., 3, 3]`` (branch on the largest term,
+    so the result is accurate for every rotation)."""
+    m00, m11, m22 = m[..., 0, 0], m[..., 1, 1], m[..., 2, 2]
+    cand = np.stack(
+        [
+            np.stack([1 + m00 + m11 + m22, m[..., 2, 1] - m[..., 1, 2], m[..., 0, 2] - m[..., 2, 0], m[..., 1, 0] - m[..., 0, 1]], -1),
+            np.stack([m[..., 2, 1] - m[..., 1, 2], 1 + m00 - m11 - m22, m[..., 0, 1] + m[..., 1, 0], m[..., 0, 2] + m[..., 2, 0]], -1),
+            np.stack([m[..., 0, 2] - m[..., 2, 0], m[..., 0, 1] + m[..., 1, 0], 1 - m00 + m11 - m22, m[..., 1, 2] + m[..., 2, 1]], -1),
+            np.stack([m[..., 1, 0] - m[..., 0, 1], m[..., 0, 2] + m[..., 2, 0], m[..., 1, 2] + m[..., 2, 1], 1 - m00 - m11 + m22], -1),
+        ],
+        axis=-2,
+    )
+    best = np.argmax(np.stack([1 + m00 + m11 + m22, 1 + m00 - m11 - m22, 1 - m00 + m11 - m22, 1 - m00 - m11 + m22], -1), axis=-1)
+    q = np.take_along_axis(cand, best[..., None, None], axis=-2)[..., 0, :]
+    return positive_w(normalize(q))
+
+
+def to_euler(q: np.ndarray, order: str) -> np.ndarray:
+    """Intrinsic Euler angles ``[..., 3]`` (radians) of unit quaternions for any of the six
+    Tait-Bryan orders; the middle angle lies in [-pi/2, pi/2], the others in (-pi, pi].
+    At gimbal lock the last angle is set to zero."""
+    i, j, k = (_AXIS[a] for a in order)
+    # +1 when (i, j, k) is a cyclic permutation of (x, y, z)
+    s = 1.0 if (j - i) % 3 == 1 else -1.0
+    m = to_xform(q)
+    sin_b = np.clip(s * m[..., i, k], -1.0, 1.0)
+    b = np.arcsin(sin_b)
+    locked = np.abs(sin_b) > 1.0 - 1e-10
+    a = np.where(locked, np.arctan2(s * m[..., k, j], m[..., j, j]), np.arctan2(-s * m[..., j, k], m[..., k, k]))
+    c = np.where(locked, 0.0, np.arctan2(-s * m[..., i, j], m[..., i, i]))
+    return np.stack([a, b, c], axis=-1)
+
+
+def alternate_euler(e: np.ndarray) -> np.ndarray:
+    """The other Tait-Bryan triple giving the same rotation: (a + pi, pi - b, c + pi)."""
+    return np.stack([e[..., 0] + np.pi, np.pi - e[..., 1], e[..., 2] + np.pi], axis=-1)
+
+
+def nearest_euler(e: np.ndarray, reference: np.ndarray) -> np.ndarray:
+    """Of the Euler triples equivalent to ``e`` (the two Tait-Bryan solutions and their 2*pi
+    shifts), the one nearest ``reference``. Reproduces a source file's angle branches."""
+    best, best_d = None, None
+    for c in (e, alternate_euler(e)):
+        c = c + 2 * np.pi * np.round((reference - c) / (2 * np.pi))
+        d = np.sum((c - reference) ** 2, axis=-1, keepdims=True)
+        best, best_d = (c, d) if best is None else (np.where(d < best_d, c, best), np.minimum(d, best_d))
+    return best
+
+
+def unroll_euler(e: np.ndarray) -> np.ndarray:
+    """Make Euler triples ``[T, ..., 3]`` continuous over time (no +-180 degree flips in the
+    curves): frame 0 keeps its principal triple, each later frame takes the equivalent triple
+    nearest the frame before."""
+    out = np.array(e, dtype=np.float64, copy=True)
+    for t in range(1, len(out)):
+        out[t] = nearest_euler(out[t], out[t - 1])
+    return out
+
+
+def slerp(a: np.ndarray, b: np.ndarray, t: np.ndarray) -> np.ndarray:
+    """Spherical interpolation from ``a`` (t=0) to ``b`` (t=1) along the shorter arc."""
+    t = np.asarray(t, dtype=np.float64)[..., None]
+    d = np.sum(a * b, axis=-1, keepdims=True)
+    b = np.where(d < 0.0, -b, b)
+    d = np.abs(d)
+    theta = np.arccos(np.clip(d, -1.0, 1.0))
+    sin_theta = np.sin(theta)
+    near = sin_theta < 1e-6
+    wa = np.where(near, 1.0 - t, np.sin((1.0 - t) * theta) / np.where(near, 1.0, sin_theta))
+    wb = np.where(near, t, np.sin(t * theta) / np.where(near, 1.0, sin_theta))
+    return normalize(wa * a + wb * b)
+
+
+def between(v0: np.ndarray, v1: np.ndarray) -> np.ndarray:
+    """Shortest rotation taking direction ``v0`` to direction ``v1`` (both ``[..., 3]``)."""
+    v0 = v0 / np.linalg.norm(v0, axis=-1, keepdims=True)
+    v1 = v1 / np.linalg.norm(v1, axis=-1, keepdims=True)
+    c = np.cross(v0, v1)
+    w = 1.0 + np.sum(v0 * v1, axis=-1, keepdims=True)
+    # Opposite vectors: rotate by pi about any axis orthogonal to v0.
+    ortho = np.cross(v0, np.where(np.abs(v0[..., :1]) < 0.9, [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]))
+    opposite = w < 1e-9
+    q = np.where(opposite, np.concatenate([np.zeros_like(w), ortho], -1), np.concatenate([w, c], -1))
+    return normalize(q)

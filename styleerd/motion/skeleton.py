@@ -1,0 +1,133 @@
+"""Skeleton: joint names, parents, rest offsets, and the BVH channel layout that produced it."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+ROTATION_CHANNELS = ("Xrotation", "Yrotation", "Zrotation")
+POSITION_CHANNELS = ("Xposition", "Yposition", "Zposition")
+CHANNELS = POSITION_CHANNELS + ROTATION_CHANNELS
+
+
+@dataclass(frozen=True, eq=False)
+class Skeleton:
+    """Joints in depth-first order (parents before children; ``parents[0] == -1``).
+
+    ``channels[j]`` is joint j's BVH channel list, kept so the writer reproduces the source
+    layout; ``end_sites`` lists (joint index, offset) for every BVH ``End Site``.
+    """
+
+    names: tuple[str, ...]
+    parents: np.ndarray
+    offsets: np.ndarray
+    channels: tuple[tuple[str, ...], ...]
+    end_sites: tuple[tuple[int, np.ndarray], ...] = field(default=())
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "parents", np.asarray(self.parents, dtype=np.int64))
+        object.__setattr__(self, "offsets", np.asarray(self.offsets, dtype=np.float64).reshape(-1, 3))
+        if not (len(self.names) == len(self.parents) == len(self.offsets) == len(self.channels)):
+            raise ValueError("skeleton: names, parents, offsets and channels differ in length")
+        if len(self.parents) and (self.parents[0] != -1 or np.any(self.parents[1:] >= np.arange(1, len(self.parents)))):
+            raise ValueError("skeleton: joints must be in depth-first order with the root first")
+
+    @property
+    def n_joints(self) -> int:
+        return len(self.names)
+
+    def index(self, name: str) -> int:
+        try:
+            return self.names.index(name)
+        except ValueError:
+            raise KeyError(f"no joint named {name!r}") from None
+
+    def children(self, j: int) -> list[int]:
+        return [int(c) for c in np.nonzero(self.parents == j)[0]]
+
+    def rotation_order(self, j: int) -> str:
+        """Euler order of joint j's rotation channels, e.g. "zxy"; axes without a channel are
+        appended in x, y, z order (their angle is always zero)."""
+        listed = [c[0].lower() for c in self.channels[j] if c in ROTATION_CHANNELS]
+        return "".join(listed + [a for a in "xyz" if a not in listed])
+
+    def has_positions(self, j: int) -> bool:
+        return any(c in POSITION_CHANNELS for c in self.channels[j])
+
+    def __eq__(self, other: object) -> bool:
+        return (
+            isinstance(other, Skeleton)
+            and self.names == other.names
+            and np.array_equal(self.parents, other.parents)
+            and np.allclose(self.offsets, other.offsets)
+            and self.channels == other.channels
+        )
+
+    def to_dict(self) -> dict:
+        return {
+            "names": list(self.names),
+            "parents": self.parents.tolist(),
+            "offsets": self.offsets.tolist(),
+            "channels": [list(c) for c in self.channels],
+            "end_sites": [[j, np.asarray(o).tolist()] for j, o in self.end_sites],
+        }
+
+    @classmethod
+    def from_dict(cls, d: dict) -> "Skeleton":
+        return cls(
+            names=tuple(d["names"]),
+            parents=np.array(d["parents"]),
+            offsets=np.array(d["offsets"]),
+            channels=tuple(tuple(c) for c in d["channels"]),
+            end_sites=tuple((int(j), np.array(o, dtype=np.float64)) for j, o in d.get("end_sites", [])),
+        )
+
+
+# Joint names by body part, as Bandai-Namco, CMU/Xia and Mixamo/Unity name them.
+_ROLE_NAMES = {
+    "left_hip": ("upperleg_l", "leftupleg", "leftupperleg", "lefthip", "l_hip"),
+    "right_hip": ("upperleg_r", "rightupleg", "rightupperleg", "righthip", "r_hip"),
+    "left_shoulder": ("upperarm_l", "leftarm", "leftupperarm", "l_shoulder"),
+    "right_shoulder": ("upperarm_r", "rightarm", "rightupperarm", "r_shoulder"),
+    "left_foot": ("foot_l", "leftfoot", "l_foot", "leftankle"),
+    "right_foot": ("foot_r", "rightfoot", "r_foot", "rightankle"),
+    "left_toe": ("toes_l", "lefttoebase", "lefttoe", "lefttoes", "l_toe"),
+    "right_toe": ("toes_r", "righttoebase", "righttoe", "righttoes", "r_toe"),
+}
+
+
+def _bare(name: str) -> str:
+    """'mixamorig:LeftUpLeg' -> 'leftupleg'."""
+    return name.rsplit(":", 1)[-1].lower()
+
+
+def find_role(skeleton: Skeleton, role: str) -> int:
+    """Index of the joint playing ``role`` (a key of the role table), by its name."""
+    bare = [_bare(n) for n in skeleton.names]
+    for candidate in _ROLE_NAMES[role]:
+        if candidate in bare:
+            return bare.index(candidate)
+    raise KeyError(f"no joint found for {role.replace('_', ' ')} (tried {', '.join(_ROLE_NAMES[role])})")
+
+
+@dataclass(frozen=True)
+class BodyRoles:
+    left: tuple[int, ...]  # hip and shoulder: the across vector that defines facing
+    right: tuple[int, ...]
+    feet: tuple[int, ...]  # left foot, left toe, right foot, right toe
+    leg_length: float  # hip to foot, rest pose
+
+    @classmethod
+    def of(cls, skeleton: Skeleton) -> "BodyRoles":
+        r = {role: find_role(skeleton, role) for role in _ROLE_NAMES}
+        j, length = r["left_foot"], 0.0
+        while j != r["left_hip"] and j > 0:
+            length += float(np.linalg.norm(skeleton.offsets[j]))
+            j = int(skeleton.parents[j])
+        return cls(
+            left=(r["left_hip"], r["left_shoulder"]),
+            right=(r["right_hip"], r["right_shoulder"]),
+            feet=(r["left_foot"], r["left_toe"], r["right_foot"], r["right_toe"]),
+            leg_length=length,
+        )
