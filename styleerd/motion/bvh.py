@@ -42,7 +42,7 @@ class _Tokens:
         self.path = path
         self.items = [(tok, n + 1) for n, line in enumerate(lines) for tok in line.split()]
         self.i = 0
-        self.last_line = len(lines)
+        self.last_line = len(lines) + 1  # the MOTION line, where the hierarchy ends
 
     def peek(self) -> str | None:
         return self.items[self.i][0] if self.i < len(self.items) else None
@@ -126,6 +126,8 @@ def _parse_hierarchy(tokens: _Tokens) -> Skeleton:
         channels.append(chans)
         while True:
             line = tokens.line()
+            if tokens.peek() is None:
+                raise BVHError(path, line, f"missing '}}' closing joint {name!r} before MOTION")
             tok = tokens.next(f"'}}' closing joint {name!r}")
             if tok == "}":
                 return
@@ -155,17 +157,16 @@ def _frame_values(lines: list[str], first_line: int, n_channels: int, path: str)
     """Parse frame lines into ``[T, n_channels]``; on any problem, name the exact line."""
     if not lines:
         return np.zeros((0, n_channels))
-    with warnings.catch_warnings():  # a non-numeric token ends parsing early: detected below
-        warnings.simplefilter("ignore", DeprecationWarning)
-        flat = np.fromstring(" ".join(lines), sep=" ")
-    if flat.size == len(lines) * n_channels:
-        rows = [len(line.split()) for line in lines] if flat.size else [0]
-        if all(r == n_channels for r in rows):
-            values = flat.reshape(len(lines), n_channels)
-            bad = ~np.isfinite(values)
-            if bad.any():
-                t, c = np.argwhere(bad)[0]
-                raise BVHError(path, first_line + t, f"frame {t}: value {lines[t].split()[c]!r} of channel {c} is not finite")
+    try:
+        with warnings.catch_warnings():  # older numpy warns and stops early on a bad token
+            warnings.simplefilter("error", DeprecationWarning)
+            flat = np.fromstring(" ".join(lines), sep=" ")
+    except (ValueError, DeprecationWarning):  # a bad token: the loop below names it
+        flat = np.zeros(0)
+    if flat.size == len(lines) * n_channels and all(len(line.split()) == n_channels for line in lines):
+        values = flat.reshape(len(lines), n_channels)
+        bad = ~np.isfinite(values)
+        if not bad.any():
             return values
     for t, line in enumerate(lines):
         toks = line.split()
