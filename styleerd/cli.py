@@ -44,6 +44,24 @@ def _resample(args: argparse.Namespace) -> None:
     print(f"wrote {args.output}: {m.n_frames} frames at {args.fps:g} fps")
 
 
+def _train(args: argparse.Namespace) -> None:
+    from styleerd.train.config import TrainConfig
+    from styleerd.train.trainer import train
+
+    config = TrainConfig.from_yaml(args.config)
+    out = Path(args.out or f"runs/{config.name}")
+    best = train(config, out, args.data, export=Path(args.export) if args.export else None)
+    print(f"best epoch: {best}")
+
+
+def _train_recognisers(args: argparse.Namespace) -> None:
+    from styleerd.train.config import TrainConfig
+    from styleerd.train.trainer import dumps, train_recognisers
+
+    config = TrainConfig.from_yaml(args.config) if args.config else TrainConfig()
+    print(dumps(train_recognisers(config, args.data, Path(args.out) if args.out else None)))
+
+
 def _demo(args: argparse.Namespace) -> None:
     from styleerd.data.datasets import data_root
 
@@ -77,6 +95,19 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--fps", type=float, required=True)
     p.add_argument("-o", "--output", required=True)
     p.set_defaults(func=_resample)
+
+    p = sub.add_parser("train", help="train a Style-ERD model (resumable: rerun the same command)")
+    p.add_argument("--config", required=True, help="YAML file of TrainConfig fields (see configs/)")
+    p.add_argument("--out", help="run folder (default runs/<name>)")
+    p.add_argument("--data", help="data folder")
+    p.add_argument("--export", help="also write the best generator to this model path (no suffix)")
+    p.set_defaults(func=_train)
+
+    p = sub.add_parser("train-recognisers", help="train the evaluation style/content recognisers")
+    p.add_argument("--config", help="YAML TrainConfig (dataset, window, classifier_* fields)")
+    p.add_argument("--out", help="model path without suffix (default models/recognisers-bandai2)")
+    p.add_argument("--data", help="data folder")
+    p.set_defaults(func=_train_recognisers)
 
     p = sub.add_parser("demo", help="run the main job on bundled input")
     p.set_defaults(func=_demo)

@@ -119,20 +119,28 @@ def average_rotation(q: np.ndarray) -> np.ndarray:
 class FeatureStats:
     """Normalisation: quaternions are first put in the hemisphere of a per-joint reference
     rotation (the joint's average; a per-frame, stateless sign choice that keeps a joint's
-    features continuous unless it turns about 180 degrees away from its usual pose), then
-    every dimension is standardised."""
+    features continuous unless it turns about 180 degrees away from its usual pose); then
+    each dimension has its mean removed and is divided by the spread of its block (rotations,
+    positions, velocities: one pooled std each; contacts are left as 0/1). A pooled scale
+    keeps errors in a common unit: per-dimension scaling would magnify near-rigid joints
+    (a spine's height varies by a millimetre) into the loudest dimensions."""
 
     mean: np.ndarray
     std: np.ndarray
     reference: np.ndarray  # [J, 4]
 
     @classmethod
-    def fit(cls, features: np.ndarray, n_joints: int, min_std: float = 1e-3) -> "FeatureStats":
+    def fit(cls, features: np.ndarray, n_joints: int) -> "FeatureStats":
         layout = FeatureLayout(n_joints)
         q = features[:, layout.rotations].reshape(len(features), n_joints, 4).astype(np.float64)
         reference = np.stack([average_rotation(q[:, j]) for j in range(n_joints)])
-        aligned = align_hemisphere(features, reference)
-        return cls(aligned.mean(0), np.maximum(aligned.std(0), min_std), reference)
+        aligned = align_hemisphere(features, reference).astype(np.float64)
+        mean = aligned.mean(0)
+        std = np.ones(layout.dim)
+        for block in (layout.rotations, layout.positions, layout.velocities):
+            std[block] = np.sqrt(aligned[:, block].var(0).mean())
+        mean[layout.contacts] = 0.0
+        return cls(mean, std, reference)
 
     def normalize(self, features: np.ndarray) -> np.ndarray:
         return (align_hemisphere(features, self.reference) - self.mean) / self.std

@@ -1,0 +1,1 @@
+"""Torch modules: the Style-ERD generator, its discriminator, classifiers, checkpoints."""

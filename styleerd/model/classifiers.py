@@ -1,0 +1,41 @@
+"""Window classifiers on normalised motion channels [rotations | positions | velocities].
+
+One architecture, two uses kept apart:
+- the content classifier of the perceptual loss (InstanceNorm after each conv, so per-window
+  statistics, where much of the style lives, are removed and it keys on content);
+- the evaluation recognisers (style and content), trained on real training windows only,
+  which judge transferred motion (SRA / CRA).
+"""
+
+from __future__ import annotations
+
+import torch
+from torch import nn
+
+from styleerd.model.discriminator import conv
+
+
+class WindowClassifier(nn.Module):
+    def __init__(self, in_dim: int, n_classes: int, channels: tuple[int, ...] = (128, 64, 32), kernel: int = 5, instance_norm: bool = False):
+        super().__init__()
+        self.in_dim, self.channels, self.kernel, self.instance_norm = in_dim, channels, kernel, instance_norm
+        self.features = nn.ModuleList()
+        ch = in_dim
+        for out in channels:
+            norm = nn.InstanceNorm1d(out) if instance_norm else nn.Identity()
+            self.features.append(nn.Sequential(conv(ch, out, kernel), norm, nn.LeakyReLU(0.2)))
+            ch = out
+        self.head = nn.Linear(2 * ch, n_classes)
+
+    def feature_maps(self, x: torch.Tensor) -> list[torch.Tensor]:
+        """Every conv layer's output ``[B, C_i, T]`` for ``x [B, T, C]``."""
+        maps, h = [], x.transpose(1, 2)
+        for layer in self.features:
+            h = layer(h)
+            maps.append(h)
+        return maps
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        """Class logits ``[B, n_classes]`` (mean- and max-pooled over time)."""
+        h = self.feature_maps(x)[-1]
+        return self.head(torch.cat([h.mean(-1), h.amax(-1)], -1))

@@ -1,0 +1,180 @@
+"""Style-ERD: Encoder -> recurrent branches (neutral + one residual branch per style) -> Decoder.
+
+Per frame: the encoder maps the input features and the input's (style, content) labels to a
+latent z_t. The neutral branch r_0 (an LSTM stack whose initial state is learned per content)
+and the branch of each target style r_s (an LSTM stack with its own learned initial state)
+read z_t; z'_t = r_0(z_t) + sum_s w_s r_s(z_t), with w the target weights (one-hot for one
+style; a mixture or intensity otherwise). The decoder, conditioned on w, outputs joint
+rotations (unit quaternions per joint) and joint velocities; joint positions follow by
+differentiable forward kinematics. Only branches with a non-zero weight run.
+
+All tensors are batch-first. ``forward`` takes T frames; ``step`` takes one frame and an
+explicit recurrent state, and the two agree exactly.
+"""
+
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass, field
+
+import torch
+from torch import nn
+
+from styleerd.data.features import FeatureLayout, FeatureStats
+from styleerd.model import torch_quat
+from styleerd.motion.skeleton import Skeleton
+
+
+@dataclass
+class GeneratorConfig:
+    n_joints: int
+    styles: tuple[str, ...]
+    contents: tuple[str, ...]
+    neutral_style: str = "normal"
+    encoder: tuple[int, ...] = (64, 32)
+    hidden: int = 32
+    neutral_layers: int = 6
+    style_layers: int = 4
+    decoder: tuple[int, ...] = (58, 86, 128)
+    learned_init: bool = True  # False: the "zero initial states" ablation
+
+    @property
+    def feature_dim(self) -> int:
+        return FeatureLayout(self.n_joints).dim
+
+    @property
+    def neutral_index(self) -> int:
+        return self.styles.index(self.neutral_style)
+
+    def to_dict(self) -> dict:
+        return asdict(self)
+
+    @classmethod
+    def from_dict(cls, d: dict) -> "GeneratorConfig":
+        d = dict(d)
+        for key in ("styles", "contents", "encoder", "decoder"):
+            d[key] = tuple(d[key])
+        return cls(**d)
+
+
+def mlp(sizes: list[int], last_activation: bool = False) -> nn.Sequential:
+    layers: list[nn.Module] = []
+    for i in range(len(sizes) - 1):
+        layers.append(nn.Linear(sizes[i], sizes[i + 1]))
+        if i < len(sizes) - 2 or last_activation:
+            layers.append(nn.ReLU())
+    return nn.Sequential(*layers)
+
+
+State = tuple[torch.Tensor, torch.Tensor]  # (h, c), each [layers, B, hidden]
+
+
+@dataclass
+class RecurrentState:
+    """Recurrent state of a batch of streams: the neutral branch's, and each style branch's
+    that has run (a branch that has not yet run starts from its learned initial state)."""
+
+    neutral: State
+    branches: dict[int, State] = field(default_factory=dict)
+
+
+class StyleERD(nn.Module):
+    def __init__(self, config: GeneratorConfig, skeleton: Skeleton, stats: FeatureStats):
+        super().__init__()
+        self.config = c = config
+        J, D, nS, nC, H = c.n_joints, c.feature_dim, len(c.styles), len(c.contents), c.hidden
+        if c.encoder[-1] != H:
+            raise ValueError(f"encoder must end in the hidden size {H}, got {c.encoder}")
+        self.layout = FeatureLayout(J)
+        self.encoder = mlp([D + nS + nC, *c.encoder])
+        self.neutral = nn.LSTM(H, H, c.neutral_layers, batch_first=True)
+        self.branch_styles = [s for s in range(nS) if s != c.neutral_index]
+        self.branches = nn.ModuleList(nn.LSTM(H, H, c.style_layers, batch_first=True) for _ in self.branch_styles)
+        init = nn.Parameter if c.learned_init else (lambda t: nn.Parameter(t, requires_grad=False))
+        self.neutral_h0 = init(torch.zeros(nC, c.neutral_layers, H))
+        self.neutral_c0 = init(torch.zeros(nC, c.neutral_layers, H))
+        self.branch_h0 = init(torch.zeros(len(self.branch_styles), c.style_layers, H))
+        self.branch_c0 = init(torch.zeros(len(self.branch_styles), c.style_layers, H))
+        self.decoder = mlp([H + nS, *c.decoder, 7 * J])
+        self.parents = [int(p) for p in skeleton.parents]
+        self.register_buffer("offsets", torch.tensor(skeleton.offsets, dtype=torch.float32))
+        self.register_buffer("mean", torch.tensor(stats.mean, dtype=torch.float32))
+        self.register_buffer("std", torch.tensor(stats.std, dtype=torch.float32))
+        self.register_buffer("reference", torch.tensor(stats.reference, dtype=torch.float32))
+
+    # ---------------------------------------------------------------- recurrent state
+    def initial_state(self, content: torch.Tensor) -> RecurrentState:
+        """Neutral state selected by the content label (one-hot or probabilities ``[B, nC]``)."""
+        h = torch.einsum("bc,clh->lbh", content, self.neutral_h0).contiguous()
+        c = torch.einsum("bc,clh->lbh", content, self.neutral_c0).contiguous()
+        return RecurrentState((h, c))
+
+    def _branch_initial(self, k: int, batch: int) -> State:
+        return (
+            self.branch_h0[k].unsqueeze(1).expand(-1, batch, -1).contiguous(),
+            self.branch_c0[k].unsqueeze(1).expand(-1, batch, -1).contiguous(),
+        )
+
+    # ---------------------------------------------------------------- network
+    def forward(
+        self,
+        x: torch.Tensor,
+        style: torch.Tensor,
+        content: torch.Tensor,
+        target: torch.Tensor,
+        state: RecurrentState | None = None,
+    ) -> tuple[torch.Tensor, torch.Tensor, RecurrentState]:
+        """``x [B, T, D]`` normalised features; ``style [B, nS]``, ``content [B, nC]`` the
+        input's labels; ``target [B, nS]`` the target weights. Returns unit quaternions
+        ``[B, T, J, 4]``, normalised velocities ``[B, T, 3J]`` and the new state."""
+        B, T, _ = x.shape
+        if state is None:
+            state = self.initial_state(content)
+        labels = torch.cat([style, content], -1).unsqueeze(1).expand(B, T, -1)
+        z = self.encoder(torch.cat([x, labels], -1))
+        out, neutral_state = self.neutral(z, state.neutral)
+        branches = dict(state.branches)
+        for k, s in enumerate(self.branch_styles):
+            w = target[:, s]
+            rows = torch.nonzero(w != 0).squeeze(1)
+            if len(rows) == 0:
+                continue
+            h, c = branches.get(k) or self._branch_initial(k, B)
+            if len(rows) == B:
+                y, (h, c) = self.branches[k](z, (h, c))
+                out = out + w[:, None, None] * y
+            else:
+                y, (hr, cr) = self.branches[k](z[rows], (h[:, rows], c[:, rows]))
+                out = out.index_add(0, rows, w[rows, None, None] * y)
+                h, c = h.index_copy(1, rows, hr), c.index_copy(1, rows, cr)
+            branches[k] = (h, c)
+        y = self.decoder(torch.cat([out, target.unsqueeze(1).expand(B, T, -1)], -1))
+        J = self.config.n_joints
+        rotations = torch_quat.normalize(y[..., : 4 * J].reshape(B, T, J, 4))
+        return rotations, y[..., 4 * J :], RecurrentState(neutral_state, branches)
+
+    def step(
+        self, x: torch.Tensor, style: torch.Tensor, content: torch.Tensor, target: torch.Tensor, state: RecurrentState | None
+    ) -> tuple[torch.Tensor, torch.Tensor, RecurrentState]:
+        """One frame ``x [B, D]`` -> rotations ``[B, J, 4]``, velocities ``[B, 3J]``, state."""
+        rot, vel, state = self.forward(x.unsqueeze(1), style, content, target, state)
+        return rot[:, 0], vel[:, 0], state
+
+    # ---------------------------------------------------------------- outputs as features
+    def motion_channels(self, rotations: torch.Tensor, velocities: torch.Tensor) -> torch.Tensor:
+        """Normalised [rotations | positions | velocities] (the first 10J feature dims) of a
+        generated motion; positions by forward kinematics of the rotations."""
+        J = self.config.n_joints
+        lead = rotations.shape[:-2]
+        sign = torch.where((rotations * self.reference).sum(-1, keepdim=True) < 0, -1.0, 1.0)
+        rot = (rotations * sign).reshape(*lead, 4 * J)
+        pos = torch_quat.root_relative_positions(rotations, self.offsets, self.parents).reshape(*lead, 3 * J)
+        L = self.layout
+        rot_n = (rot - self.mean[L.rotations]) / self.std[L.rotations]
+        pos_n = (pos - self.mean[L.positions]) / self.std[L.positions]
+        return torch.cat([rot_n, pos_n, velocities], -1)
+
+    def raw_rotations(self, x: torch.Tensor) -> torch.Tensor:
+        """Unit quaternions ``[..., J, 4]`` of normalised input features."""
+        J = self.config.n_joints
+        q = x[..., self.layout.rotations] * self.std[self.layout.rotations] + self.mean[self.layout.rotations]
+        return torch_quat.normalize(q.reshape(*x.shape[:-1], J, 4))

@@ -1,0 +1,1 @@
+"""Training: losses, the recognisers, and the resumable adversarial trainer."""

@@ -1,0 +1,69 @@
+"""Training configuration: one plain dataclass, read from YAML (``configs/*.yaml``)."""
+
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass, fields
+from pathlib import Path
+
+import yaml
+
+from styleerd.errors import StyleERDError
+
+
+@dataclass
+class TrainConfig:
+    name: str = "styleerd"
+    dataset: str = "bandai-namco-2"
+    neutral_style: str = "normal"
+    window: int = 24
+    stride: int = 20  # between training windows (24 - 4 frames of overlap, as in the paper)
+    max_train_clips: int = 0  # 0 = all; small values make tiny test runs
+    seed: int = 0
+    threads: int = 2
+    # generator
+    encoder: tuple[int, ...] = (64, 32)
+    hidden: int = 32
+    neutral_layers: int = 6
+    style_layers: int = 4
+    decoder: tuple[int, ...] = (58, 86, 128)
+    learned_init: bool = True
+    # supervision (ablation switches: rec only = use_adv False + use_per False)
+    use_adv: bool = True
+    use_per: bool = True
+    attention: bool = True
+    w_rec: float = 1.0
+    w_adv: float = 1.0
+    w_per: float = 0.1
+    w_gp: float = 128.0
+    r1_every: int = 4  # lazy R1: every k critic steps, weighted by k
+    # optimisation
+    batch_size: int = 32
+    lr_g: float = 1e-4
+    lr_d: float = 5e-5
+    epochs: int = 60
+    max_minutes: float = 0.0  # stop after the epoch that passes this much training time; 0 = none
+    val_every: int = 1
+    val_windows: int = 2000  # validation windows used per check (fixed subset)
+    # classifiers
+    classifier_epochs: int = 8
+    classifier_stride: int = 8
+    classifier_lr: float = 1e-3
+
+    @classmethod
+    def from_yaml(cls, path: str | Path, **overrides) -> "TrainConfig":
+        try:
+            data = yaml.safe_load(Path(path).read_text()) or {}
+        except (OSError, yaml.YAMLError) as e:
+            raise StyleERDError(f"cannot read config {path}: {e}") from None
+        data.update(overrides)
+        known = {f.name: f for f in fields(cls)}
+        unknown = sorted(set(data) - set(known))
+        if unknown:
+            raise StyleERDError(f"{path}: unknown config keys {unknown}; known: {sorted(known)}")
+        for key, value in data.items():
+            if isinstance(value, list):
+                data[key] = tuple(value)
+        return cls(**data)
+
+    def to_dict(self) -> dict:
+        return {k: list(v) if isinstance(v, tuple) else v for k, v in asdict(self).items()}

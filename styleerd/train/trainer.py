@@ -1,0 +1,334 @@
+"""The adversarial training loop: plain PyTorch, resumable, deterministic, optionally
+data-parallel over processes (``torchrun``, gloo on CPU).
+
+Every step trains on a batch that is half neutral windows (each sent to a random other
+style) and half styled windows (sent to neutral), plus the reconstruction of every window
+into its own style; the critic sees the batch's real windows and the transfers.
+
+Resuming: each epoch ends with an atomic checkpoint; every epoch's randomness is derived from
+(seed, epoch), so a run killed at any point and restarted with the same command continues
+from the last finished epoch and ends with the same weights as an uninterrupted run.
+"""
+
+from __future__ import annotations
+
+import csv
+import json
+import os
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import torch
+import torch.distributed as dist
+from tqdm import tqdm
+
+from styleerd.data.cache import CODE_VERSION, FeatureSet, prepare
+from styleerd.data.datasets import data_root, file_digest
+from styleerd.errors import StyleERDError
+from styleerd.model import checkpoint as ckpt
+from styleerd.model.classifiers import WindowClassifier
+from styleerd.model.discriminator import Discriminator
+from styleerd.model.generator import GeneratorConfig, StyleERD
+from styleerd.train import losses
+from styleerd.train.batches import TrainingData, WindowSet, training_data, windows
+from styleerd.train.classifiers import train_classifier
+from styleerd.train.config import TrainConfig
+from styleerd.train.validation import validate
+
+
+@dataclass
+class Setup:
+    fs: FeatureSet
+    data: TrainingData
+    train: WindowSet
+    val: WindowSet
+
+
+def setup(config: TrainConfig, data_dir: str | None, progress: bool = True) -> Setup:
+    fs = prepare(config.dataset, data_dir, progress=progress)
+    data = training_data(fs, config.window)
+    if config.neutral_style not in data.styles:
+        raise StyleERDError(f"neutral style {config.neutral_style!r} not in {data.styles}")
+    train = windows(fs, data, "train", config.stride, config.max_train_clips)
+    val = windows(fs, data, "val", config.window, config.max_train_clips)
+    keep = np.linspace(0, len(val.starts) - 1, min(config.val_windows, len(val.starts))).astype(int)
+    val = WindowSet(val.starts[keep], val.style[keep], val.content[keep], val.clip[keep])
+    return Setup(fs, data, train, val)
+
+
+def make_generator(config: TrainConfig, s: Setup) -> StyleERD:
+    gc = GeneratorConfig(
+        n_joints=s.fs.skeleton.n_joints,
+        styles=tuple(s.data.styles),
+        contents=tuple(s.data.contents),
+        neutral_style=config.neutral_style,
+        encoder=config.encoder,
+        hidden=config.hidden,
+        neutral_layers=config.neutral_layers,
+        style_layers=config.style_layers,
+        decoder=config.decoder,
+        learned_init=config.learned_init,
+    )
+    return StyleERD(gc, s.fs.skeleton, s.data.stats)
+
+
+def _is_main() -> bool:
+    return not dist.is_initialized() or dist.get_rank() == 0
+
+
+def _average_gradients(params: list[torch.nn.Parameter]) -> None:
+    """Data parallelism by hand: every process gets the mean gradient (no DDP wrapper, so the
+    R1 double backward and branches that sometimes do not run need no special care)."""
+    if not dist.is_initialized():
+        return
+    world = dist.get_world_size()
+    for p in params:
+        if p.grad is None:
+            p.grad = torch.zeros_like(p)
+        dist.all_reduce(p.grad)
+        p.grad /= world
+
+
+def _perceptual_classifier(config: TrainConfig, s: Setup, out: Path, progress: bool) -> WindowClassifier:
+    """The InstanceNorm content classifier, trained once per run directory."""
+    stem = out / "content_classifier"
+    if stem.with_suffix(".json").is_file():
+        tensors, meta = ckpt.load_tensors(stem)
+        model = ckpt.build_classifier(meta)
+        model.load_state_dict(ckpt.unprefixed("classifier", tensors))
+        return model.eval()
+    cls_train = windows(s.fs, s.data, "train", config.classifier_stride, config.max_train_clips)
+    model, acc = train_classifier(s.data, cls_train, s.val, "content", True, config.classifier_epochs, config.classifier_lr, config.seed, progress=progress)
+    if _is_main():
+        ckpt.save_tensors(stem, ckpt.prefixed("classifier", model), ckpt.classifier_meta(model, s.data.contents, val_accuracy=acc))
+    return model
+
+
+def _recognisers(s: Setup) -> tuple[WindowClassifier | None, WindowClassifier | None]:
+    """The shipped evaluation recognisers, when they fit this data's labels."""
+    try:
+        style, content, meta = ckpt.load_recognisers()
+    except StyleERDError:
+        return None, None
+    if meta["style"]["labels"] != s.data.styles or meta["content"]["labels"] != s.data.contents:
+        return None, None
+    if meta["style"]["in_dim"] != s.data.frames.shape[1] - 4:
+        return None, None
+    return style, content
+
+
+def _state(G: StyleERD, D: Discriminator, opt_g: torch.optim.Optimizer, opt_d: torch.optim.Optimizer) -> dict[str, torch.Tensor]:
+    tensors = {**ckpt.prefixed("generator", G), **ckpt.prefixed("discriminator", D)}
+    for name, opt in (("opt_g", opt_g), ("opt_d", opt_d)):
+        for i, st in opt.state_dict()["state"].items():
+            for k, v in st.items():
+                tensors[f"{name}.{i}.{k}"] = v if torch.is_tensor(v) else torch.tensor(v)
+    return tensors
+
+
+def _load_state(tensors: dict, G: StyleERD, D: Discriminator, opt_g: torch.optim.Optimizer, opt_d: torch.optim.Optimizer) -> None:
+    G.load_state_dict(ckpt.unprefixed("generator", tensors))
+    D.load_state_dict(ckpt.unprefixed("discriminator", tensors))
+    for name, opt in (("opt_g", opt_g), ("opt_d", opt_d)):
+        sd = opt.state_dict()
+        state: dict[int, dict] = {}
+        for key, v in ckpt.unprefixed(name, tensors).items():
+            i, k = key.split(".", 1)
+            state.setdefault(int(i), {})[k] = v
+        sd["state"] = state
+        opt.load_state_dict(sd)
+
+
+def train(config: TrainConfig, out: Path, data_dir: str | None = None, progress: bool = True, export: Path | None = None) -> dict:
+    """Train (or resume) in ``out``; returns the best validation metrics. With ``export``,
+    the best generator is also written there as a self-contained model."""
+    torch.set_num_threads(config.threads)
+    if int(os.environ.get("WORLD_SIZE", "1")) > 1 and not dist.is_initialized():
+        dist.init_process_group("gloo")
+    rank = dist.get_rank() if dist.is_initialized() else 0
+    world = dist.get_world_size() if dist.is_initialized() else 1
+    progress = progress and rank == 0
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    s = setup(config, data_dir, progress)
+    torch.manual_seed(config.seed)
+    G = make_generator(config, s)
+    J = G.config.n_joints
+    L = G.layout
+    D = Discriminator(6 * J, len(s.data.styles), len(s.data.contents), config.window, attention=config.attention)
+    opt_g = torch.optim.Adam([p for p in G.parameters() if p.requires_grad], lr=config.lr_g, betas=(0.5, 0.999))
+    opt_d = torch.optim.Adam(D.parameters(), lr=config.lr_d, betas=(0.5, 0.999))
+    per_classifier = _perceptual_classifier(config, s, out, progress) if config.use_per else None
+    if per_classifier is not None:
+        per_classifier.requires_grad_(False)
+    style_rec, content_rec = _recognisers(s)
+
+    # ---- resume
+    state_stem = out / "checkpoint"
+    epoch0, elapsed, best = 0, 0.0, None
+    if state_stem.with_suffix(".json").is_file():
+        tensors, meta = ckpt.load_tensors(state_stem)
+        if meta["config"] != config.to_dict():
+            raise StyleERDError(f"{out} holds a run with another config; use a new --out or delete it")
+        _load_state(tensors, G, D, opt_g, opt_d)
+        epoch0, elapsed, best = meta["epoch"], meta["elapsed_s"], meta.get("best")
+        if progress:
+            print(f"resuming {out} after epoch {epoch0} ({elapsed / 60:.1f} min trained)")
+
+    neutral = G.config.neutral_index
+    n_styles = len(s.data.styles)
+    is_neutral = s.train.style == neutral
+    neutral_rows, styled_rows = np.nonzero(is_neutral)[0], np.nonzero(~is_neutral)[0]
+    B = config.batch_size
+    half = B // 2
+    steps = len(s.train.starts) // (B * world)
+    others = np.array([t for t in range(n_styles) if t != neutral])
+    metrics_path = out / "metrics.csv"
+    g_params = [p for p in G.parameters() if p.requires_grad]
+
+    for epoch in range(epoch0, config.epochs):
+        if config.max_minutes and elapsed >= config.max_minutes * 60:
+            break
+        t0 = time.perf_counter()
+        rng = np.random.default_rng([config.seed, epoch, rank])
+        torch.manual_seed(config.seed * 100_003 + epoch * 101 + rank)
+        G.train()
+        D.train()
+        sums: dict[str, float] = {}
+        bar = tqdm(range(steps), desc=f"epoch {epoch + 1}/{config.epochs}", disable=not progress, leave=False)
+        for step in bar:
+            rows = np.concatenate([rng.choice(neutral_rows, half), rng.choice(styled_rows, B - half)])
+            target = np.where(s.train.style[rows] == neutral, rng.choice(others, B), neutral)
+            x = s.data.gather(s.train.starts[rows])
+            style, content = s.data.onehot_style(s.train.style[rows]), s.data.onehot_content(s.train.content[rows])
+            tgt = s.data.onehot_style(target)
+            real = x[..., : 10 * J]
+
+            # ---- generator: reconstruction (own style) and transfer, in one batch of 2B
+            rot, vel, _ = G(torch.cat([x, x]), torch.cat([style, style]), torch.cat([content, content]), torch.cat([style, tgt]))
+            ch = G.motion_channels(rot, vel)
+            rot_in = G.raw_rotations(x)
+            loss_rec = losses.reconstruction_loss(rot[:B], rot_in, ch[:B], real, L)
+            loss_g = config.w_rec * loss_rec
+            fake = ch[B:]
+            logs = {"rec": loss_rec.item()}
+            if config.use_adv:
+                loss_adv = losses.generator_adversarial(D(fake[..., L.positions.start :], tgt, content))
+                loss_g = loss_g + config.w_adv * loss_adv
+                logs["adv"] = loss_adv.item()
+            if per_classifier is not None:
+                loss_per = losses.perceptual(per_classifier, real, fake)
+                loss_g = loss_g + config.w_per * loss_per
+                logs["per"] = loss_per.item()
+            opt_g.zero_grad(set_to_none=True)
+            loss_g.backward()
+            _average_gradients(g_params)
+            opt_g.step()
+
+            # ---- critic
+            if config.use_adv:
+                d_real = D(real[..., L.positions.start :], style, content)
+                d_fake = D(fake.detach()[..., L.positions.start :], tgt, content)
+                loss_d = losses.critic(d_real, d_fake)
+                logs["critic"] = loss_d.item()
+                if config.r1_every and step % config.r1_every == 0:
+                    r1 = losses.r1_penalty(D, real[..., L.positions.start :], style, content)
+                    loss_d = loss_d + config.w_gp * config.r1_every * r1
+                    logs["r1"] = r1.item()
+                opt_d.zero_grad(set_to_none=True)
+                loss_d.backward()
+                _average_gradients(list(D.parameters()))
+                opt_d.step()
+            for k, v in logs.items():
+                sums[k] = sums.get(k, 0.0) + v
+            bar.set_postfix({k: f"{v:.3f}" for k, v in logs.items()})
+        elapsed += time.perf_counter() - t0
+
+        # ---- end of epoch: validate, log, checkpoint (main process only)
+        row = {"epoch": epoch + 1, "steps": (epoch + 1) * steps, "minutes": round(elapsed / 60, 3)}
+        row.update({f"loss_{k}": round(v / max(1, steps), 5) for k, v in sums.items()})
+        if (epoch + 1) % config.val_every == 0 or epoch + 1 == config.epochs:
+            row.update({k: round(v, 4) for k, v in validate(G, s.data, s.val, style_rec, content_rec).items()})
+        if _is_main():
+            score = _score(row)
+            if score is not None and (best is None or score > best["score"]):
+                best = {"score": score, **row}
+                ckpt.save_tensors(out / "best", ckpt.prefixed("generator", G), _model_meta(G, s, config, best))
+            _append_csv(metrics_path, row)
+            ckpt.save_tensors(state_stem, _state(G, D, opt_g, opt_d), {"config": config.to_dict(), "epoch": epoch + 1, "elapsed_s": elapsed, "best": best})
+            if progress:
+                print(" ".join(f"{k}={v}" for k, v in row.items()), flush=True)
+        if dist.is_initialized():
+            dist.barrier()
+
+    if _is_main() and export is not None and (out / "best.json").is_file():
+        tensors, meta = ckpt.load_tensors(out / "best")
+        meta["training"]["wall_minutes"] = round(elapsed / 60, 2)
+        ckpt.save_tensors(export, tensors, meta)
+    return best or {}
+
+
+def _score(row: dict) -> float | None:
+    """Model selection: style and content recognition of transfers when recognisers exist,
+    else (lower) reconstruction error."""
+    if "sra" in row:
+        return row["sra"] + row["cra"]
+    if "rec_deg" in row:
+        return -row["rec_deg"]
+    return None
+
+
+def _model_meta(G: StyleERD, s: Setup, config: TrainConfig, best: dict) -> dict:
+    root = Path(s.fs.meta.get("data", data_root(None)))
+    archive = root / f"{config.dataset}.tar.xz"
+    return ckpt.generator_meta(
+        G,
+        s.fs.skeleton,
+        s.data.stats,
+        code_version=CODE_VERSION,
+        data={"dataset": config.dataset, "sha256": file_digest(archive) if archive.is_file() else None, "fps": s.fs.params.fps},
+        training={"config": config.to_dict(), "best": best},
+    )
+
+
+def _append_csv(path: Path, row: dict) -> None:
+    rows = []
+    if path.is_file():
+        with open(path, newline="") as f:
+            rows = [r for r in csv.DictReader(f) if int(r["epoch"]) < row["epoch"]]
+    rows.append(row)
+    keys = list(dict.fromkeys(k for r in rows for k in r))
+    tmp = path.with_suffix(".tmp")
+    with open(tmp, "w", newline="") as f:
+        w = csv.DictWriter(f, keys)
+        w.writeheader()
+        w.writerows(rows)
+    os.replace(tmp, path)
+
+
+def train_recognisers(config: TrainConfig, data_dir: str | None = None, out: Path | None = None, progress: bool = True) -> dict:
+    """Train the evaluation style and content recognisers on real training windows, select on
+    validation, report accuracy on real test windows (the ceiling of SRA / CRA)."""
+    torch.set_num_threads(config.threads)
+    s = setup(config, data_dir, progress)
+    cls_train = windows(s.fs, s.data, "train", config.classifier_stride, config.max_train_clips)
+    test = windows(s.fs, s.data, "test", config.window, config.max_train_clips)
+    from styleerd.train.classifiers import accuracy
+
+    report, tensors, meta = {}, {}, {}
+    for label, labels in (("style", s.data.styles), ("content", s.data.contents)):
+        model, val_acc = train_classifier(s.data, cls_train, s.val, label, False, config.classifier_epochs, config.classifier_lr, config.seed, progress=progress)
+        test_acc = accuracy(model, s.data, test, label)
+        report[label] = {"val_accuracy": round(val_acc, 4), "test_accuracy": round(test_acc, 4), "test_windows": len(test.starts)}
+        tensors.update(ckpt.prefixed(label, model))
+        meta[label] = ckpt.classifier_meta(model, labels, **report[label])
+    meta["feature_stats"] = s.data.stats.to_dict()
+    meta["dataset"] = config.dataset
+    ckpt.save_tensors(out or ckpt.MODELS_DIR / ckpt.RECOGNISERS, tensors, meta)
+    return report
+
+
+def dumps(d: dict) -> str:
+    return json.dumps(d, indent=1)
