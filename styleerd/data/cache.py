@@ -10,7 +10,6 @@ from __future__ import annotations
 import hashlib
 import json
 import os
-import tempfile
 from collections import Counter
 from dataclasses import asdict, dataclass, field
 from multiprocessing import get_context
@@ -19,6 +18,7 @@ from pathlib import Path
 import numpy as np
 from tqdm import tqdm
 
+from styleerd.atomic import atomic_write
 from styleerd.data.datasets import DATASETS, Clip, cache_dir, data_root, find_clips, load_motion
 from styleerd.data.features import FeatureStats, motion_features
 from styleerd.data.windows import split_takes
@@ -131,25 +131,18 @@ def build(root: Path, dataset: str, params: FeatureParams, cache: Path, workers:
 def save(fs: FeatureSet, path: Path, meta: dict) -> None:
     """Atomic: written to a temporary file, then renamed into place."""
     meta = dict(meta, dataset=fs.dataset, skeleton=fs.skeleton.to_dict(), params=asdict(fs.params))
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp.npz")
-    os.close(fd)
-    try:
-        np.savez(
-            tmp,
-            features=fs.features,
-            trajectory=fs.trajectory,
-            clip_start=fs.clip_start,
-            names=fs.names,
-            styles=fs.styles,
-            contents=fs.contents,
-            splits=fs.splits,
-            source_frames=fs.source_frames,
-            meta=np.array(json.dumps(meta)),
-        )
-        os.replace(tmp, path)
-    except BaseException:
-        os.unlink(tmp)
-        raise
+    arrays = dict(
+        features=fs.features,
+        trajectory=fs.trajectory,
+        clip_start=fs.clip_start,
+        names=fs.names,
+        styles=fs.styles,
+        contents=fs.contents,
+        splits=fs.splits,
+        source_frames=fs.source_frames,
+        meta=np.array(json.dumps(meta)),
+    )
+    atomic_write(path, lambda tmp: np.savez(tmp, **arrays), suffix=".tmp.npz")
 
 
 def load(path: Path) -> FeatureSet:

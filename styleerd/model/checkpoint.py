@@ -5,14 +5,14 @@ No pickle anywhere; both files are written atomically."""
 from __future__ import annotations
 
 import json
-import os
-import tempfile
 from pathlib import Path
 
 import torch
-from safetensors.torch import load_file, save_file
+from safetensors import safe_open
+from safetensors.torch import save_file
 from torch import nn
 
+from styleerd.atomic import atomic_write, atomic_write_text
 from styleerd.data.features import FeatureStats
 from styleerd.errors import StyleERDError
 from styleerd.model.classifiers import WindowClassifier
@@ -24,32 +24,26 @@ DEFAULT_MODEL = "styleerd-bandai2"
 RECOGNISERS = "recognisers-bandai2"
 
 
-def _atomic(path: Path, write) -> None:
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
-    os.close(fd)
-    try:
-        write(tmp)
-        os.replace(tmp, path)
-    except BaseException:
-        os.unlink(tmp)
-        raise
-
-
-def save_tensors(stem: Path, tensors: dict[str, torch.Tensor], meta: dict) -> None:
+def save_tensors(stem: Path, tensors: dict[str, torch.Tensor], meta: dict, sidecar: bool = True) -> None:
+    """Weights to ``stem.safetensors`` with ``meta`` embedded in its header (one atomic file),
+    and, with ``sidecar``, the same meta as readable ``stem.json``."""
     stem = Path(stem)
     stem.parent.mkdir(parents=True, exist_ok=True)
     tensors = {k: v.detach().contiguous().cpu() for k, v in tensors.items()}
-    _atomic(stem.with_suffix(".safetensors"), lambda p: save_file(tensors, p))
-    _atomic(stem.with_suffix(".json"), lambda p: Path(p).write_text(json.dumps(meta, indent=1)))
+    text = json.dumps(meta, indent=1)
+    atomic_write(stem.with_suffix(".safetensors"), lambda p: save_file(tensors, p, metadata={"styleerd": text}))
+    if sidecar:
+        atomic_write_text(stem.with_suffix(".json"), text + "\n")
 
 
 def load_tensors(stem: Path) -> tuple[dict[str, torch.Tensor], dict]:
-    stem = Path(stem)
+    path = Path(stem).with_suffix(".safetensors")
     try:
-        meta = json.loads(stem.with_suffix(".json").read_text())
-        tensors = load_file(stem.with_suffix(".safetensors"))
-    except (OSError, ValueError) as e:
-        raise StyleERDError(f"cannot load model {stem}: {e}") from None
+        with safe_open(path, framework="pt") as f:
+            meta = json.loads((f.metadata() or {})["styleerd"])
+            tensors = {k: f.get_tensor(k) for k in f.keys()}
+    except (OSError, ValueError, KeyError) as e:
+        raise StyleERDError(f"cannot load model {path}: {e}") from None
     return tensors, meta
 
 

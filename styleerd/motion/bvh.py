@@ -9,12 +9,11 @@ every channel value. Malformed input raises one ``BVHError`` naming file, line a
 from __future__ import annotations
 
 import os
-import tempfile
 import warnings
-from pathlib import Path
 
 import numpy as np
 
+from styleerd.atomic import atomic_write_text
 from styleerd.errors import StyleERDError
 from styleerd.motion import quat
 from styleerd.motion.motion import Motion
@@ -316,20 +315,6 @@ def format_bvh(motion: Motion, precision: int = 9) -> str:
     else:
         out += [""] * motion.n_frames
     return "\n".join(out) + "\n"
-
-
-def atomic_write_text(path: str | os.PathLike, text: str) -> None:
-    """Write to a temporary file beside ``path`` and rename it into place, so a failure never
-    leaves a partly written file."""
-    path = Path(path)
-    fd, tmp = tempfile.mkstemp(dir=path.parent or ".", prefix=f".{path.name}.", suffix=".tmp")
-    try:
-        with os.fdopen(fd, "w", encoding="utf-8", newline="\n") as f:
-            f.write(text)
-        os.replace(tmp, path)
-    except BaseException:
-        os.unlink(tmp)
-        raise
 
 
 def write(path: str | os.PathLike, motion: Motion, precision: int = 9) -> None:

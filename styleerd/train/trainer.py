@@ -13,6 +13,7 @@ from the last finished epoch and ends with the same weights as an uninterrupted 
 from __future__ import annotations
 
 import csv
+import io
 import json
 import os
 import time
@@ -24,6 +25,7 @@ import torch
 import torch.distributed as dist
 from tqdm import tqdm
 
+from styleerd.atomic import atomic_write_text
 from styleerd.data.cache import CODE_VERSION, FeatureSet, prepare
 from styleerd.data.datasets import data_root, file_digest
 from styleerd.errors import StyleERDError
@@ -94,7 +96,7 @@ def _average_gradients(params: list[torch.nn.Parameter]) -> None:
 def _perceptual_classifier(config: TrainConfig, s: Setup, out: Path, progress: bool) -> WindowClassifier:
     """The InstanceNorm content classifier, trained once per run directory."""
     stem = out / "content_classifier"
-    if stem.with_suffix(".json").is_file():
+    if stem.with_suffix(".safetensors").is_file():
         tensors, meta = ckpt.load_tensors(stem)
         model = ckpt.build_classifier(meta)
         model.load_state_dict(ckpt.unprefixed("classifier", tensors))
@@ -168,7 +170,7 @@ def train(config: TrainConfig, out: Path, data_dir: str | None = None, progress:
     # ---- resume
     state_stem = out / "checkpoint"
     epoch0, elapsed, best = 0, 0.0, None
-    if state_stem.with_suffix(".json").is_file():
+    if state_stem.with_suffix(".safetensors").is_file():
         tensors, meta = ckpt.load_tensors(state_stem)
         if meta["config"] != config.to_dict():
             raise StyleERDError(f"{out} holds a run with another config; use a new --out or delete it")
@@ -257,7 +259,7 @@ def train(config: TrainConfig, out: Path, data_dir: str | None = None, progress:
                 best = {"score": score, **row}
                 ckpt.save_tensors(out / "best", ckpt.prefixed("generator", G), _model_meta(G, s, config, best))
             _append_csv(metrics_path, row)
-            ckpt.save_tensors(state_stem, _state(G, D, opt_g, opt_d), {"config": config.to_dict(), "epoch": epoch + 1, "elapsed_s": elapsed, "best": best})
+            ckpt.save_tensors(state_stem, _state(G, D, opt_g, opt_d), {"config": config.to_dict(), "epoch": epoch + 1, "elapsed_s": elapsed, "best": best}, sidecar=False)
             if progress:
                 print(" ".join(f"{k}={v}" for k, v in row.items()), flush=True)
         if dist.is_initialized():
@@ -294,18 +296,17 @@ def _model_meta(G: StyleERD, s: Setup, config: TrainConfig, best: dict) -> dict:
 
 
 def _append_csv(path: Path, row: dict) -> None:
+    """Add (or, after a resume, replace) an epoch's row."""
     rows = []
     if path.is_file():
         with open(path, newline="") as f:
             rows = [r for r in csv.DictReader(f) if int(r["epoch"]) < row["epoch"]]
     rows.append(row)
-    keys = list(dict.fromkeys(k for r in rows for k in r))
-    tmp = path.with_suffix(".tmp")
-    with open(tmp, "w", newline="") as f:
-        w = csv.DictWriter(f, keys)
-        w.writeheader()
-        w.writerows(rows)
-    os.replace(tmp, path)
+    buf = io.StringIO()
+    w = csv.DictWriter(buf, list(dict.fromkeys(k for r in rows for k in r)))
+    w.writeheader()
+    w.writerows(rows)
+    atomic_write_text(path, buf.getvalue())
 
 
 def train_recognisers(config: TrainConfig, data_dir: str | None = None, out: Path | None = None, progress: bool = True) -> dict:
