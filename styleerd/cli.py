@@ -62,15 +62,45 @@ def _train_recognisers(args: argparse.Namespace) -> None:
     print(dumps(train_recognisers(config, args.data, Path(args.out) if args.out else None)))
 
 
+def _evaluate(args: argparse.Namespace) -> None:
+    from styleerd.train.trainer import dumps, evaluate
+
+    print(dumps(evaluate(Path(args.model) if args.model else None, args.data, args.split)))
+
+
+def _filmstrip(args: argparse.Namespace) -> None:
+    from styleerd.data.datasets import data_root, find_clips
+    from styleerd.data.windows import split_takes
+    from styleerd.eval.plots import style_filmstrip
+    from styleerd.model.checkpoint import load_generator
+
+    model, _ = load_generator(args.model)
+    clips = find_clips(data_root(args.data), "bandai-namco-2")
+    split = split_takes({c.name: (c.dataset, c.style, c.content) for c in clips})
+    if args.clip:
+        chosen = [c for c in clips if c.name == args.clip]
+    else:
+        chosen = [c for c in clips if split[c.name] == "test" and c.style == model.config.neutral_style and c.content == args.content]
+    if not chosen:
+        raise StyleERDError(f"no clip {args.clip or f'(neutral {args.content} test clip)'} in bandai-namco-2")
+    style_filmstrip(model, chosen[0], args.output)
+    print(f"wrote {args.output} ({chosen[0].name})")
+
+
 def _demo(args: argparse.Namespace) -> None:
     from styleerd.data.datasets import data_root
 
     try:
         data_root(None)
     except StyleERDError as e:
-        print(f"demo: {e}; nothing to summarise yet")
+        print(f"demo: {e}; nothing to show without data yet")
         return
     _data_prepare(argparse.Namespace(data=None, cache=None, workers=None, fps=30.0, datasets=None))
+    from styleerd.model.checkpoint import DEFAULT_MODEL, MODELS_DIR
+
+    if (MODELS_DIR / f"{DEFAULT_MODEL}.safetensors").is_file():
+        Path("out").mkdir(exist_ok=True)
+        _filmstrip(argparse.Namespace(model=None, clip=None, content="walk", data=None, output="out/demo-filmstrip.png"))
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -108,6 +138,20 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--out", help="model path without suffix (default models/recognisers-bandai2)")
     p.add_argument("--data", help="data folder")
     p.set_defaults(func=_train_recognisers)
+
+    p = sub.add_parser("evaluate", help="SRA, CRA and reconstruction error of a model on real test windows")
+    p.add_argument("--model", help="model path without suffix (default: the shipped model)")
+    p.add_argument("--split", default="test", choices=["train", "val", "test"])
+    p.add_argument("--data", help="data folder")
+    p.set_defaults(func=_evaluate)
+
+    p = sub.add_parser("filmstrip", help="picture: a neutral test clip and its transfer into every style")
+    p.add_argument("--model", help="model path without suffix (default: the shipped model)")
+    p.add_argument("--clip", help="Bandai-Namco-2 clip name (default: the first neutral test clip of --content)")
+    p.add_argument("--content", default="walk")
+    p.add_argument("--data", help="data folder")
+    p.add_argument("-o", "--output", default="docs/filmstrip-bandai2.png")
+    p.set_defaults(func=_filmstrip)
 
     p = sub.add_parser("demo", help="run the main job on bundled input")
     p.set_defaults(func=_demo)

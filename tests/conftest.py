@@ -69,3 +69,11 @@ def walking_motion(n_frames: int = 60, fps: float = 30.0, seed: int = 0) -> Moti
     positions = np.broadcast_to(sk.offsets, (n_frames, J, 3)).copy()
     positions[:, 0] = np.stack([100 * np.sin(yaw), 90 + 2 * np.sin(6 * t), 100 * np.cos(yaw)], -1)
     return Motion(sk, rotations, positions, fps)
+
+
+def pytest_configure(config):
+    # Tests run beside other work on a 2-core machine: one intra-op thread keeps them fast
+    # and their numbers reproducible.
+    import torch
+
+    torch.set_num_threads(1)

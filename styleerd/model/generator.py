@@ -101,6 +101,10 @@ class StyleERD(nn.Module):
         self.register_buffer("std", torch.tensor(stats.std, dtype=torch.float32))
         self.register_buffer("reference", torch.tensor(stats.reference, dtype=torch.float32))
 
+    def stats(self) -> FeatureStats:
+        """The feature normalisation the model was trained with."""
+        return FeatureStats(self.mean.double().numpy(), self.std.double().numpy(), self.reference.double().numpy())
+
     # ---------------------------------------------------------------- recurrent state
     def initial_state(self, content: torch.Tensor) -> RecurrentState:
         """Neutral state selected by the content label (one-hot or probabilities ``[B, nC]``)."""

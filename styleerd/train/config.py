@@ -55,15 +55,15 @@ class TrainConfig:
             data = yaml.safe_load(Path(path).read_text()) or {}
         except (OSError, yaml.YAMLError) as e:
             raise StyleERDError(f"cannot read config {path}: {e}") from None
-        data.update(overrides)
-        known = {f.name: f for f in fields(cls)}
-        unknown = sorted(set(data) - set(known))
+        return cls.from_dict({**data, **overrides}, where=str(path))
+
+    @classmethod
+    def from_dict(cls, data: dict, where: str = "config") -> "TrainConfig":
+        known = {f.name for f in fields(cls)}
+        unknown = sorted(set(data) - known)
         if unknown:
-            raise StyleERDError(f"{path}: unknown config keys {unknown}; known: {sorted(known)}")
-        for key, value in data.items():
-            if isinstance(value, list):
-                data[key] = tuple(value)
-        return cls(**data)
+            raise StyleERDError(f"{where}: unknown config keys {unknown}; known: {sorted(known)}")
+        return cls(**{k: tuple(v) if isinstance(v, list) else v for k, v in data.items()})
 
     def to_dict(self) -> dict:
         return {k: list(v) if isinstance(v, tuple) else v for k, v in asdict(self).items()}

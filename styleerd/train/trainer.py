@@ -76,6 +76,22 @@ def make_generator(config: TrainConfig, s: Setup) -> StyleERD:
     return StyleERD(gc, s.fs.skeleton, s.data.stats)
 
 
+def _resumable(config: dict) -> dict:
+    """What must match to resume a run: everything but how long it may go on."""
+    return {k: v for k, v in config.items() if k not in ("epochs", "max_minutes")}
+
+
+def _check_in_sync(model: torch.nn.Module) -> None:
+    """Data-parallel processes must hold identical weights after every epoch."""
+    if not dist.is_initialized():
+        return
+    total = torch.stack([p.detach().double().sum() for p in model.parameters()]).sum().reshape(1)
+    gathered = [torch.zeros_like(total) for _ in range(dist.get_world_size())]
+    dist.all_gather(gathered, total)
+    if any(not torch.equal(g, gathered[0]) for g in gathered):
+        raise StyleERDError(f"data-parallel processes diverged: weight sums {[g.item() for g in gathered]}")
+
+
 def _is_main() -> bool:
     return not dist.is_initialized() or dist.get_rank() == 0
 
@@ -172,7 +188,7 @@ def train(config: TrainConfig, out: Path, data_dir: str | None = None, progress:
     epoch0, elapsed, best = 0, 0.0, None
     if state_stem.with_suffix(".safetensors").is_file():
         tensors, meta = ckpt.load_tensors(state_stem)
-        if meta["config"] != config.to_dict():
+        if _resumable(meta["config"]) != _resumable(config.to_dict()):
             raise StyleERDError(f"{out} holds a run with another config; use a new --out or delete it")
         _load_state(tensors, G, D, opt_g, opt_d)
         epoch0, elapsed, best = meta["epoch"], meta["elapsed_s"], meta.get("best")
@@ -262,8 +278,8 @@ def train(config: TrainConfig, out: Path, data_dir: str | None = None, progress:
             ckpt.save_tensors(state_stem, _state(G, D, opt_g, opt_d), {"config": config.to_dict(), "epoch": epoch + 1, "elapsed_s": elapsed, "best": best}, sidecar=False)
             if progress:
                 print(" ".join(f"{k}={v}" for k, v in row.items()), flush=True)
-        if dist.is_initialized():
-            dist.barrier()
+        _check_in_sync(G)
+        _check_in_sync(D)
 
     if _is_main() and export is not None and (out / "best.json").is_file():
         tensors, meta = ckpt.load_tensors(out / "best")
@@ -329,6 +345,35 @@ def train_recognisers(config: TrainConfig, data_dir: str | None = None, out: Pat
     meta["dataset"] = config.dataset
     ckpt.save_tensors(out or ckpt.MODELS_DIR / ckpt.RECOGNISERS, tensors, meta)
     return report
+
+
+def evaluate(model_stem: Path | None = None, data_dir: str | None = None, split: str = "test", progress: bool = True) -> dict:
+    """The acceptance figures of a generator on real ``split`` windows: reconstruction error,
+    SRA and CRA of its transfers, next to the recognisers' accuracy on the real windows."""
+    from styleerd.train.classifiers import accuracy
+
+    model, meta = ckpt.load_generator(model_stem)
+    config = TrainConfig.from_dict(meta["training"]["config"], where=f"training config of {model_stem}")
+    s = setup(config, data_dir, progress)
+    ws = windows(s.fs, s.data, split, config.window)
+    style_rec, content_rec = _recognisers(s)
+    if style_rec is None:
+        raise StyleERDError("evaluation recognisers for this dataset are missing: run `styleerd train-recognisers`")
+    result = validate(model, s.data, ws, style_rec, content_rec)
+    ceiling = {"style": accuracy(style_rec, s.data, ws, "style"), "content": accuracy(content_rec, s.data, ws, "content")}
+    return {
+        "split": split,
+        "windows": len(ws.starts),
+        "style_ceiling": round(ceiling["style"], 4),
+        "content_ceiling": round(ceiling["content"], 4),
+        "sra": round(result["sra"], 4),
+        "cra": round(result["cra"], 4),
+        "sra_of_ceiling": round(result["sra"] / ceiling["style"], 4),
+        "cra_of_ceiling": round(result["cra"] / ceiling["content"], 4),
+        "rec_deg": round(result["rec_deg"], 3),
+        "rec_cm": round(result["rec_cm"], 3),
+        "training_minutes": meta["training"].get("wall_minutes"),
+    }
 
 
 def dumps(d: dict) -> str:

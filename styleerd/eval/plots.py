@@ -1,0 +1,73 @@
+"""Stick-figure pictures of motions (matplotlib, headless)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import matplotlib
+
+matplotlib.use("Agg")
+import matplotlib.pyplot as plt  # noqa: E402
+import numpy as np  # noqa: E402
+
+from styleerd.atomic import atomic_write  # noqa: E402
+from styleerd.motion import quat  # noqa: E402
+from styleerd.motion.kinematics import facing_directions, forward_kinematics, heading_rotations  # noqa: E402
+from styleerd.motion.motion import Motion  # noqa: E402
+from styleerd.motion.skeleton import BodyRoles  # noqa: E402
+
+
+def _draw(ax, xy: np.ndarray, parents: np.ndarray, color: str) -> None:
+    for j, p in enumerate(parents):
+        if p >= 0:
+            ax.plot([xy[p, 0], xy[j, 0]], [xy[p, 1], xy[j, 1]], color=color, lw=2.2, solid_capstyle="round")
+
+
+def screen_poses(motion: Motion, yaw_degrees: float = 35.0) -> np.ndarray:
+    """Per frame, joint positions ``[T, J, 2]`` seen by a camera in front of the character and
+    turned ``yaw_degrees`` to its side: each pose is put in its own heading frame (facing +Z,
+    root above the origin), so every frame is drawn from the same relative viewpoint."""
+    _, g = forward_kinematics(motion.rotations, motion.positions, motion.skeleton.parents)
+    roles = BodyRoles.of(motion.skeleton)
+    heading = heading_rotations(facing_directions(g, roles.left, roles.right))
+    local = quat.mul_vec(quat.inv(heading)[:, None], g - g[:, :1] * [1, 0, 1])
+    a = np.radians(yaw_degrees)
+    return np.stack([-local[..., 0] * np.cos(a) + local[..., 2] * np.sin(a), local[..., 1]], -1)
+
+
+def filmstrip(rows: list[tuple[str, Motion]], path: str | Path, frames: int = 8, title: str = "") -> None:
+    """One row per motion: ``frames`` evenly spaced poses side by side (``screen_poses``)."""
+    n = len(rows)
+    fig, axes = plt.subplots(n, 1, figsize=(frames * 1.25, 1.9 * n), squeeze=False)
+    colors = plt.get_cmap("tab10")
+    for r, (label, motion) in enumerate(rows):
+        xy = screen_poses(motion)
+        idx = np.linspace(0, motion.n_frames - 1, frames).astype(int)
+        height = np.ptp(xy[..., 1])
+        ax = axes[r, 0]
+        for k, t in enumerate(idx):
+            _draw(ax, xy[t] + [k * 0.8 * height, 0], motion.skeleton.parents, colors(r % 10))
+        ax.set_aspect("equal")
+        ax.axis("off")
+        ax.set_title(label, loc="left", fontsize=10)
+    if title:
+        fig.suptitle(title, fontsize=11)
+    fig.tight_layout()
+    path = Path(path)
+    atomic_write(path, lambda tmp: fig.savefig(tmp, dpi=90, format=path.suffix.lstrip(".") or "png"))
+    plt.close(fig)
+
+
+def style_filmstrip(model, clip, path: str | Path, frames: int = 8) -> None:
+    """A neutral clip and its transfer into every other style of ``model``."""
+    from styleerd.data.datasets import load_motion
+    from styleerd.motion.resample import resample
+    from styleerd.runtime.offline import stylise_motion
+
+    motion = resample(load_motion(clip), 30.0)
+    c = model.config
+    rows = [(f"input: {clip.name} ({clip.style}, {clip.content})", motion)]
+    for style in c.styles:
+        if style != clip.style:
+            rows.append((f"-> {style}", stylise_motion(model, motion, clip.style, clip.content, {style: 1.0})))
+    filmstrip(rows, path, frames, title=f"Style-ERD transfers of one test clip ({motion.n_frames} frames at 30 fps)")

@@ -1,0 +1,1 @@
+"""What users run: stylise motions (offline files and, later, live streams)."""

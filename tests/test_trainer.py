@@ -1,0 +1,92 @@
+"""Training on real data with tiny configs: resume after kill -9, data parallel, ablations."""
+
+import csv
+import os
+import signal
+import subprocess
+import sys
+import time
+
+import pytest
+import torch
+import yaml
+
+from styleerd.model import checkpoint as ckpt
+from styleerd.train.config import TrainConfig
+from styleerd.errors import StyleERDError
+
+pytestmark = pytest.mark.slow
+
+TINY = dict(max_train_clips=40, neutral_layers=2, style_layers=1, batch_size=16, val_windows=64, classifier_epochs=1, threads=1, val_every=1)
+
+
+def write_config(path, **kw):
+    path.write_text(yaml.safe_dump({**TINY, **kw}))
+    return path
+
+
+def run_cli(*args, env=None, **kw):
+    return subprocess.Popen([sys.executable, "-m", "styleerd.cli", *map(str, args)], stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, env=env, **kw)
+
+
+def epochs_done(out):
+    p = out / "metrics.csv"
+    return len(list(csv.DictReader(open(p)))) if p.is_file() else 0
+
+
+def test_kill_9_mid_run_then_rerun_continues_and_matches_an_uninterrupted_run(shared_data, tmp_path):
+    cfg = write_config(tmp_path / "c.yaml", epochs=6)
+    straight = run_cli("train", "--config", cfg, "--out", tmp_path / "a")
+    assert straight.wait(timeout=600) == 0, straight.stdout.read()
+
+    proc = run_cli("train", "--config", cfg, "--out", tmp_path / "b")
+    deadline = time.time() + 600
+    while not (tmp_path / "b" / "checkpoint.safetensors").is_file() and proc.poll() is None and time.time() < deadline:
+        time.sleep(0.02)
+    os.kill(proc.pid, signal.SIGKILL)
+    proc.wait()
+    done = epochs_done(tmp_path / "b")
+    assert 1 <= done < 6, "the kill should land mid-run"
+    again = run_cli("train", "--config", cfg, "--out", tmp_path / "b")
+    log, _ = again.communicate(timeout=600)
+    assert again.returncode == 0, log
+    assert f"resuming {tmp_path / 'b'} after epoch {done}" in log
+    assert epochs_done(tmp_path / "b") == 6
+    a, _ = ckpt.load_tensors(tmp_path / "a" / "checkpoint")
+    b, _ = ckpt.load_tensors(tmp_path / "b" / "checkpoint")
+    assert a.keys() == b.keys()
+    assert all(torch.equal(a[k], b[k]) for k in a), "resumed run must end with the same weights"
+
+
+def test_resume_refuses_a_different_config_but_allows_more_epochs(shared_data, tmp_path):
+    from styleerd.train.trainer import train
+
+    out = tmp_path / "r"
+    train(TrainConfig(**TINY, epochs=1), out, progress=False)
+    best = train(TrainConfig(**TINY, epochs=2), out, progress=False)
+    assert epochs_done(out) == 2 and best["epoch"] >= 1
+    with pytest.raises(StyleERDError, match="another config"):
+        train(TrainConfig(**{**TINY, "lr_g": 1e-3}, epochs=3), out, progress=False)
+
+
+@pytest.mark.parametrize("ablation", [dict(use_adv=False, use_per=False), dict(use_per=False), dict(use_adv=False), dict(attention=False), dict(learned_init=False)])
+def test_ablation_switches_train(shared_data, tmp_path, ablation):
+    from styleerd.train.trainer import train
+
+    out = tmp_path / "ab"
+    best = train(TrainConfig(**TINY, epochs=1, **ablation), out, progress=False)
+    assert "rec_deg" in best and (out / "best.safetensors").is_file()
+    assert (out / "content_classifier.safetensors").is_file() == ablation.get("use_per", True)
+
+
+def test_data_parallel_two_processes_with_torchrun(shared_data, tmp_path):
+    cfg = write_config(tmp_path / "c.yaml", epochs=2)
+    env = dict(os.environ, OMP_NUM_THREADS="1")
+    p = subprocess.run(
+        [sys.executable, "-m", "torch.distributed.run", "--standalone", "--nproc_per_node", "2", "-m", "styleerd.cli", "train", "--config", str(cfg), "--out", str(tmp_path / "ddp")],
+        capture_output=True, text=True, env=env, timeout=900,
+    )
+    assert p.returncode == 0, p.stdout[-3000:] + p.stderr[-3000:]
+    assert epochs_done(tmp_path / "ddp") == 2
+    tensors, meta = ckpt.load_tensors(tmp_path / "ddp" / "checkpoint")
+    assert meta["epoch"] == 2 and all(torch.isfinite(t).all() for t in tensors.values() if t.is_floating_point())
