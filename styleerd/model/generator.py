@@ -95,6 +95,7 @@ class StyleERD(nn.Module):
         self.branch_h0 = init(torch.zeros(len(self.branch_styles), c.style_layers, H))
         self.branch_c0 = init(torch.zeros(len(self.branch_styles), c.style_layers, H))
         self.decoder = mlp([H + nS, *c.decoder, 7 * J])
+        self.skeleton = skeleton
         self.parents = [int(p) for p in skeleton.parents]
         self.register_buffer("offsets", torch.tensor(skeleton.offsets, dtype=torch.float32))
         self.register_buffer("mean", torch.tensor(stats.mean, dtype=torch.float32))

@@ -1,0 +1,127 @@
+"""StreamStylizer: frame in, stylised frame out, for one stream or a batch of streams.
+
+Frames are poses on the model's skeleton: local joint rotations ``[N, J, 4]`` and local
+translations ``[N, J, 3]`` (N streams). Output frame t depends on input frames <= t only.
+The output keeps the input's root trajectory (root position and facing) and joint
+translations; the network replaces the joint rotations.
+
+Changing the target (style, intensity, mixture) mid-stream blends the target weights
+linearly over ``blend_frames`` frames, so the output does not pop.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import torch
+
+from styleerd.data.features import pose_features
+from styleerd.errors import StyleERDError
+from styleerd.model.generator import RecurrentState, StyleERD
+from styleerd.motion import quat
+from styleerd.motion.kinematics import forward_kinematics
+from styleerd.motion.skeleton import BodyRoles
+
+
+def label_vector(names: tuple[str, ...], weights: dict[str, float], what: str) -> np.ndarray:
+    """{"elderly": 0.7, "normal": 0.3} -> weights in the model's label order."""
+    v = np.zeros(len(names))
+    for name, w in weights.items():
+        if name not in names:
+            raise StyleERDError(f"unknown {what} {name!r}; valid: {', '.join(names)}")
+        v[names.index(name)] = w
+    return v
+
+
+def target_weights(model: StyleERD, style: str | None = None, intensity: float = 1.0, mix: dict[str, float] | None = None, max_intensity: float = 2.0) -> dict[str, float]:
+    """Target weights from a style and intensity (the rest goes to neutral; 0 = neutral,
+    1 = full style, above 1 exaggerates up to ``max_intensity``), or from a mixture."""
+    neutral = model.config.neutral_style
+    if mix:
+        total = sum(mix.values())
+        if total <= 0 or any(w < 0 for w in mix.values()):
+            raise StyleERDError(f"mixture weights must be non-negative and sum above 0, got {mix}")
+        return {k: v / total for k, v in mix.items()}
+    if style is None:
+        raise StyleERDError("give a target style or a mixture")
+    if not 0.0 <= intensity <= max_intensity:
+        raise StyleERDError(f"intensity {intensity:g} is outside [0, {max_intensity:g}]")
+    if style == neutral:
+        return {neutral: 1.0}
+    return {style: intensity, neutral: max(0.0, 1.0 - intensity)}
+
+
+@dataclass
+class _Blend:
+    start: np.ndarray  # [N, nS] weights when the change began
+    end: np.ndarray  # [N, nS] weights to reach
+    frame: np.ndarray  # [N] frames since the change
+
+
+class StreamStylizer:
+    def __init__(
+        self,
+        model: StyleERD,
+        input_style: str,
+        content: str,
+        target: dict[str, float],
+        n_streams: int = 1,
+        fps: float = 30.0,
+        blend_frames: int = 8,
+    ):
+        self.model = model.eval()
+        self.skeleton = model.skeleton
+        self.roles = BodyRoles.of(self.skeleton)
+        self.stats = model.stats()
+        self.fps = fps
+        self.n = n_streams
+        self.blend_frames = max(1, blend_frames)
+        c = model.config
+        self.style_in = torch.tensor(np.tile(label_vector(c.styles, {input_style: 1.0}, "style"), (n_streams, 1)), dtype=torch.float32)
+        self.content = torch.tensor(np.tile(label_vector(c.contents, {content: 1.0}, "content"), (n_streams, 1)), dtype=torch.float32)
+        w = np.tile(label_vector(c.styles, target, "style"), (n_streams, 1))
+        self.blend = _Blend(w.copy(), w, np.full(n_streams, self.blend_frames))
+        self.reset()
+
+    def reset(self) -> None:
+        """Forget the past: the next frame is a first frame (learned initial states)."""
+        self.state: RecurrentState | None = None
+        self.previous: np.ndarray | None = None  # global joint positions of the last frame
+
+    def current_weights(self) -> np.ndarray:
+        a = np.minimum(1.0, self.blend.frame / self.blend_frames)[:, None]
+        return self.blend.start + a * (self.blend.end - self.blend.start)
+
+    def set_target(self, target: dict[str, float], streams: list[int] | None = None) -> None:
+        """New target weights for some (default all) streams, reached over ``blend_frames``."""
+        rows = np.arange(self.n) if streams is None else np.asarray(streams)
+        w = label_vector(self.model.config.styles, target, "style")
+        now = self.current_weights()
+        self.blend.start[rows] = now[rows]
+        self.blend.end[rows] = w
+        self.blend.frame[rows] = 0
+
+    @torch.no_grad()
+    def step(self, rotations: np.ndarray, positions: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """One frame of every stream -> the stylised frame. A frame with NaN/inf is rejected
+        with an error and leaves the state unchanged."""
+        rotations = np.asarray(rotations, dtype=np.float64).reshape(self.n, self.skeleton.n_joints, 4)
+        positions = np.asarray(positions, dtype=np.float64).reshape(self.n, self.skeleton.n_joints, 3)
+        if not (np.isfinite(rotations).all() and np.isfinite(positions).all()):
+            bad = np.argwhere(~np.isfinite(rotations).all(-1) | ~np.isfinite(positions).all(-1))[0]
+            raise StyleERDError(f"frame rejected: stream {bad[0]}, joint {self.skeleton.names[bad[1]]!r} has a NaN or infinite value")
+        rotations = quat.normalize(rotations)
+        if self.previous is None:
+            _, previous = forward_kinematics(rotations, positions, self.skeleton.parents)
+        else:
+            previous = self.previous
+        feats, traj, g = pose_features(rotations, positions, previous, self.skeleton, self.roles, self.fps)
+        x = torch.tensor(self.stats.normalize(feats), dtype=torch.float32)
+        w = torch.tensor(self.current_weights(), dtype=torch.float32)
+        rot, _, state = self.model.step(x, self.style_in, self.content, w, self.state)
+        out = rot.double().numpy()
+        out[:, 0] = quat.mul(traj[:, 3:7], out[:, 0])
+        self.state, self.previous = state, g
+        self.blend.frame += 1
+        return quat.normalize(out), positions

@@ -1,0 +1,95 @@
+import numpy as np
+import pytest
+import torch
+
+from conftest import walking_motion
+from styleerd.data.features import FeatureStats, motion_features
+from styleerd.errors import StyleERDError
+from styleerd.model.generator import GeneratorConfig, StyleERD
+from styleerd.motion.kinematics import forward_kinematics
+from styleerd.motion.motion import Motion
+from styleerd.runtime.offline import stylise_motion
+from styleerd.runtime.stylizer import StreamStylizer, target_weights
+
+STYLES = ("angry", "normal", "old")
+CONTENTS = ("walk", "run")
+
+
+@pytest.fixture(scope="module")
+def model():
+    m = walking_motion(100)
+    f, _ = motion_features(m)
+    torch.manual_seed(0)
+    g = StyleERD(GeneratorConfig(m.skeleton.n_joints, STYLES, CONTENTS, neutral_layers=2, style_layers=2), m.skeleton, FeatureStats.fit(f, m.skeleton.n_joints))
+    for p in g.parameters():
+        p.data += 0.05 * torch.randn_like(p)
+    return g.eval()
+
+
+def test_offline_equals_streaming_and_keeps_the_root_trajectory(model):
+    m = walking_motion(40)
+    out = stylise_motion(model, m, "normal", "walk", {"old": 1.0})
+    s = StreamStylizer(model, "normal", "walk", {"old": 1.0})
+    for t in range(40):
+        r, p = s.step(m.rotations[t], m.positions[t])
+        assert np.abs(r[0] - out.rotations[t]).max() <= 1e-6
+    _, g_in = forward_kinematics(m.rotations, m.positions, m.skeleton.parents)
+    _, g_out = forward_kinematics(out.rotations, out.positions, m.skeleton.parents)
+    assert np.array_equal(out.positions[:, 0], m.positions[:, 0])
+    assert not np.allclose(g_in[:, 1:], g_out[:, 1:], atol=1e-3)
+
+
+def test_streaming_is_causal(model):
+    m = walking_motion(30)
+    a = stylise_motion(model, m, "normal", "walk", {"angry": 1.0})
+    rot = m.rotations.copy()
+    rot[20:] = rot[20:][:, :, [0, 2, 1, 3]]
+    b = stylise_motion(model, Motion(m.skeleton, rot, m.positions, m.fps), "normal", "walk", {"angry": 1.0})
+    assert np.array_equal(a.rotations[:20], b.rotations[:20])
+
+
+def test_batched_streams_equal_single_streams(model):
+    m1, m2 = walking_motion(20, seed=1), walking_motion(20, seed=2)
+    batch = StreamStylizer(model, "normal", "walk", {"old": 1.0}, n_streams=2)
+    singles = [StreamStylizer(model, "normal", "walk", {"old": 1.0}) for _ in range(2)]
+    for t in range(20):
+        r, _ = batch.step(np.stack([m1.rotations[t], m2.rotations[t]]), np.stack([m1.positions[t], m2.positions[t]]))
+        for k, m in enumerate((m1, m2)):
+            assert np.allclose(r[k], singles[k].step(m.rotations[t], m.positions[t])[0][0], atol=1e-5)
+
+
+def test_style_switch_blends_without_a_pop(model):
+    m = walking_motion(60)
+    s = StreamStylizer(model, "normal", "walk", {"normal": 1.0}, blend_frames=10)
+    poses = []
+    for t in range(60):
+        if t == 30:
+            s.set_target(target_weights(model, "angry"))
+        r, p = s.step(m.rotations[t], m.positions[t])
+        poses.append(forward_kinematics(r[0], p[0], m.skeleton.parents)[1])
+    jumps = np.abs(np.diff(np.array(poses), axis=0)).max(axis=(1, 2))
+    assert jumps[29:40].max() <= 3 * np.median(jumps[5:29]) + 1e-9
+
+
+def test_bad_frame_is_rejected_and_state_kept(model):
+    m = walking_motion(5)
+    s = StreamStylizer(model, "normal", "walk", {"old": 1.0})
+    ref = StreamStylizer(model, "normal", "walk", {"old": 1.0})
+    s.step(m.rotations[0], m.positions[0])
+    ref.step(m.rotations[0], m.positions[0])
+    bad = m.positions[1].copy()
+    bad[3, 1] = np.nan
+    with pytest.raises(StyleERDError, match="joint 'Head'"):
+        s.step(m.rotations[1], bad)
+    assert np.array_equal(s.step(m.rotations[1], m.positions[1])[0], ref.step(m.rotations[1], m.positions[1])[0])
+
+
+def test_target_weights_validate():
+    class M:
+        class config:
+            neutral_style = "normal"
+
+    assert target_weights(M, "old", 0.3) == {"old": 0.3, "normal": 0.7}
+    assert target_weights(M, mix={"old": 1, "angry": 3}) == {"old": 0.25, "angry": 0.75}
+    with pytest.raises(StyleERDError):
+        target_weights(M, "old", 5.0)
