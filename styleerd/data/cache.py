@@ -128,39 +128,24 @@ def build(root: Path, dataset: str, params: FeatureParams, cache: Path, workers:
     )
 
 
+_ARRAYS = ("features", "trajectory", "clip_start", "names", "styles", "contents", "splits", "source_frames")
+
+
 def save(fs: FeatureSet, path: Path, meta: dict) -> None:
     """Atomic: written to a temporary file, then renamed into place."""
     meta = dict(meta, dataset=fs.dataset, skeleton=fs.skeleton.to_dict(), params=asdict(fs.params))
-    arrays = dict(
-        features=fs.features,
-        trajectory=fs.trajectory,
-        clip_start=fs.clip_start,
-        names=fs.names,
-        styles=fs.styles,
-        contents=fs.contents,
-        splits=fs.splits,
-        source_frames=fs.source_frames,
-        meta=np.array(json.dumps(meta)),
-    )
+    arrays = {name: getattr(fs, name) for name in _ARRAYS} | {"meta": np.array(json.dumps(meta))}
     atomic_write(path, lambda tmp: np.savez(tmp, **arrays), suffix=".tmp.npz")
 
 
 def load(path: Path) -> FeatureSet:
     with np.load(path, allow_pickle=False) as z:
         meta = json.loads(str(z["meta"]))
-        p = meta["params"]
         return FeatureSet(
             dataset=meta["dataset"],
             skeleton=Skeleton.from_dict(meta["skeleton"]),
-            features=z["features"],
-            trajectory=z["trajectory"],
-            clip_start=z["clip_start"],
-            names=z["names"],
-            styles=z["styles"],
-            contents=z["contents"],
-            splits=z["splits"],
-            source_frames=z["source_frames"],
-            params=FeatureParams(**p),
+            **{name: z[name] for name in _ARRAYS},
+            params=FeatureParams(**meta["params"]),
             path=path,
             meta=meta,
         )
