@@ -65,7 +65,7 @@ def _train_recognisers(args: argparse.Namespace) -> None:
 def _evaluate(args: argparse.Namespace) -> None:
     from styleerd.train.trainer import dumps, evaluate
 
-    print(dumps(evaluate(Path(args.model) if args.model else None, args.data, args.split)))
+    print(dumps(evaluate(Path(args.model) if args.model else None, args.data, args.split, recognisers=Path(args.recognisers) if args.recognisers else None)))
 
 
 def _filmstrip(args: argparse.Namespace) -> None:
@@ -142,6 +142,7 @@ def build_parser() -> argparse.ArgumentParser:
     p = sub.add_parser("evaluate", help="SRA, CRA and reconstruction error of a model on real test windows")
     p.add_argument("--model", help="model path without suffix (default: the shipped model)")
     p.add_argument("--split", default="test", choices=["train", "val", "test"])
+    p.add_argument("--recognisers", help="recognisers path without suffix (default: the shipped ones)")
     p.add_argument("--data", help="data folder")
     p.set_defaults(func=_evaluate)
 

@@ -90,3 +90,19 @@ def test_data_parallel_two_processes_with_torchrun(shared_data, tmp_path):
     assert epochs_done(tmp_path / "ddp") == 2
     tensors, meta = ckpt.load_tensors(tmp_path / "ddp" / "checkpoint")
     assert meta["epoch"] == 2 and all(torch.isfinite(t).all() for t in tensors.values() if t.is_floating_point())
+
+
+def test_recognisers_read_positions_and_velocities_and_report_the_ceiling(shared_data, tmp_path):
+    from styleerd.data.features import FeatureLayout
+    from styleerd.train.trainer import train_recognisers
+
+    report = train_recognisers(TrainConfig(**TINY), out=tmp_path / "rec", progress=False)
+    assert set(report) == {"style", "content"} and 0.0 <= report["style"]["test_accuracy"] <= 1.0
+    style, content, meta = ckpt.load_recognisers(tmp_path / "rec")
+    layout = FeatureLayout(21)
+    assert style.first_channel == layout.positions.start and style.in_dim == 6 * 21
+    assert meta["content"]["labels"][0] == "raise-up-both-hands" and len(meta["style"]["labels"]) == 7
+    x = torch.randn(3, 24, layout.dim)
+    y = x.clone()
+    y[..., layout.rotations] = 0  # rotations are not read
+    assert torch.equal(style(x), style(y))

@@ -72,11 +72,19 @@ def load_generator(stem: str | Path | None = None) -> tuple[StyleERD, dict]:
 
 
 def classifier_meta(model: WindowClassifier, labels: list[str], **extra) -> dict:
-    return {"in_dim": model.in_dim, "labels": labels, "channels": list(model.channels), "kernel": model.kernel, "instance_norm": model.instance_norm, **extra}
+    return {
+        "in_dim": model.in_dim,
+        "first_channel": model.first_channel,
+        "labels": labels,
+        "channels": list(model.channels),
+        "kernel": model.kernel,
+        "instance_norm": model.instance_norm,
+        **extra,
+    }
 
 
 def build_classifier(meta: dict) -> WindowClassifier:
-    return WindowClassifier(meta["in_dim"], len(meta["labels"]), tuple(meta["channels"]), meta["kernel"], meta["instance_norm"])
+    return WindowClassifier(meta["in_dim"], len(meta["labels"]), tuple(meta["channels"]), meta["kernel"], meta["instance_norm"], meta.get("first_channel", 0))
 
 
 def load_recognisers(stem: str | Path | None = None) -> tuple[WindowClassifier, WindowClassifier, dict]:

@@ -4,7 +4,9 @@ One architecture, two uses kept apart:
 - the content classifier of the perceptual loss (InstanceNorm after each conv, so per-window
   statistics, where much of the style lives, are removed and it keys on content);
 - the evaluation recognisers (style and content), trained on real training windows only,
-  which judge transferred motion (SRA / CRA).
+  which judge transferred motion (SRA / CRA). They read joint positions and velocities only:
+  what a viewer sees. Rotation channels also carry twist about the bone axis, which moves no
+  joint and which a judge of style or content should not key on.
 """
 
 from __future__ import annotations
@@ -16,9 +18,13 @@ from styleerd.model.discriminator import conv
 
 
 class WindowClassifier(nn.Module):
-    def __init__(self, in_dim: int, n_classes: int, channels: tuple[int, ...] = (128, 64, 32), kernel: int = 5, instance_norm: bool = False):
+    """Reads channels ``first_channel : first_channel + in_dim`` of its input windows
+    ``[B, T, C]``, so every caller passes whole feature windows."""
+
+    def __init__(self, in_dim: int, n_classes: int, channels: tuple[int, ...] = (128, 64, 32), kernel: int = 5, instance_norm: bool = False, first_channel: int = 0):
         super().__init__()
         self.in_dim, self.channels, self.kernel, self.instance_norm = in_dim, channels, kernel, instance_norm
+        self.first_channel = first_channel
         self.features = nn.ModuleList()
         ch = in_dim
         for out in channels:
@@ -29,7 +35,7 @@ class WindowClassifier(nn.Module):
 
     def feature_maps(self, x: torch.Tensor) -> list[torch.Tensor]:
         """Every conv layer's output ``[B, C_i, T]`` for ``x [B, T, C]``."""
-        maps, h = [], x.transpose(1, 2)
+        maps, h = [], x[..., self.first_channel : self.first_channel + self.in_dim].transpose(1, 2)
         for layer in self.features:
             h = layer(h)
             maps.append(h)

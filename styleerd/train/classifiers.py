@@ -14,17 +14,13 @@ from styleerd.model.classifiers import WindowClassifier
 from styleerd.train.batches import TrainingData, WindowSet
 
 
-def motion_dim(data: TrainingData) -> int:
-    return data.frames.shape[1] - 4  # every feature but the 4 foot contacts
-
-
 @torch.no_grad()
 def accuracy(model: WindowClassifier, data: TrainingData, ws: WindowSet, label: str, batch: int = 1024) -> float:
     model.eval()
     target = getattr(ws, label)
     correct = 0
     for i in range(0, len(ws.starts), batch):
-        x = data.gather(ws.starts[i : i + batch])[..., : motion_dim(data)]
+        x = data.gather(ws.starts[i : i + batch])
         correct += int((model(x).argmax(-1).numpy() == target[i : i + batch]).sum())
     return correct / max(1, len(ws.starts))
 
@@ -35,17 +31,18 @@ def train_classifier(
     val: WindowSet,
     label: str,
     instance_norm: bool,
+    channels: slice,
     epochs: int,
     lr: float,
     seed: int,
     batch: int = 128,
     progress: bool = True,
 ) -> tuple[WindowClassifier, float]:
-    """Train on ``train`` windows to predict ``label`` ("style" or "content"); return the
-    model of the best validation epoch and that accuracy."""
+    """Train on ``train`` windows to predict ``label`` ("style" or "content") from the feature
+    ``channels``; return the model of the best validation epoch and that accuracy."""
     torch.manual_seed(seed)
     n_classes = len(data.styles if label == "style" else data.contents)
-    model = WindowClassifier(motion_dim(data), n_classes, instance_norm=instance_norm)
+    model = WindowClassifier(channels.stop - channels.start, n_classes, instance_norm=instance_norm, first_channel=channels.start)
     opt = torch.optim.Adam(model.parameters(), lr=lr)
     target = torch.as_tensor(getattr(train, label))
     rng = np.random.default_rng(seed)
@@ -56,7 +53,7 @@ def train_classifier(
         bar = tqdm(range(0, len(order) - batch + 1, batch), desc=f"{label} classifier {epoch + 1}/{epochs}", disable=not progress, leave=False)
         for i in bar:
             idx = order[i : i + batch]
-            x = data.gather(train.starts[idx])[..., : motion_dim(data)]
+            x = data.gather(train.starts[idx])
             loss = F.cross_entropy(model(x), target[idx])
             opt.zero_grad()
             loss.backward()

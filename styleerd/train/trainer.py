@@ -28,6 +28,7 @@ from tqdm import tqdm
 from styleerd.atomic import atomic_write_text
 from styleerd.data.cache import CODE_VERSION, FeatureSet, prepare
 from styleerd.data.datasets import data_root, file_digest
+from styleerd.data.features import FeatureLayout
 from styleerd.errors import StyleERDError
 from styleerd.model import checkpoint as ckpt
 from styleerd.model.classifiers import WindowClassifier
@@ -118,21 +119,24 @@ def _perceptual_classifier(config: TrainConfig, s: Setup, out: Path, progress: b
         model.load_state_dict(ckpt.unprefixed("classifier", tensors))
         return model.eval()
     cls_train = windows(s.fs, s.data, "train", config.classifier_stride, config.max_train_clips)
-    model, acc = train_classifier(s.data, cls_train, s.val, "content", True, config.classifier_epochs, config.classifier_lr, config.seed, progress=progress)
+    layout = FeatureLayout(s.fs.skeleton.n_joints)
+    motion = slice(0, layout.velocities.stop)  # rotations, positions, velocities (paper)
+    model, acc = train_classifier(s.data, cls_train, s.val, "content", True, motion, config.classifier_epochs, config.classifier_lr, config.seed, progress=progress)
     if _is_main():
         ckpt.save_tensors(stem, ckpt.prefixed("classifier", model), ckpt.classifier_meta(model, s.data.contents, val_accuracy=acc))
     return model
 
 
-def _recognisers(s: Setup) -> tuple[WindowClassifier | None, WindowClassifier | None]:
-    """The shipped evaluation recognisers, when they fit this data's labels."""
+def _recognisers(s: Setup, stem: Path | None = None) -> tuple[WindowClassifier | None, WindowClassifier | None]:
+    """The evaluation recognisers (default: the shipped ones), when they fit this data's labels."""
     try:
-        style, content, meta = ckpt.load_recognisers()
+        style, content, meta = ckpt.load_recognisers(stem)
     except StyleERDError:
         return None, None
     if meta["style"]["labels"] != s.data.styles or meta["content"]["labels"] != s.data.contents:
         return None, None
-    if meta["style"]["in_dim"] != s.data.frames.shape[1] - 4:
+    layout = FeatureLayout(s.fs.skeleton.n_joints)
+    if meta["style"].get("first_channel", 0) + meta["style"]["in_dim"] > layout.velocities.stop:
         return None, None
     return style, content
 
@@ -334,9 +338,11 @@ def train_recognisers(config: TrainConfig, data_dir: str | None = None, out: Pat
     test = windows(s.fs, s.data, "test", config.window, config.max_train_clips)
     from styleerd.train.classifiers import accuracy
 
+    layout = FeatureLayout(s.fs.skeleton.n_joints)
+    visible = slice(layout.positions.start, layout.velocities.stop)  # joint positions + velocities
     report, tensors, meta = {}, {}, {}
     for label, labels in (("style", s.data.styles), ("content", s.data.contents)):
-        model, val_acc = train_classifier(s.data, cls_train, s.val, label, False, config.classifier_epochs, config.classifier_lr, config.seed, progress=progress)
+        model, val_acc = train_classifier(s.data, cls_train, s.val, label, False, visible, config.classifier_epochs, config.classifier_lr, config.seed, progress=progress)
         test_acc = accuracy(model, s.data, test, label)
         report[label] = {"val_accuracy": round(val_acc, 4), "test_accuracy": round(test_acc, 4), "test_windows": len(test.starts)}
         tensors.update(ckpt.prefixed(label, model))
@@ -347,7 +353,7 @@ def train_recognisers(config: TrainConfig, data_dir: str | None = None, out: Pat
     return report
 
 
-def evaluate(model_stem: Path | None = None, data_dir: str | None = None, split: str = "test", progress: bool = True) -> dict:
+def evaluate(model_stem: Path | None = None, data_dir: str | None = None, split: str = "test", progress: bool = True, recognisers: Path | None = None) -> dict:
     """The acceptance figures of a generator on real ``split`` windows: reconstruction error,
     SRA and CRA of its transfers, next to the recognisers' accuracy on the real windows."""
     from styleerd.train.classifiers import accuracy
@@ -356,7 +362,7 @@ def evaluate(model_stem: Path | None = None, data_dir: str | None = None, split:
     config = TrainConfig.from_dict(meta["training"]["config"], where=f"training config of {model_stem}")
     s = setup(config, data_dir, progress)
     ws = windows(s.fs, s.data, split, config.window)
-    style_rec, content_rec = _recognisers(s)
+    style_rec, content_rec = _recognisers(s, recognisers)
     if style_rec is None:
         raise StyleERDError("evaluation recognisers for this dataset are missing: run `styleerd train-recognisers`")
     result = validate(model, s.data, ws, style_rec, content_rec)
