@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import json
 import sys
 from pathlib import Path
 
@@ -56,16 +57,17 @@ def _train(args: argparse.Namespace) -> None:
 
 def _train_recognisers(args: argparse.Namespace) -> None:
     from styleerd.train.config import TrainConfig
-    from styleerd.train.trainer import dumps, train_recognisers
+    from styleerd.train.trainer import train_recognisers
 
     config = TrainConfig.from_yaml(args.config) if args.config else TrainConfig()
-    print(dumps(train_recognisers(config, args.data, Path(args.out) if args.out else None)))
+    print(json.dumps(train_recognisers(config, args.data, Path(args.out) if args.out else None), indent=1))
 
 
 def _evaluate(args: argparse.Namespace) -> None:
-    from styleerd.train.trainer import dumps, evaluate
+    from styleerd.train.trainer import evaluate
 
-    print(dumps(evaluate(Path(args.model) if args.model else None, args.data, args.split, recognisers=Path(args.recognisers) if args.recognisers else None)))
+    report = evaluate(Path(args.model) if args.model else None, args.data, args.split, recognisers=Path(args.recognisers) if args.recognisers else None)
+    print(json.dumps(report, indent=1))
 
 
 def _filmstrip(args: argparse.Namespace) -> None:

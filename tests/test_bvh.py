@@ -11,7 +11,6 @@ from conftest import walking_motion
 from styleerd.motion import bvh, quat
 from styleerd.motion.bvh import BVHError
 from styleerd.motion.kinematics import forward_kinematics
-from styleerd.motion.skeleton import Skeleton
 
 # ---------------------------------------------------------------- generated files
 

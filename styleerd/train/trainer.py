@@ -14,7 +14,6 @@ from __future__ import annotations
 
 import csv
 import io
-import json
 import os
 import time
 from dataclasses import dataclass
@@ -36,7 +35,7 @@ from styleerd.model.discriminator import Discriminator
 from styleerd.model.generator import GeneratorConfig, StyleERD
 from styleerd.train import losses
 from styleerd.train.batches import TrainingData, WindowSet, training_data, windows
-from styleerd.train.classifiers import train_classifier
+from styleerd.train.classifiers import accuracy, train_classifier
 from styleerd.train.config import TrainConfig
 from styleerd.train.validation import validate
 
@@ -336,8 +335,6 @@ def train_recognisers(config: TrainConfig, data_dir: str | None = None, out: Pat
     s = setup(config, data_dir, progress)
     cls_train = windows(s.fs, s.data, "train", config.classifier_stride, config.max_train_clips)
     test = windows(s.fs, s.data, "test", config.window, config.max_train_clips)
-    from styleerd.train.classifiers import accuracy
-
     layout = FeatureLayout(s.fs.skeleton.n_joints)
     visible = slice(layout.positions.start, layout.velocities.stop)  # joint positions + velocities
     report, tensors, meta = {}, {}, {}
@@ -356,8 +353,6 @@ def train_recognisers(config: TrainConfig, data_dir: str | None = None, out: Pat
 def evaluate(model_stem: Path | None = None, data_dir: str | None = None, split: str = "test", progress: bool = True, recognisers: Path | None = None) -> dict:
     """The acceptance figures of a generator on real ``split`` windows: reconstruction error,
     SRA and CRA of its transfers, next to the recognisers' accuracy on the real windows."""
-    from styleerd.train.classifiers import accuracy
-
     model, meta = ckpt.load_generator(model_stem)
     config = TrainConfig.from_dict(meta["training"]["config"], where=f"training config of {model_stem}")
     s = setup(config, data_dir, progress)
@@ -380,7 +375,3 @@ def evaluate(model_stem: Path | None = None, data_dir: str | None = None, split:
         "rec_cm": round(result["rec_cm"], 3),
         "training_minutes": meta["training"].get("wall_minutes"),
     }
-
-
-def dumps(d: dict) -> str:
-    return json.dumps(d, indent=1)
