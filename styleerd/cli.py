@@ -63,6 +63,39 @@ def _train_recognisers(args: argparse.Namespace) -> None:
     print(json.dumps(train_recognisers(config, args.data, Path(args.out) if args.out else None), indent=1))
 
 
+def _parse_mix(text: str) -> dict[str, float]:
+    try:
+        return {k.strip(): float(v) for k, v in (part.split("=") for part in text.split(","))}
+    except ValueError:
+        raise StyleERDError(f"--mix {text!r}: expected STYLE=WEIGHT,STYLE=WEIGHT") from None
+
+
+def _transfer(args: argparse.Namespace) -> None:
+    from styleerd.model.checkpoint import load_generator
+    from styleerd.runtime.offline import transfer_file
+    from styleerd.runtime.stylizer import target_weights
+
+    if Path(args.output).suffix.lower() != ".bvh":
+        raise StyleERDError(f"-o {args.output}: only .bvh output is built so far")
+    model, meta = load_generator(args.model)
+    c = model.config
+    for value, names, what in ((args.input_style, c.styles, "--input-style"), (args.content, c.contents, "--content")):
+        if value not in names:
+            raise StyleERDError(f"{what} {value!r} is not one of: {', '.join(names)}")
+    target = target_weights(model, args.style, args.intensity, _parse_mix(args.mix) if args.mix else None)
+    out = transfer_file(args.input, args.output, model, meta["data"]["fps"], args.input_style, args.content, target)
+    print(f"wrote {args.output}: {out.n_frames} frames at {out.fps:.6g} fps, target {target}")
+
+
+def _styles(args: argparse.Namespace) -> None:
+    from styleerd.model.checkpoint import load_generator
+
+    model, meta = load_generator(args.model)
+    print(f"styles:   {', '.join(model.config.styles)} (neutral: {model.config.neutral_style})")
+    print(f"contents: {', '.join(model.config.contents)}")
+    print(f"skeleton: {model.skeleton.n_joints} joints, trained at {meta['data']['fps']:g} fps on {meta['data']['dataset']}")
+
+
 def _evaluate(args: argparse.Namespace) -> None:
     from styleerd.train.trainer import evaluate
 
@@ -140,6 +173,21 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--out", help="model path without suffix (default models/recognisers-bandai2)")
     p.add_argument("--data", help="data folder")
     p.set_defaults(func=_train_recognisers)
+
+    p = sub.add_parser("transfer", help="stylise a BVH file (the model's skeleton; other skeletons: not yet)")
+    p.add_argument("input")
+    p.add_argument("--style", help="target style")
+    p.add_argument("--intensity", type=float, default=1.0, help="0 = neutral, 1 = full style, up to 2")
+    p.add_argument("--mix", help="a mixture instead of --style, e.g. elderly=0.5,feminine=0.5")
+    p.add_argument("--input-style", required=True, help="the input's style (label inference: not yet)")
+    p.add_argument("--content", required=True, help="the input's content, e.g. walk")
+    p.add_argument("--model", help="model path without suffix (default: the shipped model)")
+    p.add_argument("-o", "--output", required=True)
+    p.set_defaults(func=_transfer)
+
+    p = sub.add_parser("styles", help="styles and contents of the model")
+    p.add_argument("--model", help="model path without suffix (default: the shipped model)")
+    p.set_defaults(func=_styles)
 
     p = sub.add_parser("evaluate", help="SRA, CRA and reconstruction error of a model on real test windows")
     p.add_argument("--model", help="model path without suffix (default: the shipped model)")

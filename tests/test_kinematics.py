@@ -108,3 +108,13 @@ def test_resample_matches_scipy_slerp_and_keeps_identity():
     down = resample(m, 12.0)
     assert down.n_frames == 13
     assert np.allclose(down.positions[1, 0], (m.positions[2, 0] + m.positions[3, 0]) / 2)
+
+
+def test_resample_to_a_given_frame_count_round_trips_the_length():
+    m = walking_motion(41, fps=120.0)
+    down = resample(m, 30.0)
+    assert down.n_frames == 11
+    back = resample(down, 120.0, n_frames=41)
+    assert back.n_frames == 41 and np.allclose(back.positions[::4], m.positions[::4])
+    longer = resample(walking_motion(42, fps=120.0), 30.0)
+    assert resample(longer, 120.0, n_frames=42).n_frames == 42  # the last frame is held

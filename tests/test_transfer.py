@@ -1,0 +1,63 @@
+"""BVH file -> stylised BVH file with the shipped model, on real clips."""
+
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+from styleerd.data.datasets import find_clips
+from styleerd.errors import StyleERDError
+from styleerd.model.checkpoint import load_generator
+from styleerd.motion import bvh
+from styleerd.motion.kinematics import forward_kinematics
+from styleerd.motion.resample import resample
+from styleerd.runtime.offline import transfer_file
+
+pytestmark = pytest.mark.slow
+
+
+@pytest.fixture(scope="module")
+def model():
+    return load_generator()
+
+
+def world(m):
+    return forward_kinematics(m.rotations, m.positions, m.skeleton.parents)[1]
+
+
+def test_test_clips_into_every_style_keep_layout_frames_and_trajectory(shared_data, model, tmp_path):
+    g, meta = model
+    clips = [c for c in find_clips(shared_data, "bandai-namco-2") if c.content in ("walk", "wave-left-hand")]
+    picked = {(c.style, c.content): c for c in clips}  # one clip per style x content
+    for clip in list(picked.values())[:4]:
+        src = bvh.read(clip.path)
+        for style in g.config.styles:
+            out_path = tmp_path / f"{clip.name}-{style}.bvh"
+            transfer_file(clip.path, out_path, g, meta["data"]["fps"], clip.style, clip.content, {style: 1.0})
+            out = bvh.read(out_path)
+            assert out.skeleton == src.skeleton and out.n_frames == src.n_frames and np.isclose(out.fps, src.fps)
+            assert np.isfinite(bvh.channel_values(out)).all()
+            assert np.allclose(world(out)[:, 1], world(src)[:, 1], atol=1e-3)  # the Hips follow the input path
+
+
+def test_other_frame_rates_come_back_at_their_rate_and_length(shared_data, model, tmp_path):
+    g, meta = model
+    clip = find_clips(shared_data, "bandai-namco-2")[0]
+    fast = resample(bvh.read(clip.path), 60.0)
+    bvh.write(tmp_path / "in60.bvh", fast)
+    out = transfer_file(tmp_path / "in60.bvh", tmp_path / "out60.bvh", g, meta["data"]["fps"], clip.style, clip.content, {"elderly": 1.0})
+    assert out.n_frames == fast.n_frames and np.isclose(bvh.read(tmp_path / "out60.bvh").fps, 60.0, rtol=1e-6)
+
+
+def test_unmappable_skeleton_and_bad_labels_fail_cleanly(shared_data, model, tmp_path):
+    g, meta = model
+    xia = shared_data / "xia-sample" / "angry_13_000.bvh"
+    with pytest.raises(StyleERDError, match="model joints missing: Chest, Shoulder_L, UpperArm_L"):
+        transfer_file(xia, tmp_path / "x.bvh", g, 30.0, "normal", "walk", {"elderly": 1.0})
+    assert not (tmp_path / "x.bvh").exists()
+    clip = find_clips(shared_data, "bandai-namco-2")[0]
+    r = subprocess.run([sys.executable, "-m", "styleerd.cli", "transfer", str(clip.path), "--style", "oldie", "--input-style", "normal",
+                        "--content", "walk", "-o", str(tmp_path / "y.bvh")], capture_output=True, text=True)
+    assert r.returncode == 2 and "valid: active, elderly" in r.stderr and len(r.stderr.strip().splitlines()) == 1
+    assert not (tmp_path / "y.bvh").exists()
