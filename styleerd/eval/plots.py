@@ -11,10 +11,14 @@ import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
 from styleerd.atomic import atomic_write  # noqa: E402
+from styleerd.data.datasets import Clip, load_motion  # noqa: E402
+from styleerd.model.generator import StyleERD  # noqa: E402
 from styleerd.motion import quat  # noqa: E402
 from styleerd.motion.kinematics import facing_directions, forward_kinematics, heading_rotations  # noqa: E402
 from styleerd.motion.motion import Motion  # noqa: E402
+from styleerd.motion.resample import resample  # noqa: E402
 from styleerd.motion.skeleton import BodyRoles  # noqa: E402
+from styleerd.runtime.offline import stylise_motion  # noqa: E402
 
 
 def _draw(ax, xy: np.ndarray, parents: np.ndarray, color: str) -> None:
@@ -58,12 +62,8 @@ def filmstrip(rows: list[tuple[str, Motion]], path: str | Path, frames: int = 8,
     plt.close(fig)
 
 
-def style_filmstrip(model, clip, path: str | Path, frames: int = 8) -> None:
+def style_filmstrip(model: StyleERD, clip: Clip, path: str | Path, frames: int = 8) -> None:
     """A neutral clip and its transfer into every other style of ``model``."""
-    from styleerd.data.datasets import load_motion
-    from styleerd.motion.resample import resample
-    from styleerd.runtime.offline import stylise_motion
-
     motion = resample(load_motion(clip), 30.0)
     c = model.config
     rows = [(f"input: {clip.name} ({clip.style}, {clip.content})", motion)]
