@@ -83,8 +83,19 @@ def _transfer(args: argparse.Namespace) -> None:
         if value not in names:
             raise StyleERDError(f"{what} {value!r} is not one of: {', '.join(names)}")
     target = target_weights(model, args.style, args.intensity, _parse_mix(args.mix) if args.mix else None)
-    out = transfer_file(args.input, args.output, model, meta["data"]["fps"], args.input_style, args.content, target)
+    explicit = _read_joint_map(args.joint_map) if args.joint_map else None
+    out = transfer_file(args.input, args.output, model, meta["data"]["fps"], args.input_style, args.content, target, explicit, report_mapping=lambda text: print(f"joint mapping (model <- input):\n{text}"))
     print(f"wrote {args.output}: {out.n_frames} frames at {out.fps:.6g} fps, target {target}")
+
+
+def _read_joint_map(path: str) -> dict[str, str]:
+    try:
+        data = json.loads(Path(path).read_text())
+    except (OSError, ValueError) as e:
+        raise StyleERDError(f"--joint-map {path}: {e}") from None
+    if not isinstance(data, dict) or not all(isinstance(k, str) and isinstance(v, str) for k, v in data.items()):
+        raise StyleERDError(f"--joint-map {path}: expected a JSON object of model joint -> input joint names")
+    return data
 
 
 def _styles(args: argparse.Namespace) -> None:
@@ -174,13 +185,14 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--data", help="data folder")
     p.set_defaults(func=_train_recognisers)
 
-    p = sub.add_parser("transfer", help="stylise a BVH file (the model's skeleton; other skeletons: not yet)")
+    p = sub.add_parser("transfer", help="stylise a BVH file (any humanoid skeleton)")
     p.add_argument("input")
     p.add_argument("--style", help="target style")
     p.add_argument("--intensity", type=float, default=1.0, help="0 = neutral, 1 = full style, up to 2")
     p.add_argument("--mix", help="a mixture instead of --style, e.g. elderly=0.5,feminine=0.5")
     p.add_argument("--input-style", required=True, help="the input's style (label inference: not yet)")
     p.add_argument("--content", required=True, help="the input's content, e.g. walk")
+    p.add_argument("--joint-map", help="JSON object {model joint: input joint} completing or overriding the automatic mapping")
     p.add_argument("--model", help="model path without suffix (default: the shipped model)")
     p.add_argument("-o", "--output", required=True)
     p.set_defaults(func=_transfer)

@@ -50,12 +50,34 @@ def test_other_frame_rates_come_back_at_their_rate_and_length(shared_data, model
     assert out.n_frames == fast.n_frames and np.isclose(bvh.read(tmp_path / "out60.bvh").fps, 60.0, rtol=1e-6)
 
 
+def test_xia_clips_into_every_style_keep_skeleton_frames_and_root(shared_data, model, tmp_path):
+    g, meta = model
+    lines = []
+    for path in sorted((shared_data / "xia-sample").glob("*.bvh")):
+        src = bvh.read(path)
+        for style in g.config.styles:
+            out_path = tmp_path / f"{path.stem}-{style}.bvh"
+            transfer_file(path, out_path, g, meta["data"]["fps"], "normal", "walk", {style: 1.0}, report_mapping=lines.append)
+            out = bvh.read(out_path)
+            assert out.skeleton == src.skeleton and out.n_frames == src.n_frames and np.isclose(out.fps, src.fps)
+            assert np.isfinite(bvh.channel_values(out)).all()
+            assert np.array_equal(out.positions[:, 0], src.positions[:, 0])  # root path: the input's
+            assert not np.allclose(out.rotations, src.rotations, atol=1e-3)  # and the pose did change
+    assert "Chest <- Spine1" in lines[0]
+
+
 def test_unmappable_skeleton_and_bad_labels_fail_cleanly(shared_data, model, tmp_path):
     g, meta = model
     xia = shared_data / "xia-sample" / "angry_13_000.bvh"
-    with pytest.raises(StyleERDError, match="model joints missing: Chest, Shoulder_L, UpperArm_L"):
-        transfer_file(xia, tmp_path / "x.bvh", g, 30.0, "normal", "walk", {"elderly": 1.0})
+    text = xia.read_text().replace("LeftHand", "Paw").replace("LeftForeArm", "Wrist2")
+    (tmp_path / "odd.bvh").write_text(text)
+    with pytest.raises(StyleERDError, match=r"odd.bvh: cannot map the skeleton: no joint found for left elbow \(model joint LowerArm_L\)"):
+        transfer_file(tmp_path / "odd.bvh", tmp_path / "x.bvh", g, 30.0, "normal", "walk", {"elderly": 1.0})
     assert not (tmp_path / "x.bvh").exists()
+    (tmp_path / "map.json").write_text('{"LowerArm_L": "Wrist2", "Hand_L": "Paw"}')
+    r = subprocess.run([sys.executable, "-m", "styleerd.cli", "transfer", str(tmp_path / "odd.bvh"), "--style", "elderly", "--input-style", "normal",
+                        "--content", "walk", "--joint-map", str(tmp_path / "map.json"), "-o", str(tmp_path / "x.bvh")], capture_output=True, text=True)
+    assert r.returncode == 0 and "LowerArm_L <- Wrist2" in r.stdout and (tmp_path / "x.bvh").is_file()
     clip = find_clips(shared_data, "bandai-namco-2")[0]
     r = subprocess.run([sys.executable, "-m", "styleerd.cli", "transfer", str(clip.path), "--style", "oldie", "--input-style", "normal",
                         "--content", "walk", "-o", str(tmp_path / "y.bvh")], capture_output=True, text=True)

@@ -84,27 +84,50 @@ class Skeleton:
         )
 
 
-# Joint names by body part, as Bandai-Namco, CMU/Xia and Mixamo/Unity name them.
+def _sided(left: tuple[str, ...]) -> tuple[str, ...]:
+    """The right-side names of left-side ones ('leftarm' -> 'rightarm', 'foot_l' -> 'foot_r')."""
+    swap = {"left": "right", "_l": "_r", "l_": "r_", ".l": ".r"}
+    out = []
+    for n in left:
+        for a, b in swap.items():
+            if n.startswith(a) or n.endswith(a):
+                n = (b + n[len(a) :]) if n.startswith(a) else (n[: -len(a)] + b)
+                break
+        out.append(n)
+    return tuple(out)
+
+
+# Joint names by body part (lower case, namespace dropped), as Bandai-Namco, CMU/Xia,
+# Mixamo/Unity and Blender rigs name them; left side, the right side follows.
+_LEFT_NAMES = {
+    "collar": ("shoulder_l", "leftshoulder", "leftcollar", "l_collar", "leftclavicle", "clavicle_l", "l_clavicle", "clavicle.l"),
+    "shoulder": ("upperarm_l", "leftarm", "leftupperarm", "l_shoulder", "l_upperarm", "upper_arm.l"),
+    "elbow": ("lowerarm_l", "leftforearm", "leftlowerarm", "leftelbow", "l_elbow", "l_forearm", "forearm_l", "forearm.l"),
+    "hand": ("hand_l", "lefthand", "leftwrist", "l_wrist", "l_hand", "hand.l"),
+    "hip": ("upperleg_l", "leftupleg", "leftupperleg", "lefthip", "l_hip", "thigh_l", "thigh.l", "l_thigh"),
+    "knee": ("lowerleg_l", "leftleg", "leftlowerleg", "leftknee", "l_knee", "calf_l", "shin.l", "l_calf", "leftshin"),
+    "foot": ("foot_l", "leftfoot", "l_foot", "leftankle", "l_ankle", "foot.l"),
+    "toe": ("toes_l", "lefttoebase", "lefttoe", "lefttoes", "l_toe", "ball_l", "toe.l"),
+}
 _ROLE_NAMES = {
-    "left_hip": ("upperleg_l", "leftupleg", "leftupperleg", "lefthip", "l_hip"),
-    "right_hip": ("upperleg_r", "rightupleg", "rightupperleg", "righthip", "r_hip"),
-    "left_shoulder": ("upperarm_l", "leftarm", "leftupperarm", "l_shoulder"),
-    "right_shoulder": ("upperarm_r", "rightarm", "rightupperarm", "r_shoulder"),
-    "left_foot": ("foot_l", "leftfoot", "l_foot", "leftankle"),
-    "right_foot": ("foot_r", "rightfoot", "r_foot", "rightankle"),
-    "left_toe": ("toes_l", "lefttoebase", "lefttoe", "lefttoes", "l_toe"),
-    "right_toe": ("toes_r", "righttoebase", "righttoe", "righttoes", "r_toe"),
+    "hips": ("hips", "pelvis", "hip"),
+    "spine": ("spine",),
+    "chest": ("chest", "upperchest", "spine2"),
+    "neck": ("neck",),
+    "head": ("head",),
+    **{f"left_{part}": names for part, names in _LEFT_NAMES.items()},
+    **{f"right_{part}": _sided(names) for part, names in _LEFT_NAMES.items()},
 }
 
 
-def _bare(name: str) -> str:
+def bare_name(name: str) -> str:
     """'mixamorig:LeftUpLeg' -> 'leftupleg'."""
     return name.rsplit(":", 1)[-1].lower()
 
 
 def find_role(skeleton: Skeleton, role: str) -> int:
     """Index of the joint playing ``role`` (a key of the role table), by its name."""
-    bare = [_bare(n) for n in skeleton.names]
+    bare = [bare_name(n) for n in skeleton.names]
     for candidate in _ROLE_NAMES[role]:
         if candidate in bare:
             return bare.index(candidate)
@@ -120,7 +143,7 @@ class BodyRoles:
 
     @classmethod
     def of(cls, skeleton: Skeleton) -> "BodyRoles":
-        r = {role: find_role(skeleton, role) for role in _ROLE_NAMES}
+        r = {role: find_role(skeleton, role) for role in ("left_hip", "right_hip", "left_shoulder", "right_shoulder", "left_foot", "right_foot", "left_toe", "right_toe")}
         j, length = r["left_foot"], 0.0
         while j != r["left_hip"] and j > 0:
             length += float(np.linalg.norm(skeleton.offsets[j]))

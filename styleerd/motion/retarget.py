@@ -1,0 +1,253 @@
+"""Retargeting between humanoid skeletons: joint mapping, T-pose alignment, scale.
+
+Both skeletons are brought into one shared reference pose, a T-pose (Y up, facing +Z, the
+character's left along +X, arms out sideways, legs straight down, feet forward), whatever
+their rest poses are (T-pose, A-pose, or a rest where every bone lies along its local X as in
+Bandai-Namco's data). For each skeleton, ``tpose_rotations`` gives every joint's global
+rotation in that T-pose. A mapped joint then carries its global rotation over relative to the
+T-pose:
+
+    G_target[j](t) = G_source[s](t) * inv(T_source[s]) * T_target[j]
+
+so every mapped bone points the same way on both skeletons at every frame. The way back
+inverts this exactly for mapped joints; joints with no counterpart keep their own local
+rotation (fingers, extra spine or neck joints). Root translation is scaled by the ratio of leg
+lengths. BVH world axes are assumed Y up (the convention of CMU, Xia, Mixamo and Bandai data).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from styleerd.motion import quat
+from styleerd.motion.kinematics import forward_kinematics
+from styleerd.motion.motion import Motion
+from styleerd.motion.skeleton import Skeleton, bare_name, find_role
+
+# Body parts along the chains they form, root to tip.
+CHAINS = (
+    ("hips", "spine", "chest", "neck", "head"),
+    ("chest", "left_collar", "left_shoulder", "left_elbow", "left_hand"),
+    ("chest", "right_collar", "right_shoulder", "right_elbow", "right_hand"),
+    ("hips", "left_hip", "left_knee", "left_foot", "left_toe"),
+    ("hips", "right_hip", "right_knee", "right_foot", "right_toe"),
+)
+REQUIRED = (
+    "hips", "chest", "head",
+    "left_shoulder", "left_elbow", "left_hand", "right_shoulder", "right_elbow", "right_hand",
+    "left_hip", "left_knee", "left_foot", "right_hip", "right_knee", "right_foot",
+)  # fmt: skip
+OPTIONAL = ("spine", "neck", "left_collar", "right_collar", "left_toe", "right_toe")
+
+UP, DOWN, LEFT, RIGHT, FORWARD = np.eye(3)[1], -np.eye(3)[1], np.eye(3)[0], -np.eye(3)[0], np.eye(3)[2]
+# Where each part's bone (towards the next part of its chain) points in the T-pose.
+TPOSE_DIRECTIONS = {
+    "hips": UP, "spine": UP, "chest": UP, "neck": UP,
+    "left_collar": LEFT, "left_shoulder": LEFT, "left_elbow": LEFT,
+    "right_collar": RIGHT, "right_shoulder": RIGHT, "right_elbow": RIGHT,
+    "left_hip": DOWN, "left_knee": DOWN, "left_foot": FORWARD,
+    "right_hip": DOWN, "right_knee": DOWN, "right_foot": FORWARD,
+}  # fmt: skip
+# Parts whose twist is fixed by a second, sideways direction (left minus right -> +X): the
+# first part of each side's chain that does not sit on the part itself.
+ACROSS = {"hips": (("left_hip",), ("right_hip",)), "chest": (("left_collar", "left_shoulder"), ("right_collar", "right_shoulder"))}
+
+
+def _path(skeleton: Skeleton, ancestor: int, joint: int) -> list[int]:
+    """Joints strictly between ``ancestor`` and ``joint`` (root side first); None if
+    ``ancestor`` is not an ancestor of ``joint``."""
+    path = []
+    j = int(skeleton.parents[joint])
+    while j != ancestor:
+        if j < 0:
+            return None
+        path.append(j)
+        j = int(skeleton.parents[j])
+    return path[::-1]
+
+
+def _ancestors(skeleton: Skeleton, j: int) -> list[int]:
+    out = []
+    while j >= 0:
+        out.append(j)
+        j = int(skeleton.parents[j])
+    return out
+
+
+def body_parts(skeleton: Skeleton) -> dict[str, int]:
+    """Body part -> joint index, by name (Bandai, CMU/Xia, Mixamo/Unity conventions) and,
+    where names say nothing, by topology: the chest is where the arms branch off the spine,
+    the spine lies between hips and chest, the neck between chest and head, knee and elbow
+    between the joints around them."""
+    parts: dict[str, int] = {}
+    for part in REQUIRED + OPTIONAL:
+        try:
+            parts[part] = find_role(skeleton, part)
+        except KeyError:
+            pass
+    if "chest" not in parts and "left_shoulder" in parts and "right_shoulder" in parts:
+        right = set(_ancestors(skeleton, parts["right_shoulder"]))
+        common = [j for j in _ancestors(skeleton, parts["left_shoulder"]) if j in right]
+        parts["chest"] = common[0]
+    for part, (above, below) in {"spine": ("hips", "chest"), "neck": ("chest", "head")}.items():
+        if part not in parts and above in parts and below in parts:
+            between = _path(skeleton, parts[above], parts[below]) or []
+            if between:
+                parts[part] = between[(len(between) - 1) // 2 if part == "spine" else 0]
+    for side in ("left", "right"):
+        for mid, (a, b) in {"knee": ("hip", "foot"), "elbow": ("shoulder", "hand")}.items():
+            key = f"{side}_{mid}"
+            if key not in parts and f"{side}_{a}" in parts and f"{side}_{b}" in parts:
+                between = _path(skeleton, parts[f"{side}_{a}"], parts[f"{side}_{b}"]) or []
+                if between:
+                    parts[key] = between[len(between) // 2]
+    return parts
+
+
+@dataclass(frozen=True)
+class JointMap:
+    """How a source skeleton maps onto a target skeleton."""
+
+    source: Skeleton
+    target: Skeleton
+    pairs: tuple[tuple[int, int], ...]  # (target joint, source joint), target order
+    source_tpose: np.ndarray  # [Js, 4] global rotations of the source in the T-pose
+    target_tpose: np.ndarray  # [Jt, 4]
+    scale: float  # target units per source unit (ratio of leg lengths)
+
+    def describe(self) -> str:
+        lines = [f"  {self.target.names[t]:>14} <- {self.source.names[s]}" for t, s in self.pairs]
+        unmapped = [n for j, n in enumerate(self.source.names) if j not in {s for _, s in self.pairs}]
+        if unmapped:
+            lines.append(f"  keep their own motion: {', '.join(unmapped)}")
+        return "\n".join(lines)
+
+
+def _rest_positions(skeleton: Skeleton) -> np.ndarray:
+    rot = quat.identity((skeleton.n_joints,))
+    return forward_kinematics(rot, skeleton.offsets.copy(), skeleton.parents)[1]
+
+
+def _frame(primary: np.ndarray, secondary: np.ndarray) -> np.ndarray:
+    """Orthonormal frame [3, 3] (columns) whose first axis is ``primary`` and whose second
+    lies in the plane of ``primary`` and ``secondary``."""
+    a = primary / np.linalg.norm(primary)
+    b = secondary - a * np.dot(a, secondary)
+    b /= np.linalg.norm(b)
+    return np.stack([a, b, np.cross(a, b)], -1)
+
+
+def tpose_rotations(skeleton: Skeleton, parts: dict[str, int], shared: set[str]) -> np.ndarray:
+    """Global rotations ``[J, 4]`` that put the skeleton in the T-pose, from its rest pose.
+
+    A part's bone runs to the next part of its chain that both skeletons have (``shared``)
+    and that does not sit on the same spot (zero-length joints such as CMU's LHipJoint or a
+    neck at the chest's position are skipped). A part with no such bone (head, hands, toes)
+    and joints that are no part keep their parent's rotation."""
+    P = _rest_positions(skeleton)
+    eps = 1e-6 * max(1.0, float(np.abs(P).max()))
+    T = quat.identity((skeleton.n_joints,))
+    target = {}
+    for part, j in parts.items():
+        if part not in shared or part not in TPOSE_DIRECTIONS:
+            continue
+        tips = [parts[c] for c in _down_chain(part, shared) if np.linalg.norm(P[parts[c]] - P[j]) > eps]
+        if not tips:
+            continue
+        bone = P[tips[0]] - P[j]
+        sides = [[parts[p] for p in side if p in shared and np.linalg.norm(P[parts[p]] - P[j]) > eps] for side in ACROSS.get(part, ())]
+        if sides and all(sides):
+            rot = _frame(TPOSE_DIRECTIONS[part], LEFT) @ _frame(bone, P[sides[0][0]] - P[sides[1][0]]).T
+        else:
+            rot = quat.to_xform(quat.between(bone, TPOSE_DIRECTIONS[part]))
+        target[j] = quat.from_xform(rot)
+    for j in range(skeleton.n_joints):  # parents first
+        T[j] = target.get(j, T[skeleton.parents[j]] if j > 0 else T[0])
+    return T
+
+
+def _down_chain(part: str, shared: set[str]) -> list[str]:
+    """The shared parts below ``part`` on its main chain (for hips and chest: the spine;
+    legs and arms branch off sideways)."""
+    chain = next(c for c in CHAINS if part in c[:-1])
+    return [p for p in chain[chain.index(part) + 1 :] if p in shared]
+
+
+def leg_length(skeleton: Skeleton, parts: dict[str, int]) -> float:
+    P = _rest_positions(skeleton)
+    hip, knee, foot = (parts[f"left_{p}"] for p in ("hip", "knee", "foot"))
+    return float(np.linalg.norm(P[knee] - P[hip]) + np.linalg.norm(P[foot] - P[knee]))
+
+
+def joint_map(target: Skeleton, source: Skeleton, explicit: dict[str, str] | None = None) -> JointMap:
+    """Map ``source`` onto ``target`` automatically (names and topology); ``explicit``
+    ({target joint: source joint}) overrides or completes it. Raises ValueError naming the
+    body parts that cannot be found."""
+    tp, sp = body_parts(target), body_parts(source)
+    if explicit:
+        for t_name, s_name in explicit.items():
+            if t_name not in target.names:
+                raise ValueError(f"joint map: {t_name!r} is not a joint of the model skeleton ({', '.join(target.names)})")
+            if s_name not in source.names:
+                raise ValueError(f"joint map: {s_name!r} is not a joint of the input skeleton")
+            t = target.index(t_name)
+            part = next((p for p, j in tp.items() if j == t), None)
+            if part is None:
+                raise ValueError(f"joint map: model joint {t_name!r} plays no body part")
+            sp[part] = source.index(s_name)
+    missing = [p for p in REQUIRED if p not in sp]
+    if missing:
+        named = [f"{p.replace('_', ' ')} (model joint {target.names[tp[p]]})" if p in tp else p.replace("_", " ") for p in missing]
+        raise ValueError(f"cannot map the skeleton: no joint found for {', '.join(named)}; name them with --joint-map, a JSON object of model joint -> your joint")
+    if tp["hips"] != 0:
+        raise ValueError(f"the model skeleton's root {target.names[0]!r} is not its hips")
+    shared = {p for p in tp if p in sp}
+    pairs = tuple(sorted((tp[p], sp[p]) for p in shared))
+    scale = leg_length(target, tp) / leg_length(source, sp)
+    return JointMap(source, target, pairs, tpose_rotations(source, sp, shared), tpose_rotations(target, tp, shared), scale)
+
+
+def _local_from_global(g_rot: np.ndarray, parents: np.ndarray) -> np.ndarray:
+    local = g_rot.copy()
+    local[..., 1:, :] = quat.mul(quat.inv(g_rot[..., parents[1:], :]), g_rot[..., 1:, :])
+    return local
+
+
+def to_target(motion: Motion, jm: JointMap) -> Motion:
+    """The source motion on the target skeleton (target rest offsets, scaled root path)."""
+    src, tgt = jm.source, jm.target
+    g_rot, g_pos = forward_kinematics(motion.rotations, motion.positions, src.parents)
+    T = motion.n_frames
+    out = np.empty((T, tgt.n_joints, 4))
+    mapped = dict(jm.pairs)
+    for j in range(tgt.n_joints):
+        if j in mapped:
+            s = mapped[j]
+            out[:, j] = quat.mul(g_rot[:, s], quat.mul(quat.inv(jm.source_tpose[s]), jm.target_tpose[j]))
+        else:  # no counterpart: the target's T-pose relation to its parent
+            p = tgt.parents[j]
+            out[:, j] = quat.mul(out[:, p], quat.mul(quat.inv(jm.target_tpose[p]), jm.target_tpose[j])) if p >= 0 else jm.target_tpose[j]
+    pos = np.broadcast_to(tgt.offsets, (T, tgt.n_joints, 3)).copy()
+    pos[:, 0] = g_pos[:, mapped[0]] * jm.scale
+    return Motion(tgt, _local_from_global(out, tgt.parents), pos, motion.fps)
+
+
+def to_source(target_motion: Motion, jm: JointMap, source_motion: Motion) -> Motion:
+    """Put a target-skeleton motion back on the source skeleton: mapped joints take its
+    global rotations, every other joint keeps ``source_motion``'s local rotation, and all
+    translations (the root path included) are ``source_motion``'s."""
+    src, tgt = jm.source, jm.target
+    g_tgt, _ = forward_kinematics(target_motion.rotations, target_motion.positions, tgt.parents)
+    from_target = {s: t for t, s in jm.pairs}
+    T = target_motion.n_frames
+    g = np.empty((T, src.n_joints, 4))
+    for s in range(src.n_joints):
+        if s in from_target:
+            t = from_target[s]
+            g[:, s] = quat.mul(g_tgt[:, t], quat.mul(quat.inv(jm.target_tpose[t]), jm.source_tpose[s]))
+        else:
+            p = src.parents[s]
+            g[:, s] = quat.mul(g[:, p], source_motion.rotations[:, s]) if p >= 0 else source_motion.rotations[:, s]
+    return Motion(src, quat.normalize(_local_from_global(g, src.parents)), source_motion.positions.copy(), target_motion.fps, source_motion.euler_hint)
