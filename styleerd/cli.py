@@ -63,6 +63,15 @@ def _train_recognisers(args: argparse.Namespace) -> None:
     print(json.dumps(train_recognisers(config, args.data, Path(args.out) if args.out else None), indent=1))
 
 
+def _train_labeller(args: argparse.Namespace) -> None:
+    from styleerd.train.config import TrainConfig
+    from styleerd.train.labeller import train_and_save
+
+    config = TrainConfig.from_yaml(args.config) if args.config else TrainConfig()
+    report = train_and_save(config, args.data, Path(args.out) if args.out else None)
+    print(json.dumps({"test": report["test"]}, indent=1))
+
+
 def _parse_mix(text: str) -> dict[str, float]:
     try:
         return {k.strip(): float(v) for k, v in (part.split("=") for part in text.split(","))}
@@ -80,11 +89,11 @@ def _transfer(args: argparse.Namespace) -> None:
     model, meta = load_generator(args.model)
     c = model.config
     for value, names, what in ((args.input_style, c.styles, "--input-style"), (args.content, c.contents, "--content")):
-        if value not in names:
+        if value is not None and value not in names:
             raise StyleERDError(f"{what} {value!r} is not one of: {', '.join(names)}")
     target = target_weights(model, args.style, args.intensity, _parse_mix(args.mix) if args.mix else None)
     explicit = _read_joint_map(args.joint_map) if args.joint_map else None
-    out = transfer_file(args.input, args.output, model, meta["data"]["fps"], args.input_style, args.content, target, explicit, report_mapping=lambda text: print(f"joint mapping (model <- input):\n{text}"))
+    out = transfer_file(args.input, args.output, model, meta["data"]["fps"], args.input_style, args.content, target, explicit, report=print)
     print(f"wrote {args.output}: {out.n_frames} frames at {out.fps:.6g} fps, target {target}")
 
 
@@ -185,13 +194,19 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--data", help="data folder")
     p.set_defaults(func=_train_recognisers)
 
+    p = sub.add_parser("train-labeller", help="train the online style/content labeller (labels inferred when not given)")
+    p.add_argument("--config", help="YAML TrainConfig (dataset, seed, threads)")
+    p.add_argument("--out", help="model path without suffix (default models/labeller-bandai2)")
+    p.add_argument("--data", help="data folder")
+    p.set_defaults(func=_train_labeller)
+
     p = sub.add_parser("transfer", help="stylise a BVH file (any humanoid skeleton)")
     p.add_argument("input")
     p.add_argument("--style", help="target style")
     p.add_argument("--intensity", type=float, default=1.0, help="0 = neutral, 1 = full style, up to 2")
     p.add_argument("--mix", help="a mixture instead of --style, e.g. elderly=0.5,feminine=0.5")
-    p.add_argument("--input-style", required=True, help="the input's style (label inference: not yet)")
-    p.add_argument("--content", required=True, help="the input's content, e.g. walk")
+    p.add_argument("--input-style", help="the input's style (default: inferred online from the frames)")
+    p.add_argument("--content", help="the input's content, e.g. walk (default: inferred online)")
     p.add_argument("--joint-map", help="JSON object {model joint: input joint} completing or overriding the automatic mapping")
     p.add_argument("--model", help="model path without suffix (default: the shipped model)")
     p.add_argument("-o", "--output", required=True)

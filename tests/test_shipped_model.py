@@ -38,3 +38,17 @@ def test_shipped_model_meets_the_recognition_targets_on_the_test_split(shared_da
     print(r)
     assert r["windows"] > 1000
     assert r["sra_of_ceiling"] >= SRA_TARGET and r["cra_of_ceiling"] >= CRA_TARGET
+
+
+@pytest.mark.slow
+def test_shipped_labeller_labels_test_streams_as_its_record_says(shared_data):
+    from styleerd.train.config import TrainConfig
+    from styleerd.train.labeller import stream_accuracy
+    from styleerd.train.trainer import setup
+
+    labeller, meta = ckpt.load_labeller()
+    s = setup(TrainConfig(), str(shared_data), progress=False)
+    acc = stream_accuracy(labeller, s.fs, s.data, "test")
+    print(acc)
+    assert {str(k): v for k, v in acc.items()} == meta["test"]  # the recorded figures are reproducible
+    assert acc[1]["style"] >= 0.85 and acc[30]["style"] >= 0.97 and acc[30]["content"] >= 0.9

@@ -6,6 +6,7 @@ from conftest import walking_motion
 from styleerd.data.features import FeatureStats, motion_features
 from styleerd.errors import StyleERDError
 from styleerd.model.generator import GeneratorConfig, StyleERD
+from styleerd.model.labeller import OnlineLabeller
 from styleerd.motion.kinematics import forward_kinematics
 from styleerd.motion.motion import Motion
 from styleerd.runtime.offline import stylise_motion
@@ -93,3 +94,24 @@ def test_target_weights_validate():
     assert target_weights(M, mix={"old": 1, "angry": 3}) == {"old": 0.25, "angry": 0.75}
     with pytest.raises(StyleERDError):
         target_weights(M, "old", 5.0)
+
+
+def test_labels_not_given_are_inferred_causally_and_given_labels_win(model):
+    torch.manual_seed(1)
+    labeller = OnlineLabeller(model.config.feature_dim, len(STYLES), len(CONTENTS), hidden=8).eval()
+    m = walking_motion(30)
+    runs = []
+    for rot in (m.rotations, np.concatenate([m.rotations[:20], m.rotations[20:][:, :, [0, 2, 1, 3]]])):
+        s = StreamStylizer(model, None, None, {"old": 1.0}, labeller=labeller)
+        out = [s.step(rot[t], m.positions[t])[0][0] for t in range(30)]
+        runs.append(np.array(out))
+        style, content = s.labels
+        assert torch.allclose(style.sum(-1), torch.ones(1)) and torch.allclose(content.sum(-1), torch.ones(1))
+        assert s.inferred_labels()[0][0] in STYLES
+    assert np.array_equal(runs[0][:20], runs[1][:20])  # causal with the labeller in the loop
+    assert not np.allclose(runs[0][20:], runs[1][20:])
+    given = StreamStylizer(model, "normal", None, {"old": 1.0}, labeller=labeller)
+    given.step(m.rotations[0], m.positions[0])
+    assert given.labels[0].tolist() == [[0.0, 1.0, 0.0]]  # the given style, one-hot
+    with pytest.raises(StyleERDError, match="labeller does not fit"):
+        StreamStylizer(model, None, None, {"old": 1.0}, labeller=OnlineLabeller(5, 3, 2))

@@ -57,7 +57,7 @@ def test_xia_clips_into_every_style_keep_skeleton_frames_and_root(shared_data, m
         src = bvh.read(path)
         for style in g.config.styles:
             out_path = tmp_path / f"{path.stem}-{style}.bvh"
-            transfer_file(path, out_path, g, meta["data"]["fps"], "normal", "walk", {style: 1.0}, report_mapping=lines.append)
+            transfer_file(path, out_path, g, meta["data"]["fps"], "normal", "walk", {style: 1.0}, report=lines.append)
             out = bvh.read(out_path)
             assert out.skeleton == src.skeleton and out.n_frames == src.n_frames and np.isclose(out.fps, src.fps)
             assert np.isfinite(bvh.channel_values(out)).all()

@@ -17,11 +17,13 @@ from styleerd.data.features import FeatureStats
 from styleerd.errors import StyleERDError
 from styleerd.model.classifiers import WindowClassifier
 from styleerd.model.generator import GeneratorConfig, StyleERD
+from styleerd.model.labeller import OnlineLabeller
 from styleerd.motion.skeleton import Skeleton
 
 MODELS_DIR = Path(__file__).resolve().parents[2] / "models"
 DEFAULT_MODEL = "styleerd-bandai2"
 RECOGNISERS = "recognisers-bandai2"
+LABELLER = "labeller-bandai2"
 
 
 def save_tensors(stem: Path, tensors: dict[str, torch.Tensor], meta: dict, sidecar: bool = True) -> None:
@@ -95,3 +97,11 @@ def load_recognisers(stem: str | Path | None = None) -> tuple[WindowClassifier, 
     content = build_classifier(meta["content"])
     content.load_state_dict(unprefixed("content", tensors))
     return style.eval(), content.eval(), meta
+
+
+def load_labeller(stem: str | Path | None = None) -> tuple[OnlineLabeller, dict]:
+    """The online style/content labeller saved at ``stem`` (default: the shipped one)."""
+    tensors, meta = load_tensors(Path(stem) if stem else MODELS_DIR / LABELLER)
+    model = OnlineLabeller(**meta["config"])
+    model.load_state_dict(unprefixed("labeller", tensors))
+    return model.eval(), meta

@@ -24,7 +24,7 @@ import numpy as np
 from styleerd.motion import quat
 from styleerd.motion.kinematics import forward_kinematics
 from styleerd.motion.motion import Motion
-from styleerd.motion.skeleton import Skeleton, bare_name, find_role
+from styleerd.motion.skeleton import Skeleton, find_role
 
 # Body parts along the chains they form, root to tip.
 CHAINS = (

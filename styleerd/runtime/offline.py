@@ -17,10 +17,15 @@ from styleerd.motion.skeleton import Skeleton
 from styleerd.runtime.stylizer import StreamStylizer
 
 
-def stylise_motion(model: StyleERD, motion: Motion, input_style: str, content: str, target: dict[str, float]) -> Motion:
+def stylise_motion(model: StyleERD, motion: Motion, input_style: str | None, content: str | None, target: dict[str, float]) -> Motion:
     """The motion in the target style(s): joint rotations from the network, root trajectory
-    (position and facing) and joint translations from the input."""
-    stylizer = StreamStylizer(model, input_style, content, target, fps=motion.fps)
+    (position and facing) and joint translations from the input. Labels left None are
+    inferred online."""
+    return run_stream(StreamStylizer(model, input_style, content, target, fps=motion.fps), motion)
+
+
+def run_stream(stylizer: StreamStylizer, motion: Motion) -> Motion:
+    """Feed a motion on the model's skeleton through a stylizer, one frame at a time."""
     out = np.empty_like(motion.rotations)
     for t in range(motion.n_frames):
         out[t] = stylizer.step(motion.rotations[t : t + 1], motion.positions[t : t + 1])[0][0]
@@ -41,25 +46,30 @@ def transfer_file(
     output: str | Path,
     model: StyleERD,
     fps: float,
-    input_style: str,
-    content: str,
+    input_style: str | None,
+    content: str | None,
     target: dict[str, float],
     explicit_map: dict[str, str] | None = None,
-    report_mapping: Callable[[str], None] | None = None,
+    report: Callable[[str], None] | None = None,
 ) -> Motion:
     """BVH in -> BVH out in the target style, on any humanoid skeleton (retargeted to the
     model's and back, at the model's frame rate and back): same skeleton, channel layout, fps,
     frame count and root trajectory as the input; joints the model does not have keep their
-    motion. Nothing is written unless the whole transfer succeeded."""
+    motion. Labels left None are inferred online. ``report`` receives the joint mapping and the
+    labels used. Nothing is written unless the whole transfer succeeded."""
     motion = bvh.read(source)
     if motion.n_frames == 0:
         raise StyleERDError(f"{source}: the motion has no frames")
     if not 10 <= motion.fps <= 480:
         raise StyleERDError(f"{source}: {motion.fps:.6g} fps is outside [10, 480]")
     jm = map_skeleton(motion, model.skeleton, explicit_map, str(source))
-    if report_mapping:
-        report_mapping(jm.describe())
-    styled = stylise_motion(model, resample(to_target(motion, jm), fps), input_style, content, target)
+    if report:
+        report(f"joint mapping (model <- input):\n{jm.describe()}")
+    stylizer = StreamStylizer(model, input_style, content, target, fps=fps)
+    styled = run_stream(stylizer, resample(to_target(motion, jm), fps))
+    if report and stylizer.labeller is not None:
+        style, kind = stylizer.inferred_labels()[0]
+        report(f"input labels at the last frame: style {style}, content {kind} (inferred online where not given)")
     out = to_source(resample(styled, motion.fps, n_frames=motion.n_frames), jm, motion)
     if not (np.isfinite(out.rotations).all() and np.isfinite(out.positions).all()):
         raise StyleERDError(f"{source}: the transfer produced non-finite values; nothing written")

@@ -7,6 +7,10 @@ translations; the network replaces the joint rotations.
 
 Changing the target (style, intensity, mixture) mid-stream blends the target weights
 linearly over ``blend_frames`` frames, so the output does not pop.
+
+The input's style and content labels are optional: a label not given is inferred after every
+frame by the OnlineLabeller from the frames seen so far, and its posterior (probabilities)
+takes the label's place.
 """
 
 from __future__ import annotations
@@ -18,7 +22,9 @@ import torch
 
 from styleerd.data.features import pose_features
 from styleerd.errors import StyleERDError
+from styleerd.model.checkpoint import load_labeller
 from styleerd.model.generator import RecurrentState, StyleERD
+from styleerd.model.labeller import OnlineLabeller
 from styleerd.motion import quat
 from styleerd.motion.kinematics import forward_kinematics
 from styleerd.motion.skeleton import BodyRoles
@@ -63,12 +69,13 @@ class StreamStylizer:
     def __init__(
         self,
         model: StyleERD,
-        input_style: str,
-        content: str,
+        input_style: str | None,
+        content: str | None,
         target: dict[str, float],
         n_streams: int = 1,
         fps: float = 30.0,
         blend_frames: int = 8,
+        labeller: OnlineLabeller | None = None,
     ):
         self.model = model.eval()
         self.skeleton = model.skeleton
@@ -78,8 +85,15 @@ class StreamStylizer:
         self.n = n_streams
         self.blend_frames = max(1, blend_frames)
         c = model.config
-        self.style_in = torch.tensor(np.tile(label_vector(c.styles, {input_style: 1.0}, "style"), (n_streams, 1)), dtype=torch.float32)
-        self.content = torch.tensor(np.tile(label_vector(c.contents, {content: 1.0}, "content"), (n_streams, 1)), dtype=torch.float32)
+        self.given_style, self.given_content = (
+            None if label is None else torch.tensor(np.tile(label_vector(names, {label: 1.0}, what), (n_streams, 1)), dtype=torch.float32)
+            for label, names, what in ((input_style, c.styles, "style"), (content, c.contents, "content"))
+        )
+        self.labeller = None
+        if input_style is None or content is None:
+            self.labeller = labeller or load_labeller()[0]
+            if (self.labeller.n_styles, self.labeller.n_contents, self.labeller.in_dim) != (len(c.styles), len(c.contents), c.feature_dim):
+                raise StyleERDError("the labeller does not fit this model's labels: give --input-style and --content")
         w = np.tile(label_vector(c.styles, target, "style"), (n_streams, 1))
         self.blend = _Blend(w.copy(), w, np.full(n_streams, self.blend_frames))
         self.reset()
@@ -88,6 +102,15 @@ class StreamStylizer:
         """Forget the past: the next frame is a first frame (learned initial states)."""
         self.state: RecurrentState | None = None
         self.previous: np.ndarray | None = None  # global joint positions of the last frame
+        self.labeller_state: torch.Tensor | None = None
+        self.labels: tuple[torch.Tensor, torch.Tensor] | None = None  # (style, content) used last frame
+
+    def inferred_labels(self) -> list[tuple[str, str]]:
+        """Per stream, the (style, content) the last frame was stylised as (given or inferred)."""
+        if self.labels is None:
+            return []
+        c = self.model.config
+        return [(c.styles[int(s)], c.contents[int(k)]) for s, k in zip(self.labels[0].argmax(-1), self.labels[1].argmax(-1))]
 
     def current_weights(self) -> np.ndarray:
         a = np.minimum(1.0, self.blend.frame / self.blend_frames)[:, None]
@@ -119,9 +142,14 @@ class StreamStylizer:
         feats, traj, g = pose_features(rotations, positions, previous, self.skeleton, self.roles, self.fps)
         x = torch.tensor(self.stats.normalize(feats), dtype=torch.float32)
         w = torch.tensor(self.current_weights(), dtype=torch.float32)
-        rot, _, state = self.model.step(x, self.style_in, self.content, w, self.state)
+        style, content, labeller_state = self.given_style, self.given_content, None
+        if self.labeller is not None:
+            s_logits, c_logits, labeller_state = self.labeller(x[:, None], self.labeller_state)
+            style = style if style is not None else s_logits[:, 0].softmax(-1)
+            content = content if content is not None else c_logits[:, 0].softmax(-1)
+        rot, _, state = self.model.step(x, style, content, w, self.state)
         out = rot.double().numpy()
         out[:, 0] = quat.mul(traj[:, 3:7], out[:, 0])
-        self.state, self.previous = state, g
+        self.state, self.previous, self.labeller_state, self.labels = state, g, labeller_state, (style, content)
         self.blend.frame += 1
         return quat.normalize(out), positions
