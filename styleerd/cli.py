@@ -93,7 +93,7 @@ def _transfer(args: argparse.Namespace) -> None:
             raise StyleERDError(f"{what} {value!r} is not one of: {', '.join(names)}")
     target = target_weights(model, args.style, args.intensity, _parse_mix(args.mix) if args.mix else None)
     explicit = _read_joint_map(args.joint_map) if args.joint_map else None
-    out = transfer_file(args.input, args.output, model, meta["data"]["fps"], args.input_style, args.content, target, explicit, report=print)
+    out = transfer_file(args.input, args.output, model, meta["data"]["fps"], args.input_style, args.content, target, explicit, report=print, cleanup=not args.no_cleanup)
     print(f"wrote {args.output}: {out.n_frames} frames at {out.fps:.6g} fps, target {target}")
 
 
@@ -121,6 +121,14 @@ def _evaluate(args: argparse.Namespace) -> None:
 
     report = evaluate(Path(args.model) if args.model else None, args.data, args.split, recognisers=Path(args.recognisers) if args.recognisers else None)
     print(json.dumps(report, indent=1))
+
+
+def _eval_runtime(args: argparse.Namespace) -> None:
+    from styleerd.eval.metrics import runtime_report
+    from styleerd.model.checkpoint import load_generator, load_labeller
+
+    model, _ = load_generator(args.model)
+    print(json.dumps(runtime_report(model, load_labeller()[0], args.data), indent=1))
 
 
 def _filmstrip(args: argparse.Namespace) -> None:
@@ -207,6 +215,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--mix", help="a mixture instead of --style, e.g. elderly=0.5,feminine=0.5")
     p.add_argument("--input-style", help="the input's style (default: inferred online from the frames)")
     p.add_argument("--content", help="the input's content, e.g. walk (default: inferred online)")
+    p.add_argument("--no-cleanup", action="store_true", help="leave the feet as the network outputs them (default: pin planted feet)")
     p.add_argument("--joint-map", help="JSON object {model joint: input joint} completing or overriding the automatic mapping")
     p.add_argument("--model", help="model path without suffix (default: the shipped model)")
     p.add_argument("-o", "--output", required=True)
@@ -222,6 +231,11 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--recognisers", help="recognisers path without suffix (default: the shipped ones)")
     p.add_argument("--data", help="data folder")
     p.set_defaults(func=_evaluate)
+
+    p = sub.add_parser("eval-runtime", help="label inference accuracy, foot skate before/after cleanup, pop at a style switch (test split)")
+    p.add_argument("--model", help="model path without suffix (default: the shipped model)")
+    p.add_argument("--data", help="data folder")
+    p.set_defaults(func=_eval_runtime)
 
     p = sub.add_parser("filmstrip", help="picture: a neutral test clip and its transfer into every style")
     p.add_argument("--model", help="model path without suffix (default: the shipped model)")

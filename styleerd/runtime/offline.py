@@ -12,8 +12,9 @@ from styleerd.model.generator import StyleERD
 from styleerd.motion import bvh
 from styleerd.motion.motion import Motion
 from styleerd.motion.resample import resample
-from styleerd.motion.retarget import JointMap, joint_map, to_source, to_target
+from styleerd.motion.retarget import JointMap, body_parts, joint_map, to_source, to_target
 from styleerd.motion.skeleton import Skeleton
+from styleerd.runtime.cleanup import clean_feet
 from styleerd.runtime.stylizer import StreamStylizer
 
 
@@ -51,11 +52,13 @@ def transfer_file(
     target: dict[str, float],
     explicit_map: dict[str, str] | None = None,
     report: Callable[[str], None] | None = None,
+    cleanup: bool = True,
 ) -> Motion:
     """BVH in -> BVH out in the target style, on any humanoid skeleton (retargeted to the
     model's and back, at the model's frame rate and back): same skeleton, channel layout, fps,
     frame count and root trajectory as the input; joints the model does not have keep their
-    motion. Labels left None are inferred online. ``report`` receives the joint mapping and the
+    motion. Labels left None are inferred online; with ``cleanup``, feet planted in the input
+    are pinned in the output (on the input's skeleton, after retargeting back). ``report`` receives the joint mapping and the
     labels used. Nothing is written unless the whole transfer succeeded."""
     motion = bvh.read(source)
     if motion.n_frames == 0:
@@ -71,6 +74,9 @@ def transfer_file(
         style, kind = stylizer.inferred_labels()[0]
         report(f"input labels at the last frame: style {style}, content {kind} (inferred online where not given)")
     out = to_source(resample(styled, motion.fps, n_frames=motion.n_frames), jm, motion)
+    if cleanup:
+        parts = body_parts(motion.skeleton)
+        out = clean_feet(out, motion, legs=[[parts[f"{side}_{p}"] for p in ("hip", "knee", "foot")] for side in ("left", "right")])
     if not (np.isfinite(out.rotations).all() and np.isfinite(out.positions).all()):
         raise StyleERDError(f"{source}: the transfer produced non-finite values; nothing written")
     bvh.write(output, out)

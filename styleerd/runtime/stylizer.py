@@ -58,6 +58,15 @@ def target_weights(model: StyleERD, style: str | None = None, intensity: float =
     return {style: intensity, neutral: max(0.0, 1.0 - intensity)}
 
 
+def _per_stream(value, n: int) -> list:
+    """One value for every stream, or a list with one per stream."""
+    if isinstance(value, list):
+        if len(value) != n:
+            raise StyleERDError(f"{len(value)} per-stream values for {n} streams")
+        return value
+    return [value] * n
+
+
 @dataclass
 class _Blend:
     start: np.ndarray  # [N, nS] weights when the change began
@@ -66,12 +75,15 @@ class _Blend:
 
 
 class StreamStylizer:
+    """``input_style``, ``content`` and ``target`` apply to every stream, or are lists with
+    one value per stream; labels left None are inferred."""
+
     def __init__(
         self,
         model: StyleERD,
-        input_style: str | None,
-        content: str | None,
-        target: dict[str, float],
+        input_style: str | list[str] | None,
+        content: str | list[str] | None,
+        target: dict[str, float] | list[dict[str, float]],
         n_streams: int = 1,
         fps: float = 30.0,
         blend_frames: int = 8,
@@ -86,7 +98,7 @@ class StreamStylizer:
         self.blend_frames = max(1, blend_frames)
         c = model.config
         self.given_style, self.given_content = (
-            None if label is None else torch.tensor(np.tile(label_vector(names, {label: 1.0}, what), (n_streams, 1)), dtype=torch.float32)
+            None if label is None else torch.tensor(np.stack([label_vector(names, {x: 1.0}, what) for x in _per_stream(label, n_streams)]), dtype=torch.float32)
             for label, names, what in ((input_style, c.styles, "style"), (content, c.contents, "content"))
         )
         self.labeller = None
@@ -94,7 +106,7 @@ class StreamStylizer:
             self.labeller = labeller or load_labeller()[0]
             if (self.labeller.n_styles, self.labeller.n_contents, self.labeller.in_dim) != (len(c.styles), len(c.contents), c.feature_dim):
                 raise StyleERDError("the labeller does not fit this model's labels: give --input-style and --content")
-        w = np.tile(label_vector(c.styles, target, "style"), (n_streams, 1))
+        w = np.stack([label_vector(c.styles, t, "style") for t in _per_stream(target, n_streams)])
         self.blend = _Blend(w.copy(), w, np.full(n_streams, self.blend_frames))
         self.reset()
 

@@ -1,0 +1,102 @@
+"""Two-bone IK against forward kinematics, and the online foot lock."""
+
+import numpy as np
+from scipy.spatial.transform import Rotation
+
+from conftest import walking_motion
+from styleerd.motion import quat
+from styleerd.motion.ik import two_bone_ik
+from styleerd.motion.kinematics import forward_kinematics
+from styleerd.motion.motion import Motion
+from styleerd.runtime.cleanup import FootLock, clean_feet
+
+
+def leg_after_ik(m, target, side="L"):
+    sk = m.skeleton
+    hip, knee, ankle = (sk.index(f"{n}_{side}") for n in ("UpperLeg", "LowerLeg", "Foot"))
+    g_rot, g_pos = forward_kinematics(m.rotations, m.positions, sk.parents)
+    left = g_pos[:, sk.index("UpperLeg_L")] - g_pos[:, sk.index("UpperLeg_R")]
+    hip_g, knee_g = two_bone_ik(g_pos[:, hip], g_pos[:, knee], g_pos[:, ankle], target, g_rot[:, hip], g_rot[:, knee], left)
+    rot = m.rotations.copy()
+    rot[:, hip] = quat.mul(quat.inv(g_rot[:, sk.parents[hip]]), hip_g)
+    rot[:, knee] = quat.mul(quat.inv(hip_g), knee_g)
+    _, g_new = forward_kinematics(rot, m.positions, sk.parents)
+    return g_pos, g_new, (hip, knee, ankle)
+
+
+def test_two_bone_ik_reaches_reachable_targets_exactly():
+    m = walking_motion(50)
+    rng = np.random.default_rng(0)
+    g_pos, _, (hip, knee, ankle) = leg_after_ik(m, np.zeros((50, 3)))
+    # targets inside the reachable shell around the hip (lengths 40 + 40)
+    direction = Rotation.random(50, random_state=rng).apply([0.0, -1.0, 0.0])
+    target = g_pos[:, hip] + direction * rng.uniform(10.0, 78.0, (50, 1))
+    _, g_new, _ = leg_after_ik(m, target)
+    assert np.abs(g_new[:, ankle] - target).max() < 1e-6
+    assert np.allclose(g_new[:, hip], g_pos[:, hip])  # the hip does not move
+    other = [j for j in range(m.skeleton.n_joints) if j not in (knee, ankle, m.skeleton.index("Toes_L"))]
+    assert np.allclose(g_new[:, other], g_pos[:, other])  # nor does anything but the leg
+
+
+def test_two_bone_ik_stretches_towards_unreachable_targets_and_bends_straight_legs():
+    m = walking_motion(10)
+    sk = m.skeleton
+    g_pos, _, (hip, knee, ankle) = leg_after_ik(m, np.zeros((10, 3)))
+    far = g_pos[:, hip] + np.array([0.0, -500.0, 30.0])
+    _, g_new, _ = leg_after_ik(m, far)
+    reach = g_new[:, ankle] - g_new[:, hip]
+    assert np.allclose(np.linalg.norm(reach, axis=-1), 80.0, atol=1e-2)
+    cos = (reach * (far - g_pos[:, hip])).sum(-1) / np.linalg.norm(reach, axis=-1) / np.linalg.norm(far - g_pos[:, hip], axis=-1)
+    assert cos.min() > 1 - 1e-9
+    straight = Motion(sk, quat.identity((1, sk.n_joints)), m.positions[:1], m.fps)  # rest: leg straight down
+    g0, _, _ = leg_after_ik(straight, np.zeros((1, 3)))
+    target = g0[:, hip] + [0.0, -60.0, 0.0]  # straight below, nearer: the knee must bend
+    _, g_bent, _ = leg_after_ik(straight, target)
+    assert np.abs(g_bent[0, ankle] - target[0]).max() < 1e-6
+    assert g_bent[0, knee, 2] > g0[0, knee, 2] + 1.0  # knee forward (+Z): bent about the left axis
+
+
+def sliding_output(n=40):
+    """Input: a leg planted on frames 10..24 (ankle still); output: the same motion with the
+    planted foot drifting (what a network's small pose changes do)."""
+    m = walking_motion(n)
+    sk = m.skeleton
+    rot = m.rotations.copy()
+    rot[10:25] = rot[10]  # input: the whole body holds still on frames 10..24
+    pos = m.positions.copy()
+    pos[10:25] = pos[10]
+    inp = Motion(sk, rot, pos, m.fps)
+    out_rot = rot.copy()
+    drift = quat.from_angle_axis(np.linspace(0, 0.3, n), np.array([1.0, 0.0, 0.0]))
+    out_rot[:, sk.index("UpperLeg_L")] = quat.mul(drift, rot[:, sk.index("UpperLeg_L")])
+    return inp, Motion(sk, out_rot, pos, m.fps)
+
+
+def ankle(m, name="Foot_L"):
+    return forward_kinematics(m.rotations, m.positions, m.skeleton.parents)[1][:, m.skeleton.index(name)]
+
+
+def test_foot_lock_pins_planted_feet_releases_smoothly_and_is_causal():
+    inp, out = sliding_output()
+    cleaned = clean_feet(out, inp)
+    raw_a, clean_a = ankle(out), ankle(cleaned)
+    assert np.linalg.norm(np.diff(raw_a[11:25], axis=0), axis=-1).mean() > 0.1  # the raw foot skates
+    assert np.abs(clean_a[11:25] - clean_a[11]).max() < 1e-6  # the cleaned one stays put
+    assert np.abs(clean_a[11] - raw_a[11]).max() < 1e-9  # anchored where the contact began
+    assert np.abs(clean_a[30:] - raw_a[30:]).max() < 1e-9  # released
+    steps = np.linalg.norm(np.diff(clean_a[20:32], axis=0), axis=-1)
+    assert steps.max() < 3 * np.linalg.norm(np.diff(raw_a[20:32], axis=0), axis=-1).max()  # no pop on release
+    later = Motion(out.skeleton, out.rotations.copy(), out.positions, out.fps)
+    later.rotations[20:] = quat.mul(quat.from_angle_axis(0.5, np.array([0.0, 0, 1.0])), later.rotations[20:])
+    assert np.array_equal(clean_feet(later, inp).rotations[:20], cleaned.rotations[:20])
+
+
+def test_batched_foot_lock_equals_single_streams():
+    (i1, o1), (i2, o2) = sliding_output(30), sliding_output(30)
+    o2.rotations[:] = quat.mul(quat.from_angle_axis(0.1, np.array([0, 1.0, 0])), o2.rotations)
+    singles = [clean_feet(o1, i1).rotations, clean_feet(o2, i2).rotations]
+    lock = FootLock(o1.skeleton, 2)
+    for t in range(30):
+        r = lock.step(np.stack([o1.rotations[t], o2.rotations[t]]), np.stack([o1.positions[t], o2.positions[t]]),
+                      np.stack([i1.rotations[t], i2.rotations[t]]), np.stack([i1.positions[t], i2.positions[t]]))
+        assert np.allclose(r[0], singles[0][t], atol=1e-12) and np.allclose(r[1], singles[1][t], atol=1e-12)
