@@ -151,19 +151,9 @@ def _filmstrip(args: argparse.Namespace) -> None:
 
 
 def _demo(args: argparse.Namespace) -> None:
-    from styleerd.data.datasets import data_root
+    from styleerd.eval.demo import run_demo
 
-    try:
-        data_root(None)
-    except StyleERDError as e:
-        print(f"demo: {e}; nothing to show without data yet")
-        return
-    _data_prepare(argparse.Namespace(data=None, cache=None, workers=None, fps=30.0, datasets=None))
-    from styleerd.model.checkpoint import DEFAULT_MODEL, MODELS_DIR
-
-    if (MODELS_DIR / f"{DEFAULT_MODEL}.safetensors").is_file():
-        Path("out").mkdir(exist_ok=True)
-        _filmstrip(argparse.Namespace(model=None, clip=None, content="walk", data=None, output="out/demo-filmstrip.png"))
+    print(run_demo(Path(args.out), args.data))
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -245,7 +235,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("-o", "--output", default="docs/filmstrip-bandai2.png")
     p.set_defaults(func=_filmstrip)
 
-    p = sub.add_parser("demo", help="run the main job on bundled input")
+    p = sub.add_parser("demo", help="the main job on a bundled input: every style, BVH files + an HTML page to watch them")
+    p.add_argument("--out", default="out/demo", help="output folder (default out/demo)")
+    p.add_argument("--data", help="data folder (optional: adds a real test clip)")
     p.set_defaults(func=_demo)
     return parser
 

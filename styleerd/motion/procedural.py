@@ -1,0 +1,91 @@
+"""A procedural walk on a Mixamo-named, T-pose skeleton: the demo's bundled input, made by the
+project itself (no dataset clip is shipped). Y up, facing +Z, centimetres."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from styleerd.motion import quat
+from styleerd.motion.motion import Motion
+from styleerd.motion.skeleton import POSITION_CHANNELS, Skeleton
+
+_JOINTS = [  # name, parent, rest offset (T-pose)
+    ("Hips", None, (0, 95, 0)),
+    ("Spine", "Hips", (0, 10, 0)),
+    ("Spine1", "Spine", (0, 10, 0)),
+    ("Spine2", "Spine1", (0, 10, 0)),
+    ("Neck", "Spine2", (0, 15, 0)),
+    ("Head", "Neck", (0, 10, 0)),
+    ("LeftShoulder", "Spine2", (4, 12, 0)),
+    ("LeftArm", "LeftShoulder", (12, 0, 0)),
+    ("LeftForeArm", "LeftArm", (27, 0, 0)),
+    ("LeftHand", "LeftForeArm", (24, 0, 0)),
+    ("RightShoulder", "Spine2", (-4, 12, 0)),
+    ("RightArm", "RightShoulder", (-12, 0, 0)),
+    ("RightForeArm", "RightArm", (-27, 0, 0)),
+    ("RightHand", "RightForeArm", (-24, 0, 0)),
+    ("LeftUpLeg", "Hips", (9, -5, 0)),
+    ("LeftLeg", "LeftUpLeg", (0, -42, 0)),
+    ("LeftFoot", "LeftLeg", (0, -42, 0)),
+    ("LeftToeBase", "LeftFoot", (0, -6, 13)),
+    ("RightUpLeg", "Hips", (-9, -5, 0)),
+    ("RightLeg", "RightUpLeg", (0, -42, 0)),
+    ("RightFoot", "RightLeg", (0, -42, 0)),
+    ("RightToeBase", "RightFoot", (0, -6, 13)),
+]
+_ROT = ("Zrotation", "Xrotation", "Yrotation")
+
+
+def tpose_skeleton() -> Skeleton:
+    names = [n for n, _, _ in _JOINTS]
+    return Skeleton(
+        names=tuple(names),
+        parents=np.array([-1 if p is None else names.index(p) for _, p, _ in _JOINTS]),
+        offsets=np.array([o for _, _, o in _JOINTS], dtype=np.float64),
+        channels=tuple(POSITION_CHANNELS + _ROT if p is None else _ROT for _, p, _ in _JOINTS),
+        end_sites=((names.index("Head"), np.array([0, 12.0, 0])), (names.index("LeftHand"), np.array([10.0, 0, 0])),
+                   (names.index("RightHand"), np.array([-10.0, 0, 0])), (names.index("LeftToeBase"), np.array([0, 0, 6.0])),
+                   (names.index("RightToeBase"), np.array([0, 0, 6.0]))),
+    )  # fmt: skip
+
+
+def _rx(deg):
+    return quat.from_angle_axis(np.radians(deg), np.array([1.0, 0, 0]))
+
+
+def _ry(deg):
+    return quat.from_angle_axis(np.radians(deg), np.array([0, 1.0, 0]))
+
+
+def _rz(deg):
+    return quat.from_angle_axis(np.radians(deg), np.array([0, 0, 1.0]))
+
+
+def walk(seconds: float = 6.0, fps: float = 60.0, steps_per_second: float = 1.8, speed: float = 125.0, turn_degrees_per_second: float = 12.0) -> Motion:
+    """A plain, neutral walk along a gentle left curve: legs swing from the hips, knees bend in
+    the swing phase, arms swing against the legs, the pelvis bobs, sways and twists."""
+    sk = tpose_skeleton()
+    T = int(round(seconds * fps))
+    t = np.arange(T) / fps
+    phase = np.pi * steps_per_second * t  # one full cycle = two steps
+    s, c = np.sin(phase), np.cos(phase)
+    rot = quat.identity((T, sk.n_joints))
+    j = sk.index
+    heading = np.radians(turn_degrees_per_second) * t
+    rot[:, j("Hips")] = quat.mul(_ry(np.degrees(heading) + 5 * s), _rz(2.5 * c))
+    rot[:, j("Spine")] = _ry(-3 * s)
+    rot[:, j("Spine2")] = _ry(-3 * s)
+    for side, sign in (("Left", 1.0), ("Right", -1.0)):
+        swing = sign * s  # +1: this leg forward
+        forward_motion = sign * c  # > 0 while this leg swings forward
+        rot[:, j(f"{side}UpLeg")] = _rx(-24 * swing - 6 * np.maximum(forward_motion, 0))
+        rot[:, j(f"{side}Leg")] = _rx(8 + 45 * np.maximum(forward_motion, 0) ** 1.5)
+        rot[:, j(f"{side}Foot")] = _rx(-6 * swing)
+        rot[:, j(f"{side}Arm")] = quat.mul(_rx(-22 * -swing), _rz(-sign * 78))  # arms down, swing against the leg
+        rot[:, j(f"{side}ForeArm")] = _ry(sign * (12 + 8 * np.maximum(-swing, 0)))
+    pos = np.broadcast_to(sk.offsets, (T, sk.n_joints, 3)).copy()
+    radius = speed / max(np.radians(turn_degrees_per_second), 1e-9)
+    pos[:, 0, 0] = radius * (1 - np.cos(heading)) if turn_degrees_per_second else 0.0
+    pos[:, 0, 2] = radius * np.sin(heading) if turn_degrees_per_second else speed * t
+    pos[:, 0, 1] = 95 - 1.5 + 1.5 * np.cos(2 * phase)
+    return Motion(sk, quat.normalize(rot), pos, fps)
