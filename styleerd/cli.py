@@ -84,8 +84,6 @@ def _transfer(args: argparse.Namespace) -> None:
     from styleerd.runtime.offline import transfer_file
     from styleerd.runtime.stylizer import target_weights
 
-    if Path(args.output).suffix.lower() != ".bvh":
-        raise StyleERDError(f"-o {args.output}: only .bvh output is built so far")
     model, meta = load_generator(args.model)
     c = model.config
     for value, names, what in ((args.input_style, c.styles, "--input-style"), (args.content, c.contents, "--content")):
@@ -208,7 +206,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--no-cleanup", action="store_true", help="leave the feet as the network outputs them (default: pin planted feet)")
     p.add_argument("--joint-map", help="JSON object {model joint: input joint} completing or overriding the automatic mapping")
     p.add_argument("--model", help="model path without suffix (default: the shipped model)")
-    p.add_argument("-o", "--output", required=True)
+    p.add_argument("-o", "--output", required=True, help="OUT.bvh (the input's skeleton and channel layout) or OUT.glb")
     p.set_defaults(func=_transfer)
 
     p = sub.add_parser("styles", help="styles and contents of the model")

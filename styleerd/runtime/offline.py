@@ -10,6 +10,7 @@ import numpy as np
 from styleerd.errors import StyleERDError
 from styleerd.model.generator import StyleERD
 from styleerd.motion import bvh
+from styleerd.motion.gltf import write_glb
 from styleerd.motion.motion import Motion
 from styleerd.motion.resample import resample
 from styleerd.motion.retarget import JointMap, body_parts, joint_map, to_source, to_target
@@ -54,12 +55,15 @@ def transfer_file(
     report: Callable[[str], None] | None = None,
     cleanup: bool = True,
 ) -> Motion:
-    """BVH in -> BVH out in the target style, on any humanoid skeleton (retargeted to the
+    """BVH in -> BVH (or binary glTF) out in the target style, on any humanoid skeleton (retargeted to the
     model's and back, at the model's frame rate and back): same skeleton, channel layout, fps,
     frame count and root trajectory as the input; joints the model does not have keep their
     motion. Labels left None are inferred online; with ``cleanup``, feet planted in the input
     are pinned in the output (on the input's skeleton, after retargeting back). ``report`` receives the joint mapping and the
     labels used. Nothing is written unless the whole transfer succeeded."""
+    writers = {".bvh": bvh.write, ".glb": write_glb}
+    if Path(output).suffix.lower() not in writers:
+        raise StyleERDError(f"{output}: the output must be .bvh or .glb")
     motion = bvh.read(source)
     if motion.n_frames == 0:
         raise StyleERDError(f"{source}: the motion has no frames")
@@ -79,5 +83,5 @@ def transfer_file(
         out = clean_feet(out, motion, legs=[[parts[f"{side}_{p}"] for p in ("hip", "knee", "foot")] for side in ("left", "right")])
     if not (np.isfinite(out.rotations).all() and np.isfinite(out.positions).all()):
         raise StyleERDError(f"{source}: the transfer produced non-finite values; nothing written")
-    bvh.write(output, out)
+    writers[Path(output).suffix.lower()](output, out)
     return out
