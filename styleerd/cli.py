@@ -91,7 +91,7 @@ def _transfer(args: argparse.Namespace) -> None:
             raise StyleERDError(f"{what} {value!r} is not one of: {', '.join(names)}")
     target = target_weights(model, args.style, args.intensity, _parse_mix(args.mix) if args.mix else None)
     explicit = _read_joint_map(args.joint_map) if args.joint_map else None
-    out = transfer_file(args.input, args.output, model, meta["data"]["fps"], args.input_style, args.content, target, explicit, report=print, cleanup=not args.no_cleanup)
+    out = transfer_file(args.input, args.output, model, meta["data"]["fps"], args.input_style, args.content, target, explicit, report=print, cleanup=not args.no_cleanup, backend=args.backend)
     print(f"wrote {args.output}: {out.n_frames} frames at {out.fps:.6g} fps, target {target}")
 
 
@@ -103,6 +103,15 @@ def _read_joint_map(path: str) -> dict[str, str]:
     if not isinstance(data, dict) or not all(isinstance(k, str) and isinstance(v, str) for k, v in data.items()):
         raise StyleERDError(f"--joint-map {path}: expected a JSON object of model joint -> input joint names")
     return data
+
+
+def _export_onnx(args: argparse.Namespace) -> None:
+    from styleerd.model.checkpoint import load_generator
+    from styleerd.runtime.onnx_export import export
+
+    model, meta = load_generator(args.model)
+    export(model, meta, args.output)
+    print(f"wrote {args.output} and {Path(args.output).with_suffix('.json')} (inputs, outputs and features: docs/ONNX.md)")
 
 
 def _styles(args: argparse.Namespace) -> None:
@@ -203,11 +212,17 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--mix", help="a mixture instead of --style, e.g. elderly=0.5,feminine=0.5")
     p.add_argument("--input-style", help="the input's style (default: inferred online from the frames)")
     p.add_argument("--content", help="the input's content, e.g. walk (default: inferred online)")
+    p.add_argument("--backend", default="numpy", choices=["torch", "numpy", "onnx"], help="network step backend (default numpy; torch is the reference)")
     p.add_argument("--no-cleanup", action="store_true", help="leave the feet as the network outputs them (default: pin planted feet)")
     p.add_argument("--joint-map", help="JSON object {model joint: input joint} completing or overriding the automatic mapping")
     p.add_argument("--model", help="model path without suffix (default: the shipped model)")
     p.add_argument("-o", "--output", required=True, help="OUT.bvh (the input's skeleton and channel layout) or OUT.glb")
     p.set_defaults(func=_transfer)
+
+    p = sub.add_parser("export-onnx", help="the network step as a plain ONNX graph (opset 17) with explicit state")
+    p.add_argument("--model", help="model path without suffix (default: the shipped model)")
+    p.add_argument("-o", "--output", default="stylizer.onnx")
+    p.set_defaults(func=_export_onnx)
 
     p = sub.add_parser("styles", help="styles and contents of the model")
     p.add_argument("--model", help="model path without suffix (default: the shipped model)")

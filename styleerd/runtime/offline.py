@@ -19,11 +19,11 @@ from styleerd.runtime.cleanup import clean_feet
 from styleerd.runtime.stylizer import StreamStylizer
 
 
-def stylise_motion(model: StyleERD, motion: Motion, input_style: str | None, content: str | None, target: dict[str, float]) -> Motion:
+def stylise_motion(model: StyleERD, motion: Motion, input_style: str | None, content: str | None, target: dict[str, float], backend: str = "numpy") -> Motion:
     """The motion in the target style(s): joint rotations from the network, root trajectory
     (position and facing) and joint translations from the input. Labels left None are
     inferred online."""
-    return run_stream(StreamStylizer(model, input_style, content, target, fps=motion.fps), motion)
+    return run_stream(StreamStylizer(model, input_style, content, target, fps=motion.fps, backend=backend), motion)
 
 
 def run_stream(stylizer: StreamStylizer, motion: Motion) -> Motion:
@@ -54,6 +54,7 @@ def transfer_file(
     explicit_map: dict[str, str] | None = None,
     report: Callable[[str], None] | None = None,
     cleanup: bool = True,
+    backend: str = "numpy",
 ) -> Motion:
     """BVH in -> BVH (or binary glTF) out in the target style, on any humanoid skeleton (retargeted to the
     model's and back, at the model's frame rate and back): same skeleton, channel layout, fps,
@@ -72,7 +73,7 @@ def transfer_file(
     jm = map_skeleton(motion, model.skeleton, explicit_map, str(source))
     if report:
         report(f"joint mapping (model <- input):\n{jm.describe()}")
-    stylizer = StreamStylizer(model, input_style, content, target, fps=fps)
+    stylizer = StreamStylizer(model, input_style, content, target, fps=fps, backend=backend)
     styled = run_stream(stylizer, resample(to_target(motion, jm), fps))
     if report and stylizer.labeller is not None:
         style, kind = stylizer.inferred_labels()[0]

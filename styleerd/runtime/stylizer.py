@@ -23,11 +23,12 @@ import torch
 from styleerd.data.features import pose_features
 from styleerd.errors import StyleERDError
 from styleerd.model.checkpoint import load_labeller
-from styleerd.model.generator import RecurrentState, StyleERD
+from styleerd.model.generator import StyleERD
 from styleerd.model.labeller import OnlineLabeller
 from styleerd.motion import quat
 from styleerd.motion.kinematics import forward_kinematics
 from styleerd.motion.skeleton import BodyRoles
+from styleerd.runtime.backends import make_backend
 
 
 def label_vector(names: tuple[str, ...], weights: dict[str, float], what: str) -> np.ndarray:
@@ -88,8 +89,10 @@ class StreamStylizer:
         fps: float = 30.0,
         blend_frames: int = 8,
         labeller: OnlineLabeller | None = None,
+        backend: str = "numpy",
     ):
         self.model = model.eval()
+        self.backend = make_backend(backend, model, n_streams)
         self.skeleton = model.skeleton
         self.roles = BodyRoles.of(self.skeleton)
         self.stats = model.stats()
@@ -98,7 +101,7 @@ class StreamStylizer:
         self.blend_frames = max(1, blend_frames)
         c = model.config
         self.given_style, self.given_content = (
-            None if label is None else torch.tensor(np.stack([label_vector(names, {x: 1.0}, what) for x in _per_stream(label, n_streams)]), dtype=torch.float32)
+            None if label is None else np.stack([label_vector(names, {x: 1.0}, what) for x in _per_stream(label, n_streams)]).astype(np.float32)
             for label, names, what in ((input_style, c.styles, "style"), (content, c.contents, "content"))
         )
         self.labeller = None
@@ -112,10 +115,10 @@ class StreamStylizer:
 
     def reset(self) -> None:
         """Forget the past: the next frame is a first frame (learned initial states)."""
-        self.state: RecurrentState | None = None
+        self.backend.reset()
         self.previous: np.ndarray | None = None  # global joint positions of the last frame
         self.labeller_state: torch.Tensor | None = None
-        self.labels: tuple[torch.Tensor, torch.Tensor] | None = None  # (style, content) used last frame
+        self.labels: tuple[np.ndarray, np.ndarray] | None = None  # (style, content) used last frame
 
     def inferred_labels(self) -> list[tuple[str, str]]:
         """Per stream, the (style, content) the last frame was stylised as (given or inferred)."""
@@ -152,16 +155,15 @@ class StreamStylizer:
         else:
             previous = self.previous
         feats, traj, g = pose_features(rotations, positions, previous, self.skeleton, self.roles, self.fps)
-        x = torch.tensor(self.stats.normalize(feats), dtype=torch.float32)
-        w = torch.tensor(self.current_weights(), dtype=torch.float32)
+        x = self.stats.normalize(feats).astype(np.float32)
         style, content, labeller_state = self.given_style, self.given_content, None
         if self.labeller is not None:
-            s_logits, c_logits, labeller_state = self.labeller(x[:, None], self.labeller_state)
-            style = style if style is not None else s_logits[:, 0].softmax(-1)
-            content = content if content is not None else c_logits[:, 0].softmax(-1)
-        rot, _, state = self.model.step(x, style, content, w, self.state)
-        out = rot.double().numpy()
+            s_logits, c_logits, labeller_state = self.labeller(torch.from_numpy(x)[:, None], self.labeller_state)
+            style = style if style is not None else s_logits[:, 0].softmax(-1).numpy()
+            content = content if content is not None else c_logits[:, 0].softmax(-1).numpy()
+        rot, _ = self.backend.step(x, style, content, self.current_weights().astype(np.float32))
+        out = rot.astype(np.float64)
         out[:, 0] = quat.mul(traj[:, 3:7], out[:, 0])
-        self.state, self.previous, self.labeller_state, self.labels = state, g, labeller_state, (style, content)
+        self.previous, self.labeller_state, self.labels = g, labeller_state, (style, content)
         self.blend.frame += 1
         return quat.normalize(out), positions

@@ -1,0 +1,194 @@
+"""Backends for the network's per-frame step: ``torch`` (the reference: ``StyleERD.step``),
+``numpy`` (the same arithmetic fused by hand, no framework overhead) and ``onnx``
+(onnxruntime on the exported step graph of ``runtime.onnx_export``).
+
+Every backend keeps the recurrent state of N streams itself and has the same semantics as the
+reference: a stream's first frame starts from the learned initial states (neutral branch by
+content label, style branches their own); a style branch runs, and its state advances, only for
+streams that give its style a non-zero weight.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import torch
+
+from styleerd.model.generator import RecurrentState, StyleERD
+
+BACKENDS = ("torch", "numpy", "onnx")
+
+
+@dataclass
+class StepWeights:
+    """The generator's parameters as float32 arrays laid out for ``x @ W + b``."""
+
+    encoder: list[tuple[np.ndarray, np.ndarray]]
+    neutral: list[tuple[np.ndarray, np.ndarray, np.ndarray]]  # per layer: W_input [in, 4H], W_hidden [H, 4H], b [4H]
+    branches: list[list[tuple[np.ndarray, np.ndarray, np.ndarray]]]
+    branch_styles: list[int]
+    decoder: list[tuple[np.ndarray, np.ndarray]]
+    neutral_init: tuple[np.ndarray, np.ndarray]  # h0, c0: [nC, L0, H]
+    branch_init: tuple[np.ndarray, np.ndarray]  # h0, c0: [K, L1, H]
+    n_joints: int
+    hidden: int
+
+
+def step_weights(model: StyleERD) -> StepWeights:
+    sd = {k: v.detach().float().numpy() for k, v in model.state_dict().items()}
+
+    def linear(prefix: str, count: int) -> list[tuple[np.ndarray, np.ndarray]]:
+        return [(sd[f"{prefix}.{2 * i}.weight"].T.copy(), sd[f"{prefix}.{2 * i}.bias"]) for i in range(count)]
+
+    def lstm(prefix: str, layers: int) -> list[tuple[np.ndarray, np.ndarray, np.ndarray]]:
+        return [
+            (sd[f"{prefix}.weight_ih_l{i}"].T.copy(), sd[f"{prefix}.weight_hh_l{i}"].T.copy(), sd[f"{prefix}.bias_ih_l{i}"] + sd[f"{prefix}.bias_hh_l{i}"])
+            for i in range(layers)
+        ]
+
+    c = model.config
+    return StepWeights(
+        encoder=linear("encoder", len(c.encoder)),
+        neutral=lstm("neutral", c.neutral_layers),
+        branches=[lstm(f"branches.{k}", c.style_layers) for k in range(len(model.branch_styles))],
+        branch_styles=list(model.branch_styles),
+        decoder=linear("decoder", len(c.decoder) + 1),
+        neutral_init=(sd["neutral_h0"], sd["neutral_c0"]),
+        branch_init=(sd["branch_h0"], sd["branch_c0"]),
+        n_joints=c.n_joints,
+        hidden=c.hidden,
+    )
+
+
+def _sigmoid(x: np.ndarray) -> np.ndarray:
+    return 0.5 * np.tanh(0.5 * x) + 0.5
+
+
+def _lstm_stack(layers, x: np.ndarray, h: np.ndarray, c: np.ndarray) -> np.ndarray:
+    """Run stacked LSTM cells (torch gate order i, f, g, o) one step; updates h, c [L, N, H]
+    in place and returns the last layer's output."""
+    H = h.shape[-1]
+    for i, (w_in, w_hid, b) in enumerate(layers):
+        g = x @ w_in + h[i] @ w_hid + b
+        s = _sigmoid(g)
+        c[i] = s[:, H : 2 * H] * c[i] + s[:, :H] * np.tanh(g[:, 2 * H : 3 * H])
+        h[i] = s[:, 3 * H :] * np.tanh(c[i])
+        x = h[i]
+    return x
+
+
+def _rotations(y: np.ndarray, n_joints: int) -> tuple[np.ndarray, np.ndarray]:
+    q = y[:, : 4 * n_joints].reshape(len(y), n_joints, 4)
+    return q / np.maximum(np.linalg.norm(q, axis=-1, keepdims=True), 1e-8), y[:, 4 * n_joints :]
+
+
+class TorchBackend:
+    def __init__(self, model: StyleERD, n_streams: int):
+        self.model, self.n = model.eval(), n_streams
+        self.state: RecurrentState | None = None
+        self.first = np.ones(n_streams, dtype=bool)
+
+    def reset(self, streams: np.ndarray | None = None) -> None:
+        self.first[slice(None) if streams is None else streams] = True
+
+    @torch.no_grad()
+    def step(self, x: np.ndarray, style: np.ndarray, content: np.ndarray, target: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        x, style, content, target = (torch.as_tensor(np.asarray(a), dtype=torch.float32) for a in (x, style, content, target))
+        if self.first.all():
+            self.state = None
+        elif self.first.any():  # restart some streams: their rows go back to the initial states
+            rows = torch.as_tensor(np.nonzero(self.first)[0])
+            init = self.model.initial_state(content[rows])
+            h, c = self.state.neutral
+            self.state.neutral = (h.index_copy(1, rows, init.neutral[0]), c.index_copy(1, rows, init.neutral[1]))
+            for k, (h, c) in self.state.branches.items():
+                h0, c0 = self.model._branch_initial(k, len(rows))
+                self.state.branches[k] = (h.index_copy(1, rows, h0), c.index_copy(1, rows, c0))
+        self.first[:] = False
+        rot, vel, self.state = self.model.step(x, style, content, target, self.state)
+        return rot.numpy(), vel.numpy()
+
+
+class NumpyBackend:
+    def __init__(self, model: StyleERD, n_streams: int):
+        self.w, self.n = step_weights(model), n_streams
+        w, H = self.w, self.w.hidden
+        self.h = np.zeros((len(w.neutral), n_streams, H), np.float32)
+        self.c = np.zeros_like(self.h)
+        self.hb = np.zeros((len(w.branches), len(w.branches[0]) if w.branches else 0, n_streams, H), np.float32)
+        self.cb = np.zeros_like(self.hb)
+        self.first = np.ones(n_streams, dtype=bool)
+
+    def reset(self, streams: np.ndarray | None = None) -> None:
+        self.first[slice(None) if streams is None else streams] = True
+
+    def step(self, x: np.ndarray, style: np.ndarray, content: np.ndarray, target: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        w = self.w
+        x, style, content, target = (np.asarray(a, np.float32) for a in (x, style, content, target))
+        if self.first.any():
+            rows = np.nonzero(self.first)[0]
+            self.h[:, rows] = np.einsum("nc,clh->lnh", content[rows], w.neutral_init[0])
+            self.c[:, rows] = np.einsum("nc,clh->lnh", content[rows], w.neutral_init[1])
+            self.hb[:, :, rows] = w.branch_init[0][:, :, None]
+            self.cb[:, :, rows] = w.branch_init[1][:, :, None]
+            self.first[:] = False
+        z = np.concatenate([x, style, content], -1)
+        for i, (W, b) in enumerate(w.encoder):
+            z = z @ W + b
+            if i < len(w.encoder) - 1:
+                z = np.maximum(z, 0.0)
+        out = _lstm_stack(w.neutral, z, self.h, self.c).copy()
+        for k, s in enumerate(w.branch_styles):
+            rows = np.nonzero(target[:, s])[0]
+            if len(rows) == len(x):
+                out += target[:, s, None] * _lstm_stack(w.branches[k], z, self.hb[k], self.cb[k])
+            elif len(rows):
+                h, c = self.hb[k][:, rows], self.cb[k][:, rows]
+                out[rows] += target[rows, s, None] * _lstm_stack(w.branches[k], z[rows], h, c)
+                self.hb[k][:, rows], self.cb[k][:, rows] = h, c
+        y = np.concatenate([out, target], -1)
+        for i, (W, b) in enumerate(w.decoder):
+            y = y @ W + b
+            if i < len(w.decoder) - 1:
+                y = np.maximum(y, 0.0)
+        return _rotations(y, w.n_joints)
+
+
+class OnnxBackend:
+    def __init__(self, model: StyleERD, n_streams: int, threads: int = 1):
+        import onnxruntime as ort
+
+        from styleerd.runtime.onnx_export import step_graph
+
+        options = ort.SessionOptions()
+        options.intra_op_num_threads, options.inter_op_num_threads = threads, 1
+        options.graph_optimization_level = ort.GraphOptimizationLevel.ORT_ENABLE_ALL
+        self.session = ort.InferenceSession(step_graph(model).SerializeToString(), options, providers=["CPUExecutionProvider"])
+        w = step_weights(model)
+        self.n, self.joints, H = n_streams, w.n_joints, w.hidden
+        self.state = {
+            "h_neutral": np.zeros((len(w.neutral), n_streams, H), np.float32),
+            "c_neutral": np.zeros((len(w.neutral), n_streams, H), np.float32),
+            "h_branches": np.zeros((len(w.branches), len(w.branches[0]) if w.branches else 0, n_streams, H), np.float32),
+            "c_branches": np.zeros((len(w.branches), len(w.branches[0]) if w.branches else 0, n_streams, H), np.float32),
+        }
+        self.first = np.ones((n_streams, 1), np.float32)
+
+    def reset(self, streams: np.ndarray | None = None) -> None:
+        self.first[slice(None) if streams is None else streams] = 1.0
+
+    def step(self, x: np.ndarray, style: np.ndarray, content: np.ndarray, target: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        feeds = {"features": x, "style": style, "content": content, "target": target, "first_frame": self.first, **self.state}
+        rot, vel, *state = self.session.run(None, {k: np.asarray(v, np.float32) for k, v in feeds.items()})
+        self.state = dict(zip(("h_neutral", "c_neutral", "h_branches", "c_branches"), state))
+        self.first[:] = 0.0
+        return rot, vel
+
+
+def make_backend(name: str, model: StyleERD, n_streams: int):
+    if name not in BACKENDS:
+        from styleerd.errors import StyleERDError
+
+        raise StyleERDError(f"unknown backend {name!r}; valid: {', '.join(BACKENDS)}")
+    return {"torch": TorchBackend, "numpy": NumpyBackend, "onnx": OnnxBackend}[name](model, n_streams)
