@@ -83,3 +83,22 @@ def test_unmappable_skeleton_and_bad_labels_fail_cleanly(shared_data, model, tmp
                         "--content", "walk", "-o", str(tmp_path / "y.bvh")], capture_output=True, text=True)
     assert r.returncode == 2 and "valid: active, elderly" in r.stderr and len(r.stderr.strip().splitlines()) == 1
     assert not (tmp_path / "y.bvh").exists()
+
+
+def test_channel_stream_equals_the_file_transfer_on_a_stream_at_model_rate(model, tmp_path):
+    from styleerd.motion.procedural import walk
+    from styleerd.runtime.channels import ChannelStylizer
+
+    g, meta = model
+    source = walk(2.0, fps=30.0)
+    bvh.write(tmp_path / "in.bvh", source)
+    src = bvh.read(tmp_path / "in.bvh")
+    out = transfer_file(tmp_path / "in.bvh", tmp_path / "out.bvh", g, 30.0, "normal", "walk", {"elderly": 1.0})
+    stream = ChannelStylizer(g, src.skeleton, {"elderly": 1.0}, "normal", "walk", fps=30.0)
+    values = bvh.channel_values(src)
+    streamed = np.stack([stream.step(values[t])[0] for t in range(src.n_frames)])
+    assert np.abs(streamed - bvh.channel_values(out)).max() < 1e-6
+    with pytest.raises(StyleERDError, match="channel 3 is not a finite number"):
+        bad = values[0].copy()
+        bad[3] = np.nan
+        stream.step(bad)

@@ -211,7 +211,7 @@ def parse(text: str, path: str = "<string>") -> Motion:
     n_channels = sum(len(c) for c in skeleton.channels)
     body = lines[m + 3 :]
     if n_channels == 0:  # frame lines are empty: only the count can be checked
-        return _motion_from_channels(skeleton, np.zeros((n_frames, 0)), 1.0 / frame_time)
+        return motion_from_channels(skeleton, np.zeros((n_frames, 0)), 1.0 / frame_time)
     while body and not body[-1].strip():
         body.pop()
     blank = [n for n, line in enumerate(body) if not line.strip()]
@@ -222,10 +222,12 @@ def parse(text: str, path: str = "<string>") -> Motion:
     if len(body) > n_frames:
         raise BVHError(path, m + 4 + n_frames, f"Frames says {n_frames}, found {len(body)} frame lines")
     values = _frame_values(body, m + 4, n_channels, path)
-    return _motion_from_channels(skeleton, values, 1.0 / frame_time)
+    return motion_from_channels(skeleton, values, 1.0 / frame_time)
 
 
-def _motion_from_channels(skeleton: Skeleton, values: np.ndarray, fps: float) -> Motion:
+def motion_from_channels(skeleton: Skeleton, values: np.ndarray, fps: float) -> Motion:
+    """The motion of BVH channel values ``[T, n_channels]`` in the skeleton's layout (the
+    angles as given are kept as ``euler_hint``)."""
     T, J = len(values), skeleton.n_joints
     rotations = np.empty((T, J, 4))
     positions = np.broadcast_to(skeleton.offsets, (T, J, 3)).copy()
