@@ -102,3 +102,45 @@ def test_channel_stream_equals_the_file_transfer_on_a_stream_at_model_rate(model
         bad = values[0].copy()
         bad[3] = np.nan
         stream.step(bad)
+
+
+def _transfer_every_style(job):
+    """One test clip into every style; returns (clip, problems)."""
+    import torch
+
+    torch.set_num_threads(1)
+    path, style, content, out_dir = job
+    g, meta = load_generator()
+    src = bvh.read(path)
+    problems = []
+    for target in g.config.styles:
+        out_path = out_dir / f"{path.stem}-{target}.bvh"
+        transfer_file(path, out_path, g, meta["data"]["fps"], style, content, {target: 1.0})
+        out = bvh.read(out_path)
+        if not (out.skeleton == src.skeleton and out.n_frames == src.n_frames and np.isclose(out.fps, src.fps)):
+            problems.append(f"{target}: layout")
+        if not np.isfinite(bvh.channel_values(out)).all():
+            problems.append(f"{target}: non-finite")
+        if not np.array_equal(out.positions[:, 0], src.positions[:, 0]):
+            problems.append(f"{target}: root path")
+        out_path.unlink()
+    return path.name, problems
+
+
+def test_one_test_clip_per_style_and_content_into_every_style(shared_data, tmp_path):
+    """Issue 4's acceptance: 70 Bandai-Namco-2 test clips (one per style x content), 7 styles each."""
+    from multiprocessing import get_context
+
+    from styleerd.data.windows import split_takes
+
+    clips = find_clips(shared_data, "bandai-namco-2")
+    split = split_takes({c.name: (c.dataset, c.style, c.content) for c in clips})
+    picked = {}
+    for c in clips:
+        if split[c.name] == "test":
+            picked.setdefault((c.style, c.content), c)
+    assert len(picked) == 70
+    jobs = [(c.path, c.style, c.content, tmp_path) for c in picked.values()]
+    with get_context("spawn").Pool(2) as pool:
+        results = pool.map(_transfer_every_style, jobs)
+    assert [r for r in results if r[1]] == []
