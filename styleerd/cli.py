@@ -91,8 +91,8 @@ def _transfer(args: argparse.Namespace) -> None:
             raise StyleERDError(f"{what} {value!r} is not one of: {', '.join(names)}")
     target = target_weights(model, args.style, args.intensity, _parse_mix(args.mix) if args.mix else None)
     explicit = _read_joint_map(args.joint_map) if args.joint_map else None
-    out = transfer_file(args.input, args.output, model, meta["data"]["fps"], args.input_style, args.content, target, explicit, report=print, cleanup=not args.no_cleanup, backend=args.backend)
-    print(f"wrote {args.output}: {out.n_frames} frames at {out.fps:.6g} fps, target {target}")
+    done = transfer_file(args.input, args.output, model, meta["data"]["fps"], args.input_style, args.content, target, explicit, report=print, cleanup=not args.no_cleanup, backend=args.backend)
+    print(f"wrote {args.output}: {done.frames} frames at {done.fps:.6g} fps, target {target}")
 
 
 def _read_joint_map(path: str) -> dict[str, str]:

@@ -185,3 +185,24 @@ def test_not_a_bvh_file(tmp_path):
         bvh.read(p)
     with pytest.raises(BVHError, match="No such file"):
         bvh.read(tmp_path / "missing.bvh")
+
+
+@pytest.mark.parametrize("case", BAD)
+def test_streamed_reading_reports_the_same_problems(case, tmp_path):
+    text, line, problem = BAD[case]
+    (tmp_path / "bad.bvh").write_text(text)
+    with pytest.raises(BVHError) as err:
+        header, frames = bvh.stream(tmp_path / "bad.bvh", chunk=1)
+        for _ in frames:
+            pass
+    assert err.value.line == line and problem in err.value.problem, str(err.value)
+
+
+@pytest.mark.parametrize("chunk", [1, 2, 3, 1000])
+def test_streamed_reading_gives_the_same_values(tmp_path, chunk):
+    m = walking_motion(7)
+    bvh.write(tmp_path / "m.bvh", m)
+    header, frames = bvh.stream(tmp_path / "m.bvh", chunk)
+    whole = bvh.read(tmp_path / "m.bvh")
+    assert header.skeleton == whole.skeleton and header.n_frames == 7 and np.isclose(header.fps, whole.fps)
+    assert np.allclose(np.concatenate(list(frames)), bvh.channel_values(whole), rtol=0, atol=1e-9)

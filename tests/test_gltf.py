@@ -61,8 +61,9 @@ def test_transfer_writes_the_same_motion_as_glb_and_bvh(tmp_path):
 
     model, meta = load_generator()
     bvh.write(tmp_path / "in.bvh", walk(1.0))
-    a = transfer_file(tmp_path / "in.bvh", tmp_path / "out.bvh", model, 30.0, "normal", "walk", {"elderly": 1.0})
+    transfer_file(tmp_path / "in.bvh", tmp_path / "out.bvh", model, 30.0, "normal", "walk", {"elderly": 1.0})
+    a = bvh.read(tmp_path / "out.bvh")
     transfer_file(tmp_path / "in.bvh", tmp_path / "out.glb", model, 30.0, "normal", "walk", {"elderly": 1.0})
     got, _, T = world_positions_from_glb(tmp_path / "out.glb")
     _, ours = forward_kinematics(a.rotations, a.positions, a.skeleton.parents)
-    assert T == a.n_frames and np.abs(got - ours * 0.01).max() < 1e-5
+    assert T == a.n_frames and np.abs(got - ours * 0.01).max() < 1e-4  # the BVH went through text

@@ -10,6 +10,8 @@ from __future__ import annotations
 
 import os
 import warnings
+from collections.abc import Iterator
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -181,9 +183,9 @@ def _frame_values(lines: list[str], first_line: int, n_channels: int, path: str)
     raise BVHError(path, first_line, "frame data could not be parsed")  # unreachable in practice
 
 
-def parse(text: str, path: str = "<string>") -> Motion:
-    """Parse BVH text. ``path`` only names the source in error messages."""
-    lines = text.splitlines()
+def _parse_header(lines: list[str], path: str) -> tuple[Skeleton, int, float, int]:
+    """HIERARCHY and the MOTION header lines -> (skeleton, frame count, frame time, index of
+    the first frame line). ``lines`` must reach at least the 'Frame Time' line."""
     starts = [n for n, line in enumerate(lines) if line.strip() == "MOTION"]
     if not starts:
         raise BVHError(path, len(lines), "no MOTION section")
@@ -207,22 +209,96 @@ def parse(text: str, path: str = "<string>") -> Motion:
     frame_time = header(m + 2, "Frame Time")
     if not (np.isfinite(frame_time) and frame_time > 0):
         raise BVHError(path, m + 3, f"Frame Time: {frame_time!r} must be a positive number of seconds")
-    n_frames = int(frames)
-    n_channels = sum(len(c) for c in skeleton.channels)
-    body = lines[m + 3 :]
-    if n_channels == 0:  # frame lines are empty: only the count can be checked
-        return motion_from_channels(skeleton, np.zeros((n_frames, 0)), 1.0 / frame_time)
+    return skeleton, int(frames), frame_time, m + 3
+
+
+def _check_body(body: list[str], n_frames: int, first: int, n_lines: int, path: str) -> None:
     while body and not body[-1].strip():
         body.pop()
     blank = [n for n, line in enumerate(body) if not line.strip()]
     if blank:
-        raise BVHError(path, m + 4 + blank[0], "blank line inside the frame data")
+        raise BVHError(path, first + 1 + blank[0], "blank line inside the frame data")
     if len(body) < n_frames:
-        raise BVHError(path, len(lines), f"truncated MOTION section: Frames says {n_frames}, found {len(body)} frame lines")
+        raise BVHError(path, n_lines, f"truncated MOTION section: Frames says {n_frames}, found {len(body)} frame lines")
     if len(body) > n_frames:
-        raise BVHError(path, m + 4 + n_frames, f"Frames says {n_frames}, found {len(body)} frame lines")
-    values = _frame_values(body, m + 4, n_channels, path)
+        raise BVHError(path, first + 1 + n_frames, f"Frames says {n_frames}, found {len(body)} frame lines")
+
+
+def parse(text: str, path: str = "<string>") -> Motion:
+    """Parse BVH text. ``path`` only names the source in error messages."""
+    lines = text.splitlines()
+    skeleton, n_frames, frame_time, first = _parse_header(lines, path)
+    n_channels = sum(len(c) for c in skeleton.channels)
+    if n_channels == 0:  # frame lines are empty: only the count can be checked
+        return motion_from_channels(skeleton, np.zeros((n_frames, 0)), 1.0 / frame_time)
+    body = lines[first:]
+    _check_body(body, n_frames, first, len(lines), path)
+    values = _frame_values(body, first + 1, n_channels, path)
     return motion_from_channels(skeleton, values, 1.0 / frame_time)
+
+
+@dataclass(frozen=True)
+class Header:
+    skeleton: Skeleton
+    n_frames: int
+    fps: float
+    path: str
+
+
+def stream(path: str | os.PathLike, chunk: int = 1024) -> tuple[Header, Iterator[np.ndarray]]:
+    """Read a BVH file's header, and iterate over its frames' channel values in chunks of
+    ``chunk`` frames (``[k, n_channels]``), so files of any length use bounded memory. The
+    same checks as ``read``; a problem in the frame data raises when its chunk is read."""
+    path = str(path)
+    try:
+        f = open(path, "r", encoding="utf-8", errors="strict")
+    except OSError as e:
+        raise BVHError(path, None, e.strerror or str(e)) from None
+    try:
+        lines = []
+        for line in f:
+            lines.append(line.rstrip("\r\n"))
+            if len(lines) == 1 and not line.lstrip().startswith("HIERARCHY"):
+                raise BVHError(path, 1, "not a BVH file: it does not start with HIERARCHY")
+            if line.strip().startswith("Frame Time"):
+                break
+        skeleton, n_frames, frame_time, first = _parse_header(lines, path)
+    except UnicodeDecodeError as e:
+        f.close()
+        raise BVHError(path, None, f"not a text file ({e.reason} at byte {e.start})") from None
+    except BaseException:
+        f.close()
+        raise
+    n_channels = sum(len(c) for c in skeleton.channels)
+
+    def frames() -> Iterator[np.ndarray]:
+        line_no, done, trailing_blank = first, 0, None
+        with f:
+            try:
+                batch: list[str] = []
+                for line in f:
+                    line_no += 1
+                    if not line.strip():
+                        trailing_blank = trailing_blank or line_no
+                        continue
+                    if trailing_blank is not None:
+                        raise BVHError(path, trailing_blank, "blank line inside the frame data")
+                    if done + len(batch) >= n_frames:
+                        extra = 1 + sum(1 for rest in f if rest.strip())  # count on, in bounded memory
+                        raise BVHError(path, line_no, f"Frames says {n_frames}, found {n_frames + extra} frame lines")
+                    batch.append(line)
+                    if len(batch) == chunk:
+                        yield _frame_values(batch, line_no - len(batch) + 1, n_channels, path)
+                        done, batch = done + len(batch), []
+                if batch:
+                    yield _frame_values(batch, line_no - len(batch) + 1, n_channels, path)
+                    done += len(batch)
+            except UnicodeDecodeError as e:
+                raise BVHError(path, line_no, f"not a text file ({e.reason})") from None
+        if done < n_frames:
+            raise BVHError(path, line_no, f"truncated MOTION section: Frames says {n_frames}, found {done} frame lines")
+
+    return Header(skeleton, n_frames, 1.0 / frame_time, path), frames()
 
 
 def motion_from_channels(skeleton: Skeleton, values: np.ndarray, fps: float) -> Motion:
@@ -285,8 +361,9 @@ def channel_values(motion: Motion) -> np.ndarray:
     return np.stack(columns, axis=-1) if columns else np.zeros((motion.n_frames, 0))
 
 
-def format_bvh(motion: Motion, precision: int = 9) -> str:
-    sk = motion.skeleton
+def format_header(skeleton: Skeleton, n_frames: int, fps: float, precision: int = 9) -> str:
+    """HIERARCHY and the MOTION header, up to and including the 'Frame Time' line."""
+    sk = skeleton
     out = ["HIERARCHY"]
     ends: dict[int, list[np.ndarray]] = {}
     for j, o in sk.end_sites:
@@ -309,14 +386,20 @@ def format_bvh(motion: Motion, precision: int = 9) -> str:
         out.append(f"{pad}}}")
 
     joint(0, 0)
-    values = channel_values(motion)
-    out += ["MOTION", f"Frames: {motion.n_frames}", f"Frame Time: {1.0 / motion.fps:.9g}"]
-    if values.shape[1]:
-        row = " ".join([f"%.{precision}g"] * values.shape[1])
-        out += [row % tuple(v) for v in values.tolist()]
-    else:
-        out += [""] * motion.n_frames
+    out += ["MOTION", f"Frames: {n_frames}", f"Frame Time: {1.0 / fps:.9g}"]
     return "\n".join(out) + "\n"
+
+
+def format_frames(values: np.ndarray, precision: int = 9) -> str:
+    """Frame lines of channel values ``[T, n_channels]``."""
+    if values.shape[1] == 0:
+        return "\n" * len(values)
+    row = " ".join([f"%.{precision}g"] * values.shape[1])
+    return "".join(row % tuple(v) + "\n" for v in values.tolist())
+
+
+def format_bvh(motion: Motion, precision: int = 9) -> str:
+    return format_header(motion.skeleton, motion.n_frames, motion.fps, precision) + format_frames(channel_values(motion), precision)
 
 
 def write(path: str | os.PathLike, motion: Motion, precision: int = 9) -> None:

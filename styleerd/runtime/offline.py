@@ -2,20 +2,21 @@
 
 from __future__ import annotations
 
+from collections.abc import Callable, Iterator
+from dataclasses import dataclass
 from pathlib import Path
-from typing import Callable
 
 import numpy as np
 
 from styleerd.errors import StyleERDError
 from styleerd.model.generator import StyleERD
-from styleerd.motion import bvh
+from styleerd.atomic import atomic_write
+from styleerd.motion import bvh, quat
 from styleerd.motion.gltf import write_glb
 from styleerd.motion.motion import Motion
-from styleerd.motion.resample import resample
 from styleerd.motion.retarget import JointMap, body_parts, joint_map, to_source, to_target
 from styleerd.motion.skeleton import Skeleton
-from styleerd.runtime.cleanup import clean_feet
+from styleerd.runtime.cleanup import FootLock
 from styleerd.runtime.stylizer import StreamStylizer
 
 
@@ -34,13 +35,19 @@ def run_stream(stylizer: StreamStylizer, motion: Motion) -> Motion:
     return Motion(motion.skeleton, out, motion.positions.copy(), motion.fps)
 
 
-def map_skeleton(motion: Motion, model_skeleton: Skeleton, explicit: dict[str, str] | None = None, where: str = "input") -> JointMap:
-    """The mapping of the motion's skeleton onto the model's, or a clear error naming what
-    is missing."""
+def map_skeleton(skeleton: Skeleton, model_skeleton: Skeleton, explicit: dict[str, str] | None = None, where: str = "input") -> JointMap:
+    """The mapping of a skeleton onto the model's, or a clear error naming what is missing."""
     try:
-        return joint_map(model_skeleton, motion.skeleton, explicit)
+        return joint_map(model_skeleton, skeleton, explicit)
     except ValueError as e:
         raise StyleERDError(f"{where}: {e}") from None
+
+
+@dataclass
+class TransferReport:
+    frames: int
+    fps: float
+    labels: tuple[str, str] | None  # (style, content) at the last frame, when inferred
 
 
 def transfer_file(
@@ -55,34 +62,119 @@ def transfer_file(
     report: Callable[[str], None] | None = None,
     cleanup: bool = True,
     backend: str = "numpy",
-) -> Motion:
-    """BVH in -> BVH (or binary glTF) out in the target style, on any humanoid skeleton (retargeted to the
-    model's and back, at the model's frame rate and back): same skeleton, channel layout, fps,
-    frame count and root trajectory as the input; joints the model does not have keep their
-    motion. Labels left None are inferred online; with ``cleanup``, feet planted in the input
-    are pinned in the output (on the input's skeleton, after retargeting back). ``report`` receives the joint mapping and the
-    labels used. Nothing is written unless the whole transfer succeeded."""
-    writers = {".bvh": bvh.write, ".glb": write_glb}
-    if Path(output).suffix.lower() not in writers:
+    chunk: int = 1024,
+) -> TransferReport:
+    """BVH in -> BVH (or binary glTF) out in the target style, on any humanoid skeleton
+    (retargeted to the model's and back, at the model's frame rate ``fps`` and back): same
+    skeleton, channel layout, fps, frame count and root trajectory as the input; joints the
+    model does not have keep their motion. Labels left None are inferred online; with
+    ``cleanup``, feet planted in the input are pinned in the output (on the input's skeleton).
+    ``report`` receives the joint mapping and the labels used.
+
+    The file is streamed through in chunks of ``chunk`` frames, so memory stays bounded
+    however long it is (a .glb output is built in memory). Nothing is written unless the
+    whole transfer succeeded."""
+    kind = Path(output).suffix.lower()
+    if kind not in (".bvh", ".glb"):
         raise StyleERDError(f"{output}: the output must be .bvh or .glb")
-    motion = bvh.read(source)
-    if motion.n_frames == 0:
+    header, chunks = bvh.stream(source, chunk)
+    if header.n_frames == 0:
         raise StyleERDError(f"{source}: the motion has no frames")
-    if not 10 <= motion.fps <= 480:
-        raise StyleERDError(f"{source}: {motion.fps:.6g} fps is outside [10, 480]")
-    jm = map_skeleton(motion, model.skeleton, explicit_map, str(source))
+    if not 10 <= header.fps <= 480:
+        raise StyleERDError(f"{source}: {header.fps:.6g} fps is outside [10, 480]")
+    jm = map_skeleton(header.skeleton, model.skeleton, explicit_map, str(source))
     if report:
         report(f"joint mapping (model <- input):\n{jm.describe()}")
     stylizer = StreamStylizer(model, input_style, content, target, fps=fps, backend=backend)
-    styled = run_stream(stylizer, resample(to_target(motion, jm), fps))
-    if report and stylizer.labeller is not None:
-        style, kind = stylizer.inferred_labels()[0]
-        report(f"input labels at the last frame: style {style}, content {kind} (inferred online where not given)")
-    out = to_source(resample(styled, motion.fps, n_frames=motion.n_frames), jm, motion)
+    lock = None
     if cleanup:
-        parts = body_parts(motion.skeleton)
-        out = clean_feet(out, motion, legs=[[parts[f"{side}_{p}"] for p in ("hip", "knee", "foot")] for side in ("left", "right")])
-    if not (np.isfinite(out.rotations).all() and np.isfinite(out.positions).all()):
-        raise StyleERDError(f"{source}: the transfer produced non-finite values; nothing written")
-    writers[Path(output).suffix.lower()](output, out)
-    return out
+        parts = body_parts(header.skeleton)
+        lock = FootLock(header.skeleton, 1, header.fps, legs=[[parts[f"{side}_{p}"] for p in ("hip", "knee", "foot")] for side in ("left", "right")])
+    rows = _checked(_stylised_rows(header, chunks, jm, stylizer, lock, fps), source)
+    if kind == ".bvh":
+        def write(tmp: str) -> None:
+            with open(tmp, "w", encoding="utf-8") as f:
+                f.write(bvh.format_header(header.skeleton, header.n_frames, header.fps))
+                for values in rows:
+                    f.write(bvh.format_frames(values))
+
+        atomic_write(output, write)
+    else:
+        write_glb(output, bvh.motion_from_channels(header.skeleton, np.concatenate(list(rows)), header.fps))
+    labels = stylizer.inferred_labels()[0] if stylizer.labeller is not None else None
+    if report and labels:
+        report(f"input labels at the last frame: style {labels[0]}, content {labels[1]} (inferred online where not given)")
+    return TransferReport(header.n_frames, header.fps, labels)
+
+
+def _checked(rows: Iterator[np.ndarray], source) -> Iterator[np.ndarray]:
+    for values in rows:
+        if not np.isfinite(values).all():
+            raise StyleERDError(f"{source}: the transfer produced non-finite values; nothing written")
+        yield values
+
+
+def _stylised_rows(header: bvh.Header, chunks: Iterator[np.ndarray], jm: JointMap, stylizer: StreamStylizer, lock: FootLock | None, fps: float) -> Iterator[np.ndarray]:
+    """Output channel values, chunk by chunk, of the source frames streamed in: retarget each
+    frame, resample to the model's rate (slerp between the two source frames around each
+    model frame), stylise, resample back (slerp between the two stylised frames around each
+    source frame), retarget back, clean the feet. Only the few frames that interpolation
+    still needs are kept. Equal to doing the same to the whole motion at once (tested)."""
+    T, fs = header.n_frames, header.fps
+    same = bool(np.isclose(fps, fs, rtol=1e-5, atol=0.0))  # as motion.resample decides
+    step_in, step_out = fs / fps, fps / fs
+    J = T if same else (int(np.floor((T - 1) / step_in + 1e-6)) + 1 if T > 1 else 1)
+
+    def around(x: float, n: int) -> tuple[int, float]:
+        """The frame pair (i0, i0 + 1) around position x in n frames, and the weight of i0 + 1."""
+        if n == 1:
+            return 0, 0.0
+        i0 = min(int(np.floor(x)), n - 2)
+        return i0, x - i0
+
+    def model_input(j: int) -> tuple[int, float]:
+        return (j, 0.0) if same else around(j * step_in, T)
+
+    def model_output(k: int) -> tuple[int, float]:
+        return (k, 0.0) if same else around(min(k * step_out, J - 1), J)
+
+    def mix(frames: dict, i0: int, w: float) -> tuple[np.ndarray, np.ndarray]:
+        rot, pos = frames[i0][:2]
+        if w == 0.0 and (same or i0 + 1 not in frames):
+            return rot, pos
+        rot1, pos1 = frames[i0 + 1][:2]
+        return quat.slerp(rot, rot1, np.full(len(rot), w)), pos * (1 - w) + pos1 * w
+
+    src: dict[int, tuple] = {}  # source frame -> (model-skeleton rotations, positions, source frame)
+    out: dict[int, tuple] = {}  # model frame -> stylised (rotations, positions)
+    i, j, k = -1, 0, 0
+    for values in chunks:
+        motion = bvh.motion_from_channels(header.skeleton, values, fs)
+        on_model = to_target(motion, jm)
+        rows = []
+        for r in range(len(values)):
+            i += 1
+            src[i] = (on_model.rotations[r], on_model.positions[r], motion[r : r + 1])
+            while j < J and (model_input(j)[0] + (0 if same or T == 1 else 1)) <= i:
+                rot, pos = mix(src, *model_input(j))
+                styled, _ = stylizer.step(rot[None], pos[None])
+                out[j] = (styled[0], pos)
+                j += 1
+            while k < T and (model_output(k)[0] + (0 if same or J == 1 else 1)) < j and k <= i:
+                rot, pos = mix(out, *model_output(k))
+                frame = src[k][2]
+                back = to_source(Motion(jm.target, rot[None], pos[None], fs), jm, frame)
+                if lock is not None:
+                    back.rotations = lock.step(back.rotations, back.positions, frame.rotations, frame.positions)
+                rows.append(bvh.channel_values(back)[0])
+                k += 1
+            keep_src = min(k, model_input(j)[0] if j < J else k)
+            for key in [key for key in src if key < keep_src]:
+                del src[key]
+            keep_out = model_output(k)[0] if k < T else j
+            for key in [key for key in out if key < keep_out]:
+                del out[key]
+        if rows:
+            yield np.stack(rows)
+    if k != T:
+        raise StyleERDError(f"{header.path}: internal error: {k} of {T} frames stylised")
