@@ -27,6 +27,7 @@ test: $(STAMP)
 bench: $(STAMP)
 	$(BIN)/python benchmarks/bench_data.py
 	$(BIN)/python benchmarks/bench_train_step.py
+	$(BIN)/styleerd bench
 
 clean:
 	rm -rf $(VENV) build *.egg-info

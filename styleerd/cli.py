@@ -72,6 +72,14 @@ def _train_labeller(args: argparse.Namespace) -> None:
     print(json.dumps({"test": report["test"]}, indent=1))
 
 
+def _train_fmd(args: argparse.Namespace) -> None:
+    from styleerd.train.config import TrainConfig
+    from styleerd.train.fmd import train_and_save
+
+    config = TrainConfig.from_yaml(args.config) if args.config else TrainConfig()
+    print(json.dumps(train_and_save(config, args.data, Path(args.out) if args.out else None), indent=1))
+
+
 def _parse_mix(text: str) -> dict[str, float]:
     try:
         return {k.strip(): float(v) for k, v in (part.split("=") for part in text.split(","))}
@@ -136,6 +144,39 @@ def _eval_runtime(args: argparse.Namespace) -> None:
 
     model, _ = load_generator(args.model)
     print(json.dumps(runtime_report(model, load_labeller()[0], args.data), indent=1))
+
+
+def _eval_quality(args: argparse.Namespace) -> None:
+    from styleerd.eval.quality import evaluate_model
+    from styleerd.model.checkpoint import load_generator
+
+    print(json.dumps(evaluate_model(load_generator(args.model)[0], args.data), indent=1))
+
+
+def _eval_ablations(args: argparse.Namespace) -> None:
+    from styleerd.atomic import atomic_write_text
+    from styleerd.eval.ablations import ablation_table, markdown, train_ablations
+
+    if not args.no_train:
+        train_ablations(Path(args.runs), args.epochs, args.data, args.threads)
+    rows = ablation_table(args.data)
+    out = Path(args.out)
+    atomic_write_text(out.with_suffix(".json"), json.dumps(rows, indent=1) + "\n")
+    atomic_write_text(out.with_suffix(".md"), markdown(rows, args.epochs))
+    print(markdown(rows, args.epochs))
+
+
+def _bench(args: argparse.Namespace) -> None:
+    from styleerd.atomic import atomic_write_text
+    from styleerd.eval.bench import plot, run_bench, table
+    from styleerd.model.checkpoint import load_generator
+
+    report = run_bench(load_generator(args.model)[0], args.steps, tuple(args.streams))
+    Path(args.json).parent.mkdir(parents=True, exist_ok=True)
+    atomic_write_text(Path(args.json), json.dumps(report, indent=1) + "\n")
+    plot(report, args.plot)
+    print(table(report))
+    print(f"wrote {args.json} and {args.plot}")
 
 
 def _filmstrip(args: argparse.Namespace) -> None:
@@ -205,6 +246,12 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--data", help="data folder")
     p.set_defaults(func=_train_labeller)
 
+    p = sub.add_parser("train-fmd", help="train the FMD feature extractor (denoising autoencoder on joint rotations)")
+    p.add_argument("--config", help="YAML TrainConfig (dataset, seed, threads)")
+    p.add_argument("--out", help="model path without suffix (default models/fmd-bandai2)")
+    p.add_argument("--data", help="data folder")
+    p.set_defaults(func=_train_fmd)
+
     p = sub.add_parser("transfer", help="stylise a BVH file (any humanoid skeleton)")
     p.add_argument("input")
     p.add_argument("--style", help="target style")
@@ -239,6 +286,28 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--model", help="model path without suffix (default: the shipped model)")
     p.add_argument("--data", help="data folder")
     p.set_defaults(func=_eval_runtime)
+
+    ev = sub.add_parser("eval", help="quality figures: FMD, SRA, CRA, responsiveness, ablations").add_subparsers(dest="eval_command", required=True)
+    p = ev.add_parser("quality", help="FMD (and its floor), SRA, CRA, responsiveness, jitter, reconstruction of one model")
+    p.add_argument("--model", help="model path without suffix (default: the shipped model)")
+    p.add_argument("--data", help="data folder")
+    p.set_defaults(func=_eval_quality)
+    p = ev.add_parser("ablations", help="train what is missing (resumable) and tabulate the paper's ablations")
+    p.add_argument("--epochs", type=int, default=14, help="training budget of every model (default 14, about 9 min each)")
+    p.add_argument("--threads", type=int, default=1)
+    p.add_argument("--runs", default="runs/ablations", help="run folders (checkpoints)")
+    p.add_argument("--no-train", action="store_true", help="only evaluate the models in models/ablations/")
+    p.add_argument("--out", default="docs/ablations.md", help="Markdown table (a .json beside it)")
+    p.add_argument("--data", help="data folder")
+    p.set_defaults(func=_eval_ablations)
+
+    p = sub.add_parser("bench", help="runtime table: latency per backend, whole clips, throughput curve, FLOPs, memory")
+    p.add_argument("--model", help="model path without suffix (default: the shipped model)")
+    p.add_argument("--steps", type=int, default=2000, help="frames timed per latency figure")
+    p.add_argument("--streams", type=int, nargs="+", default=[1, 4, 16, 64, 256, 1024, 4096])
+    p.add_argument("--json", default="docs/bench.json")
+    p.add_argument("--plot", default="docs/throughput.png")
+    p.set_defaults(func=_bench)
 
     p = sub.add_parser("filmstrip", help="picture: a neutral test clip and its transfer into every style")
     p.add_argument("--model", help="model path without suffix (default: the shipped model)")

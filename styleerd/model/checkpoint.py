@@ -17,6 +17,7 @@ from styleerd.data.features import FeatureStats
 from styleerd.errors import StyleERDError
 from styleerd.model.classifiers import WindowClassifier
 from styleerd.model.generator import GeneratorConfig, StyleERD
+from styleerd.model.fmd import MotionAutoencoder
 from styleerd.model.labeller import OnlineLabeller
 from styleerd.motion.skeleton import Skeleton
 
@@ -24,6 +25,7 @@ MODELS_DIR = Path(__file__).resolve().parents[2] / "models"
 DEFAULT_MODEL = "styleerd-bandai2"
 RECOGNISERS = "recognisers-bandai2"
 LABELLER = "labeller-bandai2"
+FMD = "fmd-bandai2"
 
 
 def save_tensors(stem: Path, tensors: dict[str, torch.Tensor], meta: dict, sidecar: bool = True) -> None:
@@ -104,4 +106,13 @@ def load_labeller(stem: str | Path | None = None) -> tuple[OnlineLabeller, dict]
     tensors, meta = load_tensors(Path(stem) if stem else MODELS_DIR / LABELLER)
     model = OnlineLabeller(**meta["config"])
     model.load_state_dict(unprefixed("labeller", tensors))
+    return model.eval(), meta
+
+
+def load_fmd(stem: str | Path | None = None) -> tuple[MotionAutoencoder, dict]:
+    """The FMD feature extractor saved at ``stem`` (default: the shipped one)."""
+    tensors, meta = load_tensors(Path(stem) if stem else MODELS_DIR / FMD)
+    c = meta["config"]
+    model = MotionAutoencoder(c["n_joints"], tuple(c["channels"]), c["kernel"])
+    model.load_state_dict(unprefixed("autoencoder", tensors))
     return model.eval(), meta

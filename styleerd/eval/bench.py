@@ -1,0 +1,197 @@
+"""``styleerd bench``: runtime figures of the shipped model per backend, side by side in one
+run (the paper's Table 2 and more). Prints a table, writes JSON and a throughput plot.
+
+- network step latency at batch 1, 1 thread (p50 / p99): normalised features in, rotations out;
+- end-to-end latency at batch 1, 1 thread: raw BVH channel values of one frame of a 22-joint
+  Mixamo-named skeleton in, stylised channel values out (Euler angles, retargeting both ways,
+  features, network, foot cleanup);
+- whole clips of L = 60, 90, 120 frames streamed frame by frame (model skeleton, 1 thread);
+- throughput of StreamStylizer (features + network) over 1 .. 4,096 concurrent streams, 2 threads;
+- FLOPs per frame, counted from the layer sizes, and achieved FLOP/s at the best batch against
+  this machine's float32 matrix-multiply peak, measured here;
+- memory per stream (recurrent state and per-stream buffers); startup latency in frames.
+"""
+
+from __future__ import annotations
+
+import os
+import time
+
+import numpy as np
+import torch
+
+from styleerd.model.generator import StyleERD
+from styleerd.motion import bvh
+from styleerd.motion.procedural import walk
+from styleerd.motion.retarget import joint_map, to_target
+from styleerd.runtime.backends import BACKENDS, make_backend
+from styleerd.runtime.channels import ChannelStylizer
+from styleerd.runtime.stylizer import StreamStylizer
+
+PAPER_GTX1060_MS = {"online per frame": 1.73, "L=60": 7.47, "L=90": 10.18, "L=120": 13.22, "input frames needed": 1}
+TARGETS = "targets (issue 4): step p50 <= 100 us, end-to-end p50 <= 300 us, >= 200,000 frames/s at 1,000 streams"
+
+
+def set_threads(n: int) -> None:
+    torch.set_num_threads(n)
+    from threadpoolctl import threadpool_limits
+
+    threadpool_limits(n)
+
+
+def _percentiles(seconds: list[float]) -> dict[str, float]:
+    us = np.array(seconds) * 1e6
+    return {"p50_us": round(float(np.percentile(us, 50)), 1), "p99_us": round(float(np.percentile(us, 99)), 1)}
+
+
+def network_step(model: StyleERD, backend: str, steps: int) -> dict:
+    b = make_backend(backend, model, 1)
+    c = model.config
+    x = np.random.default_rng(0).normal(0, 1, (steps + 50, 1, c.feature_dim)).astype(np.float32)
+    style = np.eye(len(c.styles), dtype=np.float32)[[c.neutral_index]]
+    content = np.eye(len(c.contents), dtype=np.float32)[[0]]
+    target = np.eye(len(c.styles), dtype=np.float32)[[(c.neutral_index + 1) % len(c.styles)]]
+    times = []
+    for t in range(steps + 50):
+        t0 = time.perf_counter()
+        b.step(x[t], style, content, target)
+        times.append(time.perf_counter() - t0)
+    return _percentiles(times[50:])
+
+
+def end_to_end(model: StyleERD, backend: str, steps: int) -> dict:
+    source = walk(seconds=steps / 30.0 + 2.0, fps=30.0)
+    values = bvh.channel_values(source)
+    stream = ChannelStylizer(model, source.skeleton, {"elderly": 1.0}, "normal", "walk", fps=30.0, backend=backend)
+    times = []
+    for t in range(len(values)):
+        t0 = time.perf_counter()
+        stream.step(values[t])
+        times.append(time.perf_counter() - t0)
+    return _percentiles(times[50:])
+
+
+def _model_walk(model: StyleERD, seconds: float):
+    source = walk(seconds=seconds, fps=30.0)
+    return to_target(source, joint_map(model.skeleton, source.skeleton))
+
+
+def whole_clip_ms(model: StyleERD, backend: str, length: int, repeats: int = 3) -> float:
+    m = _model_walk(model, length / 30.0 + 0.1)
+    best = float("inf")
+    for _ in range(repeats):
+        st = StreamStylizer(model, "normal", "walk", {"elderly": 1.0}, backend=backend)
+        t0 = time.perf_counter()
+        for t in range(length):
+            st.step(m.rotations[t], m.positions[t])
+        best = min(best, time.perf_counter() - t0)
+    return round(best * 1e3, 2)
+
+
+def throughput(model: StyleERD, backend: str, n_streams: int, seconds: float = 1.5) -> float:
+    m = _model_walk(model, 4.0)
+    st = StreamStylizer(model, "normal", "walk", {"elderly": 1.0}, n_streams=n_streams, backend=backend)
+    rot = np.repeat(m.rotations[:, None], n_streams, 1)
+    pos = np.repeat(m.positions[:, None], n_streams, 1)
+    frames, t0 = 0, time.perf_counter()
+    while time.perf_counter() - t0 < seconds or frames < 3 * n_streams:
+        t = (frames // n_streams) % m.n_frames
+        st.step(rot[t], pos[t])
+        frames += n_streams
+    return frames / (time.perf_counter() - t0)
+
+
+def flops_per_frame(model: StyleERD) -> int:
+    """Multiply-adds x 2 of one frame with one style branch running (the usual case)."""
+    c = model.config
+    D, nS, nC, H, J = c.feature_dim, len(c.styles), len(c.contents), c.hidden, c.n_joints
+    sizes = [D + nS + nC, *c.encoder]
+    macs = sum(a * b for a, b in zip(sizes, sizes[1:]))
+    macs += (c.neutral_layers + c.style_layers) * (2 * H * 4 * H)
+    dec = [H + nS, *c.decoder, 7 * J]
+    macs += sum(a * b for a, b in zip(dec, dec[1:]))
+    return 2 * macs
+
+
+def matmul_peak(threads: int, n: int = 1536, repeats: int = 5) -> float:
+    """float32 FLOP/s of a large numpy matrix multiply on this machine."""
+    set_threads(threads)
+    a = np.random.default_rng(0).normal(size=(n, n)).astype(np.float32)
+    a @ a
+    best = min(_timed(lambda: a @ a) for _ in range(repeats))
+    return 2 * n**3 / best
+
+
+def _timed(f) -> float:
+    t0 = time.perf_counter()
+    f()
+    return time.perf_counter() - t0
+
+
+def state_bytes(model: StyleERD) -> dict:
+    c = model.config
+    H, J = c.hidden, c.n_joints
+    recurrent = 2 * (c.neutral_layers + (len(c.styles) - 1) * c.style_layers) * H * 4  # float32 h and c
+    buffers = J * 3 * 8 + 2 * len(c.styles) * 8 + 8  # previous global positions, blend weights, blend frame
+    return {"recurrent_state": recurrent, "stream_buffers": buffers, "total": recurrent + buffers}
+
+
+def run_bench(model: StyleERD, steps: int = 2000, streams: tuple[int, ...] = (1, 4, 16, 64, 256, 1024, 4096), progress=print) -> dict:
+    report: dict = {"cpu_count": os.cpu_count(), "flops_per_frame": flops_per_frame(model), "memory_per_stream_bytes": state_bytes(model),
+                    "startup_latency_frames": 1, "paper_gtx1060_ms": PAPER_GTX1060_MS, "backends": {}}  # fmt: skip
+    report["matmul_peak_gflops_2_threads"] = round(matmul_peak(2) / 1e9, 1)
+    for name in BACKENDS:
+        set_threads(1)
+        r = {"network_step": network_step(model, name, steps), "end_to_end": end_to_end(model, name, steps)}
+        r["whole_clip_ms"] = {f"L={n}": whole_clip_ms(model, name, n) for n in (60, 90, 120)}
+        set_threads(2)
+        r["frames_per_second"] = {n: round(throughput(model, name, n)) for n in streams}
+        best = max(r["frames_per_second"].values())
+        r["achieved_gflops"] = round(best * report["flops_per_frame"] / 1e9, 2)
+        r["fraction_of_peak"] = round(r["achieved_gflops"] / report["matmul_peak_gflops_2_threads"], 4)
+        report["backends"][name] = r
+        progress(f"{name}: step p50 {r['network_step']['p50_us']:.0f} us, end-to-end p50 {r['end_to_end']['p50_us']:.0f} us, "
+                 f"{max(r['frames_per_second'].values()):,} frames/s at best")  # fmt: skip
+    return report
+
+
+def table(report: dict) -> str:
+    names = list(report["backends"])
+    rows = [("network step p50 / p99 (us, batch 1, 1 thread)", lambda r: f"{r['network_step']['p50_us']:.0f} / {r['network_step']['p99_us']:.0f}"),
+            ("end to end p50 / p99 (us, batch 1, 1 thread)", lambda r: f"{r['end_to_end']['p50_us']:.0f} / {r['end_to_end']['p99_us']:.0f}"),
+            *[(f"whole clip {k} (ms)", lambda r, k=k: f"{r['whole_clip_ms'][k]:.1f}") for k in ("L=60", "L=90", "L=120")],
+            *[(f"frames/s, {n:,} streams (2 threads)", lambda r, n=n: f"{r['frames_per_second'][n]:,}") for n in next(iter(report['backends'].values()))['frames_per_second']],
+            ("achieved GFLOP/s (fraction of matmul peak)", lambda r: f"{r['achieved_gflops']:.2f} ({100 * r['fraction_of_peak']:.1f} %)")]  # fmt: skip
+    paper = {"network step p50 / p99 (us, batch 1, 1 thread)": "1,730 (online per frame)", "whole clip L=60 (ms)": "7.47", "whole clip L=90 (ms)": "10.18", "whole clip L=120 (ms)": "13.22"}
+    lines = ["| | " + " | ".join(names) + " | paper, GTX 1060 |", "|" + " --- |" * (len(names) + 2)]
+    for label, f in rows:
+        lines.append(f"| {label} | " + " | ".join(f(report["backends"][n]) for n in names) + f" | {paper.get(label, '')} |")
+    mem = report["memory_per_stream_bytes"]
+    lines += ["", f"FLOPs per frame: {report['flops_per_frame']:,}; float32 matmul peak measured here: {report['matmul_peak_gflops_2_threads']} GFLOP/s (2 threads, {report['cpu_count']} cores);",
+              f"memory per stream: {mem['total']:,} bytes ({mem['recurrent_state']:,} recurrent state); startup latency: {report['startup_latency_frames']} frame (the paper: 1).", TARGETS]  # fmt: skip
+    return "\n".join(lines) + "\n"
+
+
+def plot(report: dict, path) -> None:
+    from pathlib import Path
+
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from styleerd.atomic import atomic_write
+
+    fig, ax = plt.subplots(figsize=(6, 4))
+    for name, r in report["backends"].items():
+        n = [int(k) for k in r["frames_per_second"]]
+        ax.loglog(n, list(r["frames_per_second"].values()), "o-", label=name)
+    ax.axhline(200_000, color="grey", ls="--", lw=1, label="target at 1,000 streams")
+    ax.set_xlabel("concurrent streams")
+    ax.set_ylabel("frames per second (2 threads)")
+    ax.set_title("StreamStylizer throughput (features + network)")
+    ax.grid(True, which="both", alpha=0.3)
+    ax.legend()
+    fig.tight_layout()
+    atomic_write(Path(path), lambda tmp: fig.savefig(tmp, dpi=100, format="png"))
+    plt.close(fig)
