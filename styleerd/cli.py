@@ -179,6 +179,12 @@ def _bench(args: argparse.Namespace) -> None:
     print(f"wrote {args.json} and {args.plot}")
 
 
+def _report(args: argparse.Namespace) -> None:
+    from styleerd.eval.report import write_report
+
+    print(f"wrote {write_report(Path(args.docs), args.data, args.steps)}")
+
+
 def _filmstrip(args: argparse.Namespace) -> None:
     from styleerd.data.datasets import data_root, find_clips
     from styleerd.data.windows import split_takes
@@ -308,6 +314,12 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--json", default="docs/bench.json")
     p.add_argument("--plot", default="docs/throughput.png")
     p.set_defaults(func=_bench)
+
+    p = sub.add_parser("report", help="regenerate docs/RESULTS.md: quality, ablations, runtime, online figures, pictures")
+    p.add_argument("--docs", default="docs")
+    p.add_argument("--steps", type=int, default=2000, help="frames timed per latency figure")
+    p.add_argument("--data", help="data folder")
+    p.set_defaults(func=_report)
 
     p = sub.add_parser("filmstrip", help="picture: a neutral test clip and its transfer into every style")
     p.add_argument("--model", help="model path without suffix (default: the shipped model)")
