@@ -63,3 +63,20 @@ def test_export_onnx_command_writes_graph_and_sidecar(tmp_path):
     side = json.loads((tmp_path / "s.json").read_text())
     assert side["styles"][5] == "normal" and side["state_shapes"]["h_neutral"] == [6, "N", 32]
     assert len(side["stats"]["mean"]) == proto.graph.input[0].type.tensor_type.shape.dim[1].dim_value
+
+
+def test_numpy_labeller_equals_the_torch_labeller():
+    import torch
+
+    from styleerd.model.checkpoint import load_labeller
+    from styleerd.runtime.backends import NumpyLabeller
+
+    labeller, _ = load_labeller()
+    x = np.random.default_rng(0).normal(0, 1, (2, 20, labeller.in_dim)).astype(np.float32)
+    with torch.no_grad():
+        s_logits, c_logits, _ = labeller(torch.from_numpy(x))
+    fast = NumpyLabeller(labeller, 2)
+    for t in range(20):
+        p_style, p_content, fast.h = fast.step(x[:, t])
+        assert np.abs(p_style - s_logits[:, t].softmax(-1).numpy()).max() < 1e-5
+        assert np.abs(p_content - c_logits[:, t].softmax(-1).numpy()).max() < 1e-5

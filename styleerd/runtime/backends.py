@@ -192,3 +192,35 @@ def make_backend(name: str, model: StyleERD, n_streams: int):
 
         raise StyleERDError(f"unknown backend {name!r}; valid: {', '.join(BACKENDS)}")
     return {"torch": TorchBackend, "numpy": NumpyBackend, "onnx": OnnxBackend}[name](model, n_streams)
+
+
+class NumpyLabeller:
+    """The OnlineLabeller's step in numpy (torch's GRU gate order r, z, n), one state row per
+    stream; returns style and content probabilities after each frame."""
+
+    def __init__(self, labeller, n_streams: int):
+        sd = {k: v.detach().float().numpy() for k, v in labeller.state_dict().items()}
+        self.w_in, self.b_in = sd["inp.0.weight"].T.copy(), sd["inp.0.bias"]
+        self.w_ih, self.b_ih = sd["gru.weight_ih_l0"].T.copy(), sd["gru.bias_ih_l0"]
+        self.w_hh, self.b_hh = sd["gru.weight_hh_l0"].T.copy(), sd["gru.bias_hh_l0"]
+        self.heads = [(sd["style.weight"].T.copy(), sd["style.bias"]), (sd["content.weight"].T.copy(), sd["content.bias"])]
+        self.h = np.zeros((n_streams, labeller.hidden), np.float32)
+
+    def reset(self) -> None:
+        self.h[:] = 0.0
+
+    def step(self, x: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """-> (style probabilities, content probabilities, the new state); the state is kept
+        only when the caller commits it (``self.h = state``)."""
+        H = self.h.shape[1]
+        a = np.maximum(x @ self.w_in + self.b_in, 0.0)
+        gi, gh = a @ self.w_ih + self.b_ih, self.h @ self.w_hh + self.b_hh
+        r, z = _sigmoid(gi[:, :H] + gh[:, :H]), _sigmoid(gi[:, H : 2 * H] + gh[:, H : 2 * H])
+        n = np.tanh(gi[:, 2 * H :] + r * gh[:, 2 * H :])
+        h = (1.0 - z) * n + z * self.h
+        probs = []
+        for W, b in self.heads:
+            logits = h @ W + b
+            e = np.exp(logits - logits.max(-1, keepdims=True))
+            probs.append(e / e.sum(-1, keepdims=True))
+        return probs[0], probs[1], h

@@ -18,7 +18,6 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-import torch
 
 from styleerd.data.features import pose_features
 from styleerd.errors import StyleERDError
@@ -28,7 +27,7 @@ from styleerd.model.labeller import OnlineLabeller
 from styleerd.motion import quat
 from styleerd.motion.kinematics import forward_kinematics
 from styleerd.motion.skeleton import BodyRoles
-from styleerd.runtime.backends import make_backend
+from styleerd.runtime.backends import NumpyLabeller, make_backend
 
 
 def label_vector(names: tuple[str, ...], weights: dict[str, float], what: str) -> np.ndarray:
@@ -106,9 +105,10 @@ class StreamStylizer:
         )
         self.labeller = None
         if input_style is None or content is None:
-            self.labeller = labeller or load_labeller()[0]
-            if (self.labeller.n_styles, self.labeller.n_contents, self.labeller.in_dim) != (len(c.styles), len(c.contents), c.feature_dim):
+            labeller = labeller or load_labeller()[0]
+            if (labeller.n_styles, labeller.n_contents, labeller.in_dim) != (len(c.styles), len(c.contents), c.feature_dim):
                 raise StyleERDError("the labeller does not fit this model's labels: give --input-style and --content")
+            self.labeller = NumpyLabeller(labeller, n_streams)
         w = np.stack([label_vector(c.styles, t, "style") for t in _per_stream(target, n_streams)])
         self.blend = _Blend(w.copy(), w, np.full(n_streams, self.blend_frames))
         self.reset()
@@ -117,7 +117,8 @@ class StreamStylizer:
         """Forget the past: the next frame is a first frame (learned initial states)."""
         self.backend.reset()
         self.previous: np.ndarray | None = None  # global joint positions of the last frame
-        self.labeller_state: torch.Tensor | None = None
+        if self.labeller is not None:
+            self.labeller.reset()
         self.labels: tuple[np.ndarray, np.ndarray] | None = None  # (style, content) used last frame
 
     def inferred_labels(self) -> list[tuple[str, str]]:
@@ -140,7 +141,6 @@ class StreamStylizer:
         self.blend.end[rows] = w
         self.blend.frame[rows] = 0
 
-    @torch.no_grad()
     def step(self, rotations: np.ndarray, positions: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """One frame of every stream -> the stylised frame. A frame with NaN/inf is rejected
         with an error and leaves the state unchanged."""
@@ -158,12 +158,14 @@ class StreamStylizer:
         x = self.stats.normalize(feats).astype(np.float32)
         style, content, labeller_state = self.given_style, self.given_content, None
         if self.labeller is not None:
-            s_logits, c_logits, labeller_state = self.labeller(torch.from_numpy(x)[:, None], self.labeller_state)
-            style = style if style is not None else s_logits[:, 0].softmax(-1).numpy()
-            content = content if content is not None else c_logits[:, 0].softmax(-1).numpy()
+            p_style, p_content, labeller_state = self.labeller.step(x)
+            style = style if style is not None else p_style
+            content = content if content is not None else p_content
         rot, _ = self.backend.step(x, style, content, self.current_weights().astype(np.float32))
         out = rot.astype(np.float64)
         out[:, 0] = quat.mul(traj[:, 3:7], out[:, 0])
-        self.previous, self.labeller_state, self.labels = g, labeller_state, (style, content)
+        if self.labeller is not None:
+            self.labeller.h = labeller_state
+        self.previous, self.labels = g, (style, content)
         self.blend.frame += 1
         return quat.normalize(out), positions
