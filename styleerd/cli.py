@@ -55,29 +55,23 @@ def _train(args: argparse.Namespace) -> None:
     print(f"best epoch: {best}")
 
 
-def _train_recognisers(args: argparse.Namespace) -> None:
+# Small models trained beside the generator: command -> (help, default output, trainer).
+HELPER_MODELS = {
+    "train-recognisers": ("train the evaluation style/content recognisers", "recognisers-bandai2", "styleerd.train.trainer:train_recognisers"),
+    "train-labeller": ("train the online style/content labeller (labels inferred when not given)", "labeller-bandai2", "styleerd.train.labeller:train_and_save"),
+    "train-fmd": ("train the FMD feature extractor (denoising autoencoder on joint rotations)", "fmd-bandai2", "styleerd.train.fmd:train_and_save"),
+}
+
+
+def _train_helper(args: argparse.Namespace) -> None:
+    import importlib
+
     from styleerd.train.config import TrainConfig
-    from styleerd.train.trainer import train_recognisers
 
+    module, function = HELPER_MODELS[args.command][2].split(":")
     config = TrainConfig.from_yaml(args.config) if args.config else TrainConfig()
-    print(json.dumps(train_recognisers(config, args.data, Path(args.out) if args.out else None), indent=1))
-
-
-def _train_labeller(args: argparse.Namespace) -> None:
-    from styleerd.train.config import TrainConfig
-    from styleerd.train.labeller import train_and_save
-
-    config = TrainConfig.from_yaml(args.config) if args.config else TrainConfig()
-    report = train_and_save(config, args.data, Path(args.out) if args.out else None)
-    print(json.dumps({"test": report["test"]}, indent=1))
-
-
-def _train_fmd(args: argparse.Namespace) -> None:
-    from styleerd.train.config import TrainConfig
-    from styleerd.train.fmd import train_and_save
-
-    config = TrainConfig.from_yaml(args.config) if args.config else TrainConfig()
-    print(json.dumps(train_and_save(config, args.data, Path(args.out) if args.out else None), indent=1))
+    report = getattr(importlib.import_module(module), function)(config, args.data, Path(args.out) if args.out else None)
+    print(json.dumps(report, indent=1))
 
 
 def _parse_mix(text: str) -> dict[str, float]:
@@ -171,7 +165,9 @@ def _bench(args: argparse.Namespace) -> None:
     from styleerd.eval.bench import plot, run_bench, table
     from styleerd.model.checkpoint import load_generator
 
-    report = run_bench(load_generator(args.model)[0], args.steps, tuple(args.streams))
+    from styleerd.eval.bench import STREAMS
+
+    report = run_bench(load_generator(args.model)[0], args.steps, tuple(args.streams or STREAMS))
     Path(args.json).parent.mkdir(parents=True, exist_ok=True)
     atomic_write_text(Path(args.json), json.dumps(report, indent=1) + "\n")
     plot(report, args.plot)
@@ -240,23 +236,12 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--export", help="also write the best generator to this model path (no suffix)")
     p.set_defaults(func=_train)
 
-    p = sub.add_parser("train-recognisers", help="train the evaluation style/content recognisers")
-    p.add_argument("--config", help="YAML TrainConfig (dataset, window, classifier_* fields)")
-    p.add_argument("--out", help="model path without suffix (default models/recognisers-bandai2)")
-    p.add_argument("--data", help="data folder")
-    p.set_defaults(func=_train_recognisers)
-
-    p = sub.add_parser("train-labeller", help="train the online style/content labeller (labels inferred when not given)")
-    p.add_argument("--config", help="YAML TrainConfig (dataset, seed, threads)")
-    p.add_argument("--out", help="model path without suffix (default models/labeller-bandai2)")
-    p.add_argument("--data", help="data folder")
-    p.set_defaults(func=_train_labeller)
-
-    p = sub.add_parser("train-fmd", help="train the FMD feature extractor (denoising autoencoder on joint rotations)")
-    p.add_argument("--config", help="YAML TrainConfig (dataset, seed, threads)")
-    p.add_argument("--out", help="model path without suffix (default models/fmd-bandai2)")
-    p.add_argument("--data", help="data folder")
-    p.set_defaults(func=_train_fmd)
+    for command, (text, default, _) in HELPER_MODELS.items():
+        p = sub.add_parser(command, help=text)
+        p.add_argument("--config", help="YAML TrainConfig (dataset, seed, threads, window, classifier_* fields)")
+        p.add_argument("--out", help=f"model path without suffix (default models/{default})")
+        p.add_argument("--data", help="data folder")
+        p.set_defaults(func=_train_helper)
 
     p = sub.add_parser("transfer", help="stylise a BVH file (any humanoid skeleton)")
     p.add_argument("input")
@@ -310,7 +295,7 @@ def build_parser() -> argparse.ArgumentParser:
     p = sub.add_parser("bench", help="runtime table: latency per backend, whole clips, throughput curve, FLOPs, memory")
     p.add_argument("--model", help="model path without suffix (default: the shipped model)")
     p.add_argument("--steps", type=int, default=2000, help="frames timed per latency figure")
-    p.add_argument("--streams", type=int, nargs="+", default=[1, 4, 16, 64, 256, 1024, 4096])
+    p.add_argument("--streams", type=int, nargs="+", help="concurrent streams of the throughput curve (default 1 .. 4096)")
     p.add_argument("--json", default="docs/bench.json")
     p.add_argument("--plot", default="docs/throughput.png")
     p.set_defaults(func=_bench)

@@ -29,6 +29,7 @@ from styleerd.runtime.channels import ChannelStylizer
 from styleerd.runtime.stylizer import StreamStylizer
 
 PAPER_GTX1060_MS = {"online per frame": 1.73, "L=60": 7.47, "L=90": 10.18, "L=120": 13.22, "input frames needed": 1}
+STREAMS = (1, 4, 10, 16, 64, 100, 256, 1000, 4096)  # the throughput curve's points
 TARGETS = "targets (issue 4): step p50 <= 100 us, end-to-end p50 <= 300 us, >= 200,000 frames/s at 1,000 streams"
 
 
@@ -136,7 +137,7 @@ def state_bytes(model: StyleERD) -> dict:
     return {"recurrent_state": recurrent, "stream_buffers": buffers, "total": recurrent + buffers}
 
 
-def run_bench(model: StyleERD, steps: int = 2000, streams: tuple[int, ...] = (1, 4, 16, 64, 256, 1024, 4096), progress=print) -> dict:
+def run_bench(model: StyleERD, steps: int = 2000, streams: tuple[int, ...] = STREAMS, progress=print) -> dict:
     report: dict = {"cpu_count": os.cpu_count(), "flops_per_frame": flops_per_frame(model), "memory_per_stream_bytes": state_bytes(model),
                     "startup_latency_frames": 1, "paper_gtx1060_ms": PAPER_GTX1060_MS, "backends": {}}  # fmt: skip
     report["matmul_peak_gflops_2_threads"] = round(matmul_peak(2) / 1e9, 1)

@@ -22,7 +22,7 @@ from styleerd.model import torch_quat
 from styleerd.train.batches import TrainingData, WindowSet
 from styleerd.train.fmd import hemisphere, window_rotations
 from styleerd.train.trainer import Setup
-from styleerd.train.validation import transfer_targets
+from styleerd.train.validation import transfers
 
 FIRST_FRAMES = 10
 
@@ -59,17 +59,14 @@ def transfer_quality(model: StyleERD, s: Setup, test: WindowSet, style_rec, cont
     model.eval()
     data = s.data
     reference = torch.as_tensor(data.stats.reference, dtype=torch.float32)
-    rows, targets = transfer_targets(test.style, model.config.neutral_index, len(data.styles))
-    feats, hit_s, hit_c, jerk_fake = [], 0, 0, []
-    for i in range(0, len(rows), batch):
-        r, t = rows[i : i + batch], targets[i : i + batch]
-        x = data.gather(test.starts[r])
-        rot, vel, _ = model(x, data.onehot_style(test.style[r]), data.onehot_content(test.content[r]), data.onehot_style(t))
-        ch = model.motion_channels(rot, vel)
+    feats, hit_s, hit_c, jerk_fake, all_targets = [], 0, 0, [], []
+    for r, t, rot, _, ch in transfers(model, data, test, batch):
         hit_s += int((style_rec(ch).argmax(-1).numpy() == t).sum())
         hit_c += int((content_rec(ch).argmax(-1).numpy() == test.content[r]).sum())
         feats.append(_features(fmd, rot, reference))
         jerk_fake.append(_jerk(torch_quat.root_relative_positions(rot, model.offsets, model.parents)))
+        all_targets.append(t)
+    targets = np.concatenate(all_targets)
     fake = np.concatenate(feats)
     real_all = np.concatenate([_features(fmd, window_rotations(data, test.starts[i : i + batch]), reference) for i in range(0, len(test.starts), batch)])
     real = {k: real_all[test.style == k] for k in range(len(data.styles))}
@@ -81,9 +78,9 @@ def transfer_quality(model: StyleERD, s: Setup, test: WindowSet, style_rec, cont
     floor = frechet_distance(real_all[half], real_all[~half])
     real_pos = torch.cat([_real_positions(model, data, test.starts[i : i + batch]) for i in range(0, len(test.starts), batch)])
     return {
-        "transfers": len(rows),
-        "sra": round(hit_s / len(rows), 4),
-        "cra": round(hit_c / len(rows), 4),
+        "transfers": len(targets),
+        "sra": round(hit_s / len(targets), 4),
+        "cra": round(hit_c / len(targets), 4),
         "fmd": round(pooled, 3),
         "fmd_floor": round(floor, 3),
         "fmd_over_floor": round(pooled / floor, 2),

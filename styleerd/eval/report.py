@@ -11,7 +11,7 @@ from styleerd.atomic import atomic_write_text
 from styleerd.data.datasets import Clip, data_root, find_clips, load_motion
 from styleerd.data.windows import split_takes
 from styleerd.eval.ablations import ABLATIONS, ablation_table, markdown, model_stem
-from styleerd.eval.bench import plot, run_bench, table
+from styleerd.eval.bench import STREAMS, plot, run_bench, table
 from styleerd.eval.metrics import runtime_report
 from styleerd.eval.plots import filmstrip, style_filmstrip
 from styleerd.eval.quality import evaluate_model
@@ -51,7 +51,7 @@ def pictures(docs: Path, data_dir: str | None) -> dict[str, str]:
     return out
 
 
-def write_report(docs: Path = Path("docs"), data_dir: str | None = None, bench_steps: int = 2000, bench_streams: tuple[int, ...] = (1, 4, 16, 64, 256, 1024, 4096), progress=print) -> Path:
+def write_report(docs: Path = Path("docs"), data_dir: str | None = None, bench_steps: int = 2000, bench_streams: tuple[int, ...] = STREAMS, progress=print) -> Path:
     docs.mkdir(parents=True, exist_ok=True)
     model, meta = load_generator()
     progress("quality of the shipped model ...")

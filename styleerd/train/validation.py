@@ -50,14 +50,22 @@ def validate(
     out = {"rec_deg": deg / n, "rec_cm": cm / n}
     if style_recogniser is None or content_recogniser is None:
         return out
+    hit_s = hit_c = n = 0
+    for r, t, _, _, ch in transfers(model, data, ws, batch):
+        hit_s += int((style_recogniser(ch).argmax(-1).numpy() == t).sum())
+        hit_c += int((content_recogniser(ch).argmax(-1).numpy() == ws.content[r]).sum())
+        n += len(r)
+    out.update(sra=hit_s / n, cra=hit_c / n)
+    return out
+
+
+@torch.no_grad()
+def transfers(model: StyleERD, data: TrainingData, ws: WindowSet, batch: int = 512):
+    """The transfer tasks of ``ws`` in batches: (window rows, targets, rotations, velocities,
+    normalised motion channels)."""
     rows, targets = transfer_targets(ws.style, model.config.neutral_index, len(data.styles))
-    hit_s = hit_c = 0
     for i in range(0, len(rows), batch):
         r, t = rows[i : i + batch], targets[i : i + batch]
         x = data.gather(ws.starts[r])
         rot, vel, _ = model(x, data.onehot_style(ws.style[r]), data.onehot_content(ws.content[r]), data.onehot_style(t))
-        ch = model.motion_channels(rot, vel)
-        hit_s += int((style_recogniser(ch).argmax(-1).numpy() == t).sum())
-        hit_c += int((content_recogniser(ch).argmax(-1).numpy() == ws.content[r]).sum())
-    out.update(sra=hit_s / len(rows), cra=hit_c / len(rows))
-    return out
+        yield r, t, rot, vel, model.motion_channels(rot, vel)
