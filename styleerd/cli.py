@@ -141,7 +141,7 @@ def _eval_runtime(args: argparse.Namespace) -> None:
 
 
 def _eval_quality(args: argparse.Namespace) -> None:
-    from styleerd.eval.quality import evaluate_model
+    from styleerd.eval.metrics import evaluate_model
     from styleerd.model.checkpoint import load_generator
 
     print(json.dumps(evaluate_model(load_generator(args.model)[0], args.data), indent=1))

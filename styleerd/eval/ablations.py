@@ -67,7 +67,7 @@ COLUMNS = [
 
 def ablation_table(data_dir: str | None = None) -> dict:
     """Evaluate every exported ablation model with the same judges."""
-    from styleerd.eval.quality import evaluate_model
+    from styleerd.eval.metrics import evaluate_model
     from styleerd.model.checkpoint import load_generator
 
     rows = {}

@@ -1,25 +1,183 @@
-"""Runtime quality figures on the test split: online label inference, foot skate before and
-after cleanup, and the size of the pop when the target style switches mid-stream.
+"""Evaluation metrics on the test split, all with fixed judges (the shipped recognisers,
+labeller and FMD extractor).
 
-Streams are the test clips of at least ``frames`` frames, cut to that length and run as one
-batch through StreamStylizer (the per-frame path users run), each into its transfer target
-(neutral -> one of the other styles in turn, styled -> neutral).
+Quality of a generator's transfers (``evaluate_model``):
+- FMD: Fréchet distance between FMD features of transferred windows and of real test windows
+  of each target style; pooled (real windows drawn in the transfers' style proportions) and
+  per style. The floor is the FMD between two disjoint halves (by clip) of the real test
+  windows, so every FMD reads as a multiple of it.
+- SRA / CRA: transfers recognised as the target style / the input's content.
+- Responsiveness: each test clip streamed from its first frame; SRA and FMD of its first 10
+  output frames versus the 24-frame windows after them.
+- Jitter: mean jerk (third difference of joint positions) of transfers over that of the real
+  input windows. Reconstruction error (target style = input style).
+
+Online behaviour of the runtime (``runtime_report``): label inference after 1/10/30 frames,
+foot skate before and after cleanup, and the size of the pop when the target style switches
+mid-stream. Its streams are the test clips of at least ``frames`` frames, cut to that length
+and run as one batch through StreamStylizer (the per-frame path users run), each into its
+transfer target (neutral -> one of the other styles in turn, styled -> neutral).
 """
 
 from __future__ import annotations
 
 import numpy as np
+import torch
 from tqdm import tqdm
 
 from styleerd.data.datasets import data_root, find_clips, load_motion
+from styleerd.model import torch_quat
+from styleerd.model.fmd import MotionAutoencoder
 from styleerd.model.generator import StyleERD
 from styleerd.motion.kinematics import foot_contacts, forward_kinematics
 from styleerd.motion.skeleton import BodyRoles
 from styleerd.runtime.cleanup import FootLock
 from styleerd.runtime.stylizer import StreamStylizer
+from styleerd.train.batches import TrainingData, WindowSet
 from styleerd.train.config import TrainConfig
+from styleerd.train.fmd import hemisphere, window_rotations
 from styleerd.train.labeller import stream_accuracy
-from styleerd.train.trainer import setup
+from styleerd.train.trainer import Setup, setup
+from styleerd.train.validation import transfers
+
+FIRST_FRAMES = 10
+
+
+def frechet_distance(a: np.ndarray, b: np.ndarray) -> float:
+    """Fréchet distance between Gaussians fitted to feature sets ``a [n, d]``, ``b [m, d]``:
+    |mu_a - mu_b|^2 + tr(C_a + C_b - 2 (C_a^1/2 C_b C_a^1/2)^1/2), by symmetric eigensolves."""
+    mu = a.mean(0) - b.mean(0)
+    ca, cb = np.cov(a, rowvar=False), np.cov(b, rowvar=False)
+    w, v = np.linalg.eigh(ca)
+    root_a = (v * np.sqrt(np.clip(w, 0, None))) @ v.T
+    cross = np.linalg.eigvalsh(root_a @ cb @ root_a)
+    return float(mu @ mu + np.trace(ca) + np.trace(cb) - 2 * np.sqrt(np.clip(cross, 0, None)).sum())
+
+
+@torch.no_grad()
+def _features(fmd: MotionAutoencoder, rotations: torch.Tensor, reference: torch.Tensor) -> np.ndarray:
+    return fmd.features(hemisphere(rotations, reference)).numpy().astype(np.float64)
+
+
+def _proportional(real: dict[int, np.ndarray], targets: np.ndarray) -> np.ndarray:
+    """Real features drawn in the proportions of ``targets`` (cycling through each style's)."""
+    seen: dict[int, int] = {}
+    rows = []
+    for t in targets:
+        k = seen.get(int(t), 0)
+        rows.append(real[int(t)][k % len(real[int(t)])])
+        seen[int(t)] = k + 1
+    return np.stack(rows)
+
+
+@torch.no_grad()
+def transfer_quality(model: StyleERD, s: Setup, test: WindowSet, style_rec, content_rec, fmd: MotionAutoencoder, batch: int = 256) -> dict:
+    model.eval()
+    data = s.data
+    reference = torch.as_tensor(data.stats.reference, dtype=torch.float32)
+    feats, hit_s, hit_c, jerk_fake, all_targets = [], 0, 0, [], []
+    for r, t, rot, _, ch in transfers(model, data, test, batch):
+        hit_s += int((style_rec(ch).argmax(-1).numpy() == t).sum())
+        hit_c += int((content_rec(ch).argmax(-1).numpy() == test.content[r]).sum())
+        feats.append(_features(fmd, rot, reference))
+        jerk_fake.append(_jerk(torch_quat.root_relative_positions(rot, model.offsets, model.parents)))
+        all_targets.append(t)
+    targets = np.concatenate(all_targets)
+    fake = np.concatenate(feats)
+    real_all = np.concatenate([_features(fmd, window_rotations(data, test.starts[i : i + batch]), reference) for i in range(0, len(test.starts), batch)])
+    real = {k: real_all[test.style == k] for k in range(len(data.styles))}
+    per_style = {data.styles[k]: round(frechet_distance(fake[targets == k], real[k]), 3) for k in np.unique(targets)}
+    # floor: two halves of the real windows, split by clip
+    half = np.isin(test.clip, np.unique(test.clip)[::2])
+    floor_style = {data.styles[k]: round(frechet_distance(real_all[half & (test.style == k)], real_all[~half & (test.style == k)]), 3) for k in np.unique(targets)}
+    pooled = frechet_distance(fake, _proportional(real, targets))
+    floor = frechet_distance(real_all[half], real_all[~half])
+    real_pos = torch.cat([_real_positions(model, data, test.starts[i : i + batch]) for i in range(0, len(test.starts), batch)])
+    return {
+        "transfers": len(targets),
+        "sra": round(hit_s / len(targets), 4),
+        "cra": round(hit_c / len(targets), 4),
+        "fmd": round(pooled, 3),
+        "fmd_floor": round(floor, 3),
+        "fmd_over_floor": round(pooled / floor, 2),
+        "fmd_per_style": per_style,
+        "fmd_floor_per_style": floor_style,
+        "jitter_ratio": round(float(np.concatenate(jerk_fake).mean() / _jerk(real_pos).mean()), 3),
+    }
+
+
+def _real_positions(model: StyleERD, data: TrainingData, starts: np.ndarray) -> torch.Tensor:
+    return torch_quat.root_relative_positions(model.raw_rotations(data.gather(starts)), model.offsets, model.parents)
+
+
+def _jerk(positions: torch.Tensor) -> np.ndarray:
+    """Mean jerk magnitude per window (units per frame^3) of positions ``[B, T, J, 3]``."""
+    d3 = positions[:, 3:] - 3 * positions[:, 2:-1] + 3 * positions[:, 1:-2] - positions[:, :-3]
+    return d3.norm(dim=-1).mean(dim=(1, 2)).numpy()
+
+
+@torch.no_grad()
+def responsiveness(model: StyleERD, s: Setup, style_rec, fmd: MotionAutoencoder, window: int = 24) -> dict:
+    """Each test clip streamed from its first frame into its transfer target(s): SRA and FMD
+    of the first ``FIRST_FRAMES`` output frames and of the 24-frame windows after them."""
+    model.eval()
+    data, fs = s.data, s.fs
+    reference = torch.as_tensor(data.stats.reference, dtype=torch.float32)
+    neutral = model.config.neutral_index
+    first_fake, rest_fake, first_t, rest_t, first_real, rest_real = [], [], [], [], {}, {}
+    hit_first = hit_rest = 0
+    for c in fs.clips("test"):
+        sl = fs.frames(c)
+        if sl.stop - sl.start < FIRST_FRAMES + window:
+            continue
+        st, ct = data.styles.index(fs.styles[c]), data.contents.index(fs.contents[c])
+        targets = [t for t in range(len(data.styles)) if t != neutral] if st == neutral else [neutral]
+        x = data.frames[sl][None].expand(len(targets), -1, -1)
+        rot, vel, _ = model(x, data.onehot_style(np.full(len(targets), st)), data.onehot_content(np.full(len(targets), ct)), data.onehot_style(np.array(targets)))
+        ch = model.motion_channels(rot, vel)
+        n_rest = (x.shape[1] - FIRST_FRAMES) // window
+        t = np.array(targets)
+        hit_first += int((style_rec(ch[:, :FIRST_FRAMES]).argmax(-1).numpy() == t).sum())
+        first_fake.append(_features(fmd, rot[:, :FIRST_FRAMES], reference))
+        first_t.append(t)
+        q_real = window_rotations(data, np.array([sl.start]))  # [1, 24, J, 4]: its first frames
+        first_real.setdefault(st, []).append(_features(fmd, q_real[:, :FIRST_FRAMES], reference)[0])
+        for k in range(n_rest):
+            a = FIRST_FRAMES + k * window
+            hit_rest += int((style_rec(ch[:, a : a + window]).argmax(-1).numpy() == t).sum())
+            rest_fake.append(_features(fmd, rot[:, a : a + window], reference))
+            rest_t.append(t)
+            rest_real.setdefault(st, []).append(_features(fmd, window_rotations(data, np.array([sl.start + a])), reference)[0])
+    ft, rt = np.concatenate(first_t), np.concatenate(rest_t)
+    first_real_by = {k: np.stack(v) for k, v in first_real.items()}
+    rest_real_by = {k: np.stack(v) for k, v in rest_real.items()}
+    return {
+        "sra_first_10": round(hit_first / len(ft), 4),
+        "sra_rest": round(hit_rest / len(rt), 4),
+        "fmd_first_10": round(frechet_distance(np.concatenate(first_fake), _proportional(first_real_by, ft)), 3),
+        "fmd_rest": round(frechet_distance(np.concatenate(rest_fake), _proportional(rest_real_by, rt)), 3),
+    }
+
+
+def evaluate_model(model: StyleERD, data_dir: str | None = None) -> dict:
+    """Every quality figure of one generator on the test split (the ablation table's row)."""
+    from styleerd.model import checkpoint as ckpt
+    from styleerd.train.trainer import windows
+    from styleerd.train.validation import validate
+
+    torch.set_num_threads(max(1, torch.get_num_threads()))
+    s = setup(TrainConfig(), data_dir, progress=False)
+    test = windows(s.fs, s.data, "test", s.data.window)
+    style_rec, content_rec, _ = ckpt.load_recognisers()
+    fmd, _ = ckpt.load_fmd()
+    rec = validate(model, s.data, test)
+    out = {"rec_deg": round(rec["rec_deg"], 3), "rec_cm": round(rec["rec_cm"], 3)}
+    out.update(transfer_quality(model, s, test, style_rec, content_rec, fmd))
+    out.update(responsiveness(model, s, style_rec, fmd))
+    return out
+
+
+# ---------------------------------------------------------------- online behaviour
 
 
 def foot_skate(global_positions: np.ndarray, ankles: tuple[int, int], planted: np.ndarray) -> float:

@@ -1,12 +1,14 @@
-"""FMD and the evaluation figures: the Fréchet distance against scipy's matrix square root,
-the shipped extractor against its record, the quality figures of the shipped model."""
+"""The evaluation metrics: the Fréchet distance against scipy's matrix square root, the
+shipped FMD extractor against its record, the quality and runtime figures of the shipped
+models on the test split."""
 
 import numpy as np
 import pytest
 import scipy.linalg
 
-from styleerd.eval.quality import frechet_distance
+from styleerd.eval.metrics import frechet_distance, runtime_report
 from styleerd.model import checkpoint as ckpt
+from styleerd.model.checkpoint import load_generator, load_labeller
 
 
 def test_frechet_distance_against_scipy_sqrtm():
@@ -21,7 +23,7 @@ def test_frechet_distance_against_scipy_sqrtm():
 
 @pytest.mark.slow
 def test_shipped_fmd_extractor_and_the_quality_figures(shared_data):
-    from styleerd.eval.quality import evaluate_model
+    from styleerd.eval.metrics import evaluate_model
     from styleerd.train.batches import windows
     from styleerd.train.config import TrainConfig
     from styleerd.train.fmd import reconstruction_degrees
@@ -35,3 +37,15 @@ def test_shipped_fmd_extractor_and_the_quality_figures(shared_data):
     print(q)
     assert 1.0 < q["fmd_over_floor"] < 10 and q["sra"] > 0.9 and 0 < q["cra"] <= 1
     assert q["sra_first_10"] <= q["sra_rest"] and q["jitter_ratio"] > 0
+
+
+@pytest.mark.slow
+def test_cleanup_removes_skate_and_blending_removes_the_pop(shared_data):
+    r = runtime_report(load_generator()[0], load_labeller()[0], str(shared_data))
+    print(r)
+    skate = r["foot_skate_cm_per_frame"]
+    assert skate["streams"] > 100
+    assert skate["cleaned_output"] < 0.2 * skate["raw_output"] and skate["cleaned_output"] <= 2 * skate["input"]
+    sw = r["style_switch"]
+    assert sw["blended_cm"] < sw["unblended_cm"] and sw["blended_cm"] < sw["normal_p99_cm"]
+    assert r["labels"][30]["style"] >= 0.97

@@ -1,0 +1,27 @@
+"""`styleerd report` regenerates the results page from the shipped models, with the figures
+the individual commands print (checked for the deterministic ones)."""
+
+import json
+
+import pytest
+
+from styleerd.eval.ablations import ABLATIONS, model_stem
+
+pytestmark = pytest.mark.slow
+
+
+def test_report_regenerates_results_with_the_commands_figures(shared_data, tmp_path):
+    from styleerd.eval.metrics import evaluate_model
+    from styleerd.eval.report import write_report
+    from styleerd.model.checkpoint import load_generator
+
+    assert all(model_stem(name).with_suffix(".safetensors").is_file() for name in ABLATIONS)
+    path = write_report(tmp_path, str(shared_data), bench_steps=100, bench_streams=(1, 16), progress=lambda *_: None)
+    text = path.read_text()
+    q = evaluate_model(load_generator()[0], str(shared_data))
+    assert f"| SRA (transfers: neutral -> each style, styled -> neutral; {q['transfers']:,} windows) | {100 * q['sra']:.2f} % |" in text
+    assert f"{q['fmd']:.3f} ({q['fmd_floor']:.3f})" in text
+    ablations = json.loads((tmp_path / "ablations.json").read_text())
+    assert list(ablations) == list(ABLATIONS) and "| full |" in text and "paper, GTX 1060" in text
+    for picture in ("filmstrip-bandai2.png", "intensity-bandai2.png", "mixture-bandai2.png", "first-frames-bandai2.png", "throughput.png"):
+        assert (tmp_path / picture).stat().st_size > 10_000 and f"({picture})" in text
