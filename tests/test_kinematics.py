@@ -118,3 +118,12 @@ def test_resample_to_a_given_frame_count_round_trips_the_length():
     assert back.n_frames == 41 and np.allclose(back.positions[::4], m.positions[::4])
     longer = resample(walking_motion(42, fps=120.0), 30.0)
     assert resample(longer, 120.0, n_frames=42).n_frames == 42  # the last frame is held
+
+
+def test_forward_positions_equal_forward_kinematics():
+    m = walking_motion(20)
+    _, g = forward_kinematics(m.rotations, m.positions, m.skeleton.parents)
+    from styleerd.motion.kinematics import forward_positions
+
+    assert np.abs(forward_positions(m.rotations, m.positions, m.skeleton.parents) - g).max() < 1e-9
+    assert np.abs(forward_positions(m.rotations[3], m.positions[3], m.skeleton.parents) - g[3]).max() < 1e-9

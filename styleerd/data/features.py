@@ -24,7 +24,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from styleerd.motion import quat
-from styleerd.motion.kinematics import facing_directions, foot_contacts, forward_kinematics, heading_rotations
+from styleerd.motion.kinematics import facing_directions, foot_contacts, forward_positions, heading_rotations
 from styleerd.motion.motion import Motion
 from styleerd.motion.skeleton import BodyRoles, Skeleton
 
@@ -70,7 +70,7 @@ def pose_features(
 
     Returns (features ``[T, D]``, trajectory ``[T, 7]`` = root position + heading quaternion,
     global joint positions ``[T, J, 3]``, to pass as ``previous_global`` of the next frame)."""
-    g_rot, g_pos = forward_kinematics(rotations, positions, skeleton.parents)
+    g_pos = forward_positions(rotations, positions, skeleton.parents)
     heading = heading_rotations(facing_directions(g_pos, roles.left, roles.right))
     inv_h = quat.inv(heading)[:, None]
     local = rotations.copy()
@@ -90,7 +90,7 @@ def motion_features(motion: Motion, roles: BodyRoles | None = None, contact_spee
     """Features ``[T, D]`` and trajectory ``[T, 7]`` of a whole motion (the same values a
     stream of its frames gives, frame by frame)."""
     roles = roles or BodyRoles.of(motion.skeleton)
-    _, g_pos = forward_kinematics(motion.rotations, motion.positions, motion.skeleton.parents)
+    g_pos = forward_positions(motion.rotations, motion.positions, motion.skeleton.parents)
     previous = np.concatenate([g_pos[:1], g_pos[:-1]], axis=0)
     feats, traj, _ = pose_features(motion.rotations, motion.positions, previous, motion.skeleton, roles, motion.fps, contact_speed)
     return feats, traj

@@ -29,7 +29,7 @@ from styleerd.data.datasets import data_root, find_clips, load_motion
 from styleerd.model import torch_quat
 from styleerd.model.fmd import MotionAutoencoder
 from styleerd.model.generator import StyleERD
-from styleerd.motion.kinematics import foot_contacts, forward_kinematics
+from styleerd.motion.kinematics import foot_contacts, forward_positions
 from styleerd.motion.skeleton import BodyRoles
 from styleerd.runtime.cleanup import FootLock
 from styleerd.runtime.stylizer import StreamStylizer
@@ -235,7 +235,7 @@ def runtime_report(model: StyleERD, labeller, data_dir: str | None = None, frame
     ankles = (roles.feet[0], roles.feet[2])
 
     def world(r):
-        return forward_kinematics(r, pos, sk.parents)[1]
+        return forward_positions(r, pos, sk.parents)
 
     g_in = world(rot)
     previous = np.concatenate([g_in[:, :1], g_in[:, :-1]], 1)

@@ -19,7 +19,7 @@ from styleerd.atomic import atomic_write_text
 from styleerd.errors import StyleERDError
 from styleerd.motion import quat
 from styleerd.motion.motion import Motion
-from styleerd.motion.skeleton import CHANNELS, POSITION_CHANNELS, ROTATION_CHANNELS, Skeleton
+from styleerd.motion.skeleton import CHANNELS, POSITION_CHANNELS, Skeleton
 
 _CANONICAL = {c.lower(): c for c in CHANNELS}
 
@@ -310,16 +310,23 @@ def motion_from_channels(skeleton: Skeleton, values: np.ndarray, fps: float) -> 
     hint = np.zeros((T, J, 3))
     col = 0
     for j, chans in enumerate(skeleton.channels):
-        angles = hint[:, j]
         order = skeleton.rotation_order(j)
         for c in chans:
             if c in POSITION_CHANNELS:
                 positions[:, j, POSITION_CHANNELS.index(c)] = values[:, col]
             else:
-                angles[:, order.index(c[0].lower())] = values[:, col]
+                hint[:, j, order.index(c[0].lower())] = values[:, col]
             col += 1
-        rotations[:, j] = quat.from_euler(np.radians(angles), order)
+    for order, joints in _joints_by_order(skeleton).items():  # one conversion per Euler order
+        rotations[:, joints] = quat.from_euler(np.radians(hint[:, joints]), order)
     return Motion(skeleton, rotations, positions, fps, euler_hint=hint)
+
+
+def _joints_by_order(skeleton: Skeleton) -> dict[str, np.ndarray]:
+    groups: dict[str, list[int]] = {}
+    for j in range(skeleton.n_joints):
+        groups.setdefault(skeleton.rotation_order(j), []).append(j)
+    return {order: np.array(joints) for order, joints in groups.items()}
 
 
 def read(path: str | os.PathLike) -> Motion:
@@ -341,23 +348,22 @@ def channel_values(motion: Motion) -> np.ndarray:
     Euler angles follow ``motion.euler_hint`` where there is one (the source file's branches),
     else they are unrolled over time so the curves have no +-180 degree flips."""
     sk = motion.skeleton
+    angles = np.zeros(motion.rotations.shape[:2] + (3,))
+    for order, joints in _joints_by_order(sk).items():  # one conversion per Euler order
+        e = quat.to_euler(motion.rotations[:, joints], order)
+        if motion.euler_hint is None:
+            e = quat.unroll_euler(e)
+        else:
+            e = quat.nearest_euler(e, np.radians(motion.euler_hint[:, joints]))
+        angles[:, joints] = np.degrees(e)
     columns = []
     for j, chans in enumerate(sk.channels):
         order = sk.rotation_order(j)
-        rot = [c for c in chans if c in ROTATION_CHANNELS]
-        angles = None
-        if rot:
-            e = quat.to_euler(motion.rotations[:, j], order)
-            if motion.euler_hint is None:
-                e = quat.unroll_euler(e)
-            else:
-                e = quat.nearest_euler(e, np.radians(motion.euler_hint[:, j]))
-            angles = np.degrees(e)
         for c in chans:
             if c in POSITION_CHANNELS:
                 columns.append(motion.positions[:, j, POSITION_CHANNELS.index(c)])
             else:
-                columns.append(angles[:, order.index(c[0].lower())])
+                columns.append(angles[:, j, order.index(c[0].lower())])
     return np.stack(columns, axis=-1) if columns else np.zeros((motion.n_frames, 0))
 
 

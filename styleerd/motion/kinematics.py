@@ -16,14 +16,52 @@ FORWARD = np.array([0.0, 0.0, 1.0])
 
 def forward_kinematics(rotations: np.ndarray, positions: np.ndarray, parents: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Global rotations ``[..., J, 4]`` and positions ``[..., J, 3]`` from local ones.
-    ``parents`` must list parents before children (``parents[0] == -1``)."""
-    g_rot = [rotations[..., 0, :]]
-    g_pos = [positions[..., 0, :]]
-    for j in range(1, len(parents)):
-        p = parents[j]
-        g_pos.append(quat.mul_vec(g_rot[p], positions[..., j, :]) + g_pos[p])
-        g_rot.append(quat.mul(g_rot[p], rotations[..., j, :]))
-    return np.stack(g_rot, axis=-2), np.stack(g_pos, axis=-2)
+    ``parents`` must list parents before children (``parents[0] == -1``). Joints of one depth
+    are done together, so the Python loop runs once per level, not once per joint."""
+    parents = np.asarray(parents)
+    g_rot = np.empty(rotations.shape, dtype=np.result_type(rotations, float))
+    g_pos = np.empty(positions.shape, dtype=np.result_type(positions, float))
+    levels = depth_levels(parents)
+    g_rot[..., levels[0], :] = rotations[..., levels[0], :]
+    g_pos[..., levels[0], :] = positions[..., levels[0], :]
+    for joints in levels[1:]:
+        p = parents[joints]
+        g_pos[..., joints, :] = quat.mul_vec(g_rot[..., p, :], positions[..., joints, :]) + g_pos[..., p, :]
+        g_rot[..., joints, :] = quat.mul(g_rot[..., p, :], rotations[..., joints, :])
+    return g_rot, g_pos
+
+
+_LEVELS: dict[bytes, list[np.ndarray]] = {}
+
+
+def depth_levels(parents: np.ndarray) -> list[np.ndarray]:
+    """Joint indices grouped by depth below the root (root first): each group's parents are
+    all in earlier groups, so a group can be processed at once. Cached per hierarchy."""
+    parents = np.asarray(parents, dtype=np.int64)
+    key = parents.tobytes()
+    if key not in _LEVELS:
+        depth = np.zeros(len(parents), dtype=np.int64)
+        for j in range(1, len(parents)):
+            depth[j] = depth[parents[j]] + 1
+        _LEVELS[key] = [np.nonzero(depth == d)[0] for d in range(depth.max() + 1)]
+    return _LEVELS[key]
+
+
+def forward_positions(rotations: np.ndarray, positions: np.ndarray, parents: np.ndarray) -> np.ndarray:
+    """Global joint positions ``[..., J, 3]`` only (the common need of per-frame work): the
+    same values as ``forward_kinematics``, with rotation matrices, one depth level at a time."""
+    parents = np.asarray(parents)
+    local = quat.to_xform(rotations)
+    g_rot = np.empty_like(local)
+    g_pos = np.empty(positions.shape, dtype=np.result_type(positions, local))
+    levels = depth_levels(parents)
+    g_rot[..., levels[0], :, :] = local[..., levels[0], :, :]
+    g_pos[..., levels[0], :] = positions[..., levels[0], :]
+    for joints in levels[1:]:
+        p = parents[joints]
+        g_pos[..., joints, :] = np.einsum("...ij,...j->...i", g_rot[..., p, :, :], positions[..., joints, :]) + g_pos[..., p, :]
+        g_rot[..., joints, :, :] = g_rot[..., p, :, :] @ local[..., joints, :, :]
+    return g_pos
 
 
 def facing_directions(

@@ -220,17 +220,14 @@ def to_target(motion: Motion, jm: JointMap) -> Motion:
     src, tgt = jm.source, jm.target
     g_rot, g_pos = forward_kinematics(motion.rotations, motion.positions, src.parents)
     T = motion.n_frames
+    t_idx, s_idx = (np.array(x) for x in zip(*jm.pairs))
     out = np.empty((T, tgt.n_joints, 4))
-    mapped = dict(jm.pairs)
-    for j in range(tgt.n_joints):
-        if j in mapped:
-            s = mapped[j]
-            out[:, j] = quat.mul(g_rot[:, s], quat.mul(quat.inv(jm.source_tpose[s]), jm.target_tpose[j]))
-        else:  # no counterpart: the target's T-pose relation to its parent
-            p = tgt.parents[j]
-            out[:, j] = quat.mul(out[:, p], quat.mul(quat.inv(jm.target_tpose[p]), jm.target_tpose[j])) if p >= 0 else jm.target_tpose[j]
+    out[:, t_idx] = quat.mul(g_rot[:, s_idx], quat.mul(quat.inv(jm.source_tpose[s_idx]), jm.target_tpose[t_idx]))
+    for j in sorted(set(range(tgt.n_joints)) - set(t_idx.tolist())):  # no counterpart: the target's T-pose relation to its parent
+        p = tgt.parents[j]
+        out[:, j] = quat.mul(out[:, p], quat.mul(quat.inv(jm.target_tpose[p]), jm.target_tpose[j])) if p >= 0 else jm.target_tpose[j]
     pos = np.broadcast_to(tgt.offsets, (T, tgt.n_joints, 3)).copy()
-    pos[:, 0] = g_pos[:, mapped[0]] * jm.scale
+    pos[:, 0] = g_pos[:, dict(jm.pairs)[0]] * jm.scale
     return Motion(tgt, _local_from_global(out, tgt.parents), pos, motion.fps)
 
 
@@ -240,14 +237,10 @@ def to_source(target_motion: Motion, jm: JointMap, source_motion: Motion) -> Mot
     translations (the root path included) are ``source_motion``'s."""
     src, tgt = jm.source, jm.target
     g_tgt, _ = forward_kinematics(target_motion.rotations, target_motion.positions, tgt.parents)
-    from_target = {s: t for t, s in jm.pairs}
-    T = target_motion.n_frames
-    g = np.empty((T, src.n_joints, 4))
-    for s in range(src.n_joints):
-        if s in from_target:
-            t = from_target[s]
-            g[:, s] = quat.mul(g_tgt[:, t], quat.mul(quat.inv(jm.target_tpose[t]), jm.source_tpose[s]))
-        else:
-            p = src.parents[s]
-            g[:, s] = quat.mul(g[:, p], source_motion.rotations[:, s]) if p >= 0 else source_motion.rotations[:, s]
+    t_idx, s_idx = (np.array(x) for x in zip(*jm.pairs))
+    g = np.empty((target_motion.n_frames, src.n_joints, 4))
+    g[:, s_idx] = quat.mul(g_tgt[:, t_idx], quat.mul(quat.inv(jm.target_tpose[t_idx]), jm.source_tpose[s_idx]))
+    for s in sorted(set(range(src.n_joints)) - set(s_idx.tolist())):  # parents first: their globals are ready
+        p = src.parents[s]
+        g[:, s] = quat.mul(g[:, p], source_motion.rotations[:, s]) if p >= 0 else source_motion.rotations[:, s]
     return Motion(src, quat.normalize(_local_from_global(g, src.parents)), source_motion.positions.copy(), target_motion.fps, source_motion.euler_hint)

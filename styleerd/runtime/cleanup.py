@@ -14,7 +14,7 @@ import numpy as np
 
 from styleerd.motion import quat
 from styleerd.motion.ik import two_bone_ik
-from styleerd.motion.kinematics import foot_contacts, forward_kinematics
+from styleerd.motion.kinematics import foot_contacts, forward_kinematics, forward_positions
 from styleerd.motion.motion import Motion
 from styleerd.motion.skeleton import Skeleton, find_role
 
@@ -37,7 +37,7 @@ class FootLock:
         parents = skeleton.parents
         # IK sets hip and knee rotations directly: the leg must be one hip-knee-ankle chain
         self.enabled = all(parents[k] == h and parents[a] == k for h, k, a in self.legs)
-        P = forward_kinematics(quat.identity((skeleton.n_joints,)), skeleton.offsets.copy(), skeleton.parents)[1]
+        P = forward_positions(quat.identity((skeleton.n_joints,)), skeleton.offsets, skeleton.parents)
         leg = np.linalg.norm(P[self.legs[0, 1]] - P[self.legs[0, 0]]) + np.linalg.norm(P[self.legs[0, 2]] - P[self.legs[0, 1]])
         self.max_speed = contact_speed * leg
         self.n, self.release_frames = n_streams, max(1, release_frames)
@@ -58,7 +58,7 @@ class FootLock:
     def step(self, rotations: np.ndarray, positions: np.ndarray, input_rotations: np.ndarray, input_positions: np.ndarray) -> np.ndarray:
         """Output frame ``rotations [N, J, 4]`` (local) with ``positions [N, J, 3]``, and the
         input frame it came from -> cleaned local rotations."""
-        _, g_in = forward_kinematics(input_rotations, input_positions, self.skeleton.parents)
+        g_in = forward_positions(input_rotations, input_positions, self.skeleton.parents)
         planted = self.contacts(g_in[:, self.legs[:, 2]])
         g_rot, g_pos = forward_kinematics(rotations, positions, self.skeleton.parents)
         raw = g_pos[:, self.legs[:, 2]]  # [N, 2, 3] output ankles

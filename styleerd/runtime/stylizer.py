@@ -25,7 +25,7 @@ from styleerd.model.checkpoint import load_labeller
 from styleerd.model.generator import StyleERD
 from styleerd.model.labeller import OnlineLabeller
 from styleerd.motion import quat
-from styleerd.motion.kinematics import forward_kinematics
+from styleerd.motion.kinematics import forward_positions
 from styleerd.motion.skeleton import BodyRoles
 from styleerd.runtime.backends import NumpyLabeller, make_backend
 
@@ -151,7 +151,7 @@ class StreamStylizer:
             raise StyleERDError(f"frame rejected: stream {bad[0]}, joint {self.skeleton.names[bad[1]]!r} has a NaN or infinite value")
         rotations = quat.normalize(rotations)
         if self.previous is None:
-            _, previous = forward_kinematics(rotations, positions, self.skeleton.parents)
+            previous = forward_positions(rotations, positions, self.skeleton.parents)
         else:
             previous = self.previous
         feats, traj, g = pose_features(rotations, positions, previous, self.skeleton, self.roles, self.fps)
