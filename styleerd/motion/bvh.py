@@ -317,16 +317,10 @@ def motion_from_channels(skeleton: Skeleton, values: np.ndarray, fps: float) -> 
             else:
                 hint[:, j, order.index(c[0].lower())] = values[:, col]
             col += 1
-    for order, joints in _joints_by_order(skeleton).items():  # one conversion per Euler order
+    for order, joints in skeleton.joints_by_order.items():  # one conversion per Euler order
         rotations[:, joints] = quat.from_euler(np.radians(hint[:, joints]), order)
     return Motion(skeleton, rotations, positions, fps, euler_hint=hint)
 
-
-def _joints_by_order(skeleton: Skeleton) -> dict[str, np.ndarray]:
-    groups: dict[str, list[int]] = {}
-    for j in range(skeleton.n_joints):
-        groups.setdefault(skeleton.rotation_order(j), []).append(j)
-    return {order: np.array(joints) for order, joints in groups.items()}
 
 
 def read(path: str | os.PathLike) -> Motion:
@@ -349,7 +343,7 @@ def channel_values(motion: Motion) -> np.ndarray:
     else they are unrolled over time so the curves have no +-180 degree flips."""
     sk = motion.skeleton
     angles = np.zeros(motion.rotations.shape[:2] + (3,))
-    for order, joints in _joints_by_order(sk).items():  # one conversion per Euler order
+    for order, joints in sk.joints_by_order.items():  # one conversion per Euler order
         e = quat.to_euler(motion.rotations[:, joints], order)
         if motion.euler_hint is None:
             e = quat.unroll_euler(e)

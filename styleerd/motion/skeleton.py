@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from functools import cached_property
 
 import numpy as np
 
@@ -49,8 +50,23 @@ class Skeleton:
     def rotation_order(self, j: int) -> str:
         """Euler order of joint j's rotation channels, e.g. "zxy"; axes without a channel are
         appended in x, y, z order (their angle is always zero)."""
-        listed = [c[0].lower() for c in self.channels[j] if c in ROTATION_CHANNELS]
-        return "".join(listed + [a for a in "xyz" if a not in listed])
+        return self.rotation_orders[j]
+
+    @cached_property
+    def rotation_orders(self) -> tuple[str, ...]:
+        orders = []
+        for chans in self.channels:
+            listed = [c[0].lower() for c in chans if c in ROTATION_CHANNELS]
+            orders.append("".join(listed + [a for a in "xyz" if a not in listed]))
+        return tuple(orders)
+
+    @cached_property
+    def joints_by_order(self) -> dict[str, np.ndarray]:
+        """Joint indices grouped by Euler order (one conversion call per group)."""
+        groups: dict[str, list[int]] = {}
+        for j, order in enumerate(self.rotation_orders):
+            groups.setdefault(order, []).append(j)
+        return {order: np.array(joints) for order, joints in groups.items()}
 
     def has_positions(self, j: int) -> bool:
         return any(c in POSITION_CHANNELS for c in self.channels[j])
