@@ -59,7 +59,7 @@ def forward_positions(rotations: np.ndarray, positions: np.ndarray, parents: np.
     g_pos[..., levels[0], :] = positions[..., levels[0], :]
     for joints in levels[1:]:
         p = parents[joints]
-        g_pos[..., joints, :] = np.einsum("...ij,...j->...i", g_rot[..., p, :, :], positions[..., joints, :]) + g_pos[..., p, :]
+        g_pos[..., joints, :] = (g_rot[..., p, :, :] @ positions[..., joints, :, None])[..., 0] + g_pos[..., p, :]
         g_rot[..., joints, :, :] = g_rot[..., p, :, :] @ local[..., joints, :, :]
     return g_pos
 
