@@ -11,6 +11,7 @@ from styleerd.errors import StyleERDError
 from styleerd.model.checkpoint import load_generator
 from styleerd.motion import bvh
 from styleerd.motion.kinematics import forward_kinematics
+from styleerd.motion.motion import Motion
 from styleerd.motion.resample import resample
 from styleerd.runtime.offline import transfer_file
 
@@ -187,3 +188,45 @@ def test_memory_stays_bounded_however_long_the_file(model, tmp_path):
         tracemalloc.stop()
     assert bvh.read(tmp_path / "out.bvh").n_frames == 960
     assert peaks[1] < 1.15 * peaks[0], peaks  # 4x the frames, the same memory
+
+
+@pytest.mark.parametrize("case", ["empty", "slow", "fast", "not bvh", "bad output"])
+def test_bad_files_fail_with_one_line_and_nothing_written(model, tmp_path, case):
+    from styleerd.motion.procedural import walk
+
+    m = walk(1.0, fps=30.0)
+    path, out = tmp_path / "in.bvh", tmp_path / "out.bvh"
+    expected = {"empty": "the motion has no frames", "slow": "5 fps is outside [10, 480]", "fast": "500 fps is outside [10, 480]",
+                "not bvh": "not a text file", "bad output": "the output must be .bvh or .glb"}[case]  # fmt: skip
+    if case == "empty":
+        bvh.write(path, m[:0])
+    elif case in ("slow", "fast"):
+        bvh.write(path, Motion(m.skeleton, m.rotations, m.positions, 5.0 if case == "slow" else 500.0))
+    elif case == "not bvh":
+        path.write_bytes(b"\x89PNG\r\n\x1a\n not a motion")
+    else:
+        bvh.write(path, m)
+        out = tmp_path / "out.fbx"
+    r = subprocess.run([sys.executable, "-m", "styleerd.cli", "transfer", str(path), "--style", "elderly", "-o", str(out)], capture_output=True, text=True)
+    assert r.returncode == 2 and expected in r.stderr and len(r.stderr.strip().splitlines()) == 1, r.stderr
+    assert not out.exists() and sorted(p.name for p in tmp_path.iterdir()) == ["in.bvh"]
+
+
+def test_a_stream_whose_content_changes_midway(shared_data, model, tmp_path):
+    """Two test clips of different contents back to back, labels inferred online."""
+    from styleerd.data.datasets import load_motion
+    from styleerd.data.windows import split_takes
+
+    g, meta = model
+    clips = find_clips(shared_data, "bandai-namco-2")
+    split = split_takes({c.name: (c.dataset, c.style, c.content) for c in clips})
+    walk_clip = next(c for c in clips if split[c.name] == "test" and c.content == "walk" and c.style == "normal")
+    wave_clip = next(c for c in clips if split[c.name] == "test" and c.content == "wave-both-hands" and c.style == "normal")
+    a, b = load_motion(walk_clip), load_motion(wave_clip)
+    joined = Motion(a.skeleton, np.concatenate([a.rotations, b.rotations]), np.concatenate([a.positions, b.positions]), a.fps)
+    bvh.write(tmp_path / "joined.bvh", joined)
+    lines = []
+    done = transfer_file(tmp_path / "joined.bvh", tmp_path / "out.bvh", g, meta["data"]["fps"], None, None, {"elderly": 1.0}, report=lines.append)
+    out = bvh.read(tmp_path / "out.bvh")
+    assert out.n_frames == joined.n_frames and np.isfinite(bvh.channel_values(out)).all()
+    assert done.labels == ("normal", "wave-both-hands")  # the labeller followed the change
