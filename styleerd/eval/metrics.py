@@ -26,6 +26,7 @@ import torch
 from tqdm import tqdm
 
 from styleerd.data.datasets import data_root, find_clips, load_motion
+from styleerd.data.windows import split_takes
 from styleerd.model import torch_quat
 from styleerd.model.fmd import MotionAutoencoder
 from styleerd.model.generator import StyleERD
@@ -192,8 +193,6 @@ def foot_skate(global_positions: np.ndarray, ankles: tuple[int, int], planted: n
 def _streams(model: StyleERD, data_dir: str | None, frames: int):
     """Test clips of >= ``frames`` frames cut to that length: rotations/positions [N, T, J, *],
     their labels and transfer targets."""
-    from styleerd.data.windows import split_takes
-
     clips = find_clips(data_root(data_dir), "bandai-namco-2")
     split = split_takes({c.name: (c.dataset, c.style, c.content) for c in clips})
     motions, styles, contents = [], [], []

@@ -113,7 +113,8 @@ class StyleERD(nn.Module):
         c = torch.einsum("bc,clh->lbh", content, self.neutral_c0).contiguous()
         return RecurrentState((h, c))
 
-    def _branch_initial(self, k: int, batch: int) -> State:
+    def branch_initial_state(self, k: int, batch: int) -> State:
+        """Style branch k's learned initial state for ``batch`` streams."""
         return (
             self.branch_h0[k].unsqueeze(1).expand(-1, batch, -1).contiguous(),
             self.branch_c0[k].unsqueeze(1).expand(-1, batch, -1).contiguous(),
@@ -143,7 +144,7 @@ class StyleERD(nn.Module):
             rows = torch.nonzero(w != 0).squeeze(1)
             if len(rows) == 0:
                 continue
-            h, c = branches.get(k) or self._branch_initial(k, B)
+            h, c = branches.get(k) or self.branch_initial_state(k, B)
             if len(rows) == B:
                 y, (h, c) = self.branches[k](z, (h, c))
                 out = out + w[:, None, None] * y

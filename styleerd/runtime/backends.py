@@ -103,7 +103,7 @@ class TorchBackend:
             h, c = self.state.neutral
             self.state.neutral = (h.index_copy(1, rows, init.neutral[0]), c.index_copy(1, rows, init.neutral[1]))
             for k, (h, c) in self.state.branches.items():
-                h0, c0 = self.model._branch_initial(k, len(rows))
+                h0, c0 = self.model.branch_initial_state(k, len(rows))
                 self.state.branches[k] = (h.index_copy(1, rows, h0), c.index_copy(1, rows, c0))
         self.first[:] = False
         rot, vel, self.state = self.model.step(x, style, content, target, self.state)

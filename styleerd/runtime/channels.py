@@ -10,7 +10,7 @@ from styleerd.errors import StyleERDError
 from styleerd.model.generator import StyleERD
 from styleerd.motion import bvh
 from styleerd.motion.motion import Motion
-from styleerd.motion.retarget import body_parts, joint_map, to_source, to_target
+from styleerd.motion.retarget import joint_map, to_source, to_target
 from styleerd.motion.skeleton import Skeleton
 from styleerd.runtime.cleanup import FootLock
 from styleerd.runtime.stylizer import StreamStylizer
@@ -37,9 +37,7 @@ class ChannelStylizer:
         self.skeleton, self.fps, self.n = skeleton, fps, n_streams
         self.n_channels = sum(len(c) for c in skeleton.channels)
         self.stylizer = StreamStylizer(model, input_style, content, target, n_streams, fps, backend=backend)
-        parts = body_parts(skeleton)
-        legs = [[parts[f"{side}_{p}"] for p in ("hip", "knee", "foot")] for side in ("left", "right")]
-        self.lock = FootLock(skeleton, n_streams, fps, legs=legs) if cleanup else None
+        self.lock = FootLock(skeleton, n_streams, fps) if cleanup else None
 
     def reset(self) -> None:
         self.stylizer.reset()

@@ -16,7 +16,8 @@ from styleerd.motion import quat
 from styleerd.motion.ik import two_bone_ik
 from styleerd.motion.kinematics import foot_contacts, forward_kinematics, forward_positions
 from styleerd.motion.motion import Motion
-from styleerd.motion.skeleton import Skeleton, find_role
+from styleerd.motion.retarget import body_parts
+from styleerd.motion.skeleton import Skeleton
 
 
 class FootLock:
@@ -29,10 +30,13 @@ class FootLock:
         release_frames: int = 4,
         legs: list[list[int]] | None = None,
     ):
-        """``legs``: [[hip, knee, ankle] of the left leg, the same of the right] (default: by
-        joint names)."""
+        """``legs``: [[hip, knee, ankle] of the left leg, the same of the right] (default: found
+        by joint names and topology, as retargeting finds them)."""
         self.skeleton, self.fps = skeleton, fps
-        self.legs = np.array(legs or [[find_role(skeleton, f"{side}_{p}") for p in ("hip", "knee", "foot")] for side in ("left", "right")])
+        if legs is None:
+            parts = body_parts(skeleton)
+            legs = [[parts[f"{side}_{p}"] for p in ("hip", "knee", "foot")] for side in ("left", "right")]
+        self.legs = np.array(legs)
         self.across = (self.legs[0, 0], self.legs[1, 0])
         parents = skeleton.parents
         # IK sets hip and knee rotations directly: the leg must be one hip-knee-ankle chain
@@ -86,9 +90,9 @@ class FootLock:
         return out
 
 
-def clean_feet(output: Motion, source: Motion, legs: list[list[int]] | None = None) -> Motion:
+def clean_feet(output: Motion, source: Motion) -> Motion:
     """A whole output motion cleaned frame by frame (the same values as streaming it)."""
-    lock = FootLock(output.skeleton, 1, output.fps, legs=legs)
+    lock = FootLock(output.skeleton, 1, output.fps)
     rot = np.empty_like(output.rotations)
     for t in range(output.n_frames):
         rot[t] = lock.step(output.rotations[t : t + 1], output.positions[t : t + 1], source.rotations[t : t + 1], source.positions[t : t + 1])[0]

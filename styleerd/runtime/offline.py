@@ -14,7 +14,7 @@ from styleerd.atomic import atomic_write
 from styleerd.motion import bvh, quat
 from styleerd.motion.gltf import write_glb
 from styleerd.motion.motion import Motion
-from styleerd.motion.retarget import JointMap, body_parts, joint_map, to_source, to_target
+from styleerd.motion.retarget import JointMap, joint_map, to_source, to_target
 from styleerd.motion.skeleton import Skeleton
 from styleerd.runtime.cleanup import FootLock
 from styleerd.runtime.stylizer import StreamStylizer
@@ -86,10 +86,7 @@ def transfer_file(
     if report:
         report(f"joint mapping (model <- input):\n{jm.describe()}")
     stylizer = StreamStylizer(model, input_style, content, target, fps=fps, backend=backend)
-    lock = None
-    if cleanup:
-        parts = body_parts(header.skeleton)
-        lock = FootLock(header.skeleton, 1, header.fps, legs=[[parts[f"{side}_{p}"] for p in ("hip", "knee", "foot")] for side in ("left", "right")])
+    lock = FootLock(header.skeleton, 1, header.fps) if cleanup else None
     rows = _checked(_stylised_rows(header, chunks, jm, stylizer, lock, fps), source)
     if kind == ".bvh":
         def write(tmp: str) -> None:
