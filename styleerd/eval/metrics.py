@@ -166,7 +166,6 @@ def evaluate_model(model: StyleERD, data_dir: str | None = None) -> dict:
     from styleerd.train.trainer import windows
     from styleerd.train.validation import validate
 
-    torch.set_num_threads(max(1, torch.get_num_threads()))
     s = setup(TrainConfig(), data_dir, progress=False)
     test = windows(s.fs, s.data, "test", s.data.window)
     style_rec, content_rec, _ = ckpt.load_recognisers()

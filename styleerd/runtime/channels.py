@@ -10,9 +10,10 @@ from styleerd.errors import StyleERDError
 from styleerd.model.generator import StyleERD
 from styleerd.motion import bvh
 from styleerd.motion.motion import Motion
-from styleerd.motion.retarget import joint_map, to_source, to_target
+from styleerd.motion.retarget import to_source, to_target
 from styleerd.motion.skeleton import Skeleton
 from styleerd.runtime.cleanup import FootLock
+from styleerd.runtime.offline import map_skeleton
 from styleerd.runtime.stylizer import StreamStylizer
 
 
@@ -30,10 +31,7 @@ class ChannelStylizer:
         cleanup: bool = True,
         backend: str = "numpy",
     ):
-        try:
-            self.map = joint_map(model.skeleton, skeleton, explicit_map)
-        except ValueError as e:
-            raise StyleERDError(str(e)) from None
+        self.map = map_skeleton(skeleton, model.skeleton, explicit_map)
         self.skeleton, self.fps, self.n = skeleton, fps, n_streams
         self.n_channels = sum(len(c) for c in skeleton.channels)
         self.stylizer = StreamStylizer(model, input_style, content, target, n_streams, fps, backend=backend)
