@@ -123,3 +123,4 @@ def test_labels_not_given_are_inferred_causally_and_given_labels_win(model):
     assert given.labels[0].tolist() == [[0.0, 1.0, 0.0]]  # the given style, one-hot
     with pytest.raises(StyleERDError, match="labeller does not fit"):
         StreamStylizer(model, None, None, {"old": 1.0}, labeller=OnlineLabeller(5, 3, 2))
+

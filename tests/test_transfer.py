@@ -229,3 +229,35 @@ def test_a_stream_whose_content_changes_midway(shared_data, model, tmp_path):
     out = bvh.read(tmp_path / "out.bvh")
     assert out.n_frames == joined.n_frames and np.isfinite(bvh.channel_values(out)).all()
     assert done.labels == ("normal", "wave-both-hands")  # the labeller followed the change
+
+
+@pytest.mark.parametrize("backend", ["numpy", "onnx"])
+def test_slots_stepped_apart_equal_independent_streams(model, backend):
+    """A server's pool: three slots with their own labels (given or inferred) and targets,
+    stepped in changing subsets, one slot reset and given to a new stream midway; each slot
+    equals a stylizer of its own."""
+    from styleerd.motion.procedural import walk
+    from styleerd.runtime.channels import ChannelStylizer
+
+    g, _ = model
+    m = walk(2.0, fps=30.0)
+    values = bvh.channel_values(m)
+    setups = [("normal", "walk", {"feminine": 1.0}), (None, None, {"elderly": 0.6, "normal": 0.4}), ("exhausted", None, {"normal": 1.0})]
+    pool = ChannelStylizer(g, m.skeleton, {"normal": 1.0}, "normal", "walk", n_streams=3, backend=backend)
+    for k, (s, c, t) in enumerate(setups):
+        pool.configure([k], s, c, t)
+    singles = [ChannelStylizer(g, m.skeleton, t, s, c, backend=backend) for s, c, t in setups]
+    frame = [0, 0, 0]
+    rng = np.random.default_rng(1)
+    for step in range(80):
+        if step == 40:
+            pool.reset([1])
+            pool.configure([1], "normal", "run", {"active": 1.0})
+            singles[1], frame[1] = ChannelStylizer(g, m.skeleton, {"active": 1.0}, "normal", "run", backend=backend), 0
+        rows = np.nonzero(rng.random(3) < 0.6)[0]
+        if not len(rows):
+            continue
+        out = pool.step(np.stack([values[frame[r]] for r in rows]), rows)
+        for i, r in enumerate(rows):
+            assert np.abs(out[i] - singles[r].step(values[frame[r]])[0]).max() < 1e-3, (step, r)  # degrees
+            frame[r] = (frame[r] + 1) % len(values)

@@ -93,7 +93,11 @@ class TorchBackend:
         self.first[slice(None) if streams is None else streams] = True
 
     @torch.no_grad()
-    def step(self, x: np.ndarray, style: np.ndarray, content: np.ndarray, target: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    def step(self, x: np.ndarray, style: np.ndarray, content: np.ndarray, target: np.ndarray, rows: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+        if rows is not None:
+            from styleerd.errors import StyleERDError
+
+            raise StyleERDError("the torch backend (the reference) steps all its streams at once; use numpy or onnx to step some")
         x, style, content, target = (torch.as_tensor(np.asarray(a), dtype=torch.float32) for a in (x, style, content, target))
         if self.first.all():
             self.state = None
@@ -123,36 +127,48 @@ class NumpyBackend:
     def reset(self, streams: np.ndarray | None = None) -> None:
         self.first[slice(None) if streams is None else streams] = True
 
-    def step(self, x: np.ndarray, style: np.ndarray, content: np.ndarray, target: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        w = self.w
+    def step(self, x: np.ndarray, style: np.ndarray, content: np.ndarray, target: np.ndarray, rows: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+        """One frame of every stream, or of the streams ``rows`` only (the others keep their
+        state): what a server with streams arriving at different times steps."""
         x, style, content, target = (np.asarray(a, np.float32) for a in (x, style, content, target))
-        if self.first.any():
-            rows = np.nonzero(self.first)[0]
-            self.h[:, rows] = np.einsum("nc,clh->lnh", content[rows], w.neutral_init[0])
-            self.c[:, rows] = np.einsum("nc,clh->lnh", content[rows], w.neutral_init[1])
-            self.hb[:, :, rows] = w.branch_init[0][:, :, None]
-            self.cb[:, :, rows] = w.branch_init[1][:, :, None]
-            self.first[:] = False
-        z = np.concatenate([x, style, content], -1)
-        for i, (W, b) in enumerate(w.encoder):
-            z = z @ W + b
-            if i < len(w.encoder) - 1:
-                z = np.maximum(z, 0.0)
-        out = _lstm_stack(w.neutral, z, self.h, self.c).copy()
-        for k, s in enumerate(w.branch_styles):
-            rows = np.nonzero(target[:, s])[0]
-            if len(rows) == len(x):
-                out += target[:, s, None] * _lstm_stack(w.branches[k], z, self.hb[k], self.cb[k])
-            elif len(rows):
-                h, c = self.hb[k][:, rows], self.cb[k][:, rows]
-                out[rows] += target[rows, s, None] * _lstm_stack(w.branches[k], z[rows], h, c)
-                self.hb[k][:, rows], self.cb[k][:, rows] = h, c
-        y = np.concatenate([out, target], -1)
-        for i, (W, b) in enumerate(w.decoder):
-            y = y @ W + b
-            if i < len(w.decoder) - 1:
-                y = np.maximum(y, 0.0)
-        return _rotations(y, w.n_joints)
+        if rows is None:
+            return _numpy_step(self.w, x, style, content, target, self.h, self.c, self.hb, self.cb, self.first)
+        h, c, hb, cb, first = self.h[:, rows], self.c[:, rows], self.hb[:, :, rows], self.cb[:, :, rows], self.first[rows]
+        out = _numpy_step(self.w, x, style, content, target, h, c, hb, cb, first)
+        self.h[:, rows], self.c[:, rows], self.hb[:, :, rows], self.cb[:, :, rows], self.first[rows] = h, c, hb, cb, first
+        return out
+
+
+def _numpy_step(w: StepWeights, x, style, content, target, h, c, hb, cb, first) -> tuple[np.ndarray, np.ndarray]:
+    """The generator's step on float32 arrays; updates the states h, c [L, N, H], hb, cb
+    [K, L, N, H] and the first-frame flags [N] in place."""
+    if first.any():
+        rows = np.nonzero(first)[0]
+        h[:, rows] = np.einsum("nc,clh->lnh", content[rows], w.neutral_init[0])
+        c[:, rows] = np.einsum("nc,clh->lnh", content[rows], w.neutral_init[1])
+        hb[:, :, rows] = w.branch_init[0][:, :, None]
+        cb[:, :, rows] = w.branch_init[1][:, :, None]
+        first[:] = False
+    z = np.concatenate([x, style, content], -1)
+    for i, (W, b) in enumerate(w.encoder):
+        z = z @ W + b
+        if i < len(w.encoder) - 1:
+            z = np.maximum(z, 0.0)
+    out = _lstm_stack(w.neutral, z, h, c).copy()
+    for k, s in enumerate(w.branch_styles):
+        rows = np.nonzero(target[:, s])[0]
+        if len(rows) == len(x):
+            out += target[:, s, None] * _lstm_stack(w.branches[k], z, hb[k], cb[k])
+        elif len(rows):
+            hk, ck = hb[k][:, rows], cb[k][:, rows]
+            out[rows] += target[rows, s, None] * _lstm_stack(w.branches[k], z[rows], hk, ck)
+            hb[k][:, rows], cb[k][:, rows] = hk, ck
+    y = np.concatenate([out, target], -1)
+    for i, (W, b) in enumerate(w.decoder):
+        y = y @ W + b
+        if i < len(w.decoder) - 1:
+            y = np.maximum(y, 0.0)
+    return _rotations(y, w.n_joints)
 
 
 class OnnxBackend:
@@ -178,11 +194,17 @@ class OnnxBackend:
     def reset(self, streams: np.ndarray | None = None) -> None:
         self.first[slice(None) if streams is None else streams] = 1.0
 
-    def step(self, x: np.ndarray, style: np.ndarray, content: np.ndarray, target: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        feeds = {"features": x, "style": style, "content": content, "target": target, "first_frame": self.first, **self.state}
-        rot, vel, *state = self.session.run(None, {k: np.asarray(v, np.float32) for k, v in feeds.items()})
-        self.state = dict(zip(("h_neutral", "c_neutral", "h_branches", "c_branches"), state))
-        self.first[:] = 0.0
+    def step(self, x: np.ndarray, style: np.ndarray, content: np.ndarray, target: np.ndarray, rows: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+        sel = slice(None) if rows is None else rows
+        state = {k: v[:, sel] if k.endswith("neutral") else v[:, :, sel] for k, v in self.state.items()}
+        feeds = {"features": x, "style": style, "content": content, "target": target, "first_frame": self.first[sel], **state}
+        rot, vel, *new = self.session.run(None, {k: np.asarray(v, np.float32) for k, v in feeds.items()})
+        for k, v in zip(("h_neutral", "c_neutral", "h_branches", "c_branches"), new):
+            if k.endswith("neutral"):
+                self.state[k][:, sel] = v
+            else:
+                self.state[k][:, :, sel] = v
+        self.first[sel] = 0.0
         return rot, vel
 
 
@@ -206,18 +228,20 @@ class NumpyLabeller:
         self.heads = [(sd["style.weight"].T.copy(), sd["style.bias"]), (sd["content.weight"].T.copy(), sd["content.bias"])]
         self.h = np.zeros((n_streams, labeller.hidden), np.float32)
 
-    def reset(self) -> None:
-        self.h[:] = 0.0
+    def reset(self, streams: np.ndarray | None = None) -> None:
+        self.h[slice(None) if streams is None else streams] = 0.0
 
-    def step(self, x: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """-> (style probabilities, content probabilities, the new state); the state is kept
-        only when the caller commits it (``self.h = state``)."""
+    def step(self, x: np.ndarray, rows: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """-> (style probabilities, content probabilities, the new state of the streams
+        ``rows`` (default all)); the state is kept only when the caller commits it
+        (``self.h[rows] = state``)."""
         H = self.h.shape[1]
+        h = self.h if rows is None else self.h[rows]
         a = np.maximum(x @ self.w_in + self.b_in, 0.0)
-        gi, gh = a @ self.w_ih + self.b_ih, self.h @ self.w_hh + self.b_hh
+        gi, gh = a @ self.w_ih + self.b_ih, h @ self.w_hh + self.b_hh
         r, z = _sigmoid(gi[:, :H] + gh[:, :H]), _sigmoid(gi[:, H : 2 * H] + gh[:, H : 2 * H])
         n = np.tanh(gi[:, 2 * H :] + r * gh[:, 2 * H :])
-        h = (1.0 - z) * n + z * self.h
+        h = (1.0 - z) * n + z * h
         probs = []
         for W, b in self.heads:
             logits = h @ W + b

@@ -8,6 +8,7 @@ import numpy as np
 
 from styleerd.errors import StyleERDError
 from styleerd.model.generator import StyleERD
+from styleerd.model.labeller import OnlineLabeller
 from styleerd.motion import bvh
 from styleerd.motion.motion import Motion
 from styleerd.motion.retarget import to_source, to_target
@@ -30,30 +31,38 @@ class ChannelStylizer:
         explicit_map: dict[str, str] | None = None,
         cleanup: bool = True,
         backend: str = "numpy",
+        labeller: OnlineLabeller | None = None,
     ):
         self.map = map_skeleton(skeleton, model.skeleton, explicit_map)
         self.skeleton, self.fps, self.n = skeleton, fps, n_streams
         self.n_channels = sum(len(c) for c in skeleton.channels)
-        self.stylizer = StreamStylizer(model, input_style, content, target, n_streams, fps, backend=backend)
+        self.stylizer = StreamStylizer(model, input_style, content, target, n_streams, fps, labeller=labeller, backend=backend)
         self.lock = FootLock(skeleton, n_streams, fps) if cleanup else None
 
-    def reset(self) -> None:
-        self.stylizer.reset()
-        if self.lock:
-            self.lock.reset()
+    def configure(self, streams, input_style: str | None, content: str | None, target: dict[str, float]) -> None:
+        """Labels and target of some streams (a new stream taking a slot; see StreamStylizer)."""
+        self.stylizer.configure(streams, input_style, content, target)
 
-    def step(self, values: np.ndarray) -> np.ndarray:
+    def reset(self, streams=None) -> None:
+        self.stylizer.reset(streams)
+        if self.lock:
+            self.lock.reset(streams)
+
+    def step(self, values: np.ndarray, rows=None) -> np.ndarray:
         """Channel values ``[N, n_channels]`` (or ``[n_channels]`` for one stream) of this
-        frame -> the stylised frame's values, same layout. Non-finite values are rejected
-        with an error and leave every state unchanged."""
-        values = np.asarray(values, dtype=np.float64).reshape(self.n, self.n_channels)
+        frame -> the stylised frame's values, same layout; of every stream, or of the streams
+        ``rows`` only. Non-finite values are rejected with an error and leave every state
+        unchanged."""
+        n = self.n if rows is None else len(rows)
+        values = np.asarray(values, dtype=np.float64).reshape(n, self.n_channels)
         if not np.isfinite(values).all():
             stream, channel = np.argwhere(~np.isfinite(values))[0]
+            stream = stream if rows is None else rows[stream]
             raise StyleERDError(f"frame rejected: stream {stream}, channel {channel} is not a finite number")
         source = bvh.motion_from_channels(self.skeleton, values, self.fps)  # the N streams as N "frames"
         on_model = to_target(source, self.map)
-        rot, pos = self.stylizer.step(on_model.rotations, on_model.positions)
+        rot, pos = self.stylizer.step(on_model.rotations, on_model.positions, rows)
         out = to_source(Motion(self.map.target, rot, pos, self.fps), self.map, source)
         if self.lock:
-            out.rotations = self.lock.step(out.rotations, out.positions, source.rotations, source.positions)
+            out.rotations = self.lock.step(out.rotations, out.positions, source.rotations, source.positions, rows)
         return bvh.channel_values(out)

@@ -47,33 +47,37 @@ class FootLock:
         self.n, self.release_frames = n_streams, max(1, release_frames)
         self.reset()
 
-    def reset(self) -> None:
-        self.previous: np.ndarray | None = None  # [N, 2, 3] input ankles of the last frame
-        self.anchor = np.zeros((self.n, 2, 3))
-        self.since_release = np.full((self.n, 2), self.release_frames)  # frames since a contact ended
-        self.planted = np.zeros((self.n, 2), dtype=bool)
+    def reset(self, streams=None) -> None:
+        """Forget the past of some (default all) streams."""
+        rows = slice(None) if streams is None else np.asarray(streams, dtype=int)
+        if streams is None:
+            self.previous = np.zeros((self.n, 2, 3))  # input ankles of the last frame
+            self.anchor = np.zeros((self.n, 2, 3))
+            self.since_release = np.full((self.n, 2), self.release_frames)  # frames since a contact ended
+            self.planted = np.zeros((self.n, 2), dtype=bool)
+            self.started = np.zeros(self.n, dtype=bool)
+        self.since_release[rows], self.planted[rows], self.started[rows] = self.release_frames, False, False
 
-    def contacts(self, input_ankles: np.ndarray) -> np.ndarray:
-        """Planted flags ``[N, 2]`` of this frame from the input's ankle positions ``[N, 2, 3]``."""
-        previous = input_ankles if self.previous is None else self.previous
-        self.previous = input_ankles
-        return foot_contacts(input_ankles, previous, (0, 1), self.fps, self.max_speed) > 0
-
-    def step(self, rotations: np.ndarray, positions: np.ndarray, input_rotations: np.ndarray, input_positions: np.ndarray) -> np.ndarray:
+    def step(self, rotations: np.ndarray, positions: np.ndarray, input_rotations: np.ndarray, input_positions: np.ndarray, rows=None) -> np.ndarray:
         """Output frame ``rotations [N, J, 4]`` (local) with ``positions [N, J, 3]``, and the
-        input frame it came from -> cleaned local rotations."""
+        input frame it came from -> cleaned local rotations; of every stream, or of the
+        streams ``rows`` only."""
+        sel = slice(None) if rows is None else np.asarray(rows, dtype=int)
         g_in = forward_positions(input_rotations, input_positions, self.skeleton.parents)
-        planted = self.contacts(g_in[:, self.legs[:, 2]])
+        ankles = g_in[:, self.legs[:, 2]]
+        previous = np.where(self.started[sel, None, None], self.previous[sel], ankles)
+        self.previous[sel], self.started[sel] = ankles, True
+        planted = foot_contacts(ankles, previous, (0, 1), self.fps, self.max_speed) > 0  # [N, 2]
         g_rot, g_pos = forward_kinematics(rotations, positions, self.skeleton.parents)
         raw = g_pos[:, self.legs[:, 2]]  # [N, 2, 3] output ankles
-        starts = planted & ~self.planted
-        self.anchor[starts] = raw[starts]
-        self.since_release = np.where(planted, 0, np.where(self.planted, 1, np.minimum(self.since_release + 1, self.release_frames)))
-        self.planted = planted
-        weight = np.where(planted, 1.0, 1.0 - self.since_release / self.release_frames)  # [N, 2]
+        was_planted = self.planted[sel]
+        anchor = np.where((planted & ~was_planted)[..., None], raw, self.anchor[sel])
+        since_release = np.where(planted, 0, np.where(was_planted, 1, np.minimum(self.since_release[sel] + 1, self.release_frames)))
+        self.anchor[sel], self.since_release[sel], self.planted[sel] = anchor, since_release, planted
+        weight = np.where(planted, 1.0, 1.0 - since_release / self.release_frames)  # [N, 2]
         if not (self.enabled and weight.any()):
             return rotations
-        target = raw + weight[..., None] * (self.anchor - raw)
+        target = raw + weight[..., None] * (anchor - raw)
         left_axis = g_pos[:, self.across[0]] - g_pos[:, self.across[1]]
         out = rotations.copy()
         for side in range(2):

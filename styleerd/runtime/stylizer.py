@@ -76,13 +76,16 @@ class _Blend:
 
 class StreamStylizer:
     """``input_style``, ``content`` and ``target`` apply to every stream, or are lists with
-    one value per stream; labels left None are inferred."""
+    one value per stream; labels left None are inferred.
+
+    The N streams are slots: ``step(..., rows)`` advances some of them only, and
+    ``configure(rows, ...)`` + ``reset(rows)`` give a slot to a new stream (a server)."""
 
     def __init__(
         self,
         model: StyleERD,
-        input_style: str | list[str] | None,
-        content: str | list[str] | None,
+        input_style: str | list[str | None] | None,
+        content: str | list[str | None] | None,
         target: dict[str, float] | list[dict[str, float]],
         n_streams: int = 1,
         fps: float = 30.0,
@@ -99,32 +102,49 @@ class StreamStylizer:
         self.n = n_streams
         self.blend_frames = max(1, blend_frames)
         c = model.config
-        self.given_style, self.given_content = (
-            None if label is None else np.stack([label_vector(names, {x: 1.0}, what) for x in _per_stream(label, n_streams)]).astype(np.float32)
-            for label, names, what in ((input_style, c.styles, "style"), (content, c.contents, "content"))
-        )
-        self.labeller = None
-        if input_style is None or content is None:
-            labeller = labeller or load_labeller()[0]
+        S, C = len(c.styles), len(c.contents)
+        self.given_style, self.given_content = np.zeros((n_streams, S), np.float32), np.zeros((n_streams, C), np.float32)
+        self.known_style, self.known_content = np.zeros(n_streams, bool), np.zeros(n_streams, bool)
+        self.labeller: NumpyLabeller | None = None
+        self.labeller_model = labeller
+        self.blend = _Blend(np.zeros((n_streams, S)), np.zeros((n_streams, S)), np.full(n_streams, self.blend_frames))
+        self.previous = np.zeros((n_streams, self.skeleton.n_joints, 3))  # global joint positions of the last frame
+        self.started = np.zeros(n_streams, bool)
+        self.labels = (np.zeros((n_streams, S), np.float32), np.zeros((n_streams, C), np.float32))  # used last frame
+        self.configure(np.arange(n_streams), input_style, content, target)
+
+    def configure(self, streams, input_style, content, target) -> None:
+        """Labels (None: inferred) and target (reached at once, no blend) of some streams:
+        one value for all of them, or a list with one per stream."""
+        rows = np.asarray(streams, dtype=int).reshape(-1)
+        c = self.model.config
+        for labels, names, what, given, known in (
+            (input_style, c.styles, "style", self.given_style, self.known_style),
+            (content, c.contents, "content", self.given_content, self.known_content),
+        ):
+            for r, label in zip(rows, _per_stream(labels, len(rows))):
+                known[r] = label is not None
+                given[r] = 0.0 if label is None else label_vector(names, {label: 1.0}, what)
+        w = np.stack([label_vector(c.styles, t, "style") for t in _per_stream(target, len(rows))])
+        self.blend.start[rows] = self.blend.end[rows] = w
+        self.blend.frame[rows] = self.blend_frames
+        if self.labeller is None and not (self.known_style[rows].all() and self.known_content[rows].all()):
+            labeller = self.labeller_model or load_labeller()[0]
             if (labeller.n_styles, labeller.n_contents, labeller.in_dim) != (len(c.styles), len(c.contents), c.feature_dim):
                 raise StyleERDError("the labeller does not fit this model's labels: give --input-style and --content")
-            self.labeller = NumpyLabeller(labeller, n_streams)
-        w = np.stack([label_vector(c.styles, t, "style") for t in _per_stream(target, n_streams)])
-        self.blend = _Blend(w.copy(), w, np.full(n_streams, self.blend_frames))
-        self.reset()
+            self.labeller = NumpyLabeller(labeller, self.n)
 
-    def reset(self) -> None:
-        """Forget the past: the next frame is a first frame (learned initial states)."""
-        self.backend.reset()
-        self.previous: np.ndarray | None = None  # global joint positions of the last frame
+    def reset(self, streams=None) -> None:
+        """Forget the past of some (default all) streams: their next frame is a first frame
+        (learned initial states)."""
+        rows = slice(None) if streams is None else np.asarray(streams, dtype=int)
+        self.backend.reset(rows)
+        self.started[rows] = False
         if self.labeller is not None:
-            self.labeller.reset()
-        self.labels: tuple[np.ndarray, np.ndarray] | None = None  # (style, content) used last frame
+            self.labeller.reset(rows)
 
     def inferred_labels(self) -> list[tuple[str, str]]:
-        """Per stream, the (style, content) the last frame was stylised as (given or inferred)."""
-        if self.labels is None:
-            return []
+        """Per stream, the (style, content) its last frame was stylised as (given or inferred)."""
         c = self.model.config
         return [(c.styles[int(s)], c.contents[int(k)]) for s, k in zip(self.labels[0].argmax(-1), self.labels[1].argmax(-1))]
 
@@ -132,40 +152,43 @@ class StreamStylizer:
         a = np.minimum(1.0, self.blend.frame / self.blend_frames)[:, None]
         return self.blend.start + a * (self.blend.end - self.blend.start)
 
-    def set_target(self, target: dict[str, float], streams: list[int] | None = None) -> None:
+    def set_target(self, target: dict[str, float], streams=None) -> None:
         """New target weights for some (default all) streams, reached over ``blend_frames``."""
-        rows = np.arange(self.n) if streams is None else np.asarray(streams)
+        rows = np.arange(self.n) if streams is None else np.asarray(streams, dtype=int)
         w = label_vector(self.model.config.styles, target, "style")
         now = self.current_weights()
         self.blend.start[rows] = now[rows]
         self.blend.end[rows] = w
         self.blend.frame[rows] = 0
 
-    def step(self, rotations: np.ndarray, positions: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """One frame of every stream -> the stylised frame. A frame with NaN/inf is rejected
-        with an error and leaves the state unchanged."""
-        rotations = np.asarray(rotations, dtype=np.float64).reshape(self.n, self.skeleton.n_joints, 4)
-        positions = np.asarray(positions, dtype=np.float64).reshape(self.n, self.skeleton.n_joints, 3)
+    def step(self, rotations: np.ndarray, positions: np.ndarray, rows=None) -> tuple[np.ndarray, np.ndarray]:
+        """One frame of every stream (or of the streams ``rows``) -> the stylised frame. A
+        frame with NaN/inf is rejected with an error and leaves the state unchanged."""
+        sel = np.arange(self.n) if rows is None else np.asarray(rows, dtype=int)
+        n = len(sel)
+        rotations = np.asarray(rotations, dtype=np.float64).reshape(n, self.skeleton.n_joints, 4)
+        positions = np.asarray(positions, dtype=np.float64).reshape(n, self.skeleton.n_joints, 3)
         if not (np.isfinite(rotations).all() and np.isfinite(positions).all()):
             bad = np.argwhere(~np.isfinite(rotations).all(-1) | ~np.isfinite(positions).all(-1))[0]
-            raise StyleERDError(f"frame rejected: stream {bad[0]}, joint {self.skeleton.names[bad[1]]!r} has a NaN or infinite value")
+            raise StyleERDError(f"frame rejected: stream {sel[bad[0]]}, joint {self.skeleton.names[bad[1]]!r} has a NaN or infinite value")
         rotations = quat.normalize(rotations)
-        if self.previous is None:
-            previous = forward_positions(rotations, positions, self.skeleton.parents)
-        else:
-            previous = self.previous
+        started = self.started[sel]
+        previous = self.previous[sel]
+        if not started.all():
+            previous[~started] = forward_positions(rotations[~started], positions[~started], self.skeleton.parents)
         feats, traj, g = pose_features(rotations, positions, previous, self.skeleton, self.roles, self.fps)
         x = self.stats.normalize(feats).astype(np.float32)
-        style, content, labeller_state = self.given_style, self.given_content, None
+        style, content = self.given_style[sel], self.given_content[sel]
         if self.labeller is not None:
-            p_style, p_content, labeller_state = self.labeller.step(x)
-            style = style if style is not None else p_style
-            content = content if content is not None else p_content
-        rot, _ = self.backend.step(x, style, content, self.current_weights().astype(np.float32))
+            p_style, p_content, labeller_state = self.labeller.step(x, None if rows is None else sel)
+            style = np.where(self.known_style[sel, None], style, p_style)
+            content = np.where(self.known_content[sel, None], content, p_content)
+        rot, _ = self.backend.step(x, style, content, self.current_weights()[sel].astype(np.float32), None if rows is None else sel)
         out = rot.astype(np.float64)
         out[:, 0] = quat.mul(traj[:, 3:7], out[:, 0])
         if self.labeller is not None:
-            self.labeller.h = labeller_state
-        self.previous, self.labels = g, (style, content)
-        self.blend.frame += 1
+            self.labeller.h[sel] = labeller_state
+        self.previous[sel], self.started[sel] = g, True
+        self.labels[0][sel], self.labels[1][sel] = style, content
+        self.blend.frame[sel] += 1
         return quat.normalize(out), positions
