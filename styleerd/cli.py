@@ -200,6 +200,34 @@ def _filmstrip(args: argparse.Namespace) -> None:
     print(f"wrote {args.output} ({chosen[0].name})")
 
 
+def _serve(args: argparse.Namespace) -> None:
+    from styleerd.serve.server import ServeConfig, serve_forever
+
+    config = ServeConfig(args.host, args.port, args.max_streams, args.max_message, args.queue, args.backend, args.data)
+    serve_forever(config, args.workers)
+
+
+def _stream_bvh(args: argparse.Namespace) -> None:
+    from styleerd.serve.client import stream_bvh
+
+    mix = _parse_mix(args.mix) if args.mix else None
+    if args.style is None and mix is None:
+        raise StyleERDError("give --style or --mix")
+    print(stream_bvh(args.input, args.to, args.style, args.intensity, mix, args.output, args.input_style, args.content, not args.fast))
+
+
+def _load_test(args: argparse.Namespace) -> None:
+    from styleerd.serve.loadtest import run_load_test
+
+    print(run_load_test(args.clients, args.seconds, args.workers, args.output))
+
+
+def _vmc(args: argparse.Namespace) -> None:
+    from styleerd.serve.vmc import run_bridge
+
+    run_bridge(args.listen, args.send, args.style, args.intensity, _parse_mix(args.mix) if args.mix else None, args.host)
+
+
 def _demo(args: argparse.Namespace) -> None:
     from styleerd.eval.demo import run_demo
 
@@ -247,7 +275,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("input")
     p.add_argument("--style", help="target style")
     p.add_argument("--intensity", type=float, default=1.0, help="0 = neutral, 1 = full style, up to 2")
-    p.add_argument("--mix", help="a mixture instead of --style, e.g. elderly=0.5,feminine=0.5")
+    p.add_argument("--mix", help="a mixture instead of --style, e.g. elderly=0.5,feminine=0.5 (scaled by --intensity)")
     p.add_argument("--input-style", help="the input's style (default: inferred online from the frames)")
     p.add_argument("--content", help="the input's content, e.g. walk (default: inferred online)")
     p.add_argument("--backend", default="numpy", choices=["torch", "numpy", "onnx"], help="network step backend (default numpy; torch is the reference)")
@@ -313,6 +341,45 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--data", help="data folder")
     p.add_argument("-o", "--output", default="docs/filmstrip-bandai2.png")
     p.set_defaults(func=_filmstrip)
+
+    p = sub.add_parser("serve", help="the real-time style server (WebSocket, docs/PROTOCOL.md) and its browser viewer")
+    p.add_argument("--host", default="127.0.0.1", help="address to bind (default loopback only)")
+    p.add_argument("--port", type=int, default=8765)
+    p.add_argument("--workers", type=int, default=1, help="processes sharing the port (SO_REUSEPORT), e.g. one per core")
+    p.add_argument("--max-streams", type=int, default=256, help="open streams per worker")
+    p.add_argument("--max-message", type=int, default=1 << 20, help="largest message in bytes (larger: closed with 1009)")
+    p.add_argument("--queue", type=int, default=64, help="per stream: frames waiting, and stylised frames unsent")
+    p.add_argument("--backend", default="numpy", choices=["numpy", "onnx"])
+    p.add_argument("--data", help="data folder for the viewer's real demo clips (optional)")
+    p.set_defaults(func=_serve)
+
+    p = sub.add_parser("stream-bvh", help="play a BVH to a style server in real time, as a mocap source")
+    p.add_argument("input")
+    p.add_argument("--to", default="ws://127.0.0.1:8765/", help="server URL")
+    p.add_argument("--style")
+    p.add_argument("--intensity", type=float, default=1.0)
+    p.add_argument("--mix", help="e.g. elderly=0.5,feminine=0.5")
+    p.add_argument("--input-style")
+    p.add_argument("--content")
+    p.add_argument("--fast", action="store_true", help="send as fast as replies come, not in real time")
+    p.add_argument("-o", "--output", help="write the stylised stream as BVH")
+    p.set_defaults(func=_stream_bvh)
+
+    p = sub.add_parser("load-test", help="N real-time stream-bvh clients against a fresh server: latency, drops, CPU")
+    p.add_argument("--clients", type=int, default=200)
+    p.add_argument("--seconds", type=float, default=60.0)
+    p.add_argument("--workers", type=int, default=1, help="server workers")
+    p.add_argument("-o", "--output", help="write the figures as JSON")
+    p.set_defaults(func=_load_test)
+
+    p = sub.add_parser("vmc", help="VMC protocol bridge: receive bones over OSC/UDP, stylise, send them on")
+    p.add_argument("--listen", type=int, default=39539, help="UDP port to receive VMC on")
+    p.add_argument("--send", type=int, default=39540, help="UDP port to send the stylised VMC to")
+    p.add_argument("--host", default="127.0.0.1", help="host to send to (and to listen on)")
+    p.add_argument("--style")
+    p.add_argument("--intensity", type=float, default=1.0)
+    p.add_argument("--mix")
+    p.set_defaults(func=_vmc)
 
     p = sub.add_parser("demo", help="the main job on a bundled input: every style, BVH files + an HTML page to watch them")
     p.add_argument("--out", default="out/demo", help="output folder (default out/demo)")

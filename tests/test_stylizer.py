@@ -100,6 +100,7 @@ def test_target_weights_validate():
 
     assert target_weights(M, "old", 0.3) == {"old": 0.3, "normal": 0.7}
     assert target_weights(M, mix={"old": 1, "angry": 3}) == {"old": 0.25, "angry": 0.75}
+    assert target_weights(M, intensity=0.5, mix={"old": 1, "angry": 1}) == {"old": 0.25, "angry": 0.25, "normal": 0.5}
     with pytest.raises(StyleERDError):
         target_weights(M, "old", 5.0)
 

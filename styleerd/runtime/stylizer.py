@@ -41,21 +41,26 @@ def label_vector(names: tuple[str, ...], weights: dict[str, float], what: str) -
 
 
 def target_weights(model: StyleERD, style: str | None = None, intensity: float = 1.0, mix: dict[str, float] | None = None, max_intensity: float = 2.0) -> dict[str, float]:
-    """Target weights from a style and intensity (the rest goes to neutral; 0 = neutral,
-    1 = full style, above 1 exaggerates up to ``max_intensity``), or from a mixture."""
+    """Target weights from a style, or a mixture of styles (weights normalised to sum 1), at an
+    intensity (the rest goes to neutral; 0 = neutral, 1 = full style, above 1 exaggerates up to
+    ``max_intensity``)."""
     neutral = model.config.neutral_style
+    if not 0.0 <= intensity <= max_intensity:
+        raise StyleERDError(f"intensity {intensity:g} is outside [0, {max_intensity:g}]")
     if mix:
         total = sum(mix.values())
         if total <= 0 or any(w < 0 for w in mix.values()):
             raise StyleERDError(f"mixture weights must be non-negative and sum above 0, got {mix}")
-        return {k: v / total for k, v in mix.items()}
-    if style is None:
+        weights = {k: v / total for k, v in mix.items()}
+    elif style is None:
         raise StyleERDError("give a target style or a mixture")
-    if not 0.0 <= intensity <= max_intensity:
-        raise StyleERDError(f"intensity {intensity:g} is outside [0, {max_intensity:g}]")
-    if style == neutral:
-        return {neutral: 1.0}
-    return {style: intensity, neutral: max(0.0, 1.0 - intensity)}
+    else:
+        weights = {style: 1.0}
+    if intensity == 1.0:
+        return weights
+    out = {k: v * intensity for k, v in weights.items() if k != neutral}
+    out[neutral] = weights.get(neutral, 0.0) * intensity + max(0.0, 1.0 - intensity)
+    return out
 
 
 def _per_stream(value, n: int) -> list:

@@ -1,0 +1,160 @@
+"""A mocap source for the style server: play a BVH in real time over the WebSocket protocol
+(``styleerd stream-bvh``), and many of them at once (the load test, ``styleerd load-test``)."""
+
+from __future__ import annotations
+
+import asyncio
+import json
+import struct
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+from websockets.asyncio.client import connect
+from websockets.exceptions import ConnectionClosed, InvalidURI
+
+from styleerd.atomic import atomic_write
+from styleerd.errors import StyleERDError
+from styleerd.motion import bvh
+from styleerd.motion.motion import Motion
+
+SEQ = struct.Struct("<I")
+
+
+@dataclass
+class StreamResult:
+    sent: int = 0
+    received: int = 0
+    reordered: int = 0  # replies whose sequence number is not the next one expected
+    latencies_ms: list[float] = field(default_factory=list)
+    late_sends: int = 0  # frames the client itself sent more than a frame late (an overloaded client)
+    error: str | None = None  # the server's error message, if it closed the stream
+    close_code: int | None = None
+    output: np.ndarray | None = None  # the stylised channel values, when kept
+
+
+def hello(motion: Motion, fps: float, style: str | None, intensity: float, mix: dict[str, float] | None, name: str | None,
+          input_style: str | None = None, content: str | None = None) -> dict:  # fmt: skip
+    msg = {"type": "hello", "skeleton": bvh.format_header(motion.skeleton, 0, fps), "fps": fps, "intensity": intensity, "format": "binary"}
+    for key, value in (("style", style), ("mix", mix), ("name", name), ("input_style", input_style), ("content", content)):
+        if value is not None:
+            msg[key] = value
+    return msg
+
+
+async def play(url: str, motion: Motion, hello_msg: dict, seconds: float | None = None, keep: bool = False, realtime: bool = True) -> StreamResult:
+    """Send the motion's frames (looped until ``seconds`` when given) at its frame rate, one
+    binary frame each, and collect the replies; returns what was sent and received."""
+    values = bvh.channel_values(motion).astype("<f4")
+    fps = float(hello_msg["fps"])
+    total = len(values) if seconds is None else int(round(seconds * fps))
+    result = StreamResult()
+    sent_at = np.zeros(total)
+    kept = np.zeros((total, values.shape[1]), np.float32) if keep else None
+    try:
+        async with connect(url, max_size=1 << 22, open_timeout=20, close_timeout=5) as ws:
+            await ws.send(json.dumps(hello_msg))
+            ready = json.loads(await ws.recv())
+            if ready.get("type") != "ready":
+                raise StyleERDError(f"{url}: the server refused the stream: {ready.get('message', ready)}")
+
+            async def receive() -> None:
+                expected = 0
+                async for message in ws:
+                    if isinstance(message, str):
+                        reply = json.loads(message)
+                        if reply.get("type") == "error":
+                            result.error = reply["message"]
+                        continue
+                    seq = SEQ.unpack_from(message)[0]
+                    result.latencies_ms.append((time.perf_counter() - sent_at[seq]) * 1e3)
+                    result.reordered += seq != expected
+                    expected = seq + 1
+                    if kept is not None:
+                        kept[seq] = np.frombuffer(message, "<f4", count=values.shape[1], offset=SEQ.size)
+                    result.received += 1
+                    if result.received == total:
+                        return
+
+            receiver = asyncio.create_task(receive())
+            start = time.perf_counter()
+            for i in range(total):
+                if realtime:
+                    due = start + i / fps
+                    wait = due - time.perf_counter()
+                    if wait > 0:
+                        await asyncio.sleep(wait)
+                    elif wait < -1.0 / fps:
+                        result.late_sends += 1
+                sent_at[i] = time.perf_counter()
+                await ws.send(SEQ.pack(i) + values[i % len(values)].tobytes())
+                result.sent += 1
+                if receiver.done():
+                    break
+            try:
+                await asyncio.wait_for(receiver, 10.0)
+            except TimeoutError:
+                receiver.cancel()
+    except ConnectionClosed as e:
+        result.close_code = e.rcvd.code if e.rcvd else None
+    except (OSError, InvalidURI, TimeoutError) as e:
+        raise StyleERDError(f"{url}: cannot connect ({e})") from None
+    if kept is not None:
+        result.output = kept[: result.received].astype(np.float64)
+    return result
+
+
+def stream_bvh(path: str, url: str, style: str | None, intensity: float, mix: dict[str, float] | None, output: str | None = None,
+               input_style: str | None = None, content: str | None = None, realtime: bool = True) -> str:  # fmt: skip
+    """``styleerd stream-bvh``: play a BVH file to the server in real time; optionally write
+    the stylised stream as a BVH. Returns a summary."""
+    motion = bvh.read(path)
+    if motion.n_frames == 0:
+        raise StyleERDError(f"{path}: the motion has no frames")
+    msg = hello(motion, motion.fps, style, intensity, mix, Path(path).stem, input_style, content)
+    result = asyncio.run(play(url, motion, msg, keep=output is not None, realtime=realtime))
+    if result.error:
+        raise StyleERDError(f"the server closed the stream: {result.error}")
+    if output is not None and result.received == motion.n_frames:
+        out = bvh.motion_from_channels(motion.skeleton, result.output, motion.fps)
+        atomic_write(output, lambda tmp: bvh.write(tmp, out))
+    lat = np.array(result.latencies_ms) if result.latencies_ms else np.zeros(1)
+    return (f"{path}: sent {result.sent} frames at {motion.fps:g} fps, received {result.received}, reordered {result.reordered}; "
+            f"latency p50 {np.percentile(lat, 50):.2f} ms, p99 {np.percentile(lat, 99):.2f} ms" + (f"; wrote {output}" if output else ""))  # fmt: skip
+
+
+async def server_stats(url: str) -> dict:
+    """The server's counters (streams, frames, steps, CPU seconds), through a short stream."""
+    from styleerd.motion.procedural import walk
+
+    async with connect(url, open_timeout=20) as ws:
+        await ws.send(json.dumps(hello(walk(0.1, fps=30.0), 30.0, "normal", 1.0, None, "stats")))
+        await ws.recv()
+        await ws.send(json.dumps({"type": "stats"}))
+        while True:
+            reply = json.loads(await ws.recv())
+            if reply.get("type") == "stats":
+                return reply
+
+
+async def load_test(url: str, motion: Motion, clients: int, seconds: float, fps: float = 30.0, style: str = "elderly") -> dict:
+    """``clients`` concurrent real-time streams of ``seconds`` each; latency percentiles,
+    dropped and reordered frames, the server's CPU use over the run."""
+    before = await server_stats(url)
+    t0 = time.perf_counter()
+    runs = [play(url, motion, hello(motion, fps, style, 1.0, None, f"load-{i}"), seconds) for i in range(clients)]
+    results = await asyncio.gather(*runs)
+    wall = time.perf_counter() - t0
+    after = await server_stats(url)
+    lat = np.concatenate([np.array(r.latencies_ms) for r in results if r.latencies_ms] or [np.zeros(1)])
+    sent = sum(r.sent for r in results)
+    return {
+        "clients": clients, "seconds": seconds, "fps": fps, "frames_sent": sent,
+        "frames_received": sum(r.received for r in results), "dropped": sent - sum(r.received for r in results),
+        "reordered": sum(r.reordered for r in results), "errors": [r.error for r in results if r.error],
+        "late_client_sends": sum(r.late_sends for r in results),
+        "latency_ms_p50": float(np.percentile(lat, 50)), "latency_ms_p99": float(np.percentile(lat, 99)), "latency_ms_max": float(lat.max()),
+        "server_cpu_cores": (after["cpu_seconds"] - before["cpu_seconds"]) / wall, "wall_s": wall,
+        "server_frames": after["frames"] - before["frames"], "mean_batch": (after["frames"] - before["frames"]) / max(1, after["steps"] - before["steps"]),
+    }  # fmt: skip

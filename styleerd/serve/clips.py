@@ -1,0 +1,43 @@
+"""The viewer's demo clips: a walk the project generates itself (always there), and, when a
+data folder is present, a few real Bandai-Namco-2 test clips read from it at run time (never
+copied into the project)."""
+
+from __future__ import annotations
+
+from styleerd.data.datasets import data_root, find_clips
+from styleerd.data.windows import split_takes
+from styleerd.errors import StyleERDError
+from styleerd.model.generator import StyleERD
+from styleerd.motion import bvh
+from styleerd.motion.procedural import walk
+
+REAL_CONTENTS = ("walk", "run", "wave-both-hands", "raise-up-both-hands", "walk-turn-left")
+
+
+class DemoClips:
+    def __init__(self, model: StyleERD, data: str | None = None):
+        self.paths = {}
+        try:
+            clips = find_clips(data_root(data), "bandai-namco-2")
+        except StyleERDError:
+            clips = []
+        split = split_takes({k.name: (k.dataset, k.style, k.content) for k in clips}) if clips else {}
+        for content in REAL_CONTENTS:
+            for style in (model.config.neutral_style, "elderly"):
+                clip = next((k for k in clips if split[k.name] == "test" and k.style == style and k.content == content), None)
+                if clip is not None:
+                    self.paths[f"bandai {style} {content} ({clip.name})"] = clip.path
+        self.generated = {"generated walk (T-pose skeleton, 30 fps)": None}
+
+    def names(self) -> list[str]:
+        return list(self.generated) + list(self.paths)
+
+    def bvh_text(self, name: str) -> str | None:
+        from urllib.parse import unquote
+
+        name = unquote(name)
+        if name in self.generated:
+            return bvh.format_bvh(walk(12.0, fps=30.0), precision=5)
+        if name in self.paths:
+            return self.paths[name].read_text()
+        return None

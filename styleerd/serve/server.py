@@ -1,0 +1,479 @@
+"""``styleerd serve``: the real-time style server (protocol: docs/PROTOCOL.md) and the
+browser viewer it serves.
+
+Each connection is one stream with its own stylizer state, held as a slot of a pool: one
+``ChannelStylizer`` per (skeleton, fps, cleanup). One stepping task runs, again and again, one
+batched step per pool over every stream that has a frame waiting, so many streams cost little
+more than one. Frames of a stream are answered one for one, in order.
+
+Bounds: a stream may have at most ``queue`` frames waiting to be stylised (a client sending
+faster than the server steps is told and closed) and at most ``queue`` stylised frames unsent
+(a client that stops reading is told and closed): memory per stream is bounded.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import json
+import mimetypes
+import multiprocessing
+import signal
+import struct
+import time
+from collections import deque
+from dataclasses import dataclass, field
+from http import HTTPStatus
+from pathlib import Path
+
+import numpy as np
+from websockets.asyncio.server import ServerConnection, serve
+from websockets.datastructures import Headers
+from websockets.exceptions import ConnectionClosed
+from websockets.http11 import Request, Response
+
+from styleerd.errors import StyleERDError
+from styleerd.model.checkpoint import load_generator
+from styleerd.model.generator import StyleERD
+from styleerd.motion import bvh
+from styleerd.motion.kinematics import forward_positions
+from styleerd.motion.skeleton import Skeleton
+from styleerd.runtime.channels import ChannelStylizer
+from styleerd.runtime.stylizer import target_weights
+from styleerd.serve.clips import DemoClips
+
+STATIC = Path(__file__).parent / "static"
+SEQ = struct.Struct("<I")  # binary frames start with the frame's sequence number
+
+# close codes (RFC 6455)
+NORMAL, GOING_AWAY, INVALID_DATA, POLICY, TOO_BIG, TRY_LATER = 1000, 1001, 1007, 1008, 1009, 1013
+HELLO_TIMEOUT_S = 10.0
+
+
+@dataclass
+class ServeConfig:
+    host: str = "127.0.0.1"
+    port: int = 8765
+    max_streams: int = 256  # open streams, all pools together
+    max_message: int = 1 << 20  # bytes; a larger message closes its connection with 1009
+    queue: int = 64  # per stream: frames waiting to be stylised, and stylised frames unsent
+    backend: str = "numpy"
+    data: str | None = None  # data folder for the viewer's real demo clips (optional)
+
+
+class ClientError(Exception):
+    """What is wrong with a client's message: sent to it as an error, then closed with ``code``."""
+
+    def __init__(self, code: int, message: str):
+        super().__init__(message)
+        self.code = code
+
+
+@dataclass
+class Stream:
+    id: int
+    name: str
+    ws: ServerConnection
+    pool: "Pool"
+    row: int
+    binary: bool
+    positions: bool  # send joint positions of input and output with every frame
+    outbox: asyncio.Queue
+    pending: deque = field(default_factory=deque)  # (seq, channel values) waiting to be stylised
+    watchers: set = field(default_factory=set)
+    frames: int = 0
+
+
+@dataclass
+class Watcher:
+    """A viewer in live mode: receives input and output joint positions of a stream."""
+
+    ws: ServerConnection
+    name: str | None  # the stream name it follows; None: any stream
+    outbox: asyncio.Queue
+    stream: Stream | None = None
+
+
+class Pool:
+    """The streams of one skeleton, frame rate and cleanup setting: a slot each in one
+    ChannelStylizer, stepped together."""
+
+    def __init__(self, model: StyleERD, skeleton: Skeleton, fps: float, cleanup: bool, capacity: int, backend: str):
+        neutral = model.config.neutral_style
+        self.stylizer = ChannelStylizer(model, skeleton, {neutral: 1.0}, neutral, model.config.contents[0], fps, capacity, cleanup=cleanup, backend=backend)
+        self.skeleton = skeleton
+        self.free = list(range(capacity - 1, -1, -1))
+        self.streams: dict[int, Stream] = {}
+
+
+def _skeleton_from_text(text: str, fps: float) -> Skeleton:
+    """The skeleton of a BVH hierarchy (anything from MOTION on is ignored)."""
+    hierarchy = text.split("MOTION")[0].rstrip()
+    return bvh.parse(f"{hierarchy}\nMOTION\nFrames: 0\nFrame Time: {1.0 / fps:.9f}\n", "handshake skeleton").skeleton
+
+
+def _number(msg: dict, key: str, default: float, low: float, high: float) -> float:
+    value = msg.get(key, default)
+    if not isinstance(value, (int, float)) or isinstance(value, bool) or not low <= value <= high:
+        raise ClientError(POLICY, f"{key!r} must be a number in [{low:g}, {high:g}], got {value!r}")
+    return float(value)
+
+
+class StyleServer:
+    def __init__(self, config: ServeConfig, model: StyleERD | None = None):
+        self.config = config
+        self.model = model or load_generator()[0]
+        self.clips = DemoClips(self.model, config.data)
+        self.pools: dict[tuple, Pool] = {}
+        self.streams: dict[int, Stream] = {}
+        self.watchers: set[Watcher] = set()
+        self.next_id = 0
+        self.due = asyncio.Event()
+        self.steps = 0
+        self.frames = 0
+
+    # ---- the handshake and the per-connection loop ----
+
+    def _target(self, msg: dict) -> dict[str, float]:
+        mix = msg.get("mix")
+        if mix is not None and (not isinstance(mix, dict) or not all(isinstance(v, (int, float)) for v in mix.values())):
+            raise ClientError(POLICY, f"'mix' must be an object of style -> weight, got {mix!r}")
+        try:
+            return target_weights(self.model, msg.get("style"), _number(msg, "intensity", 1.0, 0.0, 2.0), mix)
+        except StyleERDError as e:
+            raise ClientError(POLICY, str(e)) from None
+
+    def _open_stream(self, ws: ServerConnection, msg: dict) -> Stream:
+        if len(self.streams) >= self.config.max_streams:
+            raise ClientError(TRY_LATER, f"the server is full ({self.config.max_streams} streams); try again later")
+        fps = _number(msg, "fps", 30.0, 10.0, 480.0)
+        if msg.get("preset") == "model":
+            skeleton = self.model.skeleton
+        elif isinstance(msg.get("skeleton"), str):
+            try:
+                skeleton = _skeleton_from_text(msg["skeleton"], fps)
+            except StyleERDError as e:
+                raise ClientError(POLICY, str(e)) from None
+        else:
+            raise ClientError(POLICY, "the hello needs 'skeleton' (a BVH HIERARCHY text) or 'preset': 'model'")
+        labels = {}
+        for key, names in (("input_style", self.model.config.styles), ("content", self.model.config.contents)):
+            value = msg.get(key)
+            if value is not None and value not in names:
+                raise ClientError(POLICY, f"unknown {key} {value!r}; valid: {', '.join(names)}")
+            labels[key] = value
+        target = self._target(msg)
+        fmt = msg.get("format", "binary")
+        if fmt not in ("binary", "json"):
+            raise ClientError(POLICY, f"'format' must be 'binary' or 'json', got {fmt!r}")
+        cleanup = bool(msg.get("cleanup", True))
+        key = (bvh.format_header(skeleton, 0, fps), fps, cleanup)
+        if key not in self.pools:
+            try:
+                self.pools[key] = Pool(self.model, skeleton, fps, cleanup, self.config.max_streams, self.config.backend)
+            except StyleERDError as e:
+                raise ClientError(POLICY, str(e)) from None
+        pool = self.pools[key]
+        row = pool.free.pop()
+        pool.stylizer.reset([row])
+        pool.stylizer.configure([row], labels["input_style"], labels["content"], target)
+        self.next_id += 1
+        stream = Stream(self.next_id, str(msg.get("name") or f"stream-{self.next_id}"), ws, pool, row, fmt == "binary",
+                        bool(msg.get("positions", False)), asyncio.Queue(self.config.queue))  # fmt: skip
+        pool.streams[row] = stream
+        self.streams[stream.id] = stream
+        for w in self.watchers:
+            if w.stream is None and w.name in (None, stream.name):
+                self._attach(w, stream)
+        return stream
+
+    def _close_stream(self, stream: Stream) -> None:
+        self.streams.pop(stream.id, None)
+        pool = stream.pool
+        if pool.streams.pop(stream.row, None) is not None:
+            pool.free.append(stream.row)
+        for w in list(stream.watchers):
+            w.stream = None
+            _offer(w.outbox, json.dumps({"type": "ended", "stream": stream.name}))
+
+    def _ready(self, stream: Stream) -> dict:
+        sk, c = stream.pool.skeleton, self.model.config
+        return {"type": "ready", "stream": stream.name, "id": stream.id, "channels": stream.pool.stylizer.n_channels,
+                "fps": stream.pool.stylizer.fps, "joints": list(sk.names), "parents": [int(p) for p in sk.parents],
+                "styles": list(c.styles), "contents": list(c.contents), "neutral": c.neutral_style,
+                "target": self._weights(stream), "mapping": stream.pool.stylizer.map.describe()}  # fmt: skip
+
+    def _weights(self, stream: Stream) -> dict[str, float]:
+        w = stream.pool.stylizer.stylizer.blend.end[stream.row]
+        return {s: round(float(x), 6) for s, x in zip(self.model.config.styles, w) if x}
+
+    async def handle(self, ws: ServerConnection) -> None:
+        stream = sender = None
+        try:
+            try:
+                first = await asyncio.wait_for(ws.recv(), HELLO_TIMEOUT_S)
+            except TimeoutError:
+                raise ClientError(POLICY, f"no hello within {HELLO_TIMEOUT_S:g} s") from None
+            msg = _json(first)
+            if msg.get("type") == "watch":
+                return await self._watch(ws, msg)
+            if msg.get("type") != "hello":
+                raise ClientError(POLICY, f"the first message must be a hello or a watch, got type {msg.get('type')!r}")
+            stream = self._open_stream(ws, msg)
+            await ws.send(json.dumps(self._ready(stream)))
+            sender = asyncio.create_task(_send_loop(ws, stream.outbox))
+            async for message in ws:
+                self._receive(stream, message)
+        except ClientError as e:
+            await _refuse(ws, e.code, str(e))
+        except ConnectionClosed:
+            pass
+        finally:
+            if stream is not None:
+                self._close_stream(stream)
+            if sender is not None:
+                sender.cancel()
+
+    def _receive(self, stream: Stream, message: bytes | str) -> None:
+        if isinstance(message, bytes):
+            n = stream.pool.stylizer.n_channels
+            if len(message) != SEQ.size + 4 * n:
+                raise ClientError(POLICY, f"a binary frame is 4 + 4 x {n} = {SEQ.size + 4 * n} bytes (sequence number + {n} float32 channel values), got {len(message)}")
+            self._enqueue(stream, SEQ.unpack_from(message)[0], np.frombuffer(message, "<f4", offset=SEQ.size))
+            return
+        msg = _json(message)
+        kind = msg.get("type")
+        if kind == "frame":
+            values = msg.get("values")
+            n = stream.pool.stylizer.n_channels
+            if not isinstance(values, list) or len(values) != n or not all(isinstance(v, (int, float)) for v in values):
+                raise ClientError(POLICY, f"a frame's 'values' must be a list of {n} numbers")
+            self._enqueue(stream, int(msg.get("seq", stream.frames)), np.asarray(values, np.float64))
+        elif kind == "set":
+            stream.pool.stylizer.stylizer.set_target(self._target(msg), [stream.row])
+            _offer(stream.outbox, json.dumps({"type": "target", "weights": self._weights(stream)}))
+        elif kind == "reset":
+            stream.pending.clear()
+            stream.pool.stylizer.reset([stream.row])
+            _offer(stream.outbox, json.dumps({"type": "reset"}))
+        elif kind == "stats":
+            _offer(stream.outbox, json.dumps(self.stats()))
+        else:
+            raise ClientError(POLICY, f"unknown message type {kind!r}; valid: frame, set, reset, stats")
+
+    def _enqueue(self, stream: Stream, seq: int, values: np.ndarray) -> None:
+        if not np.isfinite(values).all():
+            channel = int(np.argmax(~np.isfinite(values)))
+            raise ClientError(INVALID_DATA, f"frame {seq}: channel {channel} is not a finite number")
+        if len(stream.pending) >= self.config.queue:
+            raise ClientError(POLICY, f"more than {self.config.queue} frames waiting: send no faster than the stream's frame rate")
+        stream.pending.append((seq, values))
+        stream.frames += 1
+        self.due.set()
+
+    def stats(self) -> dict:
+        return {"type": "stats", "streams": len(self.streams), "frames": self.frames, "steps": self.steps,
+                "cpu_seconds": time.process_time(), "pools": len(self.pools)}  # fmt: skip
+
+    # ---- stepping ----
+
+    async def step_forever(self) -> None:
+        while True:
+            await self.due.wait()
+            self.due.clear()
+            while True:
+                work = [(pool, [s for s in pool.streams.values() if s.pending]) for pool in self.pools.values()]
+                work = [(pool, streams) for pool, streams in work if streams]
+                if not work:
+                    break
+                for pool, streams in work:
+                    self._step(pool, streams)
+                await asyncio.sleep(0)  # let replies go out and frames come in
+
+    def _step(self, pool: Pool, streams: list[Stream]) -> None:
+        rows = np.array([s.row for s in streams])
+        items = [s.pending.popleft() for s in streams]
+        values = np.stack([v for _, v in items])
+        out = pool.stylizer.step(values, rows)
+        self.steps += 1
+        self.frames += len(streams)
+        wants = [i for i, s in enumerate(streams) if s.positions or s.watchers]
+        if wants:
+            fk = lambda v: forward_positions(*_local(pool.skeleton, v, pool.stylizer.fps), pool.skeleton.parents).astype(np.float32)  # noqa: E731
+            seen, made = fk(values[wants]), fk(out[wants])
+            positions = {i: (seen[k], made[k]) for k, i in enumerate(wants)}
+        for i, (stream, (seq, _)) in enumerate(zip(streams, items)):
+            pos = positions.get(i) if wants else None
+            if stream.binary:
+                parts = [SEQ.pack(seq), out[i].astype("<f4").tobytes()]
+                if stream.positions:
+                    parts += [pos[0].astype("<f4").tobytes(), pos[1].astype("<f4").tobytes()]
+                message = b"".join(parts)
+            else:
+                reply = {"type": "frame", "seq": seq, "values": np.round(out[i], 6).tolist()}
+                if stream.positions:
+                    reply["input_positions"], reply["output_positions"] = np.round(pos[0], 4).tolist(), np.round(pos[1], 4).tolist()
+                message = json.dumps(reply)
+            if not _offer(stream.outbox, message):
+                self.due.set()
+                asyncio.ensure_future(_refuse(stream.ws, POLICY, f"more than {self.config.queue} stylised frames unsent: the client does not read"))
+                stream.pending.clear()
+            for w in stream.watchers:
+                _offer(w.outbox, SEQ.pack(seq) + pos[0].astype("<f4").tobytes() + pos[1].astype("<f4").tobytes(), drop_oldest=True)
+
+    # ---- live viewers ----
+
+    def _attach(self, watcher: Watcher, stream: Stream) -> None:
+        watcher.stream = stream
+        stream.watchers.add(watcher)
+        sk = stream.pool.skeleton
+        _offer(watcher.outbox, json.dumps({"type": "watching", "stream": stream.name, "joints": list(sk.names),
+                                           "parents": [int(p) for p in sk.parents], "target": self._weights(stream)}), drop_oldest=True)  # fmt: skip
+
+    async def _watch(self, ws: ServerConnection, msg: dict) -> None:
+        name = msg.get("stream")
+        watcher = Watcher(ws, name if isinstance(name, str) else None, asyncio.Queue(self.config.queue))
+        self.watchers.add(watcher)
+        candidates = [s for s in self.streams.values() if watcher.name in (None, s.name)]
+        await ws.send(json.dumps({"type": "waiting", "streams": [s.name for s in self.streams.values()]}))
+        if candidates:
+            self._attach(watcher, candidates[-1])
+        sender = asyncio.create_task(_send_loop(ws, watcher.outbox))
+        try:
+            async for _ in ws:  # a viewer only listens
+                pass
+        finally:
+            self.watchers.discard(watcher)
+            if watcher.stream is not None:
+                watcher.stream.watchers.discard(watcher)
+            sender.cancel()
+
+    # ---- HTTP: the viewer page, its files, demo clips, the list of streams ----
+
+    def http(self, connection: ServerConnection, request: Request) -> Response | None:
+        if "upgrade" in request.headers.get("Connection", "").lower():
+            return None  # a WebSocket handshake
+        path = request.path.split("?")[0]
+        if path == "/":
+            path = "/static/index.html"
+        if path.startswith("/static/"):
+            file = (STATIC / path[len("/static/") :]).resolve()
+            if STATIC.resolve() in file.parents and file.is_file():
+                kind = mimetypes.guess_type(file.name)[0] or "application/octet-stream"
+                return _response(HTTPStatus.OK, file.read_bytes(), kind)
+            if path.endswith("three.module.js"):
+                return _response(HTTPStatus.NOT_FOUND, b"three.js is not installed: run 'make install' (npm ci)", "text/plain")
+        elif path == "/clips":
+            return _response(HTTPStatus.OK, json.dumps(self.clips.names()).encode(), "application/json")
+        elif path.startswith("/clips/"):
+            text = self.clips.bvh_text(path[len("/clips/") :])
+            if text is not None:
+                return _response(HTTPStatus.OK, text.encode(), "text/plain; charset=utf-8")
+        elif path == "/streams":
+            body = [{"stream": s.name, "frames": s.frames} for s in self.streams.values()]
+            return _response(HTTPStatus.OK, json.dumps(body).encode(), "application/json")
+        elif path == "/styles":
+            c = self.model.config
+            body = {"styles": list(c.styles), "contents": list(c.contents), "neutral": c.neutral_style}
+            return _response(HTTPStatus.OK, json.dumps(body).encode(), "application/json")
+        return _response(HTTPStatus.NOT_FOUND, f"not found: {path}".encode(), "text/plain")
+
+
+def _response(status: HTTPStatus, body: bytes, kind: str) -> Response:
+    headers = Headers([("Content-Type", kind), ("Content-Length", str(len(body))), ("Cache-Control", "no-store")])
+    return Response(status.value, status.phrase, headers, body)
+
+
+def _local(skeleton: Skeleton, values: np.ndarray, fps: float) -> tuple[np.ndarray, np.ndarray]:
+    m = bvh.motion_from_channels(skeleton, values, fps)
+    return m.rotations, m.positions
+
+
+def _json(message: bytes | str) -> dict:
+    if isinstance(message, bytes):
+        raise ClientError(POLICY, "expected a JSON text message here, got binary")
+    try:
+        msg = json.loads(message)
+    except json.JSONDecodeError as e:
+        raise ClientError(POLICY, f"bad JSON: {e}") from None
+    if not isinstance(msg, dict):
+        raise ClientError(POLICY, "a JSON message must be an object with a 'type'")
+    return msg
+
+
+def _offer(queue: asyncio.Queue, message, drop_oldest: bool = False) -> bool:
+    """Queue a message without waiting; when full, drop the oldest (viewers) or say so."""
+    if queue.full():
+        if not drop_oldest:
+            return False
+        queue.get_nowait()
+    queue.put_nowait(message)
+    return True
+
+
+async def _send_loop(ws: ServerConnection, outbox: asyncio.Queue) -> None:
+    try:
+        while True:
+            await ws.send(await outbox.get())
+    except ConnectionClosed:
+        pass
+
+
+async def _refuse(ws: ServerConnection, code: int, message: str) -> None:
+    """Tell the client what is wrong, then close with ``code``."""
+    try:
+        await asyncio.wait_for(ws.send(json.dumps({"type": "error", "code": code, "message": message})), 2.0)
+    except (ConnectionClosed, TimeoutError):
+        pass
+    await ws.close(code, message[:120])  # a close reason is at most 123 bytes
+
+
+async def run_server(config: ServeConfig, reuse_port: bool = False, ready: "multiprocessing.synchronize.Event | None" = None, announce=print) -> None:
+    """Serve until SIGINT/SIGTERM; then every client gets a clean close (1001, going away)."""
+    server = StyleServer(config)
+    stepper = asyncio.create_task(server.step_forever())
+    stop = asyncio.get_running_loop().create_future()
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        asyncio.get_running_loop().add_signal_handler(sig, lambda: stop.done() or stop.set_result(None))
+    async with serve(server.handle, config.host, config.port, process_request=server.http, max_size=config.max_message,
+                     max_queue=config.queue, reuse_port=reuse_port, ping_interval=20, close_timeout=2) as ws_server:  # fmt: skip
+        announce(f"styleerd serve: ws://{config.host}:{config.port}/  viewer: http://{config.host}:{config.port}/  ({config.backend} backend)")
+        if ready is not None:
+            ready.set()
+        await stop
+        ws_server.close(code=GOING_AWAY, reason="server shutting down")
+        await ws_server.wait_closed()
+    stepper.cancel()
+
+
+def _worker(config: ServeConfig, ready) -> None:
+    asyncio.run(run_server(config, reuse_port=True, ready=ready, announce=lambda _: None))
+
+
+def serve_forever(config: ServeConfig, workers: int = 1) -> None:
+    """``workers`` processes on one port (SO_REUSEPORT: the kernel spreads connections)."""
+    if workers <= 1:
+        asyncio.run(run_server(config))
+        return
+    def interrupt(*_):
+        raise KeyboardInterrupt
+
+    signal.signal(signal.SIGTERM, interrupt)  # the workers then get SIGTERM: a clean close each
+    ctx = multiprocessing.get_context("spawn")
+    events = [ctx.Event() for _ in range(workers)]
+    procs = [ctx.Process(target=_worker, args=(config, e), daemon=True) for e in events]
+    for p in procs:
+        p.start()
+    for e in events:
+        e.wait()
+    print(f"styleerd serve: {workers} workers on ws://{config.host}:{config.port}/  viewer: http://{config.host}:{config.port}/")
+    try:
+        for p in procs:
+            p.join()
+    except KeyboardInterrupt:
+        pass
+    finally:
+        for p in procs:
+            if p.is_alive():
+                p.terminate()
+        for p in procs:
+            p.join()
