@@ -225,7 +225,7 @@ def _load_test(args: argparse.Namespace) -> None:
 def _vmc(args: argparse.Namespace) -> None:
     from styleerd.serve.vmc import run_bridge
 
-    run_bridge(args.listen, args.send, args.style, args.intensity, _parse_mix(args.mix) if args.mix else None, args.host)
+    run_bridge(args.listen, args.send, args.style, args.intensity, _parse_mix(args.mix) if args.mix else None, args.host, args.fps)
 
 
 def _demo(args: argparse.Namespace) -> None:
@@ -379,6 +379,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--style")
     p.add_argument("--intensity", type=float, default=1.0)
     p.add_argument("--mix")
+    p.add_argument("--fps", type=float, default=30.0, help="the sender's frame rate (velocities are per second)")
     p.set_defaults(func=_vmc)
 
     p = sub.add_parser("demo", help="the main job on a bundled input: every style, BVH files + an HTML page to watch them")

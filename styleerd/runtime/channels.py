@@ -59,10 +59,14 @@ class ChannelStylizer:
             stream, channel = np.argwhere(~np.isfinite(values))[0]
             stream = stream if rows is None else rows[stream]
             raise StyleERDError(f"frame rejected: stream {stream}, channel {channel} is not a finite number")
-        source = bvh.motion_from_channels(self.skeleton, values, self.fps)  # the N streams as N "frames"
+        return bvh.channel_values(self.step_pose(bvh.motion_from_channels(self.skeleton, values, self.fps), rows))
+
+    def step_pose(self, source: Motion, rows=None) -> Motion:
+        """The same on poses: ``source`` holds this frame of the N streams (or of ``rows``) as
+        N "frames" of local rotations and translations on the user's skeleton."""
         on_model = to_target(source, self.map)
         rot, pos = self.stylizer.step(on_model.rotations, on_model.positions, rows)
         out = to_source(Motion(self.map.target, rot, pos, self.fps), self.map, source)
         if self.lock:
             out.rotations = self.lock.step(out.rotations, out.positions, source.rotations, source.positions, rows)
-        return bvh.channel_values(out)
+        return out

@@ -1,0 +1,209 @@
+"""VMC protocol bridge (OSC over UDP, python-osc): receive an avatar's bones, stylise them,
+send them on. Sits between a Performer (VSeeFace, Virtual Motion Capture, a game) and a
+Marionette (EVMC4U, VMC4UE, ...).
+
+Received: ``/VMC/Ext/Root/Pos`` and ``/VMC/Ext/Bone/Pos`` (name, position xyz, rotation
+xyzw: local to the parent bone, Unity's left-handed axes: x right, y up, z forward). Unity
+humanoid bone names (HumanBodyBones) make the skeleton; its rest pose is the avatar's normalised
+T-pose (identity local rotations, as VRM rigs are), its bone offsets those of the first frame.
+The skeleton is mapped onto the model's by names like any BVH skeleton.
+
+Sent: for every complete frame, one bundle with the Root/Pos as received and a Bone/Pos per
+bone (positions as received, rotations stylised; fingers, eyes and bones the model lacks keep
+their input rotation). Every other message (blend shapes, ``/VMC/Ext/OK``, ``/VMC/Ext/T``, ...)
+is passed on unchanged.
+
+Frames: the first frame is known complete when the next ``Root/Pos`` arrives (that fixes the
+bone set); after that a frame is stylised as soon as all its bones have arrived, so a sender
+that bundles a frame (the usual case) gets each frame back with no delay.
+"""
+
+from __future__ import annotations
+
+import socket
+import time
+
+import numpy as np
+from pythonosc.osc_bundle_builder import IMMEDIATELY, OscBundleBuilder
+from pythonosc.osc_message_builder import OscMessageBuilder
+from pythonosc.osc_packet import OscPacket, ParseError
+
+from styleerd.errors import StyleERDError
+from styleerd.model.checkpoint import load_generator
+from styleerd.model.generator import StyleERD
+from styleerd.motion import quat
+from styleerd.motion.motion import Motion
+from styleerd.motion.skeleton import POSITION_CHANNELS, Skeleton
+from styleerd.runtime.channels import ChannelStylizer
+from styleerd.runtime.stylizer import target_weights
+
+ROOT, BONE = "/VMC/Ext/Root/Pos", "/VMC/Ext/Bone/Pos"
+
+# Unity HumanBodyBones -> possible parents, nearest first (optional bones may be absent)
+_TORSO = {
+    "Hips": (),
+    "Spine": ("Hips",),
+    "Chest": ("Spine", "Hips"),
+    "UpperChest": ("Chest", "Spine", "Hips"),
+    "Neck": ("UpperChest", "Chest", "Spine"),
+    "Head": ("Neck", "UpperChest", "Chest", "Spine"),
+    "Jaw": ("Head",),
+}
+_LEFT = {
+    "LeftEye": ("Head",),
+    "LeftShoulder": ("UpperChest", "Chest", "Spine"),
+    "LeftUpperArm": ("LeftShoulder", "UpperChest", "Chest", "Spine"),
+    "LeftLowerArm": ("LeftUpperArm",),
+    "LeftHand": ("LeftLowerArm",),
+    "LeftUpperLeg": ("Hips",),
+    "LeftLowerLeg": ("LeftUpperLeg",),
+    "LeftFoot": ("LeftLowerLeg",),
+    "LeftToes": ("LeftFoot",),
+}
+for _finger in ("Thumb", "Index", "Middle", "Ring", "Little"):
+    _LEFT[f"Left{_finger}Proximal"] = ("LeftHand",)
+    _LEFT[f"Left{_finger}Intermediate"] = (f"Left{_finger}Proximal",)
+    _LEFT[f"Left{_finger}Distal"] = (f"Left{_finger}Intermediate",)
+UNITY_PARENTS = {**_TORSO, **_LEFT, **{k.replace("Left", "Right"): tuple(p.replace("Left", "Right") for p in v) for k, v in _LEFT.items()}}
+
+
+def unity_position(p: np.ndarray) -> np.ndarray:
+    """Unity (left-handed) <-> right-handed position: mirror x. Its own inverse."""
+    return p * np.array([-1.0, 1.0, 1.0])
+
+
+def unity_rotation(q: np.ndarray) -> np.ndarray:
+    """Unity quaternion (x, y, z, w), left-handed -> ours (w, x, y, z), right-handed (x
+    mirrored: M R M with M = diag(-1, 1, 1) keeps the x component, negates y and z)."""
+    q = np.asarray(q, dtype=np.float64)
+    return np.stack([q[..., 3], q[..., 0], -q[..., 1], -q[..., 2]], axis=-1)
+
+
+def rotation_to_unity(q: np.ndarray) -> np.ndarray:
+    """The inverse of ``unity_rotation``."""
+    return np.stack([q[..., 1], -q[..., 2], -q[..., 3], q[..., 0]], axis=-1)
+
+
+def humanoid_skeleton(bones: dict[str, np.ndarray]) -> Skeleton:
+    """A skeleton from Unity humanoid bones and their local positions (right-handed),
+    parents before children; bones of unknown names are left out."""
+    names = [b for b in UNITY_PARENTS if b in bones]
+    if "Hips" not in names:
+        raise StyleERDError("VMC: no 'Hips' bone received; a humanoid avatar sends Hips, Spine, legs, arms and Head")
+    parents = []
+    for b in names:
+        present = [p for p in UNITY_PARENTS[b] if p in bones]
+        parents.append(names.index(present[0]) if present else (-1 if b == "Hips" else None))
+    orphans = [b for b, p in zip(names, parents) if p is None]
+    if orphans:
+        raise StyleERDError(f"VMC: bones without their parent bone: {', '.join(orphans)}")
+    rot = ("Zrotation", "Xrotation", "Yrotation")
+    return Skeleton(tuple(names), np.array(parents), np.array([bones[b] for b in names]),
+                    tuple(POSITION_CHANNELS + rot if p < 0 else rot for p in parents))  # fmt: skip
+
+
+class VMCBridge:
+    """Datagrams in, datagrams out (no sockets here: ``run_bridge`` owns them)."""
+
+    def __init__(self, model: StyleERD, target: dict[str, float], fps: float = 30.0, cleanup: bool = True, report=print):
+        self.model, self.target, self.fps, self.cleanup, self.report = model, target, fps, cleanup, report
+        self.stylizer: ChannelStylizer | None = None
+        self.skeleton: Skeleton | None = None
+        self.root: list | None = None  # the last Root/Pos arguments
+        self.bones: dict[str, tuple] = {}  # bone -> (position xyz, rotation xyzw) received for this frame
+        self.frames = self.rejected = self.malformed = 0
+
+    def set_target(self, target: dict[str, float]) -> None:
+        self.target = target
+        if self.stylizer is not None:
+            self.stylizer.stylizer.set_target(target)
+
+    def feed(self, datagram: bytes) -> list[bytes]:
+        """One received datagram -> the datagrams to send on."""
+        try:
+            messages = [m.message for m in OscPacket(datagram).messages]
+        except ParseError:
+            self.malformed += 1
+            return []
+        passed, frames = [], []
+        for msg in messages:
+            params = list(msg.params)
+            if msg.address == ROOT and len(params) >= 8:
+                if self.skeleton is None and self.bones and self.root is not None:
+                    frames += self._start()
+                self.root = params
+            elif msg.address == BONE and len(params) >= 8 and params[0] in UNITY_PARENTS:
+                self.bones[params[0]] = (np.array(params[1:4], float), np.array(params[4:8], float))
+                if self.skeleton is not None and len(self.bones) >= len(self.skeleton.names) and all(b in self.bones for b in self.skeleton.names):
+                    frames += self._frame()
+            else:
+                passed.append(msg)
+        out = []
+        if passed:
+            bundle = OscBundleBuilder(IMMEDIATELY)
+            for msg in passed:
+                bundle.add_content(msg)
+            out.append(bundle.build().dgram)
+        return out + frames
+
+    def _start(self) -> list[bytes]:
+        """The first frame fixes the bone set and the skeleton."""
+        self.skeleton = humanoid_skeleton({b: unity_position(p) for b, (p, _) in self.bones.items()})
+        self.stylizer = ChannelStylizer(self.model, self.skeleton, self.target, fps=self.fps, cleanup=self.cleanup)
+        self.report(f"VMC: {len(self.skeleton.names)} bones; joint mapping (model <- avatar):\n{self.stylizer.map.describe()}")
+        return self._frame()
+
+    def _frame(self) -> list[bytes]:
+        sk = self.skeleton
+        pos = np.stack([unity_position(self.bones[b][0]) for b in sk.names])
+        rot = quat.normalize(np.stack([unity_rotation(self.bones[b][1]) for b in sk.names]))
+        local = sk.offsets.copy()
+        local[0] = pos[0]
+        self.bones = {}
+        try:
+            out = self.stylizer.step_pose(Motion(sk, rot[None], local[None], self.fps))
+        except StyleERDError:
+            self.rejected += 1  # NaN/inf: the frame is dropped, the stream state is unchanged
+            return []
+        self.frames += 1
+        bundle = OscBundleBuilder(IMMEDIATELY)
+        bundle.add_content(_message(ROOT, self.root))
+        for j, name in enumerate(sk.names):
+            p = unity_position(pos[j])
+            q = rotation_to_unity(out.rotations[0, j])
+            bundle.add_content(_message(BONE, [name, *map(float, p), *map(float, q)]))
+        return [bundle.build().dgram]
+
+
+def _message(address: str, params: list):
+    builder = OscMessageBuilder(address)
+    for value in params:
+        builder.add_arg(value)
+    return builder.build()
+
+
+def run_bridge(listen: int, send: int, style: str | None, intensity: float, mix: dict[str, float] | None, host: str = "127.0.0.1", fps: float = 30.0) -> None:
+    """``styleerd vmc``: receive on ``host:listen``, send the stylised stream to ``host:send``."""
+    model, _ = load_generator()
+    target = target_weights(model, style, intensity, mix)
+    bridge = VMCBridge(model, target, fps, report=lambda text: print(text, flush=True))
+    rx = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    rx.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 1 << 22)  # room for frames that arrive while the first is set up
+    try:
+        rx.bind((host, listen))
+    except OSError as e:
+        raise StyleERDError(f"VMC: cannot listen on {host}:{listen} ({e.strerror})") from None
+    tx = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    print(f"styleerd vmc: receiving VMC on {host}:{listen}, sending the stylised stream to {host}:{send}, target {target}", flush=True)
+    last = time.time()
+    try:
+        while True:
+            data, _ = rx.recvfrom(65536)
+            for out in bridge.feed(data):
+                tx.sendto(out, (host, send))
+            if time.time() - last > 5:
+                last = time.time()
+                print(f"frames {bridge.frames}, rejected {bridge.rejected}, malformed datagrams {bridge.malformed}", flush=True)
+    finally:
+        rx.close()
+        tx.close()
