@@ -4,6 +4,7 @@ PYTHON ?= python3.11
 VENV := .venv
 BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed
+VENDOR := styleerd/serve/static/vendor
 
 .PHONY: demo test install clean bench
 
@@ -16,12 +17,19 @@ $(STAMP): $(BIN)/python pyproject.toml
 	$(BIN)/python -m pip install --quiet -e ".[dev]"
 	touch $(STAMP)
 
-install: $(STAMP)
+# the viewer's three.js, from npm (package-lock.json), vendored next to the page: no CDN
+$(VENDOR)/three.module.js: package.json package-lock.json
+	npm ci --no-audit --no-fund --loglevel=error
+	mkdir -p $(VENDOR)
+	cp node_modules/three/build/three.module.js node_modules/three/build/three.core.js \
+	   node_modules/three/examples/jsm/controls/OrbitControls.js $(VENDOR)/
 
-demo: $(STAMP)
+install: $(STAMP) $(VENDOR)/three.module.js
+
+demo: install
 	$(BIN)/styleerd demo
 
-test: $(STAMP)
+test: install
 	$(BIN)/python -m pytest -q
 
 bench: $(STAMP)
@@ -30,4 +38,4 @@ bench: $(STAMP)
 	$(BIN)/styleerd bench
 
 clean:
-	rm -rf $(VENV) build *.egg-info
+	rm -rf $(VENV) build *.egg-info node_modules $(VENDOR)

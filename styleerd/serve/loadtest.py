@@ -9,6 +9,7 @@ import os
 import socket
 import subprocess
 import sys
+import tempfile
 import time
 from pathlib import Path
 
@@ -26,12 +27,15 @@ def free_port() -> int:
 
 def start_server(port: int, *args: str) -> subprocess.Popen:
     """``styleerd serve`` on ``port`` in a new process; returns once it accepts connections."""
+    log = tempfile.TemporaryFile("w+")  # a file, not a pipe: a chatty server never blocks on it
     proc = subprocess.Popen([sys.executable, "-m", "styleerd.cli", "serve", "--port", str(port), *args],
-                            stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, env={**os.environ, "OMP_NUM_THREADS": "1"})  # fmt: skip
+                            stdout=log, stderr=subprocess.STDOUT, text=True, env={**os.environ, "OMP_NUM_THREADS": "1"})  # fmt: skip
+    proc.log = log
     deadline = time.time() + 60
     while time.time() < deadline:
         if proc.poll() is not None:
-            raise StyleERDError(f"the server exited: {proc.stdout.read()}")
+            log.seek(0)
+            raise StyleERDError(f"the server exited: {log.read()}")
         try:
             with socket.create_connection(("127.0.0.1", port), timeout=0.2):
                 return proc
@@ -48,6 +52,13 @@ def stop_server(proc: subprocess.Popen) -> int:
     except subprocess.TimeoutExpired:
         proc.kill()
         return proc.wait()
+    finally:
+        proc.log.close()
+
+
+def server_log(proc: subprocess.Popen) -> str:
+    proc.log.seek(0)
+    return proc.log.read()
 
 
 def run_load_test(clients: int, seconds: float, workers: int = 1, output: str | None = None) -> str:

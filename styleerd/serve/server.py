@@ -18,6 +18,7 @@ import json
 import mimetypes
 import multiprocessing
 import signal
+import socket
 import struct
 import time
 from collections import deque
@@ -38,7 +39,7 @@ from styleerd.motion import bvh
 from styleerd.motion.kinematics import forward_positions
 from styleerd.motion.skeleton import Skeleton
 from styleerd.runtime.channels import ChannelStylizer
-from styleerd.runtime.stylizer import target_weights
+from styleerd.runtime.stylizer import label_vector, target_weights
 from styleerd.serve.clips import DemoClips
 
 STATIC = Path(__file__).parent / "static"
@@ -47,6 +48,7 @@ SEQ = struct.Struct("<I")  # binary frames start with the frame's sequence numbe
 # close codes (RFC 6455)
 NORMAL, GOING_AWAY, INVALID_DATA, POLICY, TOO_BIG, TRY_LATER = 1000, 1001, 1007, 1008, 1009, 1013
 HELLO_TIMEOUT_S = 10.0
+SEND_BUFFER = 1 << 16  # bytes of kernel send buffer per connection
 
 
 @dataclass
@@ -68,7 +70,7 @@ class ClientError(Exception):
         self.code = code
 
 
-@dataclass
+@dataclass(eq=False)
 class Stream:
     id: int
     name: str
@@ -81,9 +83,11 @@ class Stream:
     pending: deque = field(default_factory=deque)  # (seq, channel values) waiting to be stylised
     watchers: set = field(default_factory=set)
     frames: int = 0
+    private: bool = False  # not shown to live viewers that follow any stream
+    closing: bool = False  # refused: its frames are no longer stylised
 
 
-@dataclass
+@dataclass(eq=False)
 class Watcher:
     """A viewer in live mode: receives input and output joint positions of a stream."""
 
@@ -138,7 +142,9 @@ class StyleServer:
         if mix is not None and (not isinstance(mix, dict) or not all(isinstance(v, (int, float)) for v in mix.values())):
             raise ClientError(POLICY, f"'mix' must be an object of style -> weight, got {mix!r}")
         try:
-            return target_weights(self.model, msg.get("style"), _number(msg, "intensity", 1.0, 0.0, 2.0), mix)
+            weights = target_weights(self.model, msg.get("style"), _number(msg, "intensity", 1.0, 0.0, 2.0), mix)
+            label_vector(self.model.config.styles, weights, "style")  # names the valid styles
+            return weights
         except StyleERDError as e:
             raise ClientError(POLICY, str(e)) from None
 
@@ -178,11 +184,11 @@ class StyleServer:
         pool.stylizer.configure([row], labels["input_style"], labels["content"], target)
         self.next_id += 1
         stream = Stream(self.next_id, str(msg.get("name") or f"stream-{self.next_id}"), ws, pool, row, fmt == "binary",
-                        bool(msg.get("positions", False)), asyncio.Queue(self.config.queue))  # fmt: skip
+                        bool(msg.get("positions", False)), asyncio.Queue(self.config.queue), private=bool(msg.get("private", False)))  # fmt: skip
         pool.streams[row] = stream
         self.streams[stream.id] = stream
         for w in self.watchers:
-            if w.stream is None and w.name in (None, stream.name):
+            if w.stream is None and self._follows(w, stream):
                 self._attach(w, stream)
         return stream
 
@@ -208,6 +214,9 @@ class StyleServer:
 
     async def handle(self, ws: ServerConnection) -> None:
         stream = sender = None
+        sock = ws.transport.get_extra_info("socket")
+        if sock is not None:  # a small kernel buffer: a client that stops reading is noticed in seconds, not megabytes
+            sock.setsockopt(socket.SOL_SOCKET, socket.SO_SNDBUF, SEND_BUFFER)
         try:
             try:
                 first = await asyncio.wait_for(ws.recv(), HELLO_TIMEOUT_S)
@@ -249,8 +258,7 @@ class StyleServer:
                 raise ClientError(POLICY, f"a frame's 'values' must be a list of {n} numbers")
             self._enqueue(stream, int(msg.get("seq", stream.frames)), np.asarray(values, np.float64))
         elif kind == "set":
-            stream.pool.stylizer.stylizer.set_target(self._target(msg), [stream.row])
-            _offer(stream.outbox, json.dumps({"type": "target", "weights": self._weights(stream)}))
+            self._set_target(stream, msg)
         elif kind == "reset":
             stream.pending.clear()
             stream.pool.stylizer.reset([stream.row])
@@ -261,6 +269,8 @@ class StyleServer:
             raise ClientError(POLICY, f"unknown message type {kind!r}; valid: frame, set, reset, stats")
 
     def _enqueue(self, stream: Stream, seq: int, values: np.ndarray) -> None:
+        if stream.closing:
+            return
         if not np.isfinite(values).all():
             channel = int(np.argmax(~np.isfinite(values)))
             raise ClientError(INVALID_DATA, f"frame {seq}: channel {channel} is not a finite number")
@@ -314,13 +324,24 @@ class StyleServer:
                     reply["input_positions"], reply["output_positions"] = np.round(pos[0], 4).tolist(), np.round(pos[1], 4).tolist()
                 message = json.dumps(reply)
             if not _offer(stream.outbox, message):
-                self.due.set()
-                asyncio.ensure_future(_refuse(stream.ws, POLICY, f"more than {self.config.queue} stylised frames unsent: the client does not read"))
+                stream.closing = True
                 stream.pending.clear()
+                asyncio.ensure_future(_refuse(stream.ws, POLICY, f"more than {self.config.queue} stylised frames unsent: the client does not read"))
             for w in stream.watchers:
                 _offer(w.outbox, SEQ.pack(seq) + pos[0].astype("<f4").tobytes() + pos[1].astype("<f4").tobytes(), drop_oldest=True)
 
     # ---- live viewers ----
+
+    @staticmethod
+    def _follows(watcher: Watcher, stream: Stream) -> bool:
+        return watcher.name == stream.name if watcher.name is not None else not stream.private
+
+    def _set_target(self, stream: Stream, msg: dict) -> None:
+        stream.pool.stylizer.stylizer.set_target(self._target(msg), [stream.row])
+        reply = json.dumps({"type": "target", "weights": self._weights(stream)})
+        _offer(stream.outbox, reply)
+        for w in stream.watchers:
+            _offer(w.outbox, reply, drop_oldest=True)
 
     def _attach(self, watcher: Watcher, stream: Stream) -> None:
         watcher.stream = stream
@@ -333,14 +354,18 @@ class StyleServer:
         name = msg.get("stream")
         watcher = Watcher(ws, name if isinstance(name, str) else None, asyncio.Queue(self.config.queue))
         self.watchers.add(watcher)
-        candidates = [s for s in self.streams.values() if watcher.name in (None, s.name)]
-        await ws.send(json.dumps({"type": "waiting", "streams": [s.name for s in self.streams.values()]}))
+        candidates = [s for s in self.streams.values() if self._follows(watcher, s)]
+        await ws.send(json.dumps({"type": "waiting", "streams": [s.name for s in self.streams.values() if not s.private]}))
         if candidates:
             self._attach(watcher, candidates[-1])
         sender = asyncio.create_task(_send_loop(ws, watcher.outbox))
         try:
-            async for _ in ws:  # a viewer only listens
-                pass
+            async for message in ws:  # a viewer may steer the style of the stream it watches
+                msg = _json(message)
+                if msg.get("type") != "set":
+                    raise ClientError(POLICY, f"a watcher may send only 'set' messages, got type {msg.get('type')!r}")
+                if watcher.stream is not None:
+                    self._set_target(watcher.stream, msg)
         finally:
             self.watchers.discard(watcher)
             if watcher.stream is not None:
@@ -353,6 +378,8 @@ class StyleServer:
         if "upgrade" in request.headers.get("Connection", "").lower():
             return None  # a WebSocket handshake
         path = request.path.split("?")[0]
+        if path == "/favicon.ico":
+            return _response(HTTPStatus.NO_CONTENT, b"", "image/x-icon")
         if path == "/":
             path = "/static/index.html"
         if path.startswith("/static/"):
@@ -369,7 +396,7 @@ class StyleServer:
             if text is not None:
                 return _response(HTTPStatus.OK, text.encode(), "text/plain; charset=utf-8")
         elif path == "/streams":
-            body = [{"stream": s.name, "frames": s.frames} for s in self.streams.values()]
+            body = [{"stream": s.name, "frames": s.frames} for s in self.streams.values() if not s.private]
             return _response(HTTPStatus.OK, json.dumps(body).encode(), "application/json")
         elif path == "/styles":
             c = self.model.config
@@ -419,12 +446,13 @@ async def _send_loop(ws: ServerConnection, outbox: asyncio.Queue) -> None:
 
 
 async def _refuse(ws: ServerConnection, code: int, message: str) -> None:
-    """Tell the client what is wrong, then close with ``code``."""
+    """Tell the client what is wrong, then close with ``code``; a client that does not read
+    cannot be told, and its connection is dropped."""
     try:
         await asyncio.wait_for(ws.send(json.dumps({"type": "error", "code": code, "message": message})), 2.0)
+        await asyncio.wait_for(ws.close(code, message[:120]), 4.0)  # a close reason is at most 123 bytes
     except (ConnectionClosed, TimeoutError):
-        pass
-    await ws.close(code, message[:120])  # a close reason is at most 123 bytes
+        ws.transport.abort()
 
 
 async def run_server(config: ServeConfig, reuse_port: bool = False, ready: "multiprocessing.synchronize.Event | None" = None, announce=print) -> None:

@@ -1,0 +1,294 @@
+// styleerd viewer: plays a BVH through the style server frame by frame (the same protocol as
+// any mocap client, docs/PROTOCOL.md) and draws input and stylised output side by side; or, in
+// live mode, watches a stream that another client sends.
+import * as THREE from "three";
+import { OrbitControls } from "/static/vendor/OrbitControls.js";
+
+const $ = (id) => document.getElementById(id);
+const ui = {
+  clip: $("clip"), upload: $("upload"), live: $("live"), styleA: $("styleA"), styleB: $("styleB"),
+  mix: $("mix"), intensity: $("intensity"), play: $("play"), scrub: $("scrub"),
+  frame: $("frame"), status: $("status"), error: $("error"),
+};
+// What tests and curious users can read: the last drawn frames, the server's replies.
+const viewer = (window.viewer = { ready: false, framesDrawn: 0, drawn: new Map(), target: null, mode: "clip" });
+
+// ---- scene: two characters of solid bones on a floor ----
+const stage = $("stage");
+const renderer = new THREE.WebGLRenderer({ antialias: true, preserveDrawingBuffer: true });
+renderer.setPixelRatio(window.devicePixelRatio);
+stage.appendChild(renderer.domElement);
+const scene = new THREE.Scene();
+scene.background = new THREE.Color(0xeef1f5);
+const camera = new THREE.PerspectiveCamera(40, 1, 0.01, 1e5);
+const controls = new OrbitControls(camera, renderer.domElement);
+scene.add(new THREE.HemisphereLight(0xffffff, 0x8090a0, 2.2));
+const sun = new THREE.DirectionalLight(0xffffff, 1.6);
+sun.position.set(1, 2, 1.5);
+scene.add(sun);
+let grid = null;
+
+function resize() {
+  const { clientWidth: w, clientHeight: h } = stage;
+  renderer.setSize(w, h, false);
+  camera.aspect = w / Math.max(1, h);
+  camera.updateProjectionMatrix();
+}
+window.addEventListener("resize", resize);
+
+class Figure {
+  // One skeleton drawn as capsule-like bones (cylinders) and joint spheres.
+  constructor(parents, radius, color) {
+    this.parents = parents;
+    const material = new THREE.MeshStandardMaterial({ color, roughness: 0.55, metalness: 0.05 });
+    const jointMaterial = new THREE.MeshStandardMaterial({ color: new THREE.Color(color).multiplyScalar(0.8), roughness: 0.5 });
+    this.group = new THREE.Group();
+    this.bones = parents.map((p) => {
+      if (p < 0) return null;
+      const mesh = new THREE.Mesh(new THREE.CylinderGeometry(radius, radius * 0.8, 1, 12), material);
+      this.group.add(mesh);
+      return mesh;
+    });
+    this.joints = parents.map(() => {
+      const mesh = new THREE.Mesh(new THREE.SphereGeometry(radius * 1.15, 14, 10), jointMaterial);
+      this.group.add(mesh);
+      return mesh;
+    });
+    scene.add(this.group);
+  }
+  pose(positions, shift) {
+    const p = (j) => new THREE.Vector3(positions[3 * j] + shift, positions[3 * j + 1], positions[3 * j + 2]);
+    const up = new THREE.Vector3(0, 1, 0);
+    this.parents.forEach((parent, j) => {
+      const at = p(j);
+      this.joints[j].position.copy(at);
+      const bone = this.bones[j];
+      if (!bone) return;
+      const from = p(parent);
+      const d = at.clone().sub(from);
+      const length = d.length();
+      bone.visible = length > 1e-6;
+      if (!bone.visible) return;
+      bone.position.copy(from).addScaledVector(d, 0.5);
+      bone.scale.set(1, length, 1);
+      bone.quaternion.setFromUnitVectors(up, d.divideScalar(length));
+    });
+  }
+  dispose() {
+    scene.remove(this.group);
+    this.group.traverse((o) => o.geometry && o.geometry.dispose());
+  }
+}
+
+let figures = null; // [input, output]
+let spacing = 100;
+
+function buildFigures(parents, firstPositions) {
+  figures?.forEach((f) => f.dispose());
+  let lo = Infinity, hi = -Infinity;
+  for (let j = 0; j < parents.length; j++) { lo = Math.min(lo, firstPositions[3 * j + 1]); hi = Math.max(hi, firstPositions[3 * j + 1]); }
+  const height = Math.max(1e-3, hi - lo);
+  spacing = height * 0.9;
+  const radius = height * 0.028;
+  figures = [new Figure(parents, radius, 0x6f8fbf), new Figure(parents, radius, 0xe0703c)];
+  if (grid) scene.remove(grid);
+  grid = new THREE.GridHelper(height * 40, 80, 0xaab4c4, 0xd0d6df);
+  grid.position.y = lo - radius;
+  scene.add(grid);
+  camera.near = height / 100; camera.far = height * 200; camera.updateProjectionMatrix();
+  camera.position.set(height * 1.2, height * 0.9, height * 2.8);
+  controls.target.set(0, lo + height * 0.5, 0);
+}
+
+let follow = null; // the camera follows the characters' root
+function draw(seq, input, output) {
+  if (!figures) return;
+  figures[0].pose(input, -spacing / 2);
+  figures[1].pose(output, spacing / 2);
+  const root = new THREE.Vector3(input[0], input[1], input[2]);
+  if (follow) {
+    const delta = root.clone().sub(follow);
+    delta.y = 0;
+    camera.position.add(delta);
+    controls.target.add(delta);
+  }
+  follow = root;
+  viewer.framesDrawn += 1;
+  viewer.lastSeq = seq;
+  viewer.drawn.set(seq, Array.from(output));
+  if (viewer.drawn.size > 2000) viewer.drawn.delete(viewer.drawn.keys().next().value);
+}
+
+function animate() {
+  controls.update();
+  renderer.render(scene, camera);
+  requestAnimationFrame(animate);
+}
+
+// ---- BVH text -> header (sent to the server) and frames (channel values) ----
+function parseBVH(text) {
+  const at = text.search(/^\s*MOTION\s*$/m);
+  if (at < 0) throw new Error("not a BVH file: no MOTION section");
+  const header = text.slice(0, at);
+  const lines = text.slice(at).split(/\r?\n/).map((l) => l.trim()).filter((l) => l.length);
+  const count = parseInt((lines[1] || "").split(":")[1], 10);
+  const frameTime = parseFloat((lines[2] || "").split(":")[1]);
+  if (!(count >= 0) || !(frameTime > 0)) throw new Error("BVH: bad 'Frames:' or 'Frame Time:' line");
+  const frames = lines.slice(3, 3 + count).map((l) => Float32Array.from(l.split(/\s+/), Number));
+  if (frames.length === 0) throw new Error("BVH: the motion has no frames");
+  return { header, fps: 1 / frameTime, frames };
+}
+
+// ---- the connection ----
+let ws = null;
+let clip = null; // {header, fps, frames}
+let joints = 0, channels = 0;
+let frameIndex = 0;
+let playing = true;
+let timer = null;
+let sentAt = new Map();
+let latency = 0;
+
+function targetMessage() {
+  const a = ui.styleA.value, b = ui.styleB.value, m = parseFloat(ui.mix.value), intensity = parseFloat(ui.intensity.value);
+  if (b && m > 0 && b !== a) return { mix: { [a]: 1 - m, [b]: m }, intensity };
+  return { style: a, intensity };
+}
+
+function setStatus(text) { ui.status.textContent = text; }
+function fail(text) { ui.error.textContent = text; }
+
+function connect(hello, onReady) {
+  if (ws) { ws.onclose = null; ws.close(); }
+  clearInterval(timer);
+  viewer.ready = false;
+  fail("");
+  ws = new WebSocket(`ws://${location.host}/`);
+  ws.binaryType = "arraybuffer";
+  ws.onopen = () => ws.send(JSON.stringify(hello));
+  ws.onclose = (e) => { viewer.ready = false; setStatus(`closed (${e.code}${e.reason ? ": " + e.reason : ""})`); };
+  ws.onmessage = (event) => {
+    if (typeof event.data === "string") {
+      const msg = JSON.parse(event.data);
+      if (msg.type === "error") fail(msg.message);
+      else if (msg.type === "target") { viewer.target = msg.weights; showTarget(); }
+      else onReady(msg);
+      return;
+    }
+    const view = new DataView(event.data);
+    const seq = view.getUint32(0, true);
+    const floats = new Float32Array(event.data, 4);
+    const skip = viewer.mode === "clip" ? channels : 0;
+    const input = floats.subarray(skip, skip + 3 * joints), output = floats.subarray(skip + 3 * joints, skip + 6 * joints);
+    if (sentAt.has(seq)) { latency = 0.9 * latency + 0.1 * (performance.now() - sentAt.get(seq)); sentAt.delete(seq); }
+    if (!figures) buildFigures(viewer.parents, input);
+    draw(seq, input, output);
+    if (viewer.mode === "clip") { ui.frame.textContent = `${seq + 1} / ${clip.frames.length}`; ui.scrub.value = seq; }
+  };
+}
+
+function showTarget() {
+  const w = Object.entries(viewer.target || {}).map(([k, v]) => `${k} ${v.toFixed(2)}`).join(", ");
+  setStatus(`${viewer.mode === "live" ? "live: " + (viewer.stream || "waiting") : "stream ready"} · target ${w} · latency ${latency.toFixed(1)} ms`);
+}
+
+function playClip(c) {
+  clip = c;
+  viewer.mode = "clip";
+  ui.live.classList.remove("on");
+  figures?.forEach((f) => f.dispose());
+  figures = null; follow = null;
+  frameIndex = 0;
+  ui.scrub.max = clip.frames.length - 1;
+  const hello = { type: "hello", skeleton: clip.header, fps: clip.fps, format: "binary", positions: true, name: "viewer", private: true, ...targetMessage() };
+  connect(hello, (msg) => {
+    if (msg.type !== "ready") return;
+    joints = msg.joints.length; channels = msg.channels;
+    viewer.parents = msg.parents; viewer.ready = true; viewer.target = msg.target;
+    showTarget();
+    timer = setInterval(tick, 1000 / clip.fps);
+  });
+}
+
+function sendFrame(i) {
+  const values = clip.frames[i];
+  if (values.length !== channels) { fail(`frame ${i + 1} has ${values.length} values, the skeleton ${channels} channels`); playing = false; return; }
+  const buffer = new ArrayBuffer(4 + 4 * channels);
+  new DataView(buffer).setUint32(0, i, true);
+  new Float32Array(buffer, 4).set(values);
+  sentAt.set(i, performance.now());
+  ws.send(buffer);
+}
+
+function tick() {
+  if (!playing || !viewer.ready || ws.bufferedAmount > 1 << 16) return;
+  if (frameIndex >= clip.frames.length) seek(0); // loop: an online model starts over
+  sendFrame(frameIndex++);
+  if (frameIndex % 15 === 0) showTarget();
+}
+
+function seek(i) {
+  // The model is online: after a jump it starts afresh from that frame, as a live stream would.
+  ws.send(JSON.stringify({ type: "reset" }));
+  sentAt.clear();
+  viewer.drawn.clear();
+  frameIndex = i;
+  if (!playing) sendFrame(frameIndex++);
+}
+
+function watchLive() {
+  viewer.mode = "live";
+  ui.live.classList.add("on");
+  figures?.forEach((f) => f.dispose());
+  figures = null; follow = null;
+  connect({ type: "watch" }, (msg) => {
+    if (msg.type === "waiting") { viewer.ready = true; viewer.stream = null; setStatus(msg.streams.length ? "live: attaching…" : "live: waiting for a stream (styleerd stream-bvh FILE)"); }
+    if (msg.type === "watching") {
+      joints = msg.joints.length; viewer.parents = msg.parents; viewer.stream = msg.stream; viewer.target = msg.target;
+      figures?.forEach((f) => f.dispose()); figures = null; follow = null;
+      showTarget();
+    }
+    if (msg.type === "ended") { viewer.stream = null; setStatus(`live: ${msg.stream} ended; waiting for the next stream`); }
+  });
+}
+
+function sendTarget() {
+  ui.mixValue.textContent = parseFloat(ui.mix.value).toFixed(2);
+  ui.intensityValue.textContent = parseFloat(ui.intensity.value).toFixed(2);
+  if (ws && ws.readyState === WebSocket.OPEN && viewer.ready) ws.send(JSON.stringify({ type: "set", ...targetMessage() }));
+}
+ui.mixValue = $("mixValue");
+ui.intensityValue = $("intensityValue");
+
+async function loadClip(name) {
+  try {
+    const r = await fetch(`/clips/${encodeURIComponent(name)}`);
+    if (!r.ok) throw new Error(`${name}: ${r.status}`);
+    playClip(parseBVH(await r.text()));
+  } catch (e) { fail(String(e.message || e)); }
+}
+
+async function main() {
+  resize();
+  animate();
+  const styles = await (await fetch("/styles")).json();
+  for (const s of styles.styles) {
+    ui.styleA.add(new Option(s, s, false, s === "elderly"));
+    ui.styleB.add(new Option(s, s));
+  }
+  const names = await (await fetch("/clips")).json();
+  for (const n of names) ui.clip.add(new Option(n, n));
+  ui.clip.onchange = () => loadClip(ui.clip.value);
+  ui.upload.onchange = async () => {
+    const file = ui.upload.files[0];
+    if (!file) return;
+    try { playClip(parseBVH(await file.text())); } catch (e) { fail(`${file.name}: ${e.message}`); }
+  };
+  ui.live.onclick = () => (viewer.mode === "live" ? loadClip(ui.clip.value) : watchLive());
+  for (const el of [ui.styleA, ui.styleB]) el.onchange = sendTarget;
+  for (const el of [ui.mix, ui.intensity]) el.oninput = sendTarget;
+  ui.play.onclick = () => { playing = !playing; ui.play.textContent = playing ? "pause" : "play"; };
+  ui.scrub.oninput = () => { if (viewer.mode === "clip" && viewer.ready) seek(parseInt(ui.scrub.value, 10)); };
+  if (names.length) loadClip(names[0]);
+}
+main().catch((e) => fail(String(e.message || e)));

@@ -1,0 +1,299 @@
+"""The style server over real sockets: protocol, batching equal to local streaming, control
+messages, live viewers, faults (each closes only its own connection), restart, workers, load."""
+
+import base64
+import json
+import math
+import os
+import signal
+import socket
+import struct
+import time
+import urllib.request
+
+import numpy as np
+import pytest
+from websockets.exceptions import ConnectionClosed
+from websockets.sync.client import connect
+
+from styleerd.model.checkpoint import load_generator
+from styleerd.motion import bvh
+from styleerd.motion.procedural import walk
+from styleerd.runtime.channels import ChannelStylizer
+from styleerd.serve.client import SEQ, hello
+from styleerd.serve.loadtest import free_port, run_load_test, start_server, stop_server
+
+MAX_STREAMS, QUEUE = 6, 8
+
+
+@pytest.fixture(scope="module")
+def server():
+    port = free_port()
+    proc = start_server(port, "--max-streams", str(MAX_STREAMS), "--queue", str(QUEUE), "--max-message", "65536")
+    yield f"ws://127.0.0.1:{port}/", port
+    assert stop_server(proc) == 0
+
+
+@pytest.fixture(scope="module")
+def clip():
+    m = walk(3.0, fps=30.0)
+    return m, bvh.channel_values(m).astype("<f4")
+
+
+def open_stream(url: str, m, **extra):
+    ws = connect(url, open_timeout=20, legacy=True)
+    ws.send(json.dumps({**hello(m, 30.0, "elderly", 1.0, None, None), **extra}))
+    ready = json.loads(ws.recv(timeout=20))
+    assert ready["type"] == "ready", ready
+    return ws, ready
+
+
+def frame(i: int, values: np.ndarray) -> bytes:
+    return SEQ.pack(i) + values.astype("<f4").tobytes()
+
+
+def replies(ws, n: int, timeout: float = 20.0) -> tuple[list[int], list[np.ndarray], list[dict]]:
+    """The next n binary replies (sequence numbers, float32 payloads) and any JSON in between."""
+    seqs, payloads, texts = [], [], []
+    while len(seqs) < n:
+        message = ws.recv(timeout=timeout)
+        if isinstance(message, str):
+            texts.append(json.loads(message))
+            continue
+        seqs.append(SEQ.unpack_from(message)[0])
+        payloads.append(np.frombuffer(message, "<f4", offset=SEQ.size))
+    return seqs, payloads, texts
+
+
+def closed_with(ws, timeout: float = 20.0) -> tuple[int | None, list[dict]]:
+    """Read until the server closes; -> (close code, the JSON messages it sent)."""
+    texts = []
+    try:
+        while True:
+            message = ws.recv(timeout=timeout)
+            if isinstance(message, str):
+                texts.append(json.loads(message))
+    except ConnectionClosed as e:
+        return (e.rcvd.code if e.rcvd else None), texts
+
+
+def test_stream_answers_every_frame_in_order_equal_to_local_streaming(server, clip):
+    url, _ = server
+    m, values = clip
+    ws, ready = open_stream(url, m, input_style="normal", content="walk")
+    assert ready["channels"] == values.shape[1] and ready["joints"] == list(m.skeleton.names) and "Hips" in ready["mapping"]
+    seqs, payloads = [], []
+    for i in range(len(values)):
+        ws.send(frame(i, values[i]))
+        if i % 4 == 3 or i == len(values) - 1:  # a few frames in flight, never more than the queue
+            got, data, _ = replies(ws, i + 1 - len(seqs))
+            seqs += got
+            payloads += data
+    ws.close()
+    assert seqs == list(range(len(values)))
+    local = ChannelStylizer(load_generator()[0], m.skeleton, {"elderly": 1.0}, "normal", "walk", fps=30.0)
+    expected = np.stack([local.step(values[i].astype(np.float64))[0] for i in range(len(values))])
+    assert np.abs(np.stack(payloads) - expected).max() < 1e-2  # degrees: float32 on the wire
+
+
+def test_json_frames_positions_and_style_change_midway(server, clip):
+    url, _ = server
+    m, values = clip
+    ws, ready = open_stream(url, m, format="json", positions=True)
+    J = len(ready["joints"])
+    out = []
+    targets = []
+    for i in range(40):
+        if i == 20:
+            ws.send(json.dumps({"type": "set", "mix": {"feminine": 1, "exhausted": 1}, "intensity": 0.8}))
+        ws.send(json.dumps({"type": "frame", "seq": i, "values": values[i].tolist()}))
+        while True:
+            msg = json.loads(ws.recv(timeout=20))
+            if msg["type"] != "target":
+                break
+            targets.append(msg["weights"])
+        assert msg["type"] == "frame" and msg["seq"] == i
+        assert len(msg["values"]) == values.shape[1] and len(msg["input_positions"]) == len(msg["output_positions"]) == J
+        out.append(msg)
+    assert targets == [{"exhausted": 0.4, "feminine": 0.4, "normal": 0.2}]
+    ws.send(json.dumps({"type": "stats"}))
+    stats = json.loads(ws.recv(timeout=20))
+    assert stats["type"] == "stats" and stats["frames"] >= 40
+    ws.close()
+
+
+def test_a_live_viewer_watches_and_steers_a_stream(server, clip):
+    url, _ = server
+    m, values = clip
+    viewer = connect(url, open_timeout=20, legacy=True)
+    viewer.send(json.dumps({"type": "watch", "stream": "performer"}))
+    assert json.loads(viewer.recv(timeout=20))["type"] == "waiting"
+    ws, ready = open_stream(url, m, name="performer")
+    watching = json.loads(viewer.recv(timeout=20))
+    assert watching["type"] == "watching" and watching["parents"] == ready["parents"]
+    for i in range(10):
+        ws.send(frame(i, values[i]))
+        replies(ws, 1)
+    shown = [viewer.recv(timeout=20) for _ in range(10)]
+    J = len(ready["joints"])
+    assert all(isinstance(s, bytes) and len(s) == 4 + 4 * 6 * J for s in shown)
+    viewer.send(json.dumps({"type": "set", "style": "youthful"}))
+    assert json.loads(viewer.recv(timeout=20)) == {"type": "target", "weights": {"youthful": 1.0}}
+    ws.send(frame(10, values[10]))
+    _, _, texts = replies(ws, 1)
+    assert {"type": "target", "weights": {"youthful": 1.0}} in texts  # the performer is told too
+    ws.close()
+    while isinstance(message := viewer.recv(timeout=20), bytes):  # the last frames shown
+        pass
+    assert json.loads(message) == {"type": "ended", "stream": "performer"}
+    viewer.close()
+
+
+FAULTS = {
+    "bad JSON": (lambda ws, v: ws.send("{not json"), 1008, "bad JSON"),
+    "unknown message": (lambda ws, v: ws.send(json.dumps({"type": "dance"})), 1008, "unknown message type"),
+    "wrong frame length": (lambda ws, v: ws.send(frame(0, v[0][:-1])), 1008, "a binary frame is"),
+    "NaN": (lambda ws, v: ws.send(frame(0, np.where(np.arange(len(v[0])) == 5, np.nan, v[0]))), 1007, "channel 5 is not a finite number"),
+    "oversized payload": (lambda ws, v: ws.send(b"\0" * 70000), 1009, None),
+    "frames faster than real time": (lambda ws, v: [ws.send(frame(i, v[0])) for i in range(400)], 1008, f"more than {QUEUE} frames waiting"),
+    "unknown style": (lambda ws, v: ws.send(json.dumps({"type": "set", "style": "zombie"})), 1008, "valid: active, elderly"),
+}
+
+
+@pytest.mark.parametrize("fault", FAULTS)
+def test_a_faulty_client_is_closed_with_a_clear_code_and_others_go_on(server, clip, fault):
+    url, _ = server
+    m, values = clip
+    act, code, text = FAULTS[fault]
+    good, _ = open_stream(url, m)
+    bad, _ = open_stream(url, m)
+    good.send(frame(0, values[0]))
+    act(bad, values)
+    got, texts = closed_with(bad)
+    assert got == code, (got, texts)
+    if text:
+        assert any(t["type"] == "error" and text in t["message"] for t in texts), texts
+    seqs, payloads, _ = replies(good, 1)
+    for i in range(1, 6):
+        good.send(frame(i, values[i]))
+        s, p, _ = replies(good, 1)
+        seqs += s
+        payloads += p
+    assert seqs == list(range(6)) and all(np.isfinite(p).all() for p in payloads)
+    good.close()
+
+
+def test_hello_problems_and_a_full_server(server, clip):
+    url, port = server
+    m, _ = clip
+    for msg, code, text in [({"type": "hello", "fps": 30}, 1008, "needs 'skeleton'"),
+                            ({**hello(m, 30.0, "zombie", 1.0, None, None)}, 1008, "unknown style 'zombie'"),
+                            ({**hello(m, 5.0, "elderly", 1.0, None, None)}, 1008, "'fps' must be a number in [10, 480]"),
+                            ({"type": "hello", "skeleton": "HIERARCHY\nROOT Hips\n{\n OFFSET 0 0\n}\n", "fps": 30}, 1008, "handshake skeleton:5: joint 'Hips' OFFSET"),
+                            ({"type": "hello", "preset": "model", "fps": 30, "style": "elderly", "input_style": "sleepy"}, 1008, "unknown input_style")]:  # fmt: skip
+        ws = connect(url, open_timeout=20, legacy=True)
+        ws.send(json.dumps(msg))
+        got, texts = closed_with(ws)
+        assert got == code and text in texts[0]["message"], (msg, texts)
+    held = [open_stream(url, m)[0] for _ in range(MAX_STREAMS)]
+    extra = connect(url, open_timeout=20, legacy=True)
+    extra.send(json.dumps(hello(m, 30.0, "elderly", 1.0, None, None)))
+    got, texts = closed_with(extra)
+    assert got == 1013 and "full" in texts[0]["message"]
+    for ws in held:
+        ws.close()
+    time.sleep(0.5)
+    ws, _ = open_stream(url, m)  # slots come back when streams end
+    ws.close()
+
+
+class RawClient:
+    """A WebSocket client on a bare socket (RFC 6455 by hand) that can stop reading, which
+    library clients do not allow: it never reads after the handshake."""
+
+    def __init__(self, port: int):
+        self.sock = socket.create_connection(("127.0.0.1", port))
+        self.sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 4096)
+        key = base64.b64encode(os.urandom(16)).decode()
+        self.sock.sendall(f"GET / HTTP/1.1\r\nHost: 127.0.0.1:{port}\r\nUpgrade: websocket\r\nConnection: Upgrade\r\n"
+                          f"Sec-WebSocket-Key: {key}\r\nSec-WebSocket-Version: 13\r\n\r\n".encode())  # fmt: skip
+        response = b""
+        while b"\r\n\r\n" not in response:
+            response += self.sock.recv(1)
+        assert response.startswith(b"HTTP/1.1 101")
+
+    def send(self, opcode: int, payload: bytes) -> None:
+        mask = os.urandom(4)
+        n = len(payload)
+        head = bytes([0x80 | opcode]) + (bytes([0x80 | n]) if n < 126 else bytes([0x80 | 126]) + struct.pack(">H", n))
+        self.sock.sendall(head + mask + bytes(b ^ mask[i % 4] for i, b in enumerate(payload)))
+
+
+def test_clients_vanishing_mid_stream_and_a_client_that_stops_reading(server, clip):
+    url, port = server
+    m, values = clip
+    for _ in range(MAX_STREAMS + 2):  # more than the server holds: vanished streams must free their slots
+        ws, _ = open_stream(url, m)
+        ws.send(frame(0, values[0]))
+        ws.socket.shutdown(socket.SHUT_RDWR)  # gone without a close handshake
+        ws.socket.close()
+    slow = RawClient(port)  # sends frames at 100 fps and never reads a reply
+    slow.send(0x1, json.dumps({**hello(m, 30.0, "elderly", 1.0, None, "slow"), "positions": True}).encode())
+    def listed() -> bool:
+        return "slow" in urllib.request.urlopen(f"http://127.0.0.1:{port}/streams", timeout=10).read().decode()
+
+    while not listed():
+        time.sleep(0.05)
+    t0 = time.time()
+    closed = False
+    for i in range(3000):  # the server must give up on it within seconds
+        try:
+            slow.send(0x2, frame(i, values[i % len(values)]))
+        except OSError:  # reset by the server
+            closed = True
+            break
+        if i % 10 == 0 and not listed():
+            closed = True
+            break
+        time.sleep(0.01)
+    assert closed and i > QUEUE and time.time() - t0 < 25
+    good, _ = open_stream(url, m)
+    for i in range(5):
+        good.send(frame(i, values[i]))
+        assert replies(good, 1)[0] == [i]
+    good.close()
+
+
+def test_http_pages_and_clips(server):
+    _, port = server
+    page = urllib.request.urlopen(f"http://127.0.0.1:{port}/", timeout=10).read().decode()
+    assert "/static/viewer.js" in page and "cdn" not in page.lower()
+    names = json.loads(urllib.request.urlopen(f"http://127.0.0.1:{port}/clips", timeout=10).read())
+    text = urllib.request.urlopen(f"http://127.0.0.1:{port}/clips/{urllib.request.quote(names[0])}", timeout=10).read().decode()
+    assert bvh.parse(text).n_frames > 100
+    with pytest.raises(urllib.error.HTTPError, match="404"):
+        urllib.request.urlopen(f"http://127.0.0.1:{port}/static/../server.py", timeout=10)
+
+
+def test_server_restart_closes_clients_cleanly_and_workers_share_a_port(clip):
+    m, values = clip
+    port = free_port()
+    proc = start_server(port, "--workers", "2")
+    url = f"ws://127.0.0.1:{port}/"
+    streams = [open_stream(url, m)[0] for _ in range(4)]
+    for ws in streams:
+        ws.send(frame(0, values[0]))
+        assert replies(ws, 1)[0] == [0]
+    proc.send_signal(signal.SIGTERM)
+    for ws in streams:
+        code, _ = closed_with(ws)
+        assert code == 1001  # going away: a clean close
+    assert proc.wait(20) == 0
+
+
+def test_load_reduced_size():
+    """CI size of the load benchmark (full size: benchmarks/bench_serve.py, 200 x 60 s)."""
+    report = run_load_test(clients=20, seconds=4.0)
+    assert "dropped 0, reordered 0" in report and "errors 0" in report, report
+    p99 = float(report.split("p99 ")[1].split(" ms")[0])
+    assert math.isfinite(p99) and p99 < 1000, report
