@@ -53,13 +53,19 @@ async def play(url: str, motion: Motion, hello_msg: dict, seconds: float | None 
     sent_at = np.zeros(total)
     kept = np.zeros((total, values.shape[1]), np.float32) if keep else None
     try:
-        async with connect(url, max_size=1 << 22, open_timeout=20, close_timeout=5) as ws:
+        async with connect(url, max_size=1 << 22, open_timeout=20, close_timeout=5, compression=None) as ws:
             await ws.send(json.dumps(hello_msg))
             ready = json.loads(await ws.recv())
             if ready.get("type") != "ready":
                 raise StyleERDError(f"{url}: the server refused the stream: {ready.get('message', ready)}")
 
             async def receive() -> None:
+                try:
+                    await receive_replies()
+                except ConnectionClosed as e:
+                    result.close_code = e.rcvd.code if e.rcvd else None
+
+            async def receive_replies() -> None:
                 expected = 0
                 async for message in ws:
                     if isinstance(message, str):
@@ -128,7 +134,7 @@ async def server_stats(url: str) -> dict:
     """The server's counters (streams, frames, steps, CPU seconds), through a short stream."""
     from styleerd.motion.procedural import walk
 
-    async with connect(url, open_timeout=20) as ws:
+    async with connect(url, open_timeout=20, compression=None) as ws:
         await ws.send(json.dumps(hello(walk(0.1, fps=30.0), 30.0, "normal", 1.0, None, "stats")))
         await ws.recv()
         await ws.send(json.dumps({"type": "stats"}))

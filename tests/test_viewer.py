@@ -1,0 +1,83 @@
+"""The browser viewer in headless Chromium (Debian's, driven by Playwright): the page loads and
+draws both characters, a style change reaches the server and changes the drawn output, live
+mode shows a stream another client sends; a screenshot is saved."""
+
+import os
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from styleerd.serve.loadtest import free_port, start_server, stop_server
+
+CHROMIUM = shutil.which("chromium") or "/usr/bin/chromium"
+ARGS = ["--no-sandbox", "--disable-gpu", "--use-angle=swiftshader", "--enable-unsafe-swiftshader", "--no-first-run",
+        "--disable-background-networking", "--disable-component-update", "--disable-sync"]  # fmt: skip
+
+pytestmark = pytest.mark.skipif(not Path(CHROMIUM).exists(), reason="Chromium not installed (.ci/run installs Debian's chromium)")
+
+
+@pytest.fixture(scope="module")
+def page():
+    from playwright.sync_api import sync_playwright
+
+    port = free_port()
+    server = start_server(port)
+    with sync_playwright() as p:
+        browser = p.chromium.launch(executable_path=CHROMIUM, args=ARGS)
+        page = browser.new_page(viewport={"width": 1280, "height": 720})
+        errors = []
+        page.on("pageerror", lambda e: errors.append(str(e)))
+        page.goto(f"http://127.0.0.1:{port}/")
+        page.port, page.errors = port, errors
+        yield page
+        browser.close()
+    assert stop_server(server) == 0
+
+
+def drawn_after_restart(page, style: str, frame: int = 40) -> np.ndarray:
+    """Choose a style, wait for the server's confirmation, restart the clip (the stream
+    starts afresh) and return the stylised joint positions drawn at ``frame``."""
+    page.select_option("#styleA", style)
+    page.wait_for_function(f"window.viewer.target && window.viewer.target['{style}'] === 1", timeout=20000)
+    page.eval_on_selector("#scrub", "el => { el.value = 0; el.dispatchEvent(new Event('input')); }")
+    page.wait_for_function(f"window.viewer.drawn.has({frame})", timeout=30000)
+    return np.array(page.evaluate(f"window.viewer.drawn.get({frame})"))
+
+
+def test_page_draws_and_a_style_change_changes_the_output(page, tmp_path):
+    page.wait_for_function("window.viewer && window.viewer.ready && window.viewer.framesDrawn > 20", timeout=60000)
+    assert page.locator("#error").inner_text() == "" and not page.errors
+    assert page.locator("#styleA option").count() == 7 and page.locator("#clip option").count() >= 1
+    neutral = drawn_after_restart(page, "normal")
+    styled = drawn_after_restart(page, "elderly")
+    change = np.linalg.norm((styled - neutral).reshape(-1, 3), axis=-1).mean()
+    height = np.ptp(neutral.reshape(-1, 3)[:, 1])
+    assert change > 0.02 * height, (change, height)  # the output the page drew is a different motion
+    assert "target elderly 1.00" in page.locator("#status").inner_text()
+    page.wait_for_timeout(500)
+    shot = Path(os.environ.get("STYLEERD_SCREENSHOT") or tmp_path / "viewer.png")
+    page.screenshot(path=str(shot))
+    assert shot.stat().st_size > 10000
+
+
+def test_live_mode_shows_a_stream_from_another_client(page, tmp_path):
+    from styleerd.motion import bvh
+    from styleerd.motion.procedural import walk
+
+    bvh.write(tmp_path / "walk.bvh", walk(8.0, fps=30.0))
+    page.click("#live")
+    page.wait_for_function("window.viewer.mode === 'live' && window.viewer.ready", timeout=20000)
+    source = subprocess.Popen([sys.executable, "-m", "styleerd.cli", "stream-bvh", str(tmp_path / "walk.bvh"), "--to", f"ws://127.0.0.1:{page.port}/",
+                               "--style", "feminine"], stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)  # fmt: skip
+    try:
+        page.wait_for_function("window.viewer.stream === 'walk'", timeout=30000)
+        before = page.evaluate("window.viewer.framesDrawn")
+        page.wait_for_function(f"window.viewer.framesDrawn > {before + 30}", timeout=30000)
+        assert "live: walk" in page.locator("#status").inner_text()
+    finally:
+        out, _ = source.communicate(timeout=60)
+    assert source.returncode == 0 and "reordered 0" in out, out
