@@ -297,3 +297,23 @@ def test_load_reduced_size():
     assert "dropped 0, reordered 0" in report and "errors 0" in report, report
     p99 = float(report.split("p99 ")[1].split(" ms")[0])
     assert math.isfinite(p99) and p99 < 1000, report
+
+
+def test_stream_bvh_writes_the_stylised_stream(server, tmp_path):
+    """``styleerd stream-bvh FILE -o OUT.bvh``: the mocap source keeps what came back, a BVH
+    on the input's skeleton with every frame."""
+    import subprocess
+    import sys
+
+    url, _ = server
+    source = walk(2.0, fps=30.0)
+    bvh.write(tmp_path / "in.bvh", source)
+    r = subprocess.run([sys.executable, "-m", "styleerd.cli", "stream-bvh", str(tmp_path / "in.bvh"), "--to", url, "--style", "elderly",
+                        "--input-style", "normal", "--content", "walk", "-o", str(tmp_path / "out.bvh")], capture_output=True, text=True)  # fmt: skip
+    assert r.returncode == 0 and f"received {source.n_frames}, reordered 0" in r.stdout, r.stdout + r.stderr
+    out = bvh.read(tmp_path / "out.bvh")
+    assert out.n_frames == source.n_frames and out.skeleton.names == source.skeleton.names
+    assert np.allclose(out.positions[:, 0], source.positions[:, 0], atol=1e-3)  # root trajectory kept
+    r = subprocess.run([sys.executable, "-m", "styleerd.cli", "stream-bvh", str(tmp_path / "in.bvh"), "--to", "ws://127.0.0.1:9/", "--style", "elderly"],
+                       capture_output=True, text=True)  # fmt: skip
+    assert r.returncode == 2 and "cannot connect" in r.stderr and "Traceback" not in r.stderr

@@ -26,7 +26,26 @@ def identity(shape: tuple[int, ...] = ()) -> np.ndarray:
     return q
 
 
+def _hamilton_table() -> np.ndarray:
+    """``[16, 4]``: mul(a, b)[k] = sum over i, j of a[i] b[j] table[4 i + j, k]."""
+    t = np.zeros((4, 4, 4))
+    for k, terms in enumerate((((1, 0, 0), (-1, 1, 1), (-1, 2, 2), (-1, 3, 3)),
+                               ((1, 0, 1), (1, 1, 0), (1, 2, 3), (-1, 3, 2)),
+                               ((1, 0, 2), (-1, 1, 3), (1, 2, 0), (1, 3, 1)),
+                               ((1, 0, 3), (1, 1, 2), (-1, 2, 1), (1, 3, 0)))):  # fmt: skip
+        for sign, i, j in terms:
+            t[i, j, k] = sign
+    return t.reshape(16, 4)
+
+
+_HAMILTON = _hamilton_table()
+SMALL = 256  # quaternions: below this, per-call overhead dominates and one matmul beats 28 ufunc calls
+
+
 def mul(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    if a.size + b.size <= 8 * SMALL:  # per-frame work: outer product and one matmul (3 numpy calls)
+        ab = a[..., :, None] * b[..., None, :]
+        return ab.reshape(ab.shape[:-2] + (16,)) @ _HAMILTON
     aw, ax, ay, az = a[..., 0], a[..., 1], a[..., 2], a[..., 3]
     bw, bx, by, bz = b[..., 0], b[..., 1], b[..., 2], b[..., 3]
     return np.stack(
@@ -64,6 +83,8 @@ def cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
 
 def mul_vec(q: np.ndarray, v: np.ndarray) -> np.ndarray:
     """Rotate vectors ``v [..., 3]`` by unit quaternions ``q [..., 4]``."""
+    if q.size <= 4 * SMALL and v.size <= 3 * SMALL:  # per-frame work: the rotation matrix, then one matmul
+        return (to_xform(q) @ v[..., None])[..., 0]
     w = q[..., :1]
     u = q[..., 1:]
     t = 2.0 * cross(u, v)
@@ -101,8 +122,27 @@ def from_euler(e: np.ndarray, order: str) -> np.ndarray:
     return q
 
 
+def _xform_table() -> np.ndarray:
+    """``[16, 9]``: to_xform(q) = I + (q q^T, flattened) @ table, the terms below."""
+    t = np.zeros((4, 4, 3, 3))
+    w, x, y, z = range(4)
+    for (r, c), terms in {(0, 0): ((-2, y, y), (-2, z, z)), (0, 1): ((2, x, y), (-2, w, z)), (0, 2): ((2, x, z), (2, w, y)),
+                          (1, 0): ((2, x, y), (2, w, z)), (1, 1): ((-2, x, x), (-2, z, z)), (1, 2): ((2, y, z), (-2, w, x)),
+                          (2, 0): ((2, x, z), (-2, w, y)), (2, 1): ((2, y, z), (2, w, x)), (2, 2): ((-2, x, x), (-2, y, y))}.items():  # fmt: skip
+        for sign, i, j in terms:
+            t[i, j, r, c] = sign
+    return t.reshape(16, 9)
+
+
+_XFORM = _xform_table()
+_EYE3 = np.eye(3)
+
+
 def to_xform(q: np.ndarray) -> np.ndarray:
     """Rotation matrices ``[..., 3, 3]`` of unit quaternions."""
+    if q.size <= 4 * SMALL:  # per-frame work: 4 numpy calls instead of 40
+        qq = q[..., :, None] * q[..., None, :]
+        return _EYE3 + (qq.reshape(qq.shape[:-2] + (16,)) @ _XFORM).reshape(qq.shape[:-2] + (3, 3))
     w, x, y, z = q[..., 0], q[..., 1], q[..., 2], q[..., 3]
     return np.stack(
         [

@@ -490,12 +490,12 @@ def serve_forever(config: ServeConfig, workers: int = 1) -> None:
     ctx = multiprocessing.get_context("spawn")
     events = [ctx.Event() for _ in range(workers)]
     procs = [ctx.Process(target=_worker, args=(config, e), daemon=True) for e in events]
-    for p in procs:
-        p.start()
-    for e in events:
-        e.wait()
-    print(f"styleerd serve: {workers} workers on ws://{config.host}:{config.port}/  viewer: http://{config.host}:{config.port}/")
     try:
+        for p in procs:
+            p.start()
+        for e in events:
+            e.wait()
+        print(f"styleerd serve: {workers} workers on ws://{config.host}:{config.port}/  viewer: http://{config.host}:{config.port}/", flush=True)
         for p in procs:
             p.join()
     except KeyboardInterrupt:
