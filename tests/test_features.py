@@ -41,7 +41,7 @@ def test_streaming_one_frame_at_a_time_equals_whole_clip():
         if prev is None:
             _, prev = forward_kinematics(r, p, m.skeleton.parents)
         ft, tt, prev = pose_features(r, p, prev, m.skeleton, roles, m.fps)
-        assert np.allclose(ft[0], f[t], atol=1e-12) and np.allclose(tt[0], traj[t], atol=1e-12)
+        assert np.allclose(ft[0], f[t], atol=1e-9) and np.allclose(tt[0], traj[t], atol=1e-9)  # two arithmetic paths (small vs whole-clip arrays)
 
 
 def test_features_do_not_depend_on_where_the_character_is_or_faces():
