@@ -64,6 +64,21 @@ def test_page_draws_and_a_style_change_changes_the_output(page, tmp_path):
     assert shot.stat().st_size > 10000
 
 
+def test_an_uploaded_bvh_plays(page, tmp_path):
+    from styleerd.motion import bvh
+    from styleerd.motion.procedural import walk
+
+    bvh.write(tmp_path / "mine.bvh", walk(3.0, fps=30.0))  # 90 frames: the demo clip has 360
+    page.set_input_files("#upload", str(tmp_path / "mine.bvh"))
+    page.wait_for_function("document.getElementById('frame').textContent.endsWith('/ 90')", timeout=30000)
+    before = page.evaluate("window.viewer.framesDrawn")
+    page.wait_for_function(f"window.viewer.framesDrawn > {before + 10}", timeout=30000)
+    assert page.locator("#error").inner_text() == ""
+    (tmp_path / "broken.bvh").write_text("HIERARCHY\nROOT Hips\n")
+    page.set_input_files("#upload", str(tmp_path / "broken.bvh"))
+    page.wait_for_function("document.getElementById('error').textContent.includes('broken.bvh')", timeout=10000)
+
+
 def test_live_mode_shows_a_stream_from_another_client(page, tmp_path):
     from styleerd.motion import bvh
     from styleerd.motion.procedural import walk
