@@ -278,7 +278,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--mix", help="a mixture instead of --style, e.g. elderly=0.5,feminine=0.5 (scaled by --intensity)")
     p.add_argument("--input-style", help="the input's style (default: inferred online from the frames)")
     p.add_argument("--content", help="the input's content, e.g. walk (default: inferred online)")
-    p.add_argument("--backend", default="numpy", choices=["torch", "numpy", "onnx"], help="network step backend (default numpy; torch is the reference)")
+    p.add_argument("--backend", default="numpy", choices=["torch", "numpy", "numba", "onnx"], help="network step backend (default numpy; torch is the reference; numba is the fastest)")
     p.add_argument("--no-cleanup", action="store_true", help="leave the feet as the network outputs them (default: pin planted feet)")
     p.add_argument("--joint-map", help="JSON object {model joint: input joint} completing or overriding the automatic mapping")
     p.add_argument("--model", help="model path without suffix (default: the shipped model)")
@@ -349,7 +349,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--max-streams", type=int, default=256, help="open streams per worker")
     p.add_argument("--max-message", type=int, default=1 << 20, help="largest message in bytes (larger: closed with 1009)")
     p.add_argument("--queue", type=int, default=64, help="per stream: frames waiting, and stylised frames unsent")
-    p.add_argument("--backend", default="numpy", choices=["numpy", "onnx"])
+    p.add_argument("--backend", default="numpy", choices=["numpy", "numba", "onnx"])
     p.add_argument("--data", help="data folder for the viewer's real demo clips (optional)")
     p.set_defaults(func=_serve)
 

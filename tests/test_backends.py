@@ -37,7 +37,7 @@ def test_backends_agree_with_the_torch_reference(model):
             for b in backends.values():
                 b.reset(np.array([1]))  # stream 1 starts over
         ref_rot, ref_vel = backends["torch"].step(x, s, c, w)
-        for name in ("numpy", "onnx"):
+        for name in ("numpy", "numba", "onnx"):
             rot, vel = backends[name].step(x, s, c, w)
             assert np.abs(rot - ref_rot).max() <= 1e-5, (name, t)
             assert np.abs(vel - ref_vel).max() <= 1e-4, (name, t)

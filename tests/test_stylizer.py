@@ -40,7 +40,7 @@ def test_offline_equals_streaming_and_keeps_the_root_trajectory(model):
     assert not np.allclose(g_in[:, 1:], g_out[:, 1:], atol=1e-3)
 
 
-@pytest.mark.parametrize("backend", ["numpy", "onnx"])
+@pytest.mark.parametrize("backend", ["numpy", "numba", "onnx"])
 def test_fast_backends_give_the_reference_output(model, backend):
     m = walking_motion(30)
     ref = stylise_motion(model, m, "normal", "walk", {"old": 0.6, "angry": 0.4}, backend="torch")

@@ -231,7 +231,7 @@ def test_a_stream_whose_content_changes_midway(shared_data, model, tmp_path):
     assert done.labels == ("normal", "wave-both-hands")  # the labeller followed the change
 
 
-@pytest.mark.parametrize("backend", ["numpy", "onnx"])
+@pytest.mark.parametrize("backend", ["numpy", "numba", "onnx"])
 def test_slots_stepped_apart_equal_independent_streams(model, backend):
     """A server's pool: three slots with their own labels (given or inferred) and targets,
     stepped in changing subsets, one slot reset and given to a new stream midway; each slot

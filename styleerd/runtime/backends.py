@@ -1,6 +1,7 @@
 """Backends for the network's per-frame step: ``torch`` (the reference: ``StyleERD.step``),
-``numpy`` (the same arithmetic fused by hand, no framework overhead) and ``onnx``
-(onnxruntime on the exported step graph of ``runtime.onnx_export``).
+``numpy`` (the same arithmetic fused by hand, no framework overhead), ``numba`` (that
+arithmetic compiled: ``runtime.compiled``, the fastest at batch 1) and ``onnx`` (onnxruntime on
+the exported step graph of ``runtime.onnx_export``).
 
 Every backend keeps the recurrent state of N streams itself and has the same semantics as the
 reference: a stream's first frame starts from the learned initial states (neutral branch by
@@ -17,7 +18,7 @@ import torch
 
 from styleerd.model.generator import RecurrentState, StyleERD
 
-BACKENDS = ("torch", "numpy", "onnx")
+BACKENDS = ("torch", "numpy", "numba", "onnx")
 
 
 @dataclass
@@ -213,6 +214,10 @@ def make_backend(name: str, model: StyleERD, n_streams: int):
         from styleerd.errors import StyleERDError
 
         raise StyleERDError(f"unknown backend {name!r}; valid: {', '.join(BACKENDS)}")
+    if name == "numba":
+        from styleerd.runtime.compiled import CompiledBackend  # imports numba: only when asked for
+
+        return CompiledBackend(model, n_streams)
     return {"torch": TorchBackend, "numpy": NumpyBackend, "onnx": OnnxBackend}[name](model, n_streams)
 
 

@@ -1,0 +1,130 @@
+"""The generator's step compiled with numba: the numpy backend's arithmetic (same layout, same
+gate order, same sigmoid) in one compiled call, so a frame pays for its floating-point work and
+not for a hundred numpy dispatches. Batch 1 (one live stream) is where this matters most.
+
+Compiled on first use and cached on disk (``cache=True``), so later processes start at once.
+"""
+
+from __future__ import annotations
+
+import numba as nb
+import numpy as np
+from numba.typed import List
+
+from styleerd.model.generator import StyleERD
+from styleerd.runtime.backends import step_weights
+
+
+@nb.njit(cache=True)
+def _dense(x, w, b, relu):
+    y = x @ w
+    for n in range(y.shape[0]):
+        for j in range(y.shape[1]):
+            v = y[n, j] + b[j]
+            y[n, j] = v if (not relu or v > 0.0) else 0.0
+    return y
+
+
+@nb.njit(cache=True)
+def _sigmoid(v):
+    return 0.5 * np.tanh(0.5 * v) + 0.5
+
+
+@nb.njit(cache=True)
+def _lstm_stack(x, w_in, w_hid, bias, first, count, h, c):
+    """Layers ``first .. first + count - 1`` of the flat weight lists, one step; h, c [L, N, H]
+    updated in place; returns the last layer's output (a copy)."""
+    H = h.shape[2]
+    for i in range(count):
+        g = x @ w_in[first + i] + np.ascontiguousarray(h[i]) @ w_hid[first + i]
+        b = bias[first + i]
+        for n in range(g.shape[0]):
+            for j in range(H):
+                gi = _sigmoid(g[n, j] + b[j])
+                gf = _sigmoid(g[n, H + j] + b[H + j])
+                gg = np.tanh(g[n, 2 * H + j] + b[2 * H + j])
+                go = _sigmoid(g[n, 3 * H + j] + b[3 * H + j])
+                c[i, n, j] = gf * c[i, n, j] + gi * gg
+                h[i, n, j] = go * np.tanh(c[i, n, j])
+        x = np.ascontiguousarray(h[i])
+    return x.copy()
+
+
+@nb.njit(cache=True)
+def step_kernel(x, style, content, target, enc_w, enc_b, lstm_in, lstm_hid, lstm_b, neutral_layers, branch_layers, branch_styles,
+                dec_w, dec_b, h, c, hb, cb, first, neutral_h0, neutral_c0, branch_h0, branch_c0, n_joints):  # fmt: skip
+    N = x.shape[0]
+    for n in range(N):  # a stream's first frame: learned initial states
+        if first[n]:
+            for layer in range(h.shape[0]):
+                for k in range(h.shape[2]):
+                    sh, sc = 0.0, 0.0
+                    for label in range(content.shape[1]):
+                        sh += content[n, label] * neutral_h0[label, layer, k]
+                        sc += content[n, label] * neutral_c0[label, layer, k]
+                    h[layer, n, k], c[layer, n, k] = sh, sc
+            hb[:, :, n, :] = branch_h0
+            cb[:, :, n, :] = branch_c0
+            first[n] = False
+    z = np.concatenate((x, style, content), axis=1)
+    for i in range(len(enc_w)):
+        z = _dense(z, enc_w[i], enc_b[i], i < len(enc_w) - 1)
+    out = _lstm_stack(z, lstm_in, lstm_hid, lstm_b, 0, neutral_layers, h, c)
+    for k in range(len(branch_styles)):
+        s = branch_styles[k]
+        rows = np.nonzero(target[:, s])[0]
+        if len(rows) == 0:
+            continue  # only the branches that are needed run (and advance)
+        hk, ck = np.ascontiguousarray(hb[k][:, rows]), np.ascontiguousarray(cb[k][:, rows])
+        y = _lstm_stack(np.ascontiguousarray(z[rows]), lstm_in, lstm_hid, lstm_b, neutral_layers + k * branch_layers, branch_layers, hk, ck)
+        for r in range(len(rows)):
+            hb[k][:, rows[r]] = hk[:, r]
+            cb[k][:, rows[r]] = ck[:, r]
+            out[rows[r]] += target[rows[r], s] * y[r]
+    y = np.concatenate((out, target), axis=1)
+    for i in range(len(dec_w)):
+        y = _dense(y, dec_w[i], dec_b[i], i < len(dec_w) - 1)
+    rot = y[:, : 4 * n_joints].copy().reshape(N, n_joints, 4)
+    for n in range(N):
+        for j in range(n_joints):
+            norm = max(np.sqrt(np.sum(rot[n, j] ** 2)), 1e-8)
+            rot[n, j] /= norm
+    return rot, y[:, 4 * n_joints :].copy()
+
+
+class CompiledBackend:
+    """The ``numba`` backend: same state layout and semantics as NumpyBackend."""
+
+    def __init__(self, model: StyleERD, n_streams: int):
+        w = step_weights(model)
+        self.n, self.joints, H = n_streams, w.n_joints, w.hidden
+        f32 = lambda a: np.ascontiguousarray(a, dtype=np.float32)  # noqa: E731
+        self.enc_w, self.enc_b = List([f32(a) for a, _ in w.encoder]), List([f32(b) for _, b in w.encoder])
+        stacks = [w.neutral, *w.branches]
+        self.lstm_in = List([f32(a) for layers in stacks for a, _, _ in layers])
+        self.lstm_hid = List([f32(a) for layers in stacks for _, a, _ in layers])
+        self.lstm_b = List([f32(b) for layers in stacks for _, _, b in layers])
+        self.neutral_layers, self.branch_layers = len(w.neutral), len(w.branches[0]) if w.branches else 0
+        self.branch_styles = np.array(w.branch_styles, dtype=np.int64)
+        self.dec_w, self.dec_b = List([f32(a) for a, _ in w.decoder]), List([f32(b) for _, b in w.decoder])
+        self.inits = [f32(a) for a in (*w.neutral_init, *w.branch_init)]
+        self.h = np.zeros((self.neutral_layers, n_streams, H), np.float32)
+        self.c = np.zeros_like(self.h)
+        self.hb = np.zeros((len(w.branches), self.branch_layers, n_streams, H), np.float32)
+        self.cb = np.zeros_like(self.hb)
+        self.first = np.ones(n_streams, dtype=np.bool_)
+
+    def reset(self, streams: np.ndarray | None = None) -> None:
+        self.first[slice(None) if streams is None else streams] = True
+
+    def step(self, x: np.ndarray, style: np.ndarray, content: np.ndarray, target: np.ndarray, rows: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+        x, style, content, target = (np.ascontiguousarray(a, dtype=np.float32) for a in (x, style, content, target))
+        if rows is None:
+            state = (self.h, self.c, self.hb, self.cb, self.first)
+        else:
+            state = (self.h[:, rows], self.c[:, rows], self.hb[:, :, rows], self.cb[:, :, rows], self.first[rows])
+        out = step_kernel(x, style, content, target, self.enc_w, self.enc_b, self.lstm_in, self.lstm_hid, self.lstm_b, self.neutral_layers,
+                          self.branch_layers, self.branch_styles, self.dec_w, self.dec_b, *state, *self.inits, self.joints)  # fmt: skip
+        if rows is not None:
+            self.h[:, rows], self.c[:, rows], self.hb[:, :, rows], self.cb[:, :, rows], self.first[rows] = state
+        return out
