@@ -1,4 +1,4 @@
-"""The numpy and onnxruntime step backends against the torch reference: same outputs (<= 1e-5)
+"""The numpy, numba and onnxruntime step backends against the torch reference: same outputs (<= 1e-5)
 over streams that start, switch styles, mix, and restart."""
 
 import numpy as np
@@ -80,3 +80,20 @@ def test_numpy_labeller_equals_the_torch_labeller():
         p_style, p_content, fast.h = fast.step(x[:, t])
         assert np.abs(p_style - s_logits[:, t].softmax(-1).numpy()).max() < 1e-5
         assert np.abs(p_content - c_logits[:, t].softmax(-1).numpy()).max() < 1e-5
+
+
+def test_numba_backend_switches_paths_by_batch_on_one_state(model):
+    """Few streams run compiled, many run numpy's arithmetic; both on the same state."""
+    c = model.config
+    ref, fast = make_backend("numpy", model, 8), make_backend("numba", model, 8)
+    rng = np.random.default_rng(3)
+    style = np.eye(len(c.styles), dtype=np.float32)[rng.integers(0, len(c.styles), 8)]
+    content = np.eye(len(c.contents), dtype=np.float32)[rng.integers(0, len(c.contents), 8)]
+    target = np.eye(len(c.styles), dtype=np.float32)[rng.integers(0, len(c.styles), 8)]
+    for t in range(12):
+        rows = None if t % 3 == 0 else np.sort(rng.choice(8, size=2, replace=False))  # 8 streams, then 2
+        sel = slice(None) if rows is None else rows
+        x = rng.normal(0, 1, (8 if rows is None else 2, c.feature_dim)).astype(np.float32)
+        want = ref.step(x, style[sel], content[sel], target[sel], rows)
+        got = fast.step(x, style[sel], content[sel], target[sel], rows)
+        assert np.abs(got[0] - want[0]).max() <= 1e-5 and np.abs(got[1] - want[1]).max() <= 1e-4, t
