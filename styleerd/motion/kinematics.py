@@ -6,6 +6,7 @@ about +Y that turns +Z into the character's facing direction on the ground plane
 
 from __future__ import annotations
 
+import numba as nb
 import numpy as np
 
 from styleerd.motion import quat
@@ -15,53 +16,46 @@ FORWARD = np.array([0.0, 0.0, 1.0])
 
 
 def forward_kinematics(rotations: np.ndarray, positions: np.ndarray, parents: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Global rotations ``[..., J, 4]`` and positions ``[..., J, 3]`` from local ones.
-    ``parents`` must list parents before children (``parents[0] == -1``). Joints of one depth
-    are done together, so the Python loop runs once per level, not once per joint."""
-    parents = np.asarray(parents)
-    g_rot = np.empty(rotations.shape, dtype=np.result_type(rotations, float))
-    g_pos = np.empty(positions.shape, dtype=np.result_type(positions, float))
-    levels = depth_levels(parents)
-    g_rot[..., levels[0], :] = rotations[..., levels[0], :]
-    g_pos[..., levels[0], :] = positions[..., levels[0], :]
-    for joints in levels[1:]:
-        p = parents[joints]
-        g_pos[..., joints, :] = quat.mul_vec(g_rot[..., p, :], positions[..., joints, :]) + g_pos[..., p, :]
-        g_rot[..., joints, :] = quat.mul(g_rot[..., p, :], rotations[..., joints, :])
-    return g_rot, g_pos
+    """Global rotations ``[..., J, 4]`` and positions ``[..., J, 3]`` (float64) from local
+    ones (leading axes broadcast). ``parents`` must list parents before children
+    (``parents[0] == -1``). One compiled loop over poses and joints: per-frame calls cost
+    microseconds, whole clips run at memory speed."""
+    rotations, positions = np.asarray(rotations), np.asarray(positions)
+    J = rotations.shape[-2]
+    lead = np.broadcast_shapes(rotations.shape[:-2], positions.shape[:-2])
+    rot = np.ascontiguousarray(np.broadcast_to(rotations, lead + (J, 4)), dtype=np.float64).reshape(-1, J, 4)
+    pos = np.ascontiguousarray(np.broadcast_to(positions, lead + (J, 3)), dtype=np.float64).reshape(-1, J, 3)
+    g_rot, g_pos = np.empty_like(rot), np.empty_like(pos)
+    _forward_kernel(rot, pos, np.asarray(parents, dtype=np.int64), g_rot, g_pos)
+    return g_rot.reshape(lead + (J, 4)), g_pos.reshape(lead + (J, 3))
 
 
-_LEVELS: dict[bytes, list[np.ndarray]] = {}
-
-
-def depth_levels(parents: np.ndarray) -> list[np.ndarray]:
-    """Joint indices grouped by depth below the root (root first): each group's parents are
-    all in earlier groups, so a group can be processed at once. Cached per hierarchy."""
-    parents = np.asarray(parents, dtype=np.int64)
-    key = parents.tobytes()
-    if key not in _LEVELS:
-        depth = np.zeros(len(parents), dtype=np.int64)
-        for j in range(1, len(parents)):
-            depth[j] = depth[parents[j]] + 1
-        _LEVELS[key] = [np.nonzero(depth == d)[0] for d in range(depth.max() + 1)]
-    return _LEVELS[key]
+@nb.njit(cache=True)
+def _forward_kernel(rot, pos, parents, g_rot, g_pos):
+    for b in range(rot.shape[0]):
+        for j in range(rot.shape[1]):
+            p = parents[j]
+            if p < 0:
+                g_rot[b, j] = rot[b, j]
+                g_pos[b, j] = pos[b, j]
+                continue
+            w, x, y, z = g_rot[b, p, 0], g_rot[b, p, 1], g_rot[b, p, 2], g_rot[b, p, 3]
+            vx, vy, vz = pos[b, j, 0], pos[b, j, 1], pos[b, j, 2]
+            # v + w t + u x t with t = 2 u x v: the parent's rotation applied to the offset
+            tx, ty, tz = 2.0 * (y * vz - z * vy), 2.0 * (z * vx - x * vz), 2.0 * (x * vy - y * vx)
+            g_pos[b, j, 0] = vx + w * tx + (y * tz - z * ty) + g_pos[b, p, 0]
+            g_pos[b, j, 1] = vy + w * ty + (z * tx - x * tz) + g_pos[b, p, 1]
+            g_pos[b, j, 2] = vz + w * tz + (x * ty - y * tx) + g_pos[b, p, 2]
+            rw, rx, ry, rz = rot[b, j, 0], rot[b, j, 1], rot[b, j, 2], rot[b, j, 3]
+            g_rot[b, j, 0] = w * rw - x * rx - y * ry - z * rz
+            g_rot[b, j, 1] = w * rx + x * rw + y * rz - z * ry
+            g_rot[b, j, 2] = w * ry - x * rz + y * rw + z * rx
+            g_rot[b, j, 3] = w * rz + x * ry - y * rx + z * rw
 
 
 def forward_positions(rotations: np.ndarray, positions: np.ndarray, parents: np.ndarray) -> np.ndarray:
-    """Global joint positions ``[..., J, 3]`` only (the common need of per-frame work): the
-    same values as ``forward_kinematics``, with rotation matrices, one depth level at a time."""
-    parents = np.asarray(parents)
-    local = quat.to_xform(rotations)
-    g_rot = np.empty_like(local)
-    g_pos = np.empty(positions.shape, dtype=np.result_type(positions, local))
-    levels = depth_levels(parents)
-    g_rot[..., levels[0], :, :] = local[..., levels[0], :, :]
-    g_pos[..., levels[0], :] = positions[..., levels[0], :]
-    for joints in levels[1:]:
-        p = parents[joints]
-        g_pos[..., joints, :] = (g_rot[..., p, :, :] @ positions[..., joints, :, None])[..., 0] + g_pos[..., p, :]
-        g_rot[..., joints, :, :] = g_rot[..., p, :, :] @ local[..., joints, :, :]
-    return g_pos
+    """Global joint positions ``[..., J, 3]`` only (the common need of per-frame work)."""
+    return forward_kinematics(rotations, positions, parents)[1]
 
 
 def facing_directions(
