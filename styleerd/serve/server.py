@@ -197,6 +197,8 @@ class StyleServer:
         pool = stream.pool
         if pool.streams.pop(stream.row, None) is not None:
             pool.free.append(stream.row)
+        if not pool.streams:  # a skeleton nobody streams any more holds no memory
+            self.pools = {k: p for k, p in self.pools.items() if p is not pool}
         for w in list(stream.watchers):
             w.stream = None
             _offer(w.outbox, json.dumps({"type": "ended", "stream": stream.name}))
