@@ -19,7 +19,7 @@ from styleerd.atomic import atomic_write_text
 from styleerd.errors import StyleERDError
 from styleerd.motion import quat
 from styleerd.motion.motion import Motion
-from styleerd.motion.skeleton import CHANNELS, POSITION_CHANNELS, Skeleton
+from styleerd.motion.skeleton import CHANNELS, Skeleton
 
 _CANONICAL = {c.lower(): c for c in CHANNELS}
 
@@ -308,15 +308,9 @@ def motion_from_channels(skeleton: Skeleton, values: np.ndarray, fps: float) -> 
     rotations = np.empty((T, J, 4))
     positions = np.broadcast_to(skeleton.offsets, (T, J, 3)).copy()
     hint = np.zeros((T, J, 3))
-    col = 0
-    for j, chans in enumerate(skeleton.channels):
-        order = skeleton.rotation_order(j)
-        for c in chans:
-            if c in POSITION_CHANNELS:
-                positions[:, j, POSITION_CHANNELS.index(c)] = values[:, col]
-            else:
-                hint[:, j, order.index(c[0].lower())] = values[:, col]
-            col += 1
+    pos_col, pos_joint, pos_axis, rot_col, rot_joint, rot_slot = skeleton.channel_layout
+    positions[:, pos_joint, pos_axis] = values[:, pos_col]
+    hint[:, rot_joint, rot_slot] = values[:, rot_col]
     for order, joints in skeleton.joints_by_order.items():  # one conversion per Euler order
         rotations[:, joints] = quat.from_euler(np.radians(hint[:, joints]), order)
     return Motion(skeleton, rotations, positions, fps, euler_hint=hint)
@@ -350,15 +344,11 @@ def channel_values(motion: Motion) -> np.ndarray:
         else:
             e = quat.nearest_euler(e, np.radians(motion.euler_hint[:, joints]))
         angles[:, joints] = np.degrees(e)
-    columns = []
-    for j, chans in enumerate(sk.channels):
-        order = sk.rotation_order(j)
-        for c in chans:
-            if c in POSITION_CHANNELS:
-                columns.append(motion.positions[:, j, POSITION_CHANNELS.index(c)])
-            else:
-                columns.append(angles[:, j, order.index(c[0].lower())])
-    return np.stack(columns, axis=-1) if columns else np.zeros((motion.n_frames, 0))
+    pos_col, pos_joint, pos_axis, rot_col, rot_joint, rot_slot = sk.channel_layout
+    out = np.empty(motion.rotations.shape[:1] + (len(pos_col) + len(rot_col),))
+    out[:, pos_col] = motion.positions[:, pos_joint, pos_axis]
+    out[:, rot_col] = angles[:, rot_joint, rot_slot]
+    return out
 
 
 def format_header(skeleton: Skeleton, n_frames: int, fps: float, precision: int = 9) -> str:

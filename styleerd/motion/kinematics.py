@@ -21,10 +21,12 @@ def forward_kinematics(rotations: np.ndarray, positions: np.ndarray, parents: np
     (``parents[0] == -1``). One compiled loop over poses and joints: per-frame calls cost
     microseconds, whole clips run at memory speed."""
     rotations, positions = np.asarray(rotations), np.asarray(positions)
-    J = rotations.shape[-2]
-    lead = np.broadcast_shapes(rotations.shape[:-2], positions.shape[:-2])
-    rot = np.ascontiguousarray(np.broadcast_to(rotations, lead + (J, 4)), dtype=np.float64).reshape(-1, J, 4)
-    pos = np.ascontiguousarray(np.broadcast_to(positions, lead + (J, 3)), dtype=np.float64).reshape(-1, J, 3)
+    J, lead = rotations.shape[-2], rotations.shape[:-2]
+    if positions.shape[:-2] != lead:
+        lead = np.broadcast_shapes(lead, positions.shape[:-2])
+        rotations, positions = np.broadcast_to(rotations, lead + (J, 4)), np.broadcast_to(positions, lead + (J, 3))
+    rot = np.ascontiguousarray(rotations, dtype=np.float64).reshape(-1, J, 4)
+    pos = np.ascontiguousarray(positions, dtype=np.float64).reshape(-1, J, 3)
     g_rot, g_pos = np.empty_like(rot), np.empty_like(pos)
     _forward_kernel(rot, pos, np.asarray(parents, dtype=np.int64), g_rot, g_pos)
     return g_rot.reshape(lead + (J, 4)), g_pos.reshape(lead + (J, 3))
@@ -67,8 +69,8 @@ def facing_directions(
     Per frame, so causal. A frame whose across vector is (nearly) vertical keeps the frame
     before's direction (``previous`` for the first frame, else +Z), which is still causal."""
     across = (global_positions[..., left, :] - global_positions[..., right, :]).sum(axis=-2)
-    forward = np.cross(across, UP)
-    forward[..., 1] = 0.0
+    forward = np.zeros_like(across)  # across x up, written out for up = +Y: (-z, 0, x)
+    forward[..., 0], forward[..., 2] = -across[..., 2], across[..., 0]
     norm = np.linalg.norm(forward, axis=-1, keepdims=True)
     ok = norm[..., 0] > 1e-6 * np.maximum(1.0, np.linalg.norm(across, axis=-1))
     out = forward / np.where(ok[..., None], norm, 1.0)

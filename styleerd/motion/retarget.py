@@ -18,6 +18,7 @@ lengths. BVH world axes are assumed Y up (the convention of CMU, Xia, Mixamo and
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import cached_property
 
 import numpy as np
 
@@ -116,6 +117,36 @@ class JointMap:
     source_tpose: np.ndarray  # [Js, 4] global rotations of the source in the T-pose
     target_tpose: np.ndarray  # [Jt, 4]
     scale: float  # target units per source unit (ratio of leg lengths)
+
+    @cached_property
+    def joints(self) -> tuple[np.ndarray, np.ndarray]:
+        """(target joints, source joints) of the pairs, as index arrays."""
+        t_idx, s_idx = (np.array(x) for x in zip(*self.pairs))
+        return t_idx, s_idx
+
+    @cached_property
+    def to_target_offsets(self) -> np.ndarray:
+        """Per pair, what turns the source joint's global rotation into the target's."""
+        t_idx, s_idx = self.joints
+        return quat.mul(quat.inv(self.source_tpose[s_idx]), self.target_tpose[t_idx])
+
+    @cached_property
+    def to_source_offsets(self) -> np.ndarray:
+        t_idx, s_idx = self.joints
+        return quat.mul(quat.inv(self.target_tpose[t_idx]), self.source_tpose[s_idx])
+
+    @cached_property
+    def target_only(self) -> list[tuple[int, int, np.ndarray]]:
+        """Target joints with no counterpart, parents first: (joint, parent, the T-pose rotation
+        relative to the parent, or the global one for a root)."""
+        mapped = set(self.joints[0].tolist())
+        out = []
+        for j in range(self.target.n_joints):
+            if j not in mapped:
+                p = int(self.target.parents[j])
+                rel = quat.mul(quat.inv(self.target_tpose[p]), self.target_tpose[j]) if p >= 0 else self.target_tpose[j]
+                out.append((j, p, rel))
+        return out
 
     def describe(self) -> str:
         lines = [f"  {self.target.names[t]:>14} <- {self.source.names[s]}" for t, s in self.pairs]
@@ -220,14 +251,13 @@ def to_target(motion: Motion, jm: JointMap) -> Motion:
     src, tgt = jm.source, jm.target
     g_rot, g_pos = forward_kinematics(motion.rotations, motion.positions, src.parents)
     T = motion.n_frames
-    t_idx, s_idx = (np.array(x) for x in zip(*jm.pairs))
+    t_idx, s_idx = jm.joints
     out = np.empty((T, tgt.n_joints, 4))
-    out[:, t_idx] = quat.mul(g_rot[:, s_idx], quat.mul(quat.inv(jm.source_tpose[s_idx]), jm.target_tpose[t_idx]))
-    for j in sorted(set(range(tgt.n_joints)) - set(t_idx.tolist())):  # no counterpart: the target's T-pose relation to its parent
-        p = tgt.parents[j]
-        out[:, j] = quat.mul(out[:, p], quat.mul(quat.inv(jm.target_tpose[p]), jm.target_tpose[j])) if p >= 0 else jm.target_tpose[j]
+    out[:, t_idx] = quat.mul(g_rot[:, s_idx], jm.to_target_offsets)
+    for j, p, rel in jm.target_only:  # no counterpart: the target's T-pose relation to its parent
+        out[:, j] = quat.mul(out[:, p], rel) if p >= 0 else rel
     pos = np.broadcast_to(tgt.offsets, (T, tgt.n_joints, 3)).copy()
-    pos[:, 0] = g_pos[:, dict(jm.pairs)[0]] * jm.scale
+    pos[:, 0] = g_pos[:, s_idx[0]] * jm.scale  # pairs are sorted by target joint; the hips (joint 0) are always mapped
     return Motion(tgt, _local_from_global(out, tgt.parents), pos, motion.fps)
 
 
@@ -237,9 +267,9 @@ def to_source(target_motion: Motion, jm: JointMap, source_motion: Motion) -> Mot
     translations (the root path included) are ``source_motion``'s."""
     src, tgt = jm.source, jm.target
     g_tgt, _ = forward_kinematics(target_motion.rotations, target_motion.positions, tgt.parents)
-    t_idx, s_idx = (np.array(x) for x in zip(*jm.pairs))
+    t_idx, s_idx = jm.joints
     g = np.empty((target_motion.n_frames, src.n_joints, 4))
-    g[:, s_idx] = quat.mul(g_tgt[:, t_idx], quat.mul(quat.inv(jm.target_tpose[t_idx]), jm.source_tpose[s_idx]))
+    g[:, s_idx] = quat.mul(g_tgt[:, t_idx], jm.to_source_offsets)
     for s in sorted(set(range(src.n_joints)) - set(s_idx.tolist())):  # parents first: their globals are ready
         p = src.parents[s]
         g[:, s] = quat.mul(g[:, p], source_motion.rotations[:, s]) if p >= 0 else source_motion.rotations[:, s]

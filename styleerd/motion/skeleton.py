@@ -68,6 +68,24 @@ class Skeleton:
             groups.setdefault(order, []).append(j)
         return {order: np.array(joints) for order, joints in groups.items()}
 
+    @cached_property
+    def channel_layout(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """Where each channel goes, as index arrays: (position columns, their joints, their
+        axes, rotation columns, their joints, their slots in the joint's Euler order), so a
+        frame's values are scattered or gathered in two numpy calls."""
+        layout: tuple[list[int], ...] = ([], [], [], [], [], [])
+        col = 0
+        for j, chans in enumerate(self.channels):
+            for c in chans:
+                if c in POSITION_CHANNELS:
+                    for k, v in enumerate((col, j, POSITION_CHANNELS.index(c))):
+                        layout[k].append(v)
+                else:
+                    for k, v in enumerate((col, j, self.rotation_orders[j].index(c[0].lower()))):
+                        layout[3 + k].append(v)
+                col += 1
+        return tuple(np.array(a, dtype=np.int64) for a in layout)
+
     def has_positions(self, j: int) -> bool:
         return any(c in POSITION_CHANNELS for c in self.channels[j])
 
