@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import asyncio
 import json
+import logging
 import mimetypes
 import multiprocessing
 import signal
@@ -48,6 +49,7 @@ SEQ = struct.Struct("<I")  # binary frames start with the frame's sequence numbe
 # close codes (RFC 6455)
 NORMAL, GOING_AWAY, INVALID_DATA, POLICY, TOO_BIG, TRY_LATER = 1000, 1001, 1007, 1008, 1009, 1013
 HELLO_TIMEOUT_S = 10.0
+log = logging.getLogger("styleerd.serve")
 SEND_BUFFER = 1 << 16  # bytes of kernel send buffer per connection
 
 
@@ -190,9 +192,11 @@ class StyleServer:
         for w in self.watchers:
             if w.stream is None and self._follows(w, stream):
                 self._attach(w, stream)
+        log.info("stream %d %r opened: %d joints, %g fps, target %s", stream.id, stream.name, skeleton.n_joints, fps, target)
         return stream
 
     def _close_stream(self, stream: Stream) -> None:
+        log.info("stream %d %r closed after %d frames (%s)", stream.id, stream.name, stream.frames, stream.ws.close_code)
         self.streams.pop(stream.id, None)
         pool = stream.pool
         if pool.streams.pop(stream.row, None) is not None:
@@ -235,6 +239,7 @@ class StyleServer:
             async for message in ws:
                 self._receive(stream, message)
         except ClientError as e:
+            log.info("refused %s: %d %s", ws.remote_address, e.code, e)
             await _refuse(ws, e.code, str(e))
         except ConnectionClosed:
             pass
@@ -476,12 +481,20 @@ async def run_server(config: ServeConfig, reuse_port: bool = False, ready: "mult
     stepper.cancel()
 
 
+def _setup_logging() -> None:
+    """One line per stream opened, closed or refused; websockets' own chatter only when wrong."""
+    logging.basicConfig(level=logging.INFO, format="%(asctime)s %(process)d %(message)s")
+    logging.getLogger("websockets").setLevel(logging.WARNING)
+
+
 def _worker(config: ServeConfig, ready) -> None:
+    _setup_logging()
     asyncio.run(run_server(config, reuse_port=True, ready=ready, announce=lambda _: None))
 
 
 def serve_forever(config: ServeConfig, workers: int = 1) -> None:
     """``workers`` processes on one port (SO_REUSEPORT: the kernel spreads connections)."""
+    _setup_logging()
     if workers <= 1:
         asyncio.run(run_server(config))
         return
