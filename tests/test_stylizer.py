@@ -90,6 +90,10 @@ def test_bad_frame_is_rejected_and_state_kept(model):
     bad[3, 1] = np.nan
     with pytest.raises(StyleERDError, match="joint 'Head'"):
         s.step(m.rotations[1], bad)
+    absurd = m.positions[1].copy()
+    absurd[0] = 1e30  # finite, but the network would overflow
+    with pytest.raises(StyleERDError, match="too large to stylise"):
+        s.step(m.rotations[1], absurd)
     assert np.array_equal(s.step(m.rotations[1], m.positions[1])[0], ref.step(m.rotations[1], m.positions[1])[0])
 
 

@@ -30,6 +30,9 @@ from styleerd.motion.skeleton import BodyRoles
 from styleerd.runtime.backends import NumpyLabeller, make_backend
 
 
+MAX_FEATURE = 1e6
+
+
 def label_vector(names: tuple[str, ...], weights: dict[str, float], what: str) -> np.ndarray:
     """{"elderly": 0.7, "normal": 0.3} -> weights in the model's label order."""
     v = np.zeros(len(names))
@@ -182,7 +185,12 @@ class StreamStylizer:
         if not started.all():
             previous[~started] = forward_positions(rotations[~started], positions[~started], self.skeleton.parents)
         feats, traj, g = pose_features(rotations, positions, previous, self.skeleton, self.roles, self.fps)
-        x = self.stats.normalize(feats).astype(np.float32)
+        with np.errstate(over="ignore", invalid="ignore"):
+            x = self.stats.normalize(feats).astype(np.float32)
+        absurd = ~(np.abs(x) < MAX_FEATURE).all(-1)  # normalised features are O(1); 1e6 is input in the wrong units or garbage
+        if absurd.any():  # refused before any state changes: the network would overflow
+            bad = int(np.nonzero(absurd)[0][0])
+            raise StyleERDError(f"frame rejected: stream {sel[bad]}: its values are too large to stylise")
         style, content = self.given_style[sel], self.given_content[sel]
         if self.labeller is not None:
             p_style, p_content, labeller_state = self.labeller.step(x, None if rows is None else sel)

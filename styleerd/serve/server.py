@@ -47,7 +47,7 @@ STATIC = Path(__file__).parent / "static"
 SEQ = struct.Struct("<I")  # binary frames start with the frame's sequence number
 
 # close codes (RFC 6455)
-NORMAL, GOING_AWAY, INVALID_DATA, POLICY, TOO_BIG, TRY_LATER = 1000, 1001, 1007, 1008, 1009, 1013
+GOING_AWAY, INVALID_DATA, POLICY, INTERNAL, TRY_LATER = 1001, 1007, 1008, 1011, 1013  # 1009 (too big) is websockets' own
 HELLO_TIMEOUT_S = 10.0
 log = logging.getLogger("styleerd.serve")
 SEND_BUFFER = 1 << 16  # bytes of kernel send buffer per connection
@@ -310,15 +310,34 @@ class StyleServer:
         rows = np.array([s.row for s in streams])
         items = [s.pending.popleft() for s in streams]
         values = np.stack([v for _, v in items])
-        out = pool.stylizer.step(values, rows)
+        try:
+            out = pool.stylizer.step(values, rows)
+        except StyleERDError:  # a frame the stylizer refuses (no state changed): find it, end only its stream
+            out = np.full_like(values, np.nan)
+            for i, stream in enumerate(streams):
+                try:
+                    out[i] = pool.stylizer.step(values[i : i + 1], rows[i : i + 1])[0]
+                except StyleERDError as e:
+                    self._fail(stream, INVALID_DATA, f"frame {items[i][0]}: {e}")
+        except Exception:  # a bug must not stop every other stream: these streams end, the server goes on
+            log.exception("step failed for streams %s", [s.id for s in streams])
+            for stream in streams:
+                self._fail(stream, INTERNAL, "internal error while stylising this stream")
+            return
         self.steps += 1
         self.frames += len(streams)
-        wants = [i for i, s in enumerate(streams) if s.positions or s.watchers]
+        bad = ~np.isfinite(out).all(axis=1)
+        for i in np.nonzero(bad)[0]:
+            if not streams[i].closing:
+                self._fail(streams[i], INTERNAL, f"frame {items[i][0]}: the stylised frame is not finite")
+        wants = [i for i, s in enumerate(streams) if (s.positions or s.watchers) and not bad[i]]
         if wants:
-            fk = lambda v: forward_positions(*_local(pool.skeleton, v, pool.stylizer.fps), pool.skeleton.parents).astype(np.float32)  # noqa: E731
-            seen, made = fk(values[wants]), fk(out[wants])
+            seen = _joint_positions(pool.skeleton, values[wants], pool.stylizer.fps)
+            made = _joint_positions(pool.skeleton, out[wants], pool.stylizer.fps)
             positions = {i: (seen[k], made[k]) for k, i in enumerate(wants)}
         for i, (stream, (seq, _)) in enumerate(zip(streams, items)):
+            if bad[i]:
+                continue
             pos = positions.get(i) if wants else None
             if stream.binary:
                 parts = [SEQ.pack(seq), out[i].astype("<f4").tobytes()]
@@ -331,11 +350,15 @@ class StyleServer:
                     reply["input_positions"], reply["output_positions"] = np.round(pos[0], 4).tolist(), np.round(pos[1], 4).tolist()
                 message = json.dumps(reply)
             if not _offer(stream.outbox, message):
-                stream.closing = True
-                stream.pending.clear()
-                asyncio.ensure_future(_refuse(stream.ws, POLICY, f"more than {self.config.queue} stylised frames unsent: the client does not read"))
+                self._fail(stream, POLICY, f"more than {self.config.queue} stylised frames unsent: the client does not read")
             for w in stream.watchers:
                 _offer(w.outbox, SEQ.pack(seq) + pos[0].astype("<f4").tobytes() + pos[1].astype("<f4").tobytes(), drop_oldest=True)
+
+    def _fail(self, stream: Stream, code: int, message: str) -> None:
+        """End a stream from the stepping task: its frames stop here, the client is told."""
+        stream.closing = True
+        stream.pending.clear()
+        asyncio.ensure_future(_refuse(stream.ws, code, message))
 
     # ---- live viewers ----
 
@@ -417,9 +440,10 @@ def _response(status: HTTPStatus, body: bytes, kind: str) -> Response:
     return Response(status.value, status.phrase, headers, body)
 
 
-def _local(skeleton: Skeleton, values: np.ndarray, fps: float) -> tuple[np.ndarray, np.ndarray]:
+def _joint_positions(skeleton: Skeleton, values: np.ndarray, fps: float) -> np.ndarray:
+    """Global joint positions ``[N, J, 3]`` (float32) of channel values ``[N, channels]``."""
     m = bvh.motion_from_channels(skeleton, values, fps)
-    return m.rotations, m.positions
+    return forward_positions(m.rotations, m.positions, skeleton.parents).astype(np.float32)
 
 
 def _json(message: bytes | str) -> dict:
