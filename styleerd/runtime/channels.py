@@ -54,8 +54,8 @@ class ChannelStylizer:
     def step(self, values: np.ndarray, rows=None) -> np.ndarray:
         """Channel values ``[N, n_channels]`` (or ``[n_channels]`` for one stream) of this
         frame -> the stylised frame's values, same layout; of every stream, or of the streams
-        ``rows`` only. Non-finite values are rejected with an error and leave every state
-        unchanged."""
+        ``rows`` only. Non-finite or absurd values are rejected with an error and leave every
+        state unchanged."""
         n = self.n if rows is None else len(rows)
         values = np.asarray(values, dtype=np.float64).reshape(n, self.n_channels)
         if not (np.abs(values) < MAX_CHANNEL).all():  # NaN, inf, or absurd (wrong units, garbage)

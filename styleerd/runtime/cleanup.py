@@ -45,17 +45,15 @@ class FootLock:
         leg = np.linalg.norm(P[self.legs[0, 1]] - P[self.legs[0, 0]]) + np.linalg.norm(P[self.legs[0, 2]] - P[self.legs[0, 1]])
         self.max_speed = contact_speed * leg
         self.n, self.release_frames = n_streams, max(1, release_frames)
-        self.reset()
+        self.previous = np.zeros((n_streams, 2, 3))  # input ankles of the last frame (once started)
+        self.anchor = np.zeros((n_streams, 2, 3))  # where a planted foot is held (while planted)
+        self.since_release = np.full((n_streams, 2), self.release_frames)  # frames since a contact ended
+        self.planted = np.zeros((n_streams, 2), dtype=bool)
+        self.started = np.zeros(n_streams, dtype=bool)
 
     def reset(self, streams=None) -> None:
         """Forget the past of some (default all) streams."""
         rows = slice(None) if streams is None else np.asarray(streams, dtype=int)
-        if streams is None:
-            self.previous = np.zeros((self.n, 2, 3))  # input ankles of the last frame
-            self.anchor = np.zeros((self.n, 2, 3))
-            self.since_release = np.full((self.n, 2), self.release_frames)  # frames since a contact ended
-            self.planted = np.zeros((self.n, 2), dtype=bool)
-            self.started = np.zeros(self.n, dtype=bool)
         self.since_release[rows], self.planted[rows], self.started[rows] = self.release_frames, False, False
 
     def step(self, rotations: np.ndarray, positions: np.ndarray, input_rotations: np.ndarray, input_positions: np.ndarray, rows=None) -> np.ndarray:

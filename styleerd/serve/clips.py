@@ -4,6 +4,8 @@ copied into the project)."""
 
 from __future__ import annotations
 
+from urllib.parse import unquote
+
 from styleerd.data.datasets import data_root, find_clips
 from styleerd.data.windows import split_takes
 from styleerd.errors import StyleERDError
@@ -33,8 +35,6 @@ class DemoClips:
         return list(self.generated) + list(self.paths)
 
     def bvh_text(self, name: str) -> str | None:
-        from urllib.parse import unquote
-
         name = unquote(name)
         if name in self.generated:
             return bvh.format_bvh(walk(12.0, fps=30.0), precision=5)
