@@ -172,13 +172,14 @@ class StreamStylizer:
     def step(self, rotations: np.ndarray, positions: np.ndarray, rows=None) -> tuple[np.ndarray, np.ndarray]:
         """One frame of every stream (or of the streams ``rows``) -> the stylised frame. A
         frame with NaN/inf is rejected with an error and leaves the state unchanged."""
-        sel = np.arange(self.n) if rows is None else np.asarray(rows, dtype=int)
-        n = len(sel)
+        sel = slice(None) if rows is None else np.asarray(rows, dtype=int)  # a slice keeps per-stream state as views
+        n = self.n if rows is None else len(sel)
         rotations = np.asarray(rotations, dtype=np.float64).reshape(n, self.skeleton.n_joints, 4)
         positions = np.asarray(positions, dtype=np.float64).reshape(n, self.skeleton.n_joints, 3)
         if not (np.isfinite(rotations).all() and np.isfinite(positions).all()):
             bad = np.argwhere(~np.isfinite(rotations).all(-1) | ~np.isfinite(positions).all(-1))[0]
-            raise StyleERDError(f"frame rejected: stream {sel[bad[0]]}, joint {self.skeleton.names[bad[1]]!r} has a NaN or infinite value")
+            stream = bad[0] if rows is None else sel[bad[0]]
+            raise StyleERDError(f"frame rejected: stream {stream}, joint {self.skeleton.names[bad[1]]!r} has a NaN or infinite value")
         rotations = quat.normalize(rotations)
         started = self.started[sel]
         previous = self.previous[sel]
@@ -190,13 +191,13 @@ class StreamStylizer:
         absurd = ~(np.abs(x) < MAX_FEATURE).all(-1)  # normalised features are O(1); 1e6 is input in the wrong units or garbage
         if absurd.any():  # refused before any state changes: the network would overflow
             bad = int(np.nonzero(absurd)[0][0])
-            raise StyleERDError(f"frame rejected: stream {sel[bad]}: its values are too large to stylise")
+            raise StyleERDError(f"frame rejected: stream {bad if rows is None else sel[bad]}: its values are too large to stylise")
         style, content = self.given_style[sel], self.given_content[sel]
         if self.labeller is not None:
-            p_style, p_content, labeller_state = self.labeller.step(x, None if rows is None else sel)
+            p_style, p_content, labeller_state = self.labeller.step(x, rows)
             style = np.where(self.known_style[sel, None], style, p_style)
             content = np.where(self.known_content[sel, None], content, p_content)
-        rot, _ = self.backend.step(x, style, content, self.current_weights()[sel].astype(np.float32), None if rows is None else sel)
+        rot, _ = self.backend.step(x, style, content, self.current_weights()[sel].astype(np.float32), rows)
         out = rot.astype(np.float64)
         out[:, 0] = quat.mul(traj[:, 3:7], out[:, 0])
         if self.labeller is not None:
