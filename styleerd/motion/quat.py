@@ -14,6 +14,7 @@ Every function broadcasts over leading ``...`` dimensions.
 
 from __future__ import annotations
 
+import numba as nb
 import numpy as np
 
 ORDERS = ("xyz", "xzy", "yxz", "yzx", "zxy", "zyx")
@@ -113,13 +114,28 @@ def angle_between(a: np.ndarray, b: np.ndarray) -> np.ndarray:
 
 def from_euler(e: np.ndarray, order: str) -> np.ndarray:
     """Intrinsic Euler angles ``e [..., 3]`` (radians) about the axes of ``order``."""
-    q = None
-    for i, name in enumerate(order):
-        axis = np.zeros(3)
-        axis[_AXIS[name]] = 1.0
-        qi = from_angle_axis(e[..., i], axis)
-        q = qi if q is None else mul(q, qi)
-    return q
+    e = np.asarray(e, dtype=np.float64)
+    out = np.empty(e.shape[:-1] + (4,))
+    _from_euler_kernel(np.ascontiguousarray(e).reshape(-1, 3), np.array([_AXIS[a] for a in order]), out.reshape(-1, 4))
+    return out
+
+
+@nb.njit(cache=True)
+def _from_euler_kernel(e, axes, out):
+    """q = q(axes[0], e0) q(axes[1], e1) q(axes[2], e2), each factor cos(a/2) + sin(a/2) axis."""
+    for n in range(e.shape[0]):
+        w, v = 1.0, np.zeros(3)
+        for t in range(3):
+            c, s = np.cos(0.5 * e[n, t]), np.sin(0.5 * e[n, t])
+            b = np.zeros(3)
+            b[axes[t]] = s
+            # (w, v) (c, b) = (w c - v.b, w b + c v + v x b)
+            nw = w * c - (v[0] * b[0] + v[1] * b[1] + v[2] * b[2])
+            nv = np.array([w * b[0] + c * v[0] + v[1] * b[2] - v[2] * b[1],
+                           w * b[1] + c * v[1] + v[2] * b[0] - v[0] * b[2],
+                           w * b[2] + c * v[2] + v[0] * b[1] - v[1] * b[0]])  # fmt: skip
+            w, v = nw, nv
+        out[n, 0], out[n, 1], out[n, 2], out[n, 3] = w, v[0], v[1], v[2]
 
 
 def _xform_table() -> np.ndarray:
@@ -177,15 +193,27 @@ def to_euler(q: np.ndarray, order: str) -> np.ndarray:
     Tait-Bryan orders; the middle angle lies in [-pi/2, pi/2], the others in (-pi, pi].
     At gimbal lock the last angle is set to zero."""
     i, j, k = (_AXIS[a] for a in order)
-    # +1 when (i, j, k) is a cyclic permutation of (x, y, z)
-    s = 1.0 if (j - i) % 3 == 1 else -1.0
-    m = to_xform(q)
-    sin_b = np.clip(s * m[..., i, k], -1.0, 1.0)
-    b = np.arcsin(sin_b)
-    locked = np.abs(sin_b) > 1.0 - 1e-10
-    a = np.where(locked, np.arctan2(s * m[..., k, j], m[..., j, j]), np.arctan2(-s * m[..., j, k], m[..., k, k]))
-    c = np.where(locked, 0.0, np.arctan2(-s * m[..., i, j], m[..., i, i]))
-    return np.stack([a, b, c], axis=-1)
+    s = 1.0 if (j - i) % 3 == 1 else -1.0  # +1 when (i, j, k) is a cyclic permutation of (x, y, z)
+    q = np.asarray(q, dtype=np.float64)
+    out = np.empty(q.shape[:-1] + (3,))
+    _to_euler_kernel(np.ascontiguousarray(q).reshape(-1, 4), i, j, k, s, out.reshape(-1, 3))
+    return out
+
+
+@nb.njit(cache=True)
+def _to_euler_kernel(q, i, j, k, s, out):
+    m = np.empty((3, 3))
+    for n in range(q.shape[0]):
+        w, x, y, z = q[n, 0], q[n, 1], q[n, 2], q[n, 3]
+        m[0, 0], m[0, 1], m[0, 2] = 1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)
+        m[1, 0], m[1, 1], m[1, 2] = 2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)
+        m[2, 0], m[2, 1], m[2, 2] = 2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)
+        sin_b = min(1.0, max(-1.0, s * m[i, k]))
+        out[n, 1] = np.arcsin(sin_b)
+        if abs(sin_b) > 1.0 - 1e-10:  # gimbal lock: the last angle is zero
+            out[n, 0], out[n, 2] = np.arctan2(s * m[k, j], m[j, j]), 0.0
+        else:
+            out[n, 0], out[n, 2] = np.arctan2(-s * m[j, k], m[k, k]), np.arctan2(-s * m[i, j], m[i, i])
 
 
 def alternate_euler(e: np.ndarray) -> np.ndarray:
@@ -196,12 +224,30 @@ def alternate_euler(e: np.ndarray) -> np.ndarray:
 def nearest_euler(e: np.ndarray, reference: np.ndarray) -> np.ndarray:
     """Of the Euler triples equivalent to ``e`` (the two Tait-Bryan solutions and their 2*pi
     shifts), the one nearest ``reference``. Reproduces a source file's angle branches."""
-    best, best_d = None, None
-    for c in (e, alternate_euler(e)):
-        c = c + 2 * np.pi * np.round((reference - c) / (2 * np.pi))
-        d = np.sum((c - reference) ** 2, axis=-1, keepdims=True)
-        best, best_d = (c, d) if best is None else (np.where(d < best_d, c, best), np.minimum(d, best_d))
-    return best
+    e, reference = np.broadcast_arrays(np.asarray(e, dtype=np.float64), np.asarray(reference, dtype=np.float64))
+    out = np.empty(e.shape)
+    _nearest_euler_kernel(np.ascontiguousarray(e).reshape(-1, 3), np.ascontiguousarray(reference).reshape(-1, 3), out.reshape(-1, 3))
+    return out
+
+
+@nb.njit(cache=True)
+def _nearest_euler_kernel(e, ref, out):
+    two_pi = 2.0 * np.pi
+    c = np.empty(3)
+    for n in range(e.shape[0]):
+        best = 0.0
+        for alt in range(2):  # (a, b, c) and its twin (a + pi, pi - b, c + pi)
+            if alt == 0:
+                c[0], c[1], c[2] = e[n, 0], e[n, 1], e[n, 2]
+            else:
+                c[0], c[1], c[2] = e[n, 0] + np.pi, np.pi - e[n, 1], e[n, 2] + np.pi
+            d = 0.0
+            for t in range(3):
+                c[t] += two_pi * np.rint((ref[n, t] - c[t]) / two_pi)
+                d += (c[t] - ref[n, t]) ** 2
+            if alt == 0 or d < best:  # ties (and NaN) keep the principal triple, as before
+                best = d
+                out[n, 0], out[n, 1], out[n, 2] = c[0], c[1], c[2]
 
 
 def unroll_euler(e: np.ndarray) -> np.ndarray:
