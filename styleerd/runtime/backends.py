@@ -131,13 +131,17 @@ class NumpyBackend:
     def step(self, x: np.ndarray, style: np.ndarray, content: np.ndarray, target: np.ndarray, rows: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
         """One frame of every stream, or of the streams ``rows`` only (the others keep their
         state): what a server with streams arriving at different times steps."""
-        x, style, content, target = (np.asarray(a, np.float32) for a in (x, style, content, target))
+        x, style, content, target = (np.ascontiguousarray(a, np.float32) for a in (x, style, content, target))
         if rows is None:
-            return _numpy_step(self.w, x, style, content, target, self.h, self.c, self.hb, self.cb, self.first)
+            return self._arithmetic(x, style, content, target, self.h, self.c, self.hb, self.cb, self.first)
         h, c, hb, cb, first = self.h[:, rows], self.c[:, rows], self.hb[:, :, rows], self.cb[:, :, rows], self.first[rows]
-        out = _numpy_step(self.w, x, style, content, target, h, c, hb, cb, first)
+        out = self._arithmetic(x, style, content, target, h, c, hb, cb, first)
         self.h[:, rows], self.c[:, rows], self.hb[:, :, rows], self.cb[:, :, rows], self.first[rows] = h, c, hb, cb, first
         return out
+
+    def _arithmetic(self, x, style, content, target, h, c, hb, cb, first) -> tuple[np.ndarray, np.ndarray]:
+        """The step on explicit state arrays (updated in place); the numba backend overrides it."""
+        return _numpy_step(self.w, x, style, content, target, h, c, hb, cb, first)
 
 
 def _numpy_step(w: StepWeights, x, style, content, target, h, c, hb, cb, first) -> tuple[np.ndarray, np.ndarray]:
