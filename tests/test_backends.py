@@ -82,18 +82,45 @@ def test_numpy_labeller_equals_the_torch_labeller():
         assert np.abs(p_content - c_logits[:, t].softmax(-1).numpy()).max() < 1e-5
 
 
-def test_numba_backend_switches_paths_by_batch_on_one_state(model):
-    """Few streams run compiled, many run numpy's arithmetic; both on the same state."""
+@pytest.mark.parametrize("n", [8, 300])  # 300: the cell update runs on parallel threads
+def test_numba_backend_switches_paths_by_batch_on_one_state(model, n):
+    """Few streams run the compiled step, many run numpy's matmuls with the compiled LSTM cell;
+    both on the same state, both equal to the numpy backend."""
     c = model.config
-    ref, fast = make_backend("numpy", model, 8), make_backend("numba", model, 8)
+    ref, fast = make_backend("numpy", model, n), make_backend("numba", model, n)
     rng = np.random.default_rng(3)
-    style = np.eye(len(c.styles), dtype=np.float32)[rng.integers(0, len(c.styles), 8)]
-    content = np.eye(len(c.contents), dtype=np.float32)[rng.integers(0, len(c.contents), 8)]
-    target = np.eye(len(c.styles), dtype=np.float32)[rng.integers(0, len(c.styles), 8)]
+    style = np.eye(len(c.styles), dtype=np.float32)[rng.integers(0, len(c.styles), n)]
+    content = np.eye(len(c.contents), dtype=np.float32)[rng.integers(0, len(c.contents), n)]
+    target = np.eye(len(c.styles), dtype=np.float32)[rng.integers(0, len(c.styles), n)]
     for t in range(12):
-        rows = None if t % 3 == 0 else np.sort(rng.choice(8, size=2, replace=False))  # 8 streams, then 2
+        rows = None if t % 3 == 0 else np.sort(rng.choice(n, size=2, replace=False))  # all streams, then 2
         sel = slice(None) if rows is None else rows
-        x = rng.normal(0, 1, (8 if rows is None else 2, c.feature_dim)).astype(np.float32)
+        x = rng.normal(0, 1, (n if rows is None else 2, c.feature_dim)).astype(np.float32)
         want = ref.step(x, style[sel], content[sel], target[sel], rows)
         got = fast.step(x, style[sel], content[sel], target[sel], rows)
         assert np.abs(got[0] - want[0]).max() <= 1e-5 and np.abs(got[1] - want[1]).max() <= 1e-4, t
+
+
+def test_fast_tanh_is_tanh_to_float32_precision():
+    from styleerd.runtime.compiled import fast_tanh
+
+    v = np.linspace(-30.0, 30.0, 600_001).astype(np.float32)
+    got = np.array([fast_tanh(a) for a in v[::97]] + [fast_tanh(np.float32(0.0))])
+    want = np.tanh(np.append(v[::97], 0.0).astype(np.float64))
+    assert np.abs(got - want).max() < 5e-7 and got[-1] == 0.0
+
+
+@pytest.mark.parametrize("n", [5, 300])
+def test_compiled_lstm_cell_equals_numpy_cell(n):
+    from styleerd.runtime.backends import _numpy_cell
+    from styleerd.runtime.compiled import PARALLEL_FROM, compiled_cell
+
+    assert (n >= PARALLEL_FROM) == (n == 300)
+    rng = np.random.default_rng(0)
+    g = rng.normal(0, 3, (n, 128)).astype(np.float32)
+    b = rng.normal(0, 1, 128).astype(np.float32)
+    h, c = rng.normal(0, 1, (2, n, 32)).astype(np.float32)
+    h2, c2 = h.copy(), c.copy()
+    _numpy_cell(g.copy(), b, h, c)
+    compiled_cell(g.copy(), b, h2, c2)
+    assert np.abs(h - h2).max() < 2e-6 and np.abs(c - c2).max() < 2e-6

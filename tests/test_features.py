@@ -1,7 +1,8 @@
 import numpy as np
+import pytest
 
 from conftest import walking_motion
-from styleerd.data.features import FeatureLayout, FeatureStats, features_to_motion, motion_features, pose_features
+from styleerd.data.features import PARALLEL_FROM, FeatureLayout, FeatureStats, features_to_motion, motion_features, pose_features, stream_features
 from styleerd.motion import quat
 from styleerd.motion.kinematics import forward_kinematics
 from styleerd.motion.motion import Motion
@@ -42,6 +43,42 @@ def test_streaming_one_frame_at_a_time_equals_whole_clip():
             _, prev = forward_kinematics(r, p, m.skeleton.parents)
         ft, tt, prev = pose_features(r, p, prev, m.skeleton, roles, m.fps)
         assert np.allclose(ft[0], f[t], atol=1e-9) and np.allclose(tt[0], traj[t], atol=1e-9)  # two arithmetic paths (small vs whole-clip arrays)
+
+
+@pytest.mark.parametrize("n_streams", [3, PARALLEL_FROM + 6])  # the serial and the parallel kernel
+def test_compiled_stream_features_equal_normalised_whole_clip_features(n_streams):
+    """The streaming hot path (one compiled loop: unit quaternions, FK, heading, features,
+    normalisation) against pose_features + FeatureStats.normalize, many streams at once, with
+    unnormalised input quaternions and a frame whose facing is undefined (lying on its side)."""
+    T = 12
+    clips = [walking_motion(T, seed=k) for k in range(n_streams)]
+    side = quat.from_angle_axis(np.array(np.pi / 2), np.array([0.0, 0.0, 1.0]))
+    clips[1].rotations[5] = [1.0, 0.0, 0.0, 0.0]
+    clips[1].rotations[5, 0] = side  # rest pose on its side: hips and shoulders line up vertically
+    skeleton, roles = clips[0].skeleton, BodyRoles.of(clips[0].skeleton)
+    offline = [motion_features(m) for m in clips]
+    stats = FeatureStats.fit(np.concatenate([f for f, _ in offline]), skeleton.n_joints)
+    rot = np.stack([m.rotations for m in clips], 1) * np.random.default_rng(0).uniform(0.5, 2.0, (T, n_streams, 1, 1))
+    pos = np.stack([m.positions for m in clips], 1)
+    previous, facing, started = np.zeros((n_streams, skeleton.n_joints, 3)), np.zeros((n_streams, 3)), np.zeros(n_streams, bool)
+    for t in range(T):
+        x, traj, previous, facing, ok = stream_features(rot[t], pos[t], previous, facing, started, skeleton, roles, clips[0].fps, stats, 1e6)
+        started[:] = True
+        assert ok.all() and x.dtype == np.float32
+        for k, (f, tr) in enumerate(offline):
+            assert np.abs(x[k] - stats.normalize(f[t])).max() < 1e-5  # float32
+            assert np.abs(traj[k] - tr[t]).max() < 1e-9
+    assert np.allclose(offline[1][1][5, 3:], offline[1][1][4, 3:])  # the degenerate frame kept the heading before
+
+
+def test_compiled_stream_features_flag_values_past_the_limit():
+    m = walking_motion(2)
+    stats = FeatureStats.fit(motion_features(m)[0], m.skeleton.n_joints)
+    pos = np.repeat(m.positions[:1], 2, 0)
+    pos[1, 0] = [0.0, 0.0, 1e9]  # a root a million km away moved there in one frame
+    previous = np.repeat(m.positions[:1], 2, 0)
+    x, *_, ok = stream_features(np.repeat(m.rotations[:1], 2, 0), pos, previous, np.zeros((2, 3)), np.ones(2, bool), m.skeleton, BodyRoles.of(m.skeleton), m.fps, stats, 1e6)
+    assert ok.tolist() == [True, False]
 
 
 def test_features_do_not_depend_on_where_the_character_is_or_faces():

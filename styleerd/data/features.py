@@ -21,6 +21,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+import numba as nb
 import numpy as np
 
 from styleerd.motion import quat
@@ -84,6 +85,135 @@ def pose_features(
     )
     trajectory = np.concatenate([g_pos[:, 0], heading], axis=-1)
     return features, trajectory, g_pos
+
+
+def stream_features(
+    rotations: np.ndarray,
+    positions: np.ndarray,
+    previous_global: np.ndarray,
+    previous_facing: np.ndarray,
+    started: np.ndarray,
+    skeleton: Skeleton,
+    roles: BodyRoles,
+    fps: float,
+    stats: "FeatureStats",
+    limit: float,
+    contact_speed: float = 0.25,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """One frame of N streams, the streaming hot path: ``pose_features`` of quaternions
+    normalised first, then ``stats.normalize``, in one compiled loop (per stream in parallel
+    for many streams). A stream not ``started`` is at its first frame (zero velocity);
+    ``previous_facing [N, 3]`` is each stream's facing direction the frame before (kept when
+    the across vector is degenerate, as ``kinematics.facing_directions`` does over time).
+
+    Returns (normalised features ``[N, D]`` float32, trajectory ``[N, 7]``, global joint
+    positions ``[N, J, 3]``, facing directions ``[N, 3]``, ``ok [N]``: every normalised value
+    finite and below ``limit``). Nothing passed in is modified."""
+    rot = np.ascontiguousarray(rotations, dtype=np.float64)
+    pos = np.ascontiguousarray(positions, dtype=np.float64)
+    N, J = rot.shape[:2]
+    x, traj = np.empty((N, FeatureLayout(J).dim), np.float32), np.empty((N, 7))
+    g, g_rot, facing, ok = np.empty((N, J, 3)), np.empty((N, J, 4)), np.empty((N, 3)), np.empty(N, np.bool_)
+    kernel = _stream_features_parallel if N >= PARALLEL_FROM else _stream_features_serial
+    kernel(rot, pos, np.ascontiguousarray(previous_global, dtype=np.float64), np.ascontiguousarray(previous_facing, dtype=np.float64), np.ascontiguousarray(started, dtype=np.bool_),
+           skeleton.parents, np.array(roles.left), np.array(roles.right), np.array(roles.feet), float(fps),
+           contact_speed * roles.leg_length, stats.mean, stats.std, stats.reference, float(limit), x, traj, g, g_rot, facing, ok)  # fmt: skip
+    return x, traj, g, facing, ok
+
+
+PARALLEL_FROM = 64  # streams: below this, starting threads costs more than it saves
+
+
+def _stream_features_kernel(rot, pos, previous, previous_facing, started, parents, left, right, feet, fps, max_speed, mean, std, reference, limit, x, traj, g, g_rot, facing, ok):
+    J = rot.shape[1]
+    for n in nb.prange(rot.shape[0]):
+        for j in range(J):  # unit quaternions, then forward kinematics (as _forward_kernel)
+            norm = max(np.sqrt(rot[n, j, 0] ** 2 + rot[n, j, 1] ** 2 + rot[n, j, 2] ** 2 + rot[n, j, 3] ** 2), 1e-12)
+            rw, rx, ry, rz = rot[n, j, 0] / norm, rot[n, j, 1] / norm, rot[n, j, 2] / norm, rot[n, j, 3] / norm
+            p = parents[j]
+            if p < 0:
+                g_rot[n, j, 0], g_rot[n, j, 1], g_rot[n, j, 2], g_rot[n, j, 3] = rw, rx, ry, rz
+                g[n, j, 0], g[n, j, 1], g[n, j, 2] = pos[n, j, 0], pos[n, j, 1], pos[n, j, 2]
+                continue
+            w, qx, qy, qz = g_rot[n, p, 0], g_rot[n, p, 1], g_rot[n, p, 2], g_rot[n, p, 3]
+            vx, vy, vz = pos[n, j, 0], pos[n, j, 1], pos[n, j, 2]
+            tx, ty, tz = 2.0 * (qy * vz - qz * vy), 2.0 * (qz * vx - qx * vz), 2.0 * (qx * vy - qy * vx)
+            g[n, j, 0] = vx + w * tx + (qy * tz - qz * ty) + g[n, p, 0]
+            g[n, j, 1] = vy + w * ty + (qz * tx - qx * tz) + g[n, p, 1]
+            g[n, j, 2] = vz + w * tz + (qx * ty - qy * tx) + g[n, p, 2]
+            g_rot[n, j, 0] = w * rw - qx * rx - qy * ry - qz * rz
+            g_rot[n, j, 1] = w * rx + qx * rw + qy * rz - qz * ry
+            g_rot[n, j, 2] = w * ry - qx * rz + qy * rw + qz * rx
+            g_rot[n, j, 3] = w * rz + qx * ry - qy * rx + qz * rw
+        # facing (kinematics.facing_directions) and heading
+        ax, ay, az = 0.0, 0.0, 0.0
+        for k in range(len(left)):
+            ax += g[n, left[k], 0] - g[n, right[k], 0]
+            ay += g[n, left[k], 1] - g[n, right[k], 1]
+            az += g[n, left[k], 2] - g[n, right[k], 2]
+        fx, fz = -az, ax
+        fnorm = np.sqrt(fx * fx + fz * fz)
+        if fnorm > 1e-6 * max(1.0, np.sqrt(ax * ax + ay * ay + az * az)):
+            fx, fz = fx / fnorm, fz / fnorm
+        elif started[n]:
+            fx, fz = previous_facing[n, 0], previous_facing[n, 2]
+        else:
+            fx, fz = 0.0, 1.0
+        facing[n, 0], facing[n, 1], facing[n, 2] = fx, 0.0, fz
+        half = np.arctan2(fx, fz) / 2.0
+        hw, hy = np.cos(half), np.sin(half)
+        traj[n, 0], traj[n, 1], traj[n, 2] = g[n, 0, 0], g[n, 0, 1], g[n, 0, 2]
+        traj[n, 3], traj[n, 4], traj[n, 5], traj[n, 6] = hw, 0.0, hy, 0.0
+        good = True
+        for j in range(J):  # rotations: root in the heading frame, w >= 0, then the reference's hemisphere
+            norm = max(np.sqrt(rot[n, j, 0] ** 2 + rot[n, j, 1] ** 2 + rot[n, j, 2] ** 2 + rot[n, j, 3] ** 2), 1e-12)
+            qw, qx, qy, qz = rot[n, j, 0] / norm, rot[n, j, 1] / norm, rot[n, j, 2] / norm, rot[n, j, 3] / norm
+            if j == 0:  # inv(h) q with inv(h) = (hw, 0, -hy, 0)
+                qw, qx, qy, qz = hw * qw + hy * qy, hw * qx - hy * qz, hw * qy - hy * qw, hw * qz + hy * qx
+            sign = -1.0 if qw < 0.0 else 1.0
+            if sign * (qw * reference[j, 0] + qx * reference[j, 1] + qy * reference[j, 2] + qz * reference[j, 3]) < 0.0:
+                sign = -sign
+            q = (qw, qx, qy, qz)
+            for k in range(4):
+                d = 4 * j + k
+                y = (sign * q[k] - mean[d]) / std[d]
+                x[n, d] = y
+                good = good and abs(y) < limit
+        moved = started[n]
+        for j in range(J):  # positions (relative to the root) and velocities, in the heading frame
+            for part in range(2):
+                if part == 0:
+                    vx, vy, vz = g[n, j, 0] - g[n, 0, 0], g[n, j, 1] - g[n, 0, 1], g[n, j, 2] - g[n, 0, 2]
+                    base, scale = 4 * J + 3 * j, 1.0
+                elif moved:
+                    vx, vy, vz = g[n, j, 0] - previous[n, j, 0], g[n, j, 1] - previous[n, j, 1], g[n, j, 2] - previous[n, j, 2]
+                    base, scale = 7 * J + 3 * j, fps
+                else:
+                    vx, vy, vz = 0.0, 0.0, 0.0
+                    base, scale = 7 * J + 3 * j, fps
+                # rotate by inv(h): a rotation about +Y by -2 half
+                c2, s2 = hw * hw - hy * hy, 2.0 * hw * hy
+                r = ((c2 * vx - s2 * vz) * scale, vy * scale, (s2 * vx + c2 * vz) * scale)
+                for k in range(3):
+                    y = (r[k] - mean[base + k]) / std[base + k]
+                    x[n, base + k] = y
+                    good = good and abs(y) < limit
+        for k in range(len(feet)):  # contacts: foot speed since the previous frame below max_speed
+            f = feet[k]
+            if moved:
+                dx, dy, dz = g[n, f, 0] - previous[n, f, 0], g[n, f, 1] - previous[n, f, 1], g[n, f, 2] - previous[n, f, 2]
+                planted = np.sqrt(dx * dx + dy * dy + dz * dz) * fps < max_speed
+            else:
+                planted = 0.0 < max_speed
+            d = 10 * J + k
+            y = ((1.0 if planted else 0.0) - mean[d]) / std[d]
+            x[n, d] = y
+            good = good and abs(y) < limit
+        ok[n] = good
+
+
+_stream_features_serial = nb.njit(cache=True)(_stream_features_kernel)
+_stream_features_parallel = nb.njit(cache=True, parallel=True)(_stream_features_kernel)
 
 
 def motion_features(motion: Motion, roles: BodyRoles | None = None, contact_speed: float = 0.25) -> tuple[np.ndarray, np.ndarray]:

@@ -66,22 +66,30 @@ def _sigmoid(x: np.ndarray) -> np.ndarray:
     return 0.5 * np.tanh(0.5 * x) + 0.5
 
 
-def _lstm_stack(layers, x: np.ndarray, h: np.ndarray, c: np.ndarray) -> np.ndarray:
-    """Run stacked LSTM cells (torch gate order i, f, g, o) one step; updates h, c [L, N, H]
-    in place and returns the last layer's output."""
+def _numpy_cell(g: np.ndarray, b: np.ndarray, h: np.ndarray, c: np.ndarray) -> None:
+    """An LSTM cell's update from its pre-activations ``g [N, 4H]`` (bias not yet added; torch
+    gate order i, f, g, o): writes h, c ``[N, H]`` in place."""
     H = h.shape[-1]
+    g += b
+    s = _sigmoid(g)
+    c[:] = s[:, H : 2 * H] * c + s[:, :H] * np.tanh(g[:, 2 * H : 3 * H])
+    h[:] = s[:, 3 * H :] * np.tanh(c)
+
+
+def _lstm_stack(layers, x: np.ndarray, h: np.ndarray, c: np.ndarray, cell=_numpy_cell) -> np.ndarray:
+    """Run stacked LSTM cells one step; updates h, c [L, N, H] in place and returns the last
+    layer's output."""
     for i, (w_in, w_hid, b) in enumerate(layers):
-        g = x @ w_in + h[i] @ w_hid + b
-        s = _sigmoid(g)
-        c[i] = s[:, H : 2 * H] * c[i] + s[:, :H] * np.tanh(g[:, 2 * H : 3 * H])
-        h[i] = s[:, 3 * H :] * np.tanh(c[i])
+        g = x @ w_in
+        g += h[i] @ w_hid
+        cell(g, b, h[i], c[i])
         x = h[i]
     return x
 
 
 def _rotations(y: np.ndarray, n_joints: int) -> tuple[np.ndarray, np.ndarray]:
     q = y[:, : 4 * n_joints].reshape(len(y), n_joints, 4)
-    return q / np.maximum(np.linalg.norm(q, axis=-1, keepdims=True), 1e-8), y[:, 4 * n_joints :]
+    return q / np.maximum(np.sqrt(np.einsum("nji,nji->nj", q, q))[..., None], 1e-8), y[:, 4 * n_joints :]
 
 
 class TorchBackend:
@@ -144,9 +152,9 @@ class NumpyBackend:
         return _numpy_step(self.w, x, style, content, target, h, c, hb, cb, first)
 
 
-def _numpy_step(w: StepWeights, x, style, content, target, h, c, hb, cb, first) -> tuple[np.ndarray, np.ndarray]:
+def _numpy_step(w: StepWeights, x, style, content, target, h, c, hb, cb, first, cell=_numpy_cell) -> tuple[np.ndarray, np.ndarray]:
     """The generator's step on float32 arrays; updates the states h, c [L, N, H], hb, cb
-    [K, L, N, H] and the first-frame flags [N] in place."""
+    [K, L, N, H] and the first-frame flags [N] in place. ``cell``: the LSTM cell update."""
     if first.any():
         rows = np.nonzero(first)[0]
         h[:, rows] = np.einsum("nc,clh->lnh", content[rows], w.neutral_init[0])
@@ -159,14 +167,14 @@ def _numpy_step(w: StepWeights, x, style, content, target, h, c, hb, cb, first) 
         z = z @ W + b
         if i < len(w.encoder) - 1:
             z = np.maximum(z, 0.0)
-    out = _lstm_stack(w.neutral, z, h, c).copy()
+    out = _lstm_stack(w.neutral, z, h, c, cell).copy()
     for k, s in enumerate(w.branch_styles):
         rows = np.nonzero(target[:, s])[0]
         if len(rows) == len(x):
-            out += target[:, s, None] * _lstm_stack(w.branches[k], z, hb[k], cb[k])
+            out += target[:, s, None] * _lstm_stack(w.branches[k], z, hb[k], cb[k], cell)
         elif len(rows):
             hk, ck = hb[k][:, rows], cb[k][:, rows]
-            out[rows] += target[rows, s, None] * _lstm_stack(w.branches[k], z[rows], hk, ck)
+            out[rows] += target[rows, s, None] * _lstm_stack(w.branches[k], z[rows], hk, ck, cell)
             hb[k][:, rows], cb[k][:, rows] = hk, ck
     y = np.concatenate([out, target], -1)
     for i, (W, b) in enumerate(w.decoder):

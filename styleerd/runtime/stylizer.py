@@ -19,13 +19,12 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from styleerd.data.features import pose_features
+from styleerd.data.features import stream_features
 from styleerd.errors import StyleERDError
 from styleerd.model.checkpoint import load_labeller
 from styleerd.model.generator import StyleERD
 from styleerd.model.labeller import OnlineLabeller
 from styleerd.motion import quat
-from styleerd.motion.kinematics import forward_positions
 from styleerd.motion.skeleton import BodyRoles
 from styleerd.runtime.backends import NumpyLabeller, make_backend
 
@@ -117,6 +116,7 @@ class StreamStylizer:
         self.labeller_model = labeller
         self.blend = _Blend(np.zeros((n_streams, S)), np.zeros((n_streams, S)), np.full(n_streams, self.blend_frames))
         self.previous = np.zeros((n_streams, self.skeleton.n_joints, 3))  # global joint positions of the last frame
+        self.facing = np.zeros((n_streams, 3))  # facing direction of the last frame
         self.started = np.zeros(n_streams, bool)
         self.labels = (np.zeros((n_streams, S), np.float32), np.zeros((n_streams, C), np.float32))  # used last frame
         self.configure(np.arange(n_streams), input_style, content, target)
@@ -180,17 +180,9 @@ class StreamStylizer:
             bad = np.argwhere(~np.isfinite(rotations).all(-1) | ~np.isfinite(positions).all(-1))[0]
             stream = bad[0] if rows is None else sel[bad[0]]
             raise StyleERDError(f"frame rejected: stream {stream}, joint {self.skeleton.names[bad[1]]!r} has a NaN or infinite value")
-        rotations = quat.normalize(rotations)
-        started = self.started[sel]
-        previous = self.previous[sel]
-        if not started.all():
-            previous[~started] = forward_positions(rotations[~started], positions[~started], self.skeleton.parents)
-        feats, traj, g = pose_features(rotations, positions, previous, self.skeleton, self.roles, self.fps)
-        with np.errstate(over="ignore", invalid="ignore"):
-            x = self.stats.normalize(feats).astype(np.float32)
-        absurd = ~(np.abs(x) < MAX_FEATURE).all(-1)  # normalised features are O(1); 1e6 is input in the wrong units or garbage
-        if absurd.any():  # refused before any state changes: the network would overflow
-            bad = int(np.nonzero(absurd)[0][0])
+        x, traj, g, facing, ok = stream_features(rotations, positions, self.previous[sel], self.facing[sel], self.started[sel], self.skeleton, self.roles, self.fps, self.stats, MAX_FEATURE)
+        if not ok.all():  # refused before any state changes: the network would overflow
+            bad = int(np.nonzero(~ok)[0][0])  # normalised features are O(1); 1e6 is input in the wrong units or garbage
             raise StyleERDError(f"frame rejected: stream {bad if rows is None else sel[bad]}: its values are too large to stylise")
         style, content = self.given_style[sel], self.given_content[sel]
         if self.labeller is not None:
@@ -202,7 +194,7 @@ class StreamStylizer:
         out[:, 0] = quat.mul(traj[:, 3:7], out[:, 0])
         if self.labeller is not None:
             self.labeller.h[sel] = labeller_state
-        self.previous[sel], self.started[sel] = g, True
+        self.previous[sel], self.facing[sel], self.started[sel] = g, facing, True
         self.labels[0][sel], self.labels[1][sel] = style, content
         self.blend.frame[sel] += 1
         return quat.normalize(out), positions

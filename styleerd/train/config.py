@@ -35,6 +35,7 @@ class TrainConfig:
     w_adv: float = 1.0
     w_per: float = 0.1
     w_gp: float = 128.0
+    w_cyc: float = 0.0  # cycle reconstruction (transfer and back), beyond the paper; 0 = off
     r1_every: int = 4  # lazy R1: every k critic steps, weighted by k
     # optimisation
     batch_size: int = 32

@@ -243,6 +243,14 @@ def train(config: TrainConfig, out: Path, data_dir: str | None = None, progress:
                 loss_per = losses.perceptual(per_classifier, real, fake)
                 loss_g = loss_g + config.w_per * loss_per
                 logs["per"] = loss_per.item()
+            if config.w_cyc:
+                # the transfer taken back to the input's style must give the input again:
+                # whatever the style branch adds has to leave the content recoverable
+                back = torch.cat([fake, x[..., L.contacts]], -1)
+                rot_c, vel_c, _ = G(back, tgt, content, style)
+                loss_cyc = losses.reconstruction_loss(rot_c, rot_in, G.motion_channels(rot_c, vel_c), real, L)
+                loss_g = loss_g + config.w_cyc * loss_cyc
+                logs["cyc"] = loss_cyc.item()
             opt_g.zero_grad(set_to_none=True)
             loss_g.backward()
             _average_gradients(g_params)
