@@ -7,6 +7,7 @@ from styleerd.data.features import FeatureStats, motion_features
 from styleerd.errors import StyleERDError
 from styleerd.model.generator import GeneratorConfig, StyleERD
 from styleerd.model.labeller import OnlineLabeller
+from styleerd.motion import quat
 from styleerd.motion.kinematics import forward_kinematics
 from styleerd.motion.motion import Motion
 from styleerd.runtime.offline import stylise_motion
@@ -38,6 +39,25 @@ def test_offline_equals_streaming_and_keeps_the_root_trajectory(model):
     _, g_out = forward_kinematics(out.rotations, out.positions, m.skeleton.parents)
     assert np.array_equal(out.positions[:, 0], m.positions[:, 0])
     assert not np.allclose(g_in[:, 1:], g_out[:, 1:], atol=1e-3)
+
+
+@pytest.mark.parametrize("backend", ["numpy", "numba"])
+def test_stream_equals_the_generator_forward_on_whole_clip_features(model, backend):
+    """The compiled streaming path (features, normalisation, root put back on its heading)
+    against the training-side path: motion_features + FeatureStats.normalize, the torch
+    generator over the whole window, quat.mul for the root."""
+    m = walking_motion(30)
+    f, traj = motion_features(m)
+    x = torch.as_tensor(model.stats().normalize(f), dtype=torch.float32)[None]
+    eye_s, eye_c = torch.eye(len(STYLES)), torch.eye(len(CONTENTS))
+    with torch.no_grad():
+        rot, _, _ = model(x, eye_s[[1]], eye_c[[0]], eye_s[[2]])
+    want = rot[0].double().numpy()
+    want[:, 0] = quat.mul(traj[:, 3:7], want[:, 0])
+    want = quat.normalize(want)
+    s = StreamStylizer(model, "normal", "walk", {"old": 1.0}, backend=backend)
+    got = np.stack([s.step(m.rotations[t], m.positions[t])[0][0] for t in range(30)])
+    assert np.abs(got - want).max() <= 1e-5
 
 
 @pytest.mark.parametrize("backend", ["numpy", "numba", "onnx"])

@@ -1,10 +1,12 @@
 """The generator's step compiled with numba: the numpy backend's arithmetic (same layout, same
-gate order, same sigmoid) in one compiled call, so a frame pays for its floating-point work and
-not for a hundred numpy dispatches. That wins for a few streams (batch 1: 52 us against 120 us
-here); from ``COMPILED_UP_TO`` streams on, numpy's vectorised tanh wins, so larger batches take
-the numpy backend's path on the same state.
+gate order) in one compiled call, so a frame pays for its floating-point work and not for a
+hundred numpy dispatches. That wins for a few streams; from ``COMPILED_UP_TO`` streams on, the
+step takes numpy's path (BLAS matmuls over all streams) on the same state, with the LSTM cell
+update compiled (per stream in parallel for many streams).
 
-Compiled on first use and cached on disk (``cache=True``), so later processes start at once.
+Both use ``fast_tanh``, a rational approximation that vectorises (np.tanh in a compiled loop
+is a scalar libm call). Compiled on first use and cached on disk (``cache=True``), so later
+processes start at once.
 """
 
 from __future__ import annotations

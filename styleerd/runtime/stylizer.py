@@ -17,6 +17,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+import numba as nb
 import numpy as np
 
 from styleerd.data.features import stream_features
@@ -24,7 +25,6 @@ from styleerd.errors import StyleERDError
 from styleerd.model.checkpoint import load_labeller
 from styleerd.model.generator import StyleERD
 from styleerd.model.labeller import OnlineLabeller
-from styleerd.motion import quat
 from styleerd.motion.skeleton import BodyRoles
 from styleerd.runtime.backends import NumpyLabeller, make_backend
 
@@ -79,6 +79,20 @@ class _Blend:
     start: np.ndarray  # [N, nS] weights when the change began
     end: np.ndarray  # [N, nS] weights to reach
     frame: np.ndarray  # [N] frames since the change
+
+
+@nb.njit(cache=True)
+def _root_on_heading(rot, heading, out):
+    """``out`` = the network's rotations ``[N, J, 4]`` as float64 unit quaternions, the root's
+    turned from the heading frame back to the world (heading * root); one pass, no temporaries."""
+    for n in range(rot.shape[0]):
+        hw, hx, hy, hz = heading[n, 0], heading[n, 1], heading[n, 2], heading[n, 3]
+        for j in range(rot.shape[1]):
+            w, x, y, z = float(rot[n, j, 0]), float(rot[n, j, 1]), float(rot[n, j, 2]), float(rot[n, j, 3])
+            if j == 0:
+                w, x, y, z = hw * w - hx * x - hy * y - hz * z, hw * x + hx * w + hy * z - hz * y, hw * y - hx * z + hy * w + hz * x, hw * z + hx * y - hy * x + hz * w
+            norm = max(np.sqrt(w * w + x * x + y * y + z * z), 1e-12)
+            out[n, j, 0], out[n, j, 1], out[n, j, 2], out[n, j, 3] = w / norm, x / norm, y / norm, z / norm
 
 
 class StreamStylizer:
@@ -190,11 +204,11 @@ class StreamStylizer:
             style = np.where(self.known_style[sel, None], style, p_style)
             content = np.where(self.known_content[sel, None], content, p_content)
         rot, _ = self.backend.step(x, style, content, self.current_weights()[sel].astype(np.float32), rows)
-        out = rot.astype(np.float64)
-        out[:, 0] = quat.mul(traj[:, 3:7], out[:, 0])
+        out = np.empty(rot.shape)
+        _root_on_heading(np.ascontiguousarray(rot), np.ascontiguousarray(traj[:, 3:7]), out)
         if self.labeller is not None:
             self.labeller.h[sel] = labeller_state
         self.previous[sel], self.facing[sel], self.started[sel] = g, facing, True
         self.labels[0][sel], self.labels[1][sel] = style, content
         self.blend.frame[sel] += 1
-        return quat.normalize(out), positions
+        return out, positions
