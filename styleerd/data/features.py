@@ -25,7 +25,7 @@ import numba as nb
 import numpy as np
 
 from styleerd.motion import quat
-from styleerd.motion.kinematics import facing_directions, foot_contacts, forward_positions, heading_rotations
+from styleerd.motion.kinematics import facing_directions, foot_contacts, forward_pose, forward_positions, heading_rotations
 from styleerd.motion.motion import Motion
 from styleerd.motion.skeleton import BodyRoles, Skeleton
 
@@ -113,38 +113,25 @@ def stream_features(
     pos = np.ascontiguousarray(positions, dtype=np.float64)
     N, J = rot.shape[:2]
     x, traj = np.empty((N, FeatureLayout(J).dim), np.float32), np.empty((N, 7))
-    g, g_rot, facing, ok = np.empty((N, J, 3)), np.empty((N, J, 4)), np.empty((N, 3)), np.empty(N, np.bool_)
+    g, facing, ok = np.empty((N, J, 3)), np.empty((N, 3)), np.empty(N, np.bool_)
     kernel = _stream_features_parallel if N >= PARALLEL_FROM else _stream_features_serial
     kernel(rot, pos, np.ascontiguousarray(previous_global, dtype=np.float64), np.ascontiguousarray(previous_facing, dtype=np.float64), np.ascontiguousarray(started, dtype=np.bool_),
            skeleton.parents, np.array(roles.left), np.array(roles.right), np.array(roles.feet), float(fps),
-           contact_speed * roles.leg_length, stats.mean, stats.std, stats.reference, float(limit), x, traj, g, g_rot, facing, ok)  # fmt: skip
+           contact_speed * roles.leg_length, stats.mean, stats.std, stats.reference, float(limit), x, traj, g, np.empty((N, J, 4)), np.empty((N, J, 4)), facing, ok)  # fmt: skip
     return x, traj, g, facing, ok
 
 
 PARALLEL_FROM = 64  # streams: below this, starting threads costs more than it saves
 
 
-def _stream_features_kernel(rot, pos, previous, previous_facing, started, parents, left, right, feet, fps, max_speed, mean, std, reference, limit, x, traj, g, g_rot, facing, ok):
+def _stream_features_kernel(rot, pos, previous, previous_facing, started, parents, left, right, feet, fps, max_speed, mean, std, reference, limit, x, traj, g, g_rot, unit, facing, ok):
     J = rot.shape[1]
     for n in nb.prange(rot.shape[0]):
-        for j in range(J):  # unit quaternions, then forward kinematics (as _forward_kernel)
+        for j in range(J):
             norm = max(np.sqrt(rot[n, j, 0] ** 2 + rot[n, j, 1] ** 2 + rot[n, j, 2] ** 2 + rot[n, j, 3] ** 2), 1e-12)
-            rw, rx, ry, rz = rot[n, j, 0] / norm, rot[n, j, 1] / norm, rot[n, j, 2] / norm, rot[n, j, 3] / norm
-            p = parents[j]
-            if p < 0:
-                g_rot[n, j, 0], g_rot[n, j, 1], g_rot[n, j, 2], g_rot[n, j, 3] = rw, rx, ry, rz
-                g[n, j, 0], g[n, j, 1], g[n, j, 2] = pos[n, j, 0], pos[n, j, 1], pos[n, j, 2]
-                continue
-            w, qx, qy, qz = g_rot[n, p, 0], g_rot[n, p, 1], g_rot[n, p, 2], g_rot[n, p, 3]
-            vx, vy, vz = pos[n, j, 0], pos[n, j, 1], pos[n, j, 2]
-            tx, ty, tz = 2.0 * (qy * vz - qz * vy), 2.0 * (qz * vx - qx * vz), 2.0 * (qx * vy - qy * vx)
-            g[n, j, 0] = vx + w * tx + (qy * tz - qz * ty) + g[n, p, 0]
-            g[n, j, 1] = vy + w * ty + (qz * tx - qx * tz) + g[n, p, 1]
-            g[n, j, 2] = vz + w * tz + (qx * ty - qy * tx) + g[n, p, 2]
-            g_rot[n, j, 0] = w * rw - qx * rx - qy * ry - qz * rz
-            g_rot[n, j, 1] = w * rx + qx * rw + qy * rz - qz * ry
-            g_rot[n, j, 2] = w * ry - qx * rz + qy * rw + qz * rx
-            g_rot[n, j, 3] = w * rz + qx * ry - qy * rx + qz * rw
+            for k in range(4):
+                unit[n, j, k] = rot[n, j, k] / norm
+        forward_pose(unit[n], pos[n], parents, g_rot[n], g[n])
         # facing (kinematics.facing_directions) and heading
         ax, ay, az = 0.0, 0.0, 0.0
         for k in range(len(left)):
@@ -166,10 +153,9 @@ def _stream_features_kernel(rot, pos, previous, previous_facing, started, parent
         traj[n, 3], traj[n, 4], traj[n, 5], traj[n, 6] = hw, 0.0, hy, 0.0
         good = True
         for j in range(J):  # rotations: root in the heading frame, w >= 0, then the reference's hemisphere
-            norm = max(np.sqrt(rot[n, j, 0] ** 2 + rot[n, j, 1] ** 2 + rot[n, j, 2] ** 2 + rot[n, j, 3] ** 2), 1e-12)
-            qw, qx, qy, qz = rot[n, j, 0] / norm, rot[n, j, 1] / norm, rot[n, j, 2] / norm, rot[n, j, 3] / norm
-            if j == 0:  # inv(h) q with inv(h) = (hw, 0, -hy, 0)
-                qw, qx, qy, qz = hw * qw + hy * qy, hw * qx - hy * qz, hw * qy - hy * qw, hw * qz + hy * qx
+            qw, qx, qy, qz = unit[n, j, 0], unit[n, j, 1], unit[n, j, 2], unit[n, j, 3]
+            if j == 0:
+                qw, qx, qy, qz = quat.mul_scalars(hw, 0.0, -hy, 0.0, qw, qx, qy, qz)  # inv(heading) q
             sign = -1.0 if qw < 0.0 else 1.0
             if sign * (qw * reference[j, 0] + qx * reference[j, 1] + qy * reference[j, 2] + qz * reference[j, 3]) < 0.0:
                 sign = -sign
@@ -191,9 +177,7 @@ def _stream_features_kernel(rot, pos, previous, previous_facing, started, parent
                 else:
                     vx, vy, vz = 0.0, 0.0, 0.0
                     base, scale = 7 * J + 3 * j, fps
-                # rotate by inv(h): a rotation about +Y by -2 half
-                c2, s2 = hw * hw - hy * hy, 2.0 * hw * hy
-                r = ((c2 * vx - s2 * vz) * scale, vy * scale, (s2 * vx + c2 * vz) * scale)
+                r = quat.mul_vec_scalars(hw, 0.0, -hy, 0.0, vx * scale, vy * scale, vz * scale)  # by inv(heading)
                 for k in range(3):
                     y = (r[k] - mean[base + k]) / std[base + k]
                     x[n, base + k] = y

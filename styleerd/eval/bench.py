@@ -34,10 +34,13 @@ TARGETS = "targets (issue 4): step p50 <= 100 us, end-to-end p50 <= 300 us, >= 2
 
 
 def set_threads(n: int) -> None:
-    torch.set_num_threads(n)
+    """Every thread pool a step can use: torch's, BLAS's (numpy, via threadpoolctl) and numba's."""
+    import numba
     from threadpoolctl import threadpool_limits
 
+    torch.set_num_threads(n)
     threadpool_limits(n)
+    numba.set_num_threads(min(n, numba.config.NUMBA_NUM_THREADS))
 
 
 def _percentiles(seconds: list[float]) -> dict[str, float]:

@@ -35,24 +35,22 @@ def forward_kinematics(rotations: np.ndarray, positions: np.ndarray, parents: np
 @nb.njit(cache=True)
 def _forward_kernel(rot, pos, parents, g_rot, g_pos):
     for b in range(rot.shape[0]):
-        for j in range(rot.shape[1]):
-            p = parents[j]
-            if p < 0:
-                g_rot[b, j] = rot[b, j]
-                g_pos[b, j] = pos[b, j]
-                continue
-            w, x, y, z = g_rot[b, p, 0], g_rot[b, p, 1], g_rot[b, p, 2], g_rot[b, p, 3]
-            vx, vy, vz = pos[b, j, 0], pos[b, j, 1], pos[b, j, 2]
-            # v + w t + u x t with t = 2 u x v: the parent's rotation applied to the offset
-            tx, ty, tz = 2.0 * (y * vz - z * vy), 2.0 * (z * vx - x * vz), 2.0 * (x * vy - y * vx)
-            g_pos[b, j, 0] = vx + w * tx + (y * tz - z * ty) + g_pos[b, p, 0]
-            g_pos[b, j, 1] = vy + w * ty + (z * tx - x * tz) + g_pos[b, p, 1]
-            g_pos[b, j, 2] = vz + w * tz + (x * ty - y * tx) + g_pos[b, p, 2]
-            rw, rx, ry, rz = rot[b, j, 0], rot[b, j, 1], rot[b, j, 2], rot[b, j, 3]
-            g_rot[b, j, 0] = w * rw - x * rx - y * ry - z * rz
-            g_rot[b, j, 1] = w * rx + x * rw + y * rz - z * ry
-            g_rot[b, j, 2] = w * ry - x * rz + y * rw + z * rx
-            g_rot[b, j, 3] = w * rz + x * ry - y * rx + z * rw
+        forward_pose(rot[b], pos[b], parents, g_rot[b], g_pos[b])
+
+
+@nb.njit(cache=True)
+def forward_pose(rot, pos, parents, g_rot, g_pos):
+    """Forward kinematics of one pose ``[J, 4]``, ``[J, 3]`` into ``g_rot``, ``g_pos`` (compiled loops)."""
+    for j in range(rot.shape[0]):
+        p = parents[j]
+        if p < 0:
+            g_rot[j] = rot[j]
+            g_pos[j] = pos[j]
+            continue
+        w, x, y, z = g_rot[p, 0], g_rot[p, 1], g_rot[p, 2], g_rot[p, 3]
+        ox, oy, oz = quat.mul_vec_scalars(w, x, y, z, pos[j, 0], pos[j, 1], pos[j, 2])
+        g_pos[j, 0], g_pos[j, 1], g_pos[j, 2] = ox + g_pos[p, 0], oy + g_pos[p, 1], oz + g_pos[p, 2]
+        g_rot[j, 0], g_rot[j, 1], g_rot[j, 2], g_rot[j, 3] = quat.mul_scalars(w, x, y, z, rot[j, 0], rot[j, 1], rot[j, 2], rot[j, 3])
 
 
 def forward_positions(rotations: np.ndarray, positions: np.ndarray, parents: np.ndarray) -> np.ndarray:

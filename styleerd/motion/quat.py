@@ -121,21 +121,29 @@ def from_euler(e: np.ndarray, order: str) -> np.ndarray:
 
 
 @nb.njit(cache=True)
+def mul_scalars(aw, ax, ay, az, bw, bx, by, bz):
+    """``mul`` of two quaternions given as scalars, for compiled loops (no arrays allocated)."""
+    return (aw * bw - ax * bx - ay * by - az * bz, aw * bx + ax * bw + ay * bz - az * by,
+            aw * by - ax * bz + ay * bw + az * bx, aw * bz + ax * by - ay * bx + az * bw)  # fmt: skip
+
+
+@nb.njit(cache=True)
+def mul_vec_scalars(w, x, y, z, vx, vy, vz):
+    """``mul_vec`` on scalars: v + w t + u x t with t = 2 u x v (u = (x, y, z))."""
+    tx, ty, tz = 2.0 * (y * vz - z * vy), 2.0 * (z * vx - x * vz), 2.0 * (x * vy - y * vx)
+    return vx + w * tx + (y * tz - z * ty), vy + w * ty + (z * tx - x * tz), vz + w * tz + (x * ty - y * tx)
+
+
+@nb.njit(cache=True)
 def _from_euler_kernel(e, axes, out):
     """q = q(axes[0], e0) q(axes[1], e1) q(axes[2], e2), each factor cos(a/2) + sin(a/2) axis."""
     for n in range(e.shape[0]):
-        w, v = 1.0, np.zeros(3)
+        w, x, y, z = 1.0, 0.0, 0.0, 0.0
         for t in range(3):
             c, s = np.cos(0.5 * e[n, t]), np.sin(0.5 * e[n, t])
-            b = np.zeros(3)
-            b[axes[t]] = s
-            # (w, v) (c, b) = (w c - v.b, w b + c v + v x b)
-            nw = w * c - (v[0] * b[0] + v[1] * b[1] + v[2] * b[2])
-            nv = np.array([w * b[0] + c * v[0] + v[1] * b[2] - v[2] * b[1],
-                           w * b[1] + c * v[1] + v[2] * b[0] - v[0] * b[2],
-                           w * b[2] + c * v[2] + v[0] * b[1] - v[1] * b[0]])  # fmt: skip
-            w, v = nw, nv
-        out[n, 0], out[n, 1], out[n, 2], out[n, 3] = w, v[0], v[1], v[2]
+            a = axes[t]
+            w, x, y, z = mul_scalars(w, x, y, z, c, s if a == 0 else 0.0, s if a == 1 else 0.0, s if a == 2 else 0.0)
+        out[n, 0], out[n, 1], out[n, 2], out[n, 3] = w, x, y, z
 
 
 def _xform_table() -> np.ndarray:

@@ -25,6 +25,7 @@ from styleerd.errors import StyleERDError
 from styleerd.model.checkpoint import load_labeller
 from styleerd.model.generator import StyleERD
 from styleerd.model.labeller import OnlineLabeller
+from styleerd.motion import quat
 from styleerd.motion.skeleton import BodyRoles
 from styleerd.runtime.backends import NumpyLabeller, make_backend
 
@@ -90,7 +91,7 @@ def _root_on_heading(rot, heading, out):
         for j in range(rot.shape[1]):
             w, x, y, z = float(rot[n, j, 0]), float(rot[n, j, 1]), float(rot[n, j, 2]), float(rot[n, j, 3])
             if j == 0:
-                w, x, y, z = hw * w - hx * x - hy * y - hz * z, hw * x + hx * w + hy * z - hz * y, hw * y - hx * z + hy * w + hz * x, hw * z + hx * y - hy * x + hz * w
+                w, x, y, z = quat.mul_scalars(hw, hx, hy, hz, w, x, y, z)
             norm = max(np.sqrt(w * w + x * x + y * y + z * z), 1e-12)
             out[n, j, 0], out[n, j, 1], out[n, j, 2], out[n, j, 3] = w / norm, x / norm, y / norm, z / norm
 
