@@ -79,6 +79,18 @@ def test_ablation_switches_train(shared_data, tmp_path, ablation):
     assert (out / "content_classifier.safetensors").is_file() == ablation.get("use_per", True)
 
 
+def test_cycle_loss_trains_and_is_logged(shared_data, tmp_path):
+    import csv
+
+    from styleerd.train.trainer import train
+
+    out = tmp_path / "cyc"
+    train(TrainConfig(**TINY, epochs=1, w_cyc=1.0), out, progress=False)
+    with open(out / "metrics.csv", newline="") as f:
+        row = next(csv.DictReader(f))
+    assert 0.0 < float(row["loss_cyc"]) < 100.0  # transfer and back, compared with the input
+
+
 def test_data_parallel_two_processes_with_torchrun(shared_data, tmp_path):
     cfg = write_config(tmp_path / "c.yaml", epochs=2)
     env = dict(os.environ, OMP_NUM_THREADS="1")
