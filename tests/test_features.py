@@ -2,7 +2,7 @@ import numpy as np
 import pytest
 
 from conftest import walking_motion
-from styleerd.data.features import PARALLEL_FROM, FeatureLayout, FeatureStats, features_to_motion, motion_features, pose_features, stream_features
+from styleerd.data.features import FeatureLayout, FeatureStats, features_to_motion, motion_features, pose_features, stream_features
 from styleerd.motion import quat
 from styleerd.motion.kinematics import forward_kinematics
 from styleerd.motion.motion import Motion
@@ -45,7 +45,7 @@ def test_streaming_one_frame_at_a_time_equals_whole_clip():
         assert np.allclose(ft[0], f[t], atol=1e-9) and np.allclose(tt[0], traj[t], atol=1e-9)  # two arithmetic paths (small vs whole-clip arrays)
 
 
-@pytest.mark.parametrize("n_streams", [3, PARALLEL_FROM + 6])  # the serial and the parallel kernel
+@pytest.mark.parametrize("n_streams", [3, 70])
 def test_compiled_stream_features_equal_normalised_whole_clip_features(n_streams):
     """The streaming hot path (one compiled loop: unit quaternions, FK, heading, features,
     normalisation) against pose_features + FeatureStats.normalize, many streams at once, with
