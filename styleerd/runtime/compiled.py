@@ -75,18 +75,9 @@ def compiled_cell(g, b, h, c):
 def _lstm_stack(x, w_in, w_hid, bias, first, count, h, c):
     """Layers ``first .. first + count - 1`` of the flat weight lists, one step; h, c [L, N, H]
     updated in place; returns the last layer's output (a copy)."""
-    H = h.shape[2]
     for i in range(count):
         g = x @ w_in[first + i] + np.ascontiguousarray(h[i]) @ w_hid[first + i]
-        b = bias[first + i]
-        for n in range(g.shape[0]):
-            for j in range(H):
-                gi = _sigmoid(g[n, j] + b[j])
-                gf = _sigmoid(g[n, H + j] + b[H + j])
-                gg = fast_tanh(g[n, 2 * H + j] + b[2 * H + j])
-                go = _sigmoid(g[n, 3 * H + j] + b[3 * H + j])
-                c[i, n, j] = gf * c[i, n, j] + gi * gg
-                h[i, n, j] = go * fast_tanh(c[i, n, j])
+        compiled_cell(g, bias[first + i], h[i], c[i])
         x = np.ascontiguousarray(h[i])
     return x.copy()
 
