@@ -101,8 +101,8 @@ def stream_features(
     contact_speed: float = 0.25,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """One frame of N streams, the streaming hot path: ``pose_features`` of quaternions
-    normalised first, then ``stats.normalize``, in one compiled loop. A stream not ``started`` is at its first frame (zero velocity);
-    ``previous_facing [N, 3]`` is each stream's facing direction the frame before (kept when
+    normalised first, then ``stats.normalize``, in one compiled loop. A stream not ``started``
+    is at its first frame (zero velocity); ``previous_facing [N, 3]`` is each stream's facing direction the frame before (kept when
     the across vector is degenerate, as ``kinematics.facing_directions`` does over time).
 
     Returns (normalised features ``[N, D]`` float32, trajectory ``[N, 7]``, global joint
@@ -192,7 +192,6 @@ def _stream_features_kernel(rot, pos, previous, previous_facing, started, parent
             x[n, d] = y
             good = good and abs(y) < limit
         ok[n] = good
-
 
 
 def motion_features(motion: Motion, roles: BodyRoles | None = None, contact_speed: float = 0.25) -> tuple[np.ndarray, np.ndarray]:
