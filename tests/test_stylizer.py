@@ -87,6 +87,30 @@ def test_batched_streams_equal_single_streams(model):
             assert np.allclose(r[k], singles[k].step(m.rotations[t], m.positions[t])[0][0], atol=1e-5)
 
 
+@pytest.mark.parametrize("backend", ["numpy", "numba"])
+def test_steps_split_over_threads_equal_one_thread_and_reject_as_a_whole(model, backend, monkeypatch):
+    from styleerd.runtime import stylizer
+
+    monkeypatch.setattr(stylizer, "SHARD_FROM", 4)  # split even this small batch (two shards of 3)
+    ms = [walking_motion(12, seed=k) for k in range(6)]
+    targets = [{"old": 1.0}, {"angry": 0.5, "old": 0.5}, {"normal": 1.0}] * 2
+    torch.manual_seed(1)
+    labeller = OnlineLabeller(model.config.feature_dim, len(STYLES), len(CONTENTS), hidden=8).eval()
+    one = StreamStylizer(model, None, None, targets, n_streams=6, backend=backend, labeller=labeller)
+    two = StreamStylizer(model, None, None, targets, n_streams=6, backend=backend, labeller=labeller, threads=2)
+    for t in range(12):
+        rot, pos = np.stack([m.rotations[t] for m in ms]), np.stack([m.positions[t] for m in ms])
+        if t == 6:
+            absurd = pos.copy()
+            absurd[4, 0] = 1e30  # a stream of the second shard: the whole frame is refused
+            with pytest.raises(StyleERDError, match="stream 4: its values are too large"):
+                two.step(rot, absurd)
+            two.set_target({"angry": 1.0}, streams=[1, 5])
+            one.set_target({"angry": 1.0}, streams=[1, 5])
+        assert np.abs(two.step(rot, pos)[0] - one.step(rot, pos)[0]).max() <= 1e-5
+    assert two.inferred_labels() == one.inferred_labels()
+
+
 def test_style_switch_blends_without_a_pop(model):
     m = walking_motion(60)
     s = StreamStylizer(model, "normal", "walk", {"normal": 1.0}, blend_frames=10)

@@ -79,16 +79,32 @@ def test_ablation_switches_train(shared_data, tmp_path, ablation):
     assert (out / "content_classifier.safetensors").is_file() == ablation.get("use_per", True)
 
 
-def test_cycle_loss_trains_and_is_logged(shared_data, tmp_path):
+def test_cycle_and_content_losses_train_and_are_logged(shared_data, tmp_path):
     import csv
 
     from styleerd.train.trainer import train
 
     out = tmp_path / "cyc"
-    train(TrainConfig(**TINY, epochs=1, w_cyc=1.0), out, progress=False)
+    train(TrainConfig(**TINY, epochs=1, w_cyc=1.0, w_cls=0.5), out, progress=False)
     with open(out / "metrics.csv", newline="") as f:
         row = next(csv.DictReader(f))
     assert 0.0 < float(row["loss_cyc"]) < 100.0  # transfer and back, compared with the input
+    assert 0.0 < float(row["loss_cls"]) < 10.0  # cross-entropy over the contents of the tiny set
+
+
+def test_content_loss_ranks_the_true_content_first():
+    import torch
+
+    from styleerd.model.classifiers import WindowClassifier
+    from styleerd.train import losses
+
+    torch.manual_seed(0)
+    clf = WindowClassifier(6, 3, channels=(8,), instance_norm=True)
+    x = torch.randn(4, 12, 6)
+    pred = clf(x).argmax(-1)
+    right, wrong = losses.content_classification(clf, x, pred), losses.content_classification(clf, x, (pred + 1) % 3)
+    assert right < wrong
+    assert torch.isclose(right, torch.nn.functional.cross_entropy(clf(x), pred))
 
 
 def test_data_parallel_two_processes_with_torchrun(shared_data, tmp_path):

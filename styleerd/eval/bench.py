@@ -6,7 +6,9 @@ run (the paper's Table 2 and more). Prints a table, writes JSON and a throughput
   Mixamo-named skeleton in, stylised channel values out (Euler angles, retargeting both ways,
   features, network, foot cleanup);
 - whole clips of L = 60, 90, 120 frames streamed frame by frame (model skeleton, 1 thread);
-- throughput of StreamStylizer (features + network) over 1 .. 4,096 concurrent streams, 2 threads;
+- throughput of StreamStylizer (features + network) over 1 .. 4,096 concurrent streams, 2 threads
+  (numpy and numba: large steps split into one shard of streams per thread; torch and onnx: their
+  own intra-op threads);
 - FLOPs per frame, counted from the layer sizes, and achieved FLOP/s at the best batch against
   this machine's float32 matrix-multiply peak, measured here;
 - memory per stream (recurrent state and per-stream buffers); startup latency in frames.
@@ -92,9 +94,11 @@ def whole_clip_ms(model: StyleERD, backend: str, length: int, repeats: int = 3) 
     return round(best * 1e3, 2)
 
 
-def throughput(model: StyleERD, backend: str, n_streams: int, seconds: float = 1.5) -> float:
+def throughput(model: StyleERD, backend: str, n_streams: int, seconds: float = 1.5, threads: int = 2) -> float:
+    """Frames/s of one StreamStylizer stepping ``n_streams`` streams on ``threads`` threads
+    (the caller sets the thread pools: ``set_threads``)."""
     m = _model_walk(model, 4.0)
-    st = StreamStylizer(model, "normal", "walk", {"elderly": 1.0}, n_streams=n_streams, backend=backend)
+    st = StreamStylizer(model, "normal", "walk", {"elderly": 1.0}, n_streams=n_streams, backend=backend, threads=threads)
     rot = np.repeat(m.rotations[:, None], n_streams, 1)
     pos = np.repeat(m.positions[:, None], n_streams, 1)
     frames, t0 = 0, time.perf_counter()

@@ -138,13 +138,14 @@ class NumpyBackend:
 
     def step(self, x: np.ndarray, style: np.ndarray, content: np.ndarray, target: np.ndarray, rows: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
         """One frame of every stream, or of the streams ``rows`` only (the others keep their
-        state): what a server with streams arriving at different times steps."""
+        state): what a server with streams arriving at different times steps. Rows given as a
+        slice are stepped in place (views), so disjoint slices may step concurrently."""
         x, style, content, target = (np.ascontiguousarray(a, np.float32) for a in (x, style, content, target))
-        if rows is None:
-            return self._arithmetic(x, style, content, target, self.h, self.c, self.hb, self.cb, self.first)
-        h, c, hb, cb, first = self.h[:, rows], self.c[:, rows], self.hb[:, :, rows], self.cb[:, :, rows], self.first[rows]
+        sel = slice(None) if rows is None else rows
+        h, c, hb, cb, first = self.h[:, sel], self.c[:, sel], self.hb[:, :, sel], self.cb[:, :, sel], self.first[sel]
         out = self._arithmetic(x, style, content, target, h, c, hb, cb, first)
-        self.h[:, rows], self.c[:, rows], self.hb[:, :, rows], self.cb[:, :, rows], self.first[rows] = h, c, hb, cb, first
+        if not isinstance(sel, slice):  # rows by index gave copies: put them back
+            self.h[:, sel], self.c[:, sel], self.hb[:, :, sel], self.cb[:, :, sel], self.first[sel] = h, c, hb, cb, first
         return out
 
     def _arithmetic(self, x, style, content, target, h, c, hb, cb, first) -> tuple[np.ndarray, np.ndarray]:

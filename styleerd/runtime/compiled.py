@@ -57,7 +57,7 @@ def _sigmoid(v):
 
 # One thread: numba's parallel loops (OpenMP) and BLAS's threads, taking turns within a step,
 # spin against each other on few cores (1,000 streams: 186k frames/s serial, 100k parallel).
-@nb.njit(cache=True, fastmath=True, error_model="numpy")
+@nb.njit(cache=True, fastmath=True, error_model="numpy", nogil=True)
 def compiled_cell(g, b, h, c):
     """NumpyBackend's LSTM cell update (``backends._numpy_cell``), one pass per stream."""
     H = h.shape[1]

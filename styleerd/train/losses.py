@@ -40,3 +40,9 @@ def perceptual(classifier: WindowClassifier, source: torch.Tensor, output: torch
     with torch.no_grad():
         target = classifier.feature_maps(source)
     return sum(F.mse_loss(o, t) for o, t in zip(classifier.feature_maps(output), target))
+
+
+def content_classification(classifier: WindowClassifier, output: torch.Tensor, content: torch.Tensor) -> torch.Tensor:
+    """Cross-entropy of the (frozen) content classifier on the output against the input's
+    content label ``[B]``: the transfer must still read as the same action."""
+    return F.cross_entropy(classifier(output), content)

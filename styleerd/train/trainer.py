@@ -181,7 +181,7 @@ def train(config: TrainConfig, out: Path, data_dir: str | None = None, progress:
     D = Discriminator(6 * J, len(s.data.styles), len(s.data.contents), config.window, attention=config.attention)
     opt_g = torch.optim.Adam([p for p in G.parameters() if p.requires_grad], lr=config.lr_g, betas=(0.5, 0.999))
     opt_d = torch.optim.Adam(D.parameters(), lr=config.lr_d, betas=(0.5, 0.999))
-    per_classifier = _perceptual_classifier(config, s, out, progress) if config.use_per else None
+    per_classifier = _perceptual_classifier(config, s, out, progress) if config.use_per or config.w_cls else None
     if per_classifier is not None:
         per_classifier.requires_grad_(False)
     style_rec, content_rec = _recognisers(s)
@@ -239,10 +239,14 @@ def train(config: TrainConfig, out: Path, data_dir: str | None = None, progress:
                 loss_adv = losses.generator_adversarial(D(fake[..., L.positions.start :], tgt, content))
                 loss_g = loss_g + config.w_adv * loss_adv
                 logs["adv"] = loss_adv.item()
-            if per_classifier is not None:
+            if config.use_per:
                 loss_per = losses.perceptual(per_classifier, real, fake)
                 loss_g = loss_g + config.w_per * loss_per
                 logs["per"] = loss_per.item()
+            if config.w_cls:
+                loss_cls = losses.content_classification(per_classifier, fake, torch.from_numpy(s.train.content[rows]).long())
+                loss_g = loss_g + config.w_cls * loss_cls
+                logs["cls"] = loss_cls.item()
             if config.w_cyc:
                 # the transfer taken back to the input's style must give the input again:
                 # whatever the style branch adds has to leave the content recoverable
