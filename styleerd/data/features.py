@@ -119,8 +119,9 @@ def stream_features(
     return x, traj, g, facing, ok
 
 
-# One thread: numba's parallel loops (OpenMP) and BLAS's threads, taking turns within a step,
-# spin against each other on few cores (1,000 streams: 186k frames/s serial, 100k parallel).
+# Serial, but releases the GIL: parallelism comes from StreamStylizer's shards of streams (numba's
+# parallel loops and BLAS's threads, taking turns within a step, spun against each other on few
+# cores: 1,000 streams 186k frames/s serial, 100k parallel).
 @nb.njit(cache=True, nogil=True)
 def _stream_features_kernel(rot, pos, previous, previous_facing, started, parents, left, right, feet, fps, max_speed, mean, std, reference, limit, x, traj, g, g_rot, unit, facing, ok):
     J = rot.shape[1]
