@@ -207,27 +207,27 @@ class StreamStylizer:
             bad = np.argwhere(~np.isfinite(rotations).all(-1) | ~np.isfinite(positions).all(-1))[0]
             stream = bad[0] if rows is None else sel[bad[0]]
             raise StyleERDError(f"frame rejected: stream {stream}, joint {self.skeleton.names[bad[1]]!r} has a NaN or infinite value")
-        # (state rows, rows of this call's arrays) per shard; every shard's features are
-        # checked before any shard's state changes
-        shards = [(sel, slice(None))] if rows is not None or self.threads == 1 or n < SHARD_FROM else [(s, s) for s in _slices(n, self.threads)]
-        # shards take a core each, so BLAS gets one thread per call (two callers each asking BLAS
-        # for both cores spin against each other)
-        with _one_blas_thread() if len(shards) > 1 else nullcontext():
-            features = self._map(lambda s: self._features(rotations[s[1]], positions[s[1]], s[0]), shards)
-            for (state, _), f in zip(shards, features):
-                if not f[4].all():  # refused before any state changes: the network would overflow
+        # shards of streams as (rows of the state, rows of this call's arrays); with more than one,
+        # each takes a core and BLAS gets one thread per call (two callers each asking BLAS for
+        # both cores spin against each other)
+        split = rows is None and self.threads > 1 and n >= SHARD_FROM
+        shards = [(s, s) for s in _slices(n, self.threads)] if split else [(sel, slice(None))]
+        with _one_blas_thread() if split else nullcontext():
+            features = self._map(lambda shard: self._features(rotations[shard[1]], positions[shard[1]], shard[0]), shards)
+            for (state, _), f in zip(shards, features):  # every shard is checked before any state changes
+                if not f[4].all():  # refused: the network would overflow
                     bad = np.arange(self.n)[state][np.nonzero(~f[4])[0][0]]  # normalised features are O(1); 1e6 is input in the wrong units or garbage
                     raise StyleERDError(f"frame rejected: stream {bad}: its values are too large to stylise")
             weights = self.current_weights().astype(np.float32)
-            out = self._map(lambda s_f: self._advance(s_f[0][0], s_f[1], weights), list(zip(shards, features)))
-        return (out[0] if len(out) == 1 else np.concatenate(out)), positions
+            out = self._map(lambda shard, f: self._advance(shard[0], f, weights), shards, features)
+        return (np.concatenate(out) if split else out[0]), positions
 
-    def _map(self, f, items: list) -> list:
-        if len(items) == 1:
-            return [f(items[0])]
+    def _map(self, f, *args: list) -> list:
+        if len(args[0]) == 1:
+            return [f(*(a[0] for a in args))]
         if self._pool is None:
             self._pool = ThreadPoolExecutor(self.threads, thread_name_prefix="styleerd-shard")
-        return list(self._pool.map(f, items))
+        return list(self._pool.map(f, *args))
 
     def _features(self, rotations: np.ndarray, positions: np.ndarray, sel):
         return stream_features(rotations, positions, self.previous[sel], self.facing[sel], self.started[sel], self.skeleton, self.roles, self.fps, self.stats, MAX_FEATURE)
