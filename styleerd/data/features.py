@@ -102,8 +102,9 @@ def stream_features(
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """One frame of N streams, the streaming hot path: ``pose_features`` of quaternions
     normalised first, then ``stats.normalize``, in one compiled loop. A stream not ``started``
-    is at its first frame (zero velocity); ``previous_facing [N, 3]`` is each stream's facing direction the frame before (kept when
-    the across vector is degenerate, as ``kinematics.facing_directions`` does over time).
+    is at its first frame (zero velocity); ``previous_facing [N, 3]`` is each stream's facing
+    direction the frame before (kept when the across vector is degenerate, as
+    ``kinematics.facing_directions`` does over time).
 
     Returns (normalised features ``[N, D]`` float32, trajectory ``[N, 7]``, global joint
     positions ``[N, J, 3]``, facing directions ``[N, 3]``, ``ok [N]``: every normalised value
@@ -119,9 +120,7 @@ def stream_features(
     return x, traj, g, facing, ok
 
 
-# Serial, but releases the GIL: parallelism comes from StreamStylizer's shards of streams (numba's
-# parallel loops and BLAS's threads, taking turns within a step, spun against each other on few
-# cores: 1,000 streams 186k frames/s serial, 100k parallel).
+# Serial and GIL-free: threads come from StreamStylizer's shards of streams (runtime.stylizer.SHARD_FROM).
 @nb.njit(cache=True, nogil=True)
 def _stream_features_kernel(rot, pos, previous, previous_facing, started, parents, left, right, feet, fps, max_speed, mean, std, reference, limit, x, traj, g, g_rot, unit, facing, ok):
     J = rot.shape[1]

@@ -55,9 +55,7 @@ def _sigmoid(v):
     return np.float32(0.5) * fast_tanh(np.float32(0.5) * v) + np.float32(0.5)
 
 
-# Serial, but releases the GIL: parallelism comes from StreamStylizer's shards of streams (numba's
-# parallel loops and BLAS's threads, taking turns within a step, spun against each other on few
-# cores: 1,000 streams 186k frames/s serial, 100k parallel).
+# Serial and GIL-free: threads come from StreamStylizer's shards of streams (runtime.stylizer.SHARD_FROM).
 @nb.njit(cache=True, fastmath=True, error_model="numpy", nogil=True)
 def compiled_cell(g, b, h, c):
     """NumpyBackend's LSTM cell update (``backends._numpy_cell``), one pass per stream."""

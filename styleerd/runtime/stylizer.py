@@ -36,7 +36,8 @@ from styleerd.runtime.backends import NumpyLabeller, make_backend
 MAX_FEATURE = 1e6
 # streams per step from which a step is split over the stylizer's threads (measured, numba, 2
 # threads, frames/s serial vs split: 500 streams 197k vs 190k, 700: 199k vs 229k, 1,000: 202k vs
-# 250k; small shards lose to the GIL: 100 streams 160k vs 71k)
+# 250k; small shards lose to the GIL: 100 streams 160k vs 71k). Threads inside the kernels instead
+# (numba's parallel loops) spun against BLAS's threads on few cores: 1,000 streams 186k -> 100k.
 SHARD_FROM = 600
 
 
