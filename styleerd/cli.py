@@ -147,6 +147,17 @@ def _eval_quality(args: argparse.Namespace) -> None:
     print(json.dumps(evaluate_model(load_generator(args.model)[0], args.data), indent=1))
 
 
+def _eval_rotations(args: argparse.Namespace) -> None:
+    from styleerd.eval.rotations import markdown, rotation_report, write
+    from styleerd.model.checkpoint import load_generator
+
+    model, meta = load_generator(args.model)
+    report = rotation_report(model, meta["data"]["fps"], args.data, stylised=args.style)
+    if args.out:
+        write(report, Path(args.out))
+    print(markdown(report))
+
+
 def _eval_ablations(args: argparse.Namespace) -> None:
     from styleerd.atomic import atomic_write_text
     from styleerd.eval.ablations import ablation_table, markdown, train_ablations
@@ -311,6 +322,12 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--model", help="model path without suffix (default: the shipped model)")
     p.add_argument("--data", help="data folder")
     p.set_defaults(func=_eval_quality)
+    p = ev.add_parser("rotations", help="joint rotations on other skeletons, swing and twist: round trip at intensity 0, and the change a style makes")
+    p.add_argument("--model", help="model path without suffix (default: the shipped model)")
+    p.add_argument("--style", default="elderly", help="the style whose change is measured (default elderly)")
+    p.add_argument("--out", default="docs/rotations.md", help="Markdown table (a .json beside it); empty: print only")
+    p.add_argument("--data", help="data folder")
+    p.set_defaults(func=_eval_rotations)
     p = ev.add_parser("ablations", help="train what is missing (resumable) and tabulate the paper's ablations")
     p.add_argument("--epochs", type=int, default=14, help="training budget of every model (default 14, about 9 min each)")
     p.add_argument("--threads", type=int, default=1)

@@ -95,7 +95,7 @@ def test_generated_skeletons_retarget_to_the_original_movement(model_skeleton, s
     assert np.isclose(jm.scale, 100.0)
     on_model = to_target(other, jm)
     # every joint of the model lands where the original motion had it
-    assert np.abs(world_positions(on_model) - world_positions(original)).max() < 1e-6
+    assert np.abs(world_positions(on_model) - world_positions(original)).max() < 1e-4  # cm
     back = to_source(on_model, jm, other)
     assert np.abs(world_positions(back) - world_positions(other)).max() < 1e-9
 

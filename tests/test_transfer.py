@@ -152,16 +152,16 @@ def test_one_test_clip_per_style_and_content_into_every_style(shared_data, tmp_p
 def test_streamed_file_transfer_equals_the_whole_motion_pipeline(model, tmp_path, fps):
     """The chunked transfer against the same steps applied to the whole motion at once."""
     from styleerd.motion.procedural import walk
-    from styleerd.motion.retarget import joint_map, to_source, to_target
+    from styleerd.motion.retarget import to_source, to_target
     from styleerd.runtime.cleanup import clean_feet
-    from styleerd.runtime.offline import run_stream
+    from styleerd.runtime.offline import map_skeleton, run_stream
     from styleerd.runtime.stylizer import StreamStylizer
 
     g, _ = model
     bvh.write(tmp_path / "in.bvh", walk(1.5, fps=fps))
     src = bvh.read(tmp_path / "in.bvh")
     transfer_file(tmp_path / "in.bvh", tmp_path / "out.bvh", g, 30.0, "normal", "walk", {"elderly": 1.0}, chunk=7)
-    jm = joint_map(g.skeleton, src.skeleton)
+    jm = map_skeleton(src.skeleton, g, first_pose=src.rotations[0])
     styled = run_stream(StreamStylizer(g, "normal", "walk", {"elderly": 1.0}, fps=30.0), resample(to_target(src, jm), 30.0))
     whole = to_source(resample(styled, src.fps, n_frames=src.n_frames), jm, src)
     whole = clean_feet(whole, src)

@@ -25,10 +25,11 @@ import torch
 from styleerd.model.generator import StyleERD
 from styleerd.motion import bvh
 from styleerd.motion.procedural import walk
-from styleerd.motion.retarget import joint_map, to_target
+from styleerd.motion.retarget import to_target
 from styleerd.runtime.backends import BACKENDS, make_backend
 from styleerd.runtime.channels import ChannelStylizer
 from styleerd.runtime.stylizer import StreamStylizer
+from styleerd.runtime.offline import map_skeleton
 
 PAPER_GTX1060_MS = {"online per frame": 1.73, "L=60": 7.47, "L=90": 10.18, "L=120": 13.22, "input frames needed": 1}
 STREAMS = (1, 4, 10, 16, 64, 100, 256, 1000, 4096)  # the throughput curve's points
@@ -79,7 +80,7 @@ def end_to_end(model: StyleERD, backend: str, steps: int) -> dict:
 
 def _model_walk(model: StyleERD, seconds: float):
     source = walk(seconds=seconds, fps=30.0)
-    return to_target(source, joint_map(model.skeleton, source.skeleton))
+    return to_target(source, map_skeleton(source.skeleton, model, first_pose=source.rotations[0]))
 
 
 def whole_clip_ms(model: StyleERD, backend: str, length: int, repeats: int = 3) -> float:

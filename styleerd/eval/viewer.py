@@ -1,5 +1,6 @@
 """A self-contained HTML page that plays motions side by side (canvas 2D, no network access):
-solid bones, a floor grid that shows foot sliding, play/pause, frame slider, view angle."""
+bones drawn as oriented plates with a marked front edge (so a bone rolled about itself shows),
+a floor grid that shows foot sliding, play/pause, frame slider, view angle."""
 
 from __future__ import annotations
 
@@ -65,22 +66,39 @@ function draw(t) {
       const q = project([gx + i * step, 0, gz + k * step], root, c, s, scale, W, H);
       ctx.fillRect(q[0] - 1.5, q[1] - 1.5, 3, 3);
     }
-    ctx.lineCap = "round"; ctx.strokeStyle = v.color; ctx.lineWidth = 7;
+    // each bone: a plate from the bone to its front (the parent joint's rest +Z, turned with it),
+    // filled pale, its front edge dark: a roll of the bone about itself turns the plate
+    const F = m.fronts[t];
+    ctx.lineCap = "round"; ctx.lineJoin = "round";
     for (let j = 1; j < m.parents.length; j++) {
-      const p = project(P[m.parents[j]], root, c, s, scale, W, H), q = project(P[j], root, c, s, scale, W, H);
-      ctx.beginPath(); ctx.moveTo(p[0], p[1]); ctx.lineTo(q[0], q[1]); ctx.stroke();
+      const a = P[m.parents[j]], b = P[j], f = F[j];
+      const len = Math.hypot(b[0] - a[0], b[1] - a[1], b[2] - a[2]);
+      if (len < 1e-6) continue;
+      const w = 0.35 * Math.min(len, DATA.height * 0.12);
+      const a2 = [a[0] + f[0] * w, a[1] + f[1] * w, a[2] + f[2] * w], b2 = [b[0] + f[0] * w, b[1] + f[1] * w, b[2] + f[2] * w];
+      const q = [a, b, b2, a2].map(x => project(x, root, c, s, scale, W, H));
+      ctx.fillStyle = v.color + "55"; ctx.beginPath(); ctx.moveTo(q[0][0], q[0][1]);
+      for (const r of q.slice(1)) ctx.lineTo(r[0], r[1]);
+      ctx.closePath(); ctx.fill();
+      ctx.strokeStyle = v.color; ctx.lineWidth = 5; ctx.beginPath(); ctx.moveTo(q[0][0], q[0][1]); ctx.lineTo(q[1][0], q[1][1]); ctx.stroke();
+      ctx.strokeStyle = "#222"; ctx.lineWidth = 2; ctx.beginPath(); ctx.moveTo(q[3][0], q[3][1]); ctx.lineTo(q[2][0], q[2][1]); ctx.stroke();
     }
     ctx.fillStyle = "#333";
     for (const p of P) { const q = project(p, root, c, s, scale, W, H); ctx.beginPath(); ctx.arc(q[0], q[1], 3.5, 0, 7); ctx.fill(); }
   }
   timeLabel.textContent = `${(t / DATA.fps).toFixed(2)} s / ${((T - 1) / DATA.fps).toFixed(2)} s`;
+  window.framesDrawn = (window.framesDrawn || 0) + 1;  // for tests
 }
-let playing = true, t0 = performance.now(), start = 0;
+let playing = true, t0 = null, start = 0;
 function tick(now) {
-  if (playing) { const t = Math.floor(start + (now - t0) / 1000 * DATA.fps) % T; frame.value = t; draw(t); }
+  // the first animation frame's timestamp can be earlier than performance.now() at load:
+  // time starts at the first tick, and the index is kept in [0, T)
+  if (t0 === null) t0 = now;
+  if (playing) { const t = ((Math.floor(start + (now - t0) / 1000 * DATA.fps) % T) + T) % T; frame.value = t; draw(t); }
   requestAnimationFrame(tick);
 }
-play.onclick = () => { playing = !playing; play.textContent = playing ? "Pause" : "Play"; start = +frame.value; t0 = performance.now(); };
+
+play.onclick = () => { playing = !playing; play.textContent = playing ? "Pause" : "Play"; start = +frame.value; t0 = null; };
 frame.oninput = () => { playing = false; play.textContent = "Play"; draw(+frame.value); };
 yaw.oninput = () => draw(+frame.value);
 requestAnimationFrame(tick);
@@ -88,14 +106,43 @@ requestAnimationFrame(tick);
 """
 
 
+def bone_fronts(skeleton, global_rotations: np.ndarray) -> np.ndarray:
+    """Per frame and joint j, the unit front of the bone from j's parent to j: the parent's
+    rest +Z made perpendicular to the bone (+Y for a bone along Z, such as a foot), turned
+    by the parent's global rotation ``[T, J, 4]``. Zero at the root."""
+    from styleerd.motion import quat
+
+    fronts = np.zeros((skeleton.n_joints, 3))
+    for j in range(1, skeleton.n_joints):
+        bone = skeleton.offsets[j]
+        n = np.linalg.norm(bone)
+        if n < 1e-9:
+            continue
+        bone = bone / n
+        for axis in (np.array([0.0, 0.0, 1.0]), np.array([0.0, 1.0, 0.0])):
+            f = axis - bone * np.dot(axis, bone)
+            if np.linalg.norm(f) > 0.3:
+                fronts[j] = f / np.linalg.norm(f)
+                break
+    parents = np.maximum(skeleton.parents, 0)
+    return quat.mul_vec(global_rotations[:, parents], fronts)
+
+
+def _rounded(positions: np.ndarray, height: float) -> list:
+    """Positions to a millimetre-scale precision whatever the units (cm, m)."""
+    return np.round(positions, max(1, int(np.ceil(-np.log10(height / 2000))))).tolist()
+
+
 def write_html(path: str | Path, motions: list[tuple[str, Motion]], title: str, subtitle: str = "", fps: float = 30.0) -> None:
-    """The page at ``path``: every motion resampled to ``fps``, as global joint positions."""
+    """The page at ``path``: every motion resampled to ``fps``, as global joint positions and
+    bone fronts."""
     entries, height = [], 1.0
     for label, motion in motions:
         m = resample(motion, fps) if not np.isclose(motion.fps, fps) else motion
-        _, g = forward_kinematics(m.rotations, m.positions, m.skeleton.parents)
+        g_rot, g = forward_kinematics(m.rotations, m.positions, m.skeleton.parents)
         height = max(height, float(np.ptp(g[0, :, 1])))
-        entries.append({"label": label, "parents": m.skeleton.parents.tolist(), "frames": np.round(g, 1).tolist()})
+        entries.append({"label": label, "parents": m.skeleton.parents.tolist(), "frames": _rounded(g, height),
+                        "fronts": np.round(bone_fronts(m.skeleton, g_rot), 2).tolist()})  # fmt: skip
     data = json.dumps({"fps": fps, "height": height * 1.1, "motions": entries}, separators=(",", ":"))
     page = _PAGE.replace("__TITLE__", html.escape(title)).replace("__SUBTITLE__", html.escape(subtitle)).replace("__DATA__", data)
     atomic_write_text(Path(path), page)

@@ -82,10 +82,64 @@ def walk(seconds: float = 6.0, fps: float = 60.0, steps_per_second: float = 1.8,
         rot[:, j(f"{side}Leg")] = _rx(8 + 45 * np.maximum(forward_motion, 0) ** 1.5)
         rot[:, j(f"{side}Foot")] = _rx(-6 * swing)
         rot[:, j(f"{side}Arm")] = quat.mul(_rx(-22 * -swing), _rz(-sign * 78))  # arms down, swing against the leg
-        rot[:, j(f"{side}ForeArm")] = _ry(sign * (12 + 8 * np.maximum(-swing, 0)))
+        rot[:, j(f"{side}ForeArm")] = _ry(-sign * (20 + 15 * np.maximum(-swing, 0)))  # elbows bend forward
     pos = np.broadcast_to(sk.offsets, (T, sk.n_joints, 3)).copy()
     radius = speed / max(np.radians(turn_degrees_per_second), 1e-9)
     pos[:, 0, 0] = radius * (1 - np.cos(heading)) if turn_degrees_per_second else 0.0
     pos[:, 0, 2] = radius * np.sin(heading) if turn_degrees_per_second else speed * t
     pos[:, 0, 1] = 95 - 1.5 + 1.5 * np.cos(2 * phase)
     return Motion(sk, quat.normalize(rot), pos, fps)
+
+
+def with_rest_frames(motion: Motion, frames: np.ndarray, names: tuple[str, ...] | None = None, scale: float = 1.0) -> Motion:
+    """The same movement on a rig whose joints have other rest frames: ``frames [J, 4]`` is each
+    joint's new frame relative to its old one (the old rest is identity everywhere), so every
+    joint's global rotation becomes ``G_j * frames_j``, every offset ``inv(frames_parent) *
+    offset``, and the joint positions stay (times ``scale``: other units). Renamed by ``names``."""
+    sk = motion.skeleton
+    parent_frames = np.where((sk.parents >= 0)[:, None], frames[np.maximum(sk.parents, 0)], quat.identity((sk.n_joints,)))
+    offsets = quat.mul_vec(quat.inv(parent_frames), sk.offsets) * scale
+    local = quat.mul(quat.mul(quat.inv(parent_frames), motion.rotations), frames)
+    pos = np.broadcast_to(offsets, motion.positions.shape).copy()
+    pos[:, 0] = motion.positions[:, 0] * scale
+    ends = tuple((j, quat.mul_vec(quat.inv(frames[j]), o) * scale) for j, o in sk.end_sites)
+    skeleton = Skeleton(names or sk.names, sk.parents, offsets, sk.channels, ends)
+    return Motion(skeleton, quat.normalize(local), pos, motion.fps)
+
+
+_BLENDER = {"Hips": "hips", "Spine": "spine", "Spine1": "spine.001", "Spine2": "chest", "Neck": "neck", "Head": "head"}
+for _side, _s in (("Left", "L"), ("Right", "R")):
+    _BLENDER.update({f"{_side}Shoulder": f"shoulder.{_s}", f"{_side}Arm": f"upper_arm.{_s}", f"{_side}ForeArm": f"forearm.{_s}",
+                     f"{_side}Hand": f"hand.{_s}", f"{_side}UpLeg": f"thigh.{_s}", f"{_side}Leg": f"shin.{_s}",
+                     f"{_side}Foot": f"foot.{_s}", f"{_side}ToeBase": f"toe.{_s}"})  # fmt: skip
+
+
+def rig_variants(motion: Motion | None = None, seed: int = 0) -> dict[str, Motion]:
+    """The demo walk (or ``motion`` on the same skeleton) on rigs that differ from it the way
+    users' rigs do: an A-pose rest, metres, Blender names and proportions, and joint frames
+    rolled about their own bones (which the rest pose cannot show). Every one moves exactly
+    like the original: same joint positions (up to units) and bone orientations."""
+    motion = motion or walk()
+    sk = motion.skeleton
+    J, j = sk.n_joints, sk.index
+    out = {"Mixamo T-pose, centimetres": motion}
+    a_pose = quat.identity((J,))
+    for side, sign in (("Left", 1.0), ("Right", -1.0)):
+        for name in (f"{side}Arm", f"{side}ForeArm", f"{side}Hand"):
+            a_pose[j(name)] = _rz(sign * 45)
+    out["A-pose, centimetres"] = with_rest_frames(motion, a_pose)
+    out["Mixamo T-pose, metres"] = with_rest_frames(motion, quat.identity((J,)), scale=0.01)
+    blender = with_rest_frames(motion, quat.identity((J,)), tuple(_BLENDER[n] for n in sk.names), scale=0.01)
+    lengths = np.array([1.2 if "Leg" in n or "Foot" in n else 0.85 if "Arm" in n or "Spine" in n else 1.0 for n in sk.names])
+    body = Skeleton(blender.skeleton.names, sk.parents, blender.skeleton.offsets * lengths[:, None], sk.channels, blender.skeleton.end_sites)
+    pos = np.broadcast_to(body.offsets, motion.positions.shape).copy()
+    pos[:, 0] = blender.positions[:, 0] * 1.2  # the hips ride higher on longer legs
+    out["Blender names and proportions, metres"] = Motion(body, blender.rotations, pos, motion.fps)
+    rng = np.random.default_rng(seed)
+    rolled = quat.identity((J,))
+    for k in range(J):
+        kids = sk.children(k)
+        along = sk.offsets[kids[0]] if kids else sk.offsets[k]
+        rolled[k] = quat.from_angle_axis(rng.uniform(-np.pi, np.pi), along / np.linalg.norm(along))
+    out["joint frames rolled about their bones"] = with_rest_frames(motion, rolled)
+    return out

@@ -112,6 +112,18 @@ def angle_between(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     return 2.0 * np.arccos(np.clip(d, 0.0, 1.0))
 
 
+def swing_twist(q: np.ndarray, axis: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Split rotations ``q [..., 4]`` into ``swing * twist``: ``twist`` turns about the unit
+    ``axis [..., 3]``, ``swing`` about an axis perpendicular to it."""
+    q = positive_w(q)
+    along = np.sum(q[..., 1:] * axis, axis=-1, keepdims=True) * axis
+    twist = np.concatenate([q[..., :1], along], axis=-1)
+    small = np.linalg.norm(twist, axis=-1, keepdims=True) < 1e-12  # a half turn about a perpendicular axis
+    twist = np.where(small, identity(q.shape[:-1]), twist)
+    twist = normalize(twist)
+    return mul(q, inv(twist)), twist
+
+
 def from_euler(e: np.ndarray, order: str) -> np.ndarray:
     """Intrinsic Euler angles ``e [..., 3]`` (radians) about the axes of ``order``."""
     e = np.asarray(e, dtype=np.float64)

@@ -114,9 +114,10 @@ class JointMap:
     source: Skeleton
     target: Skeleton
     pairs: tuple[tuple[int, int], ...]  # (target joint, source joint), target order
-    source_tpose: np.ndarray  # [Js, 4] global rotations of the source in the T-pose
+    source_tpose: np.ndarray  # [Js, 4] global rotations of the source in the canonical T-pose
     target_tpose: np.ndarray  # [Jt, 4]
     scale: float  # target units per source unit (ratio of leg lengths)
+    source_reference: str = "rest pose"  # which pose fixed the source's bone frames (see ``joint_map``)
 
     @cached_property
     def joints(self) -> tuple[np.ndarray, np.ndarray]:
@@ -153,50 +154,93 @@ class JointMap:
         unmapped = [n for j, n in enumerate(self.source.names) if j not in {s for _, s in self.pairs}]
         if unmapped:
             lines.append(f"  keep their own motion: {', '.join(unmapped)}")
+        lines.append(f"  bone frames (direction and roll) of the input taken from: {self.source_reference}")
         return "\n".join(lines)
 
 
-def _rest_positions(skeleton: Skeleton) -> np.ndarray:
-    rot = quat.identity((skeleton.n_joints,))
-    return forward_kinematics(rot, skeleton.offsets.copy(), skeleton.parents)[1]
+def _pose_positions(skeleton: Skeleton, rotations: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """Global rotations and positions of one pose (local rotations ``[J, 4]``; None: the rest
+    pose, every rotation zero) with the rest offsets as translations."""
+    rot = quat.identity((skeleton.n_joints,)) if rotations is None else quat.normalize(np.asarray(rotations, dtype=np.float64))
+    return forward_kinematics(rot, skeleton.offsets.copy(), skeleton.parents)
+
+
+def _unit(v: np.ndarray) -> np.ndarray:
+    return v / max(float(np.linalg.norm(v)), 1e-300)
 
 
 def _frame(primary: np.ndarray, secondary: np.ndarray) -> np.ndarray:
     """Orthonormal frame [3, 3] (columns) whose first axis is ``primary`` and whose second
     lies in the plane of ``primary`` and ``secondary``."""
-    a = primary / np.linalg.norm(primary)
-    b = secondary - a * np.dot(a, secondary)
-    b /= np.linalg.norm(b)
+    a = _unit(primary)
+    b = _unit(secondary - a * np.dot(a, secondary))
     return np.stack([a, b, np.cross(a, b)], -1)
 
 
-def tpose_rotations(skeleton: Skeleton, parts: dict[str, int], shared: set[str]) -> np.ndarray:
-    """Global rotations ``[J, 4]`` that put the skeleton in the T-pose, from its rest pose.
+def _bone(P: np.ndarray, parts: dict[str, int], part: str, shared: set[str]) -> np.ndarray | None:
+    """The part's bone in pose positions ``P``: to the next shared part of its chain that does
+    not sit on the same spot (zero-length joints such as CMU's LHipJoint are skipped)."""
+    eps = 1e-6 * max(1.0, float(np.abs(P - P[0]).max()))
+    j = parts[part]
+    tips = [parts[c] for c in _down_chain(part, shared) if np.linalg.norm(P[parts[c]] - P[j]) > eps]
+    return P[tips[0]] - P[j] if tips else None
 
-    A part's bone runs to the next part of its chain that both skeletons have (``shared``)
-    and that does not sit on the same spot (zero-length joints such as CMU's LHipJoint or a
-    neck at the chest's position are skipped). A part with no such bone (head, hands, toes)
-    and joints that are no part keep their parent's rotation."""
-    P = _rest_positions(skeleton)
-    eps = 1e-6 * max(1.0, float(np.abs(P).max()))
-    T = quat.identity((skeleton.n_joints,))
-    target = {}
-    for part, j in parts.items():
-        if part not in shared or part not in TPOSE_DIRECTIONS:
-            continue
-        tips = [parts[c] for c in _down_chain(part, shared) if np.linalg.norm(P[parts[c]] - P[j]) > eps]
-        if not tips:
-            continue
-        bone = P[tips[0]] - P[j]
-        sides = [[parts[p] for p in side if p in shared and np.linalg.norm(P[parts[p]] - P[j]) > eps] for side in ACROSS.get(part, ())]
-        if sides and all(sides):
-            rot = _frame(TPOSE_DIRECTIONS[part], LEFT) @ _frame(bone, P[sides[0][0]] - P[sides[1][0]]).T
-        else:
-            rot = quat.to_xform(quat.between(bone, TPOSE_DIRECTIONS[part]))
-        target[j] = quat.from_xform(rot)
+
+def _across(P: np.ndarray, parts: dict[str, int], part: str, shared: set[str]) -> np.ndarray | None:
+    """Left minus right at the hips (the hip joints) or the chest (collars or shoulders)."""
+    eps = 1e-6 * max(1.0, float(np.abs(P - P[0]).max()))
+    sides = [[parts[p] for p in side if p in shared and np.linalg.norm(P[parts[p]] - P[parts[part]]) > eps] for side in ACROSS[part]]
+    return P[sides[0][0]] - P[sides[1][0]] if all(sides) else None
+
+
+def _body_frames(P: np.ndarray, parts: dict[str, int], shared: set[str]) -> dict[str, np.ndarray] | None:
+    """World rotation [3, 3] that turns the hips' and the chest's frames (up along the spine,
+    left across) into the T-pose's, in pose positions ``P``; None if a bone is degenerate."""
+    out = {}
+    for part in ("hips", "chest"):
+        up, across = _bone(P, parts, part, shared), _across(P, parts, part, shared)
+        if up is None or across is None or np.linalg.norm(np.cross(_unit(up), _unit(across))) < 0.2:
+            return None
+        out[part] = _frame(UP, LEFT) @ _frame(up, across).T
+    return out
+
+
+def tpose_rotations(skeleton: Skeleton, parts: dict[str, int], shared: set[str], pose: np.ndarray | None = None) -> np.ndarray:
+    """Global rotations ``[J, 4]`` of the skeleton in the canonical T-pose, each bone's full
+    frame fixed (its direction and its roll about itself), found from a reference pose of the
+    skeleton (local rotations ``pose [J, 4]``; None: the rest pose) in which the bones have
+    their natural roll (knees and feet forward; palms down in a T-pose, towards the body with
+    the arms down).
+
+    The hips and the chest are turned so that their bone points up and their left-right line
+    points left (+X). Down each chain, a part's bone is carried along with the turn of the part
+    above it and then swung the shortest way onto its T-pose direction: a bent knee or elbow is
+    straightened about its own hinge, so the roll follows the body's. A bone runs to the next
+    part of its chain that both skeletons have (``shared``); parts without one (head, hands,
+    toes) and joints that play no part keep their local rotation of the reference pose."""
+    G, P = _pose_positions(skeleton, pose)
+    Gm = quat.to_xform(G)
+    body = _body_frames(P, parts, shared)
+    turn: dict[str, np.ndarray] = {}  # part -> world rotation [3, 3] from the reference pose to the T-pose
+    for chain in CHAINS:
+        for above, part in zip(chain, chain[1:]):
+            for p in (above, part) if above not in turn else (part,):
+                if p in turn or p not in shared or p not in TPOSE_DIRECTIONS or (bone := _bone(P, parts, p, shared)) is None:
+                    continue
+                if p in ("hips", "chest") and body is not None:
+                    turn[p] = body[p]
+                    continue
+                carried = next((turn[a] for a in reversed(chain[: chain.index(p)]) if a in turn), np.eye(3))
+                turn[p] = quat.to_xform(quat.between(carried @ bone, TPOSE_DIRECTIONS[p])) @ carried
+    by_joint = {parts[p]: m for p, m in turn.items()}
+    T = np.empty((skeleton.n_joints, 3, 3))
     for j in range(skeleton.n_joints):  # parents first
-        T[j] = target.get(j, T[skeleton.parents[j]] if j > 0 else T[0])
-    return T
+        p = int(skeleton.parents[j])
+        if j in by_joint:
+            T[j] = by_joint[j] @ Gm[j]
+        else:  # the reference pose's local rotation, on the parent's T-pose frame
+            T[j] = T[p] @ Gm[p].T @ Gm[j] if p >= 0 else Gm[j]
+    return quat.from_xform(T)
 
 
 def _down_chain(part: str, shared: set[str]) -> list[str]:
@@ -206,16 +250,75 @@ def _down_chain(part: str, shared: set[str]) -> list[str]:
     return [p for p in chain[chain.index(part) + 1 :] if p in shared]
 
 
+def natural_rest(skeleton: Skeleton, parts: dict[str, int], shared: set[str]) -> bool:
+    """Whether the rest pose is a T-pose or an A-pose, so its bones' rolls are the natural
+    ones: spine up, legs down, feet forward, arms out to the sides (up to 60 degrees down),
+    hips and chest facing the same way. A rest such as Bandai-Namco's (every bone along its
+    parent's X) or one with rolled joint frames is not."""
+    _, P = _pose_positions(skeleton)
+    body = _body_frames(P, parts, shared)
+    if body is None or quat.angle_between(quat.from_xform(body["hips"]), quat.from_xform(body["chest"])) > np.radians(30):
+        return False
+    limits = {"spine": 40, "neck": 40, "left_hip": 40, "left_knee": 40, "right_hip": 40, "right_knee": 40, "left_foot": 60, "right_foot": 60,
+              "left_shoulder": 60, "left_elbow": 60, "right_shoulder": 60, "right_elbow": 60}  # fmt: skip
+    for part, limit in limits.items():
+        if part in shared and (bone := _bone(P, parts, part, shared)) is not None:
+            aligned = body["hips" if part in ("spine",) or part.endswith(("hip", "knee", "foot")) else "chest"] @ bone
+            if np.degrees(np.arccos(np.clip(np.dot(_unit(aligned), TPOSE_DIRECTIONS[part]), -1, 1))) > limit:
+                return False
+    up = body["hips"].T @ UP  # the rest's up in the world: BVH data is Y up
+    return bool(np.dot(up, UP) > np.cos(np.radians(40)))
+
+
+def same_rest_frames(target: Skeleton, source: Skeleton, pairs: tuple[tuple[int, int], ...]) -> bool:
+    """Whether the source's rest pose is the target's up to scale (same bone directions from
+    the hips for every mapped joint): the same rig, renamed or rescaled, whose joint frames are
+    the target's and need no turning."""
+    _, Pt = _pose_positions(target)
+    _, Ps = _pose_positions(source)
+    (t0, s0), rest = pairs[0], pairs[1:]
+    for t, s in rest:
+        a, b = Pt[t] - Pt[t0], Ps[s] - Ps[s0]
+        if np.linalg.norm(a) < 1e-9 or np.linalg.norm(b) < 1e-9:
+            continue
+        if np.dot(_unit(a), _unit(b)) < np.cos(np.radians(3)):
+            return False
+    return True
+
+
 def leg_length(skeleton: Skeleton, parts: dict[str, int]) -> float:
-    P = _rest_positions(skeleton)
+    _, P = _pose_positions(skeleton)
     hip, knee, foot = (parts[f"left_{p}"] for p in ("hip", "knee", "foot"))
     return float(np.linalg.norm(P[knee] - P[hip]) + np.linalg.norm(P[foot] - P[knee]))
 
 
-def joint_map(target: Skeleton, source: Skeleton, explicit: dict[str, str] | None = None) -> JointMap:
+def _source_frames(source: Skeleton, parts: dict[str, int], shared: set[str], first_pose: np.ndarray | None) -> tuple[np.ndarray, str]:
+    """The source's T-pose rotations and what they came from: a T- or A-pose rest, else the
+    first frame (a rest such as every bone along its parent's X, or joint frames rolled in the
+    rig, says nothing about the bones' natural roll)."""
+    if natural_rest(source, parts, shared):
+        return tpose_rotations(source, parts, shared), "the rest pose (a T- or A-pose)"
+    if first_pose is None:
+        return tpose_rotations(source, parts, shared), "the rest pose, though it is no T- or A-pose (no first frame given): bone rolls may be off"
+    return tpose_rotations(source, parts, shared, first_pose), "the first frame (the rest pose is no T- or A-pose)"
+
+
+def joint_map(
+    target: Skeleton,
+    source: Skeleton,
+    explicit: dict[str, str] | None = None,
+    target_pose: np.ndarray | None = None,
+    source_pose: np.ndarray | None = None,
+) -> JointMap:
     """Map ``source`` onto ``target`` automatically (names and topology); ``explicit``
     ({target joint: source joint}) overrides or completes it. Raises ValueError naming the
-    body parts that cannot be found."""
+    body parts that cannot be found.
+
+    Each skeleton's bone frames come from a pose in which its bones have their natural roll:
+    its rest pose when that is a T-pose or an A-pose, otherwise the pose given (local rotations
+    ``[J, 4]``: the model's average pose for the model, the first frame of the motion for an
+    input), otherwise the rest pose as it is. A source whose rest pose is the target's up to
+    scale (the same rig renamed) shares the target's frames exactly."""
     tp, sp = body_parts(target), body_parts(source)
     if explicit:
         for t_name, s_name in explicit.items():
@@ -237,7 +340,18 @@ def joint_map(target: Skeleton, source: Skeleton, explicit: dict[str, str] | Non
     shared = {p for p in tp if p in sp}
     pairs = tuple(sorted((tp[p], sp[p]) for p in shared))
     scale = leg_length(target, tp) / leg_length(source, sp)
-    return JointMap(source, target, pairs, tpose_rotations(source, sp, shared), tpose_rotations(target, tp, shared), scale)
+    for name, length in (("input", leg_length(source, sp)), ("model", leg_length(target, tp))):
+        if not np.isfinite(length) or length <= 0:
+            raise ValueError(f"the {name} skeleton's legs have no length (hip, knee and foot at one spot)")
+    target_t = tpose_rotations(target, tp, shared, None if natural_rest(target, tp, shared) else target_pose)
+    if same_rest_frames(target, source, pairs):
+        source_t = tpose_rotations(source, sp, shared)  # only its mapped joints are used: the target's frames
+        t_idx, s_idx = (np.array(x) for x in zip(*pairs))
+        source_t[s_idx] = target_t[t_idx]
+        reference = "the model's own frames (the same rig)"
+    else:
+        source_t, reference = _source_frames(source, sp, shared, source_pose)
+    return JointMap(source, target, pairs, source_t, target_t, scale, reference)
 
 
 def _local_from_global(g_rot: np.ndarray, parents: np.ndarray) -> np.ndarray:

@@ -134,7 +134,7 @@ def _sided(left: tuple[str, ...]) -> tuple[str, ...]:
 # Joint names by body part (lower case, namespace dropped), as Bandai-Namco, CMU/Xia,
 # Mixamo/Unity and Blender rigs name them; left side, the right side follows.
 _LEFT_NAMES = {
-    "collar": ("shoulder_l", "leftshoulder", "leftcollar", "l_collar", "leftclavicle", "clavicle_l", "l_clavicle", "clavicle.l"),
+    "collar": ("shoulder_l", "leftshoulder", "leftcollar", "l_collar", "leftclavicle", "clavicle_l", "l_clavicle", "clavicle.l", "shoulder.l"),
     "shoulder": ("upperarm_l", "leftarm", "leftupperarm", "l_shoulder", "l_upperarm", "upper_arm.l"),
     "elbow": ("lowerarm_l", "leftforearm", "leftlowerarm", "leftelbow", "l_elbow", "l_forearm", "forearm_l", "forearm.l"),
     "hand": ("hand_l", "lefthand", "leftwrist", "l_wrist", "l_hand", "hand.l"),

@@ -35,8 +35,9 @@ class ChannelStylizer:
         cleanup: bool = True,
         backend: str = "numpy",
         labeller: OnlineLabeller | None = None,
+        first_pose: np.ndarray | None = None,
     ):
-        self.map = map_skeleton(skeleton, model.skeleton, explicit_map)
+        self.map = map_skeleton(skeleton, model, explicit_map, first_pose=first_pose)
         self.skeleton, self.fps, self.n = skeleton, fps, n_streams
         self.n_channels = sum(len(c) for c in skeleton.channels)
         self.stylizer = StreamStylizer(model, input_style, content, target, n_streams, fps, labeller=labeller, backend=backend)

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import itertools
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
@@ -35,10 +36,12 @@ def run_stream(stylizer: StreamStylizer, motion: Motion) -> Motion:
     return Motion(motion.skeleton, out, motion.positions.copy(), motion.fps)
 
 
-def map_skeleton(skeleton: Skeleton, model_skeleton: Skeleton, explicit: dict[str, str] | None = None, where: str = "input") -> JointMap:
-    """The mapping of a skeleton onto the model's, or a clear error naming what is missing."""
+def map_skeleton(skeleton: Skeleton, model: StyleERD, explicit: dict[str, str] | None = None, where: str = "input", first_pose: np.ndarray | None = None) -> JointMap:
+    """The mapping of a skeleton onto the model's, or a clear error naming what is missing.
+    The model's bone frames come from its average pose; the input's from its rest pose when
+    that is a T- or A-pose, else from ``first_pose`` (local rotations of its first frame)."""
     try:
-        return joint_map(model_skeleton, skeleton, explicit)
+        return joint_map(model.skeleton, skeleton, explicit, model.stats().reference, first_pose)
     except ValueError as e:
         raise StyleERDError(f"{where}: {e}") from None
 
@@ -48,6 +51,55 @@ class TransferReport:
     frames: int
     fps: float
     labels: tuple[str, str] | None  # (style, content) at the last frame, when inferred
+
+
+def _stylised_stream(
+    header: bvh.Header,
+    chunks: Iterator[np.ndarray],
+    model: StyleERD,
+    fps: float,
+    input_style: str | None,
+    content: str | None,
+    target: dict[str, float],
+    explicit_map: dict[str, str] | None,
+    report: Callable[[str], None] | None,
+    cleanup: bool,
+    backend: str,
+) -> tuple[Iterator[np.ndarray], StreamStylizer]:
+    """The stylised channel values of a stream of frames, chunk by chunk, and its stylizer
+    (for the labels it inferred): the checks, the mapping (bone frames from the first frame
+    where the rest pose is no T- or A-pose), the streaming path."""
+    if header.n_frames == 0:
+        raise StyleERDError(f"{header.path}: the motion has no frames")
+    if not 10 <= header.fps <= 480:
+        raise StyleERDError(f"{header.path}: {header.fps:.6g} fps is outside [10, 480]")
+    first = next(chunks)
+    first_pose = bvh.motion_from_channels(header.skeleton, first[:1], header.fps).rotations[0]
+    jm = map_skeleton(header.skeleton, model, explicit_map, str(header.path), first_pose)
+    if report:
+        report(f"joint mapping (model <- input):\n{jm.describe()}")
+    stylizer = StreamStylizer(model, input_style, content, target, fps=fps, backend=backend)
+    lock = FootLock(header.skeleton, 1, header.fps) if cleanup else None
+    return _checked(_stylised_rows(header, itertools.chain([first], chunks), jm, stylizer, lock, fps), header.path), stylizer
+
+
+def transfer_motion(
+    motion: Motion,
+    model: StyleERD,
+    fps: float,
+    input_style: str | None,
+    content: str | None,
+    target: dict[str, float],
+    explicit_map: dict[str, str] | None = None,
+    report: Callable[[str], None] | None = None,
+    cleanup: bool = True,
+    backend: str = "numpy",
+) -> Motion:
+    """``transfer_file`` on a motion in memory: the stylised motion on the input's skeleton,
+    same frames and fps."""
+    header = bvh.Header(motion.skeleton, motion.n_frames, motion.fps, "<motion>")
+    rows, _ = _stylised_stream(header, iter([bvh.channel_values(motion)]), model, fps, input_style, content, target, explicit_map, report, cleanup, backend)
+    return bvh.motion_from_channels(motion.skeleton, np.concatenate(list(rows)), motion.fps)
 
 
 def transfer_file(
@@ -78,16 +130,7 @@ def transfer_file(
     if kind not in (".bvh", ".glb"):
         raise StyleERDError(f"{output}: the output must be .bvh or .glb")
     header, chunks = bvh.stream(source, chunk)
-    if header.n_frames == 0:
-        raise StyleERDError(f"{source}: the motion has no frames")
-    if not 10 <= header.fps <= 480:
-        raise StyleERDError(f"{source}: {header.fps:.6g} fps is outside [10, 480]")
-    jm = map_skeleton(header.skeleton, model.skeleton, explicit_map, str(source))
-    if report:
-        report(f"joint mapping (model <- input):\n{jm.describe()}")
-    stylizer = StreamStylizer(model, input_style, content, target, fps=fps, backend=backend)
-    lock = FootLock(header.skeleton, 1, header.fps) if cleanup else None
-    rows = _checked(_stylised_rows(header, chunks, jm, stylizer, lock, fps), source)
+    rows, stylizer = _stylised_stream(header, chunks, model, fps, input_style, content, target, explicit_map, report, cleanup, backend)
     if kind == ".bvh":
         def write(tmp: str) -> None:
             with open(tmp, "w", encoding="utf-8") as f:
