@@ -93,7 +93,7 @@ def _transfer(args: argparse.Namespace) -> None:
             raise StyleERDError(f"{what} {value!r} is not one of: {', '.join(names)}")
     target = target_weights(model, args.style, args.intensity, _parse_mix(args.mix) if args.mix else None)
     explicit = _read_joint_map(args.joint_map) if args.joint_map else None
-    done = transfer_file(args.input, args.output, model, meta["data"]["fps"], args.input_style, args.content, target, explicit, report=print, cleanup=not args.no_cleanup, backend=args.backend)
+    done = transfer_file(args.input, args.output, model, meta["data"]["fps"], args.input_style, args.content, target, explicit, report=print, cleanup=not args.no_cleanup, backend=args.backend, mesh=args.mesh)
     print(f"wrote {args.output}: {done.frames} frames at {done.fps:.6g} fps, target {target}")
 
 
@@ -294,6 +294,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--joint-map", help="JSON object {model joint: input joint} completing or overriding the automatic mapping")
     p.add_argument("--model", help="model path without suffix (default: the shipped model)")
     p.add_argument("-o", "--output", required=True, help="OUT.bvh (the input's skeleton and channel layout) or OUT.glb")
+    p.add_argument("--mesh", action="store_true", help=".glb: add a simple skinned body (a prism per bone, its front marked) so the file shows in any viewer")
     p.set_defaults(func=_transfer)
 
     p = sub.add_parser("export-onnx", help="the network step as a plain ONNX graph (opset 17) with explicit state")

@@ -11,7 +11,8 @@ from pathlib import Path
 import numpy as np
 
 from styleerd.atomic import atomic_write_text
-from styleerd.motion.kinematics import forward_kinematics
+from styleerd.motion import quat
+from styleerd.motion.kinematics import bone_fronts, forward_kinematics
 from styleerd.motion.motion import Motion
 from styleerd.motion.resample import resample
 
@@ -106,28 +107,6 @@ requestAnimationFrame(tick);
 """
 
 
-def bone_fronts(skeleton, global_rotations: np.ndarray) -> np.ndarray:
-    """Per frame and joint j, the unit front of the bone from j's parent to j: the parent's
-    rest +Z made perpendicular to the bone (+Y for a bone along Z, such as a foot), turned
-    by the parent's global rotation ``[T, J, 4]``. Zero at the root."""
-    from styleerd.motion import quat
-
-    fronts = np.zeros((skeleton.n_joints, 3))
-    for j in range(1, skeleton.n_joints):
-        bone = skeleton.offsets[j]
-        n = np.linalg.norm(bone)
-        if n < 1e-9:
-            continue
-        bone = bone / n
-        for axis in (np.array([0.0, 0.0, 1.0]), np.array([0.0, 1.0, 0.0])):
-            f = axis - bone * np.dot(axis, bone)
-            if np.linalg.norm(f) > 0.3:
-                fronts[j] = f / np.linalg.norm(f)
-                break
-    parents = np.maximum(skeleton.parents, 0)
-    return quat.mul_vec(global_rotations[:, parents], fronts)
-
-
 def _rounded(positions: np.ndarray, height: float) -> list:
     """Positions to a millimetre-scale precision whatever the units (cm, m)."""
     return np.round(positions, max(1, int(np.ceil(-np.log10(height / 2000))))).tolist()
@@ -142,7 +121,7 @@ def write_html(path: str | Path, motions: list[tuple[str, Motion]], title: str, 
         g_rot, g = forward_kinematics(m.rotations, m.positions, m.skeleton.parents)
         height = max(height, float(np.ptp(g[0, :, 1])))
         entries.append({"label": label, "parents": m.skeleton.parents.tolist(), "frames": _rounded(g, height),
-                        "fronts": np.round(bone_fronts(m.skeleton, g_rot), 2).tolist()})  # fmt: skip
+                        "fronts": np.round(quat.mul_vec(g_rot[:, np.maximum(m.skeleton.parents, 0)], bone_fronts(m.skeleton)), 2).tolist()})  # fmt: skip
     data = json.dumps({"fps": fps, "height": height * 1.1, "motions": entries}, separators=(",", ":"))
     page = _PAGE.replace("__TITLE__", html.escape(title)).replace("__SUBTITLE__", html.escape(subtitle)).replace("__DATA__", data)
     atomic_write_text(Path(path), page)

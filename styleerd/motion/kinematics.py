@@ -88,3 +88,22 @@ def foot_contacts(global_positions: np.ndarray, previous_positions: np.ndarray, 
     frame (backward difference, units per second) is below ``max_speed``."""
     step = global_positions[..., feet, :] - previous_positions[..., feet, :]
     return (np.linalg.norm(step, axis=-1) * fps < max_speed).astype(np.float64)
+
+
+def bone_fronts(skeleton) -> np.ndarray:
+    """Per joint j, the rest-pose front ``[J, 3]`` of the bone from j's parent to j, in the
+    parent's frame: +Z made perpendicular to the bone (+Y for a bone along Z, such as a foot);
+    zero for the root and zero-length bones. Turned by the parent's global rotation it shows
+    how the bone is rolled about itself."""
+    fronts = np.zeros((skeleton.n_joints, 3))
+    for j in range(1, skeleton.n_joints):
+        length = np.linalg.norm(skeleton.offsets[j])
+        if length < 1e-9:
+            continue
+        bone = skeleton.offsets[j] / length
+        for axis in (FORWARD, UP):
+            f = axis - bone * np.dot(axis, bone)
+            if np.linalg.norm(f) > 0.3:
+                fronts[j] = f / np.linalg.norm(f)
+                break
+    return fronts

@@ -115,6 +115,7 @@ def transfer_file(
     cleanup: bool = True,
     backend: str = "numpy",
     chunk: int = 1024,
+    mesh: bool = False,
 ) -> TransferReport:
     """BVH in -> BVH (or binary glTF) out in the target style, on any humanoid skeleton
     (retargeted to the model's and back, at the model's frame rate ``fps`` and back): same
@@ -124,8 +125,8 @@ def transfer_file(
     ``report`` receives the joint mapping and the labels used.
 
     The file is streamed through in chunks of ``chunk`` frames, so memory stays bounded
-    however long it is (a .glb output is built in memory). Nothing is written unless the
-    whole transfer succeeded."""
+    however long it is (a .glb output is built in memory; with ``mesh`` it carries a simple
+    skinned body). Nothing is written unless the whole transfer succeeded."""
     kind = Path(output).suffix.lower()
     if kind not in (".bvh", ".glb"):
         raise StyleERDError(f"{output}: the output must be .bvh or .glb")
@@ -140,7 +141,7 @@ def transfer_file(
 
         atomic_write(output, write)
     else:
-        write_glb(output, bvh.motion_from_channels(header.skeleton, np.concatenate(list(rows)), header.fps))
+        write_glb(output, bvh.motion_from_channels(header.skeleton, np.concatenate(list(rows)), header.fps), mesh=mesh)
     labels = stylizer.inferred_labels()[0] if stylizer.labeller is not None else None
     if report and labels:
         report(f"input labels at the last frame: style {labels[0]}, content {labels[1]} (inferred online where not given)")
