@@ -282,8 +282,8 @@ def build_parser() -> argparse.ArgumentParser:
         p.add_argument("--data", help="data folder")
         p.set_defaults(func=_train_helper)
 
-    p = sub.add_parser("transfer", help="stylise a BVH file (any humanoid skeleton)")
-    p.add_argument("input")
+    p = sub.add_parser("transfer", help="stylise a BVH or a glTF/VRM character's animation (any humanoid skeleton)")
+    p.add_argument("input", help="IN.bvh, or IN.glb / .gltf / .vrm (its first skin and animation; written back as the same file)")
     p.add_argument("--style", help="target style")
     p.add_argument("--intensity", type=float, default=1.0, help="0 = neutral, 1 = full style, up to 2")
     p.add_argument("--mix", help="a mixture instead of --style, e.g. elderly=0.5,feminine=0.5 (scaled by --intensity)")
@@ -293,7 +293,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--no-cleanup", action="store_true", help="leave the feet as the network outputs them (default: pin planted feet)")
     p.add_argument("--joint-map", help="JSON object {model joint: input joint} completing or overriding the automatic mapping")
     p.add_argument("--model", help="model path without suffix (default: the shipped model)")
-    p.add_argument("-o", "--output", required=True, help="OUT.bvh (the input's skeleton and channel layout) or OUT.glb")
+    p.add_argument("-o", "--output", required=True, help="OUT.bvh (the input's skeleton and channel layout), OUT.glb, or from a glTF input OUT.glb/.vrm (the input file, animation replaced)")
     p.add_argument("--mesh", action="store_true", help=".glb: add a simple skinned body (a prism per bone, its front marked) so the file shows in any viewer")
     p.set_defaults(func=_transfer)
 

@@ -226,7 +226,7 @@ def _run(model: StyleERD, rot, pos, styles, contents, targets, switch: dict | No
 
 def runtime_report(model: StyleERD, labeller, data_dir: str | None = None, frames: int = 90, blend_frames: int = 8) -> dict:
     s = setup(TrainConfig(), data_dir, progress=False)
-    report: dict = {"labels": stream_accuracy(labeller, s.fs, s.data, "test")}
+    report: dict = {"labels": stream_accuracy(labeller, s.fs, s.data, "test", neutral=model.config.neutral_style)}
     rot, pos, styles, contents, targets = _streams(model, data_dir, frames)
     sk = model.skeleton
     roles = BodyRoles.of(sk)

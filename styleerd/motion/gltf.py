@@ -3,6 +3,10 @@ animation (joint rotations; translations of the joints that have BVH position ch
 With ``mesh``, a simple skinned body: one prism per bone, rigidly bound to the bone, with a
 ridge on its front so a bone rolled about itself shows.
 
+Reading (``read_gltf``) takes a glTF/GLB/VRM file's skeleton and animation into a Motion whose
+rest frames are world-aligned, as BVH's are; ``write_gltf_animation`` puts a motion back into
+the same file, everything but the animation unchanged.
+
 glTF is in metres: a top node scales the skeleton by ``metres_per_unit`` (by default guessed
 from the leg length: centimetre and metre data are recognised, anything else is scaled to a
 0.9 m leg). Axes are left as they are: BVH data is Y up, as glTF is.
@@ -10,6 +14,7 @@ from the leg length: centimetre and metre data are recognised, anything else is 
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -19,7 +24,8 @@ from styleerd.atomic import atomic_write
 from styleerd.motion import quat
 from styleerd.motion.kinematics import bone_fronts, forward_kinematics
 from styleerd.motion.motion import Motion
-from styleerd.motion.skeleton import find_role
+from styleerd.errors import StyleERDError
+from styleerd.motion.skeleton import POSITION_CHANNELS, Skeleton, find_role
 
 
 def guess_metres_per_unit(motion: Motion) -> float:
@@ -74,7 +80,9 @@ def bone_prisms(skeleton, rest_positions: np.ndarray, rest_rotations: np.ndarray
     return np.concatenate(pos), np.concatenate(nor), np.concatenate(joint), np.array(tri)
 
 
-def write_glb(path: str | Path, motion: Motion, metres_per_unit: float | None = None, mesh: bool = False) -> None:
+def write_glb(path: str | Path, motion: Motion, metres_per_unit: float | None = None, mesh: bool = False, rest_rotations: np.ndarray | None = None) -> None:
+    """The motion as a .glb: nodes, a skin bound in the rest pose (zero rotations, or the local
+    ``rest_rotations [J, 4]``, which then are the nodes' default rotations), one animation."""
     sk, T = motion.skeleton, motion.n_frames
     scale = metres_per_unit or guess_metres_per_unit(motion)
     blob = bytearray()
@@ -92,8 +100,10 @@ def write_glb(path: str | Path, motion: Motion, metres_per_unit: float | None = 
         return len(accessors) - 1
 
     xyzw = quat.normalize(motion.rotations)[..., [1, 2, 3, 0]]
+    rest_local = quat.identity((sk.n_joints,)) if rest_rotations is None else quat.normalize(np.asarray(rest_rotations, dtype=np.float64))
+    default = xyzw[0] if rest_rotations is None else rest_local[:, [1, 2, 3, 0]]
     nodes = [
-        gl.Node(name=name, translation=motion.positions[0, j].tolist(), rotation=xyzw[0, j].tolist(), children=sk.children(j))
+        gl.Node(name=name, translation=(motion.positions[0, j] if rest_rotations is None else sk.offsets[j]).tolist(), rotation=default[j].tolist(), children=sk.children(j))
         for j, name in enumerate(sk.names)
     ]
     nodes.append(gl.Node(name="styleerd", scale=[scale] * 3, children=[0]))
@@ -106,10 +116,12 @@ def write_glb(path: str | Path, motion: Motion, metres_per_unit: float | None = 
         for target, output in animated:
             samplers.append(gl.AnimationSampler(input=times, output=output, interpolation="LINEAR"))
             channels.append(gl.AnimationChannel(sampler=len(samplers) - 1, target=gl.AnimationChannelTarget(node=j, path=target)))
-    # inverse bind matrices of the rest pose (zero rotations), column-major as glTF stores them
-    rest_rot, rest = forward_kinematics(quat.identity((sk.n_joints,)), sk.offsets.copy(), sk.parents)
+    # inverse bind matrices of the rest pose, column-major as glTF stores them
+    rest_rot, rest = forward_kinematics(rest_local, sk.offsets.copy(), sk.parents)
     ibm = np.tile(np.eye(4), (sk.n_joints, 1, 1))
-    ibm[:, :3, 3] = -rest
+    inv_rot = quat.to_xform(quat.inv(rest_rot))
+    ibm[:, :3, :3] = inv_rot
+    ibm[:, :3, 3] = -np.einsum("jab,jb->ja", inv_rot, rest)
     inverse_binds = add(ibm.transpose(0, 2, 1).reshape(sk.n_joints, 16), gl.MAT4)
     scene_nodes, meshes = [len(nodes) - 1], []
     if mesh:
@@ -139,5 +151,250 @@ def write_glb(path: str | Path, motion: Motion, metres_per_unit: float | None = 
         bufferViews=views,
         accessors=accessors,
     )
+    doc.set_binary_blob(bytes(blob))
+    atomic_write(Path(path), lambda tmp: doc.save_binary(str(tmp)))
+
+
+# ---------------------------------------------------------------- reading, and writing back
+
+# VRM humanoid bone -> body part (VRM 0.x and 1.0 share these names); upperChest wins over
+# chest where both exist, since the arms branch off it
+VRM_PARTS = {"hips": "hips", "spine": "spine", "chest": "chest", "upperChest": "chest", "neck": "neck", "head": "head"}
+for _side in ("left", "right"):
+    VRM_PARTS.update({f"{_side}Shoulder": f"{_side}_collar", f"{_side}UpperArm": f"{_side}_shoulder", f"{_side}LowerArm": f"{_side}_elbow",
+                      f"{_side}Hand": f"{_side}_hand", f"{_side}UpperLeg": f"{_side}_hip", f"{_side}LowerLeg": f"{_side}_knee",
+                      f"{_side}Foot": f"{_side}_foot", f"{_side}Toes": f"{_side}_toe"})  # fmt: skip
+_COMPONENTS = {5120: np.int8, 5121: np.uint8, 5122: np.int16, 5123: np.uint16, 5125: np.uint32, 5126: np.float32}
+_WIDTH = {"SCALAR": 1, "VEC2": 2, "VEC3": 3, "VEC4": 4, "MAT4": 16}
+
+
+@dataclass
+class GltfMotion:
+    """A glTF's skeleton and animation as a Motion on a skeleton whose rest frames are
+    world-aligned (the glTF's rest pose with every joint's rest rotation taken out, as BVH
+    has it), and what it takes to put a motion back into the same file."""
+
+    path: Path
+    doc: gl.GLTF2
+    blob: bytes
+    motion: Motion
+    nodes: list[int]  # skeleton joint -> node
+    rest_rotations: np.ndarray  # [J, 4] the nodes' local rest rotations (the root's after its ancestors)
+    rest_global: np.ndarray  # [J, 4] their global rest rotations
+    above: tuple[np.ndarray, np.ndarray, float]  # the root's ancestors: rotation, translation, uniform scale
+    parts: dict[str, str]  # body part -> joint name, from a VRM humanoid (empty otherwise)
+    animated_translation: np.ndarray  # [J] bool
+
+
+def _accessor(doc: gl.GLTF2, blob: bytes, index: int) -> np.ndarray:
+    a = doc.accessors[index]
+    if a.sparse is not None or a.bufferView is None:
+        raise ValueError(f"accessor {index}: sparse or empty accessors are not supported")
+    view = doc.bufferViews[a.bufferView]
+    dtype = np.dtype(_COMPONENTS[a.componentType])
+    width = _WIDTH[a.type]
+    stride = view.byteStride or dtype.itemsize * width
+    start = (view.byteOffset or 0) + (a.byteOffset or 0)
+    if start + stride * (a.count - 1) + dtype.itemsize * width > len(blob):
+        raise ValueError(f"accessor {index} reaches past the end of the buffer")
+    raw = np.lib.stride_tricks.as_strided(np.frombuffer(blob, dtype=np.uint8, offset=start), (a.count, dtype.itemsize * width), (stride, 1))
+    out = np.ascontiguousarray(raw).view(dtype).reshape(a.count, width).astype(np.float64)
+    if a.normalized and dtype.kind in "iu":
+        out = np.maximum(out / np.iinfo(dtype).max, -1.0)
+    return out
+
+
+def _load(path: Path) -> tuple[gl.GLTF2, bytes]:
+    try:
+        if path.suffix.lower() == ".gltf":
+            doc = gl.GLTF2().load_json(str(path))
+            if len(doc.buffers) != 1:
+                raise ValueError(f"{len(doc.buffers)} buffers (one is supported)")
+            doc.convert_buffers(gl.BufferFormat.BINARYBLOB)
+        else:
+            doc = gl.GLTF2().load_binary(str(path))
+        blob = doc.binary_blob() or b""
+    except Exception as e:  # pygltflib raises whatever its parser meets
+        raise StyleERDError(f"{path}: not a readable glTF file ({type(e).__name__}: {e})") from None
+    return doc, blob
+
+
+def _node_trs(node: gl.Node) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(rotation wxyz, translation, scale) of a node."""
+    if node.matrix is not None:
+        m = np.array(node.matrix, dtype=np.float64).reshape(4, 4).T
+        scale = np.linalg.norm(m[:3, :3], axis=0)
+        return quat.from_xform(m[:3, :3] / scale), m[:3, 3].copy(), scale
+    r = np.array(node.rotation if node.rotation is not None else [0, 0, 0, 1.0], dtype=np.float64)[[3, 0, 1, 2]]
+    return quat.normalize(r), np.array(node.translation or [0, 0, 0.0]), np.array(node.scale or [1, 1, 1.0])
+
+
+def _vrm_parts(doc: gl.GLTF2) -> dict[str, int]:
+    """Body part -> node, from a VRM 1.0 (VRMC_vrm) or 0.x (VRM) humanoid."""
+    ext = doc.extensions or {}
+    bones: dict[str, int] = {}
+    if "VRMC_vrm" in ext:
+        bones = {k: v["node"] for k, v in ext["VRMC_vrm"].get("humanoid", {}).get("humanBones", {}).items()}
+    elif "VRM" in ext:
+        bones = {b["bone"]: b["node"] for b in ext["VRM"].get("humanoid", {}).get("humanBones", [])}
+    parts: dict[str, int] = {}
+    for bone, node in bones.items():
+        part = VRM_PARTS.get(bone)
+        if part and (part not in parts or bone == "upperChest"):
+            parts[part] = int(node)
+    return parts
+
+
+def read_gltf(path: str | Path, animation: int = 0, fps: float | None = None) -> GltfMotion:
+    """A glTF/GLB/VRM file's skeleton (its first skin) and animation, sampled at ``fps`` (by
+    default the animation's own key rate, within 10-120)."""
+    path = Path(path)
+    doc, blob = _load(path)
+    try:
+        return _read(path, doc, blob, animation, fps)
+    except (ValueError, KeyError, IndexError, TypeError) as e:
+        raise StyleERDError(f"{path}: {e}") from None
+
+
+def _read(path: Path, doc: gl.GLTF2, blob: bytes, animation: int, fps: float | None) -> GltfMotion:
+    if not doc.skins:
+        raise ValueError("no skin: the file has no skeleton to stylise")
+    if not doc.animations or animation >= len(doc.animations):
+        raise ValueError("no animation to stylise")
+    parent = {c: i for i, n in enumerate(doc.nodes) for c in (n.children or [])}
+
+    def chain(n: int) -> list[int]:
+        out = [n]
+        while out[-1] in parent:
+            out.append(parent[out[-1]])
+        return out
+
+    joints = set(doc.skins[0].joints)
+    chains = [chain(j) for j in joints]
+    common = set(chains[0]).intersection(*map(set, chains[1:]))
+    if not common:
+        raise ValueError("the skin's joints have no common root node")
+    root = next(n for n in chains[0] if n in common)
+    members = {n for c in chains for n in c[: c.index(root) + 1]}
+    order: list[int] = []
+    stack = [root]
+    while stack:  # depth first, parents before children
+        n = stack.pop()
+        order.append(n)
+        stack.extend(reversed([c for c in (doc.nodes[n].children or []) if c in members]))
+    index = {n: k for k, n in enumerate(order)}
+    J = len(order)
+    parents = np.array([-1] + [index[parent[n]] for n in order[1:]])
+    trs = [_node_trs(doc.nodes[n]) for n in order]
+    rest_local = np.stack([r for r, _, _ in trs])
+    rest_t = np.stack([t for _, t, _ in trs])
+    if any(not np.allclose(s, 1.0, rtol=1e-4) for _, _, s in trs[1:]):
+        raise ValueError("joints with a scale other than 1 are not supported")
+    # the root's ancestors: their rotation and translation, and a uniform scale (units)
+    a_rot, a_pos, a_scale = quat.identity(), np.zeros(3), float(np.mean(trs[0][2]))
+    for n in chain(root)[1:]:
+        r, t, s = _node_trs(doc.nodes[n])
+        a_pos = t + float(np.mean(s)) * quat.mul_vec(r, a_pos)
+        a_rot, a_scale = quat.mul(r, a_rot), a_scale * float(np.mean(s))
+    rest_local[0] = quat.mul(a_rot, rest_local[0])
+    rest_global, _ = forward_kinematics(rest_local, rest_t, parents)
+    # sample the animation
+    anim = doc.animations[animation]
+    keyed: dict[tuple[int, str], tuple[np.ndarray, np.ndarray, str]] = {}
+    steps = []
+    for ch in anim.channels:
+        if ch.target.node in index and ch.target.path in ("rotation", "translation"):
+            sampler = anim.samplers[ch.sampler]
+            times, values = _accessor(doc, blob, sampler.input)[:, 0], _accessor(doc, blob, sampler.output)
+            if sampler.interpolation == "CUBICSPLINE":
+                values = values[1::3]  # (in-tangent, value, out-tangent): the values, linearly
+            if len(times) != len(values) or len(times) == 0:
+                raise ValueError(f"animation channel of node {ch.target.node}: {len(times)} times, {len(values)} values")
+            keyed[(index[ch.target.node], ch.target.path)] = (times, values, sampler.interpolation or "LINEAR")
+            steps.append(np.diff(times))
+    if not keyed:
+        raise ValueError("the animation moves none of the skeleton's joints")
+    end = max(float(t[-1]) for t, _, _ in keyed.values())
+    if fps is None:
+        dt = np.concatenate(steps)
+        dt = dt[dt > 1e-6]
+        fps = float(np.clip(round(1.0 / np.median(dt)) if len(dt) else 30.0, 10, 120))
+    T = int(np.floor(end * fps + 1e-6)) + 1
+    t = np.arange(T) / fps
+    local = np.broadcast_to(rest_local, (T, J, 4)).copy()
+    local[:, 0] = trs[0][0]  # the root's own rotation; its ancestors go on below
+    pos = np.broadcast_to(rest_t, (T, J, 3)).copy()
+    moved = np.zeros(J, bool)
+    for (j, what), (times, values, interpolation) in keyed.items():
+        k = np.clip(np.searchsorted(times, t, side="right") - 1, 0, len(times) - 1)
+        k1 = np.minimum(k + 1, len(times) - 1)
+        span = np.maximum(times[k1] - times[k], 1e-12)
+        w = np.where((interpolation == "STEP") | (k1 == k), 0.0, np.clip((t - times[k]) / span, 0.0, 1.0))
+        if what == "rotation":
+            q = values[:, [3, 0, 1, 2]]
+            local[:, j] = quat.slerp(quat.normalize(q[k]), quat.normalize(q[k1]), w)
+        else:
+            pos[:, j] = values[k] * (1 - w[:, None]) + values[k1] * w[:, None]
+            moved[j] = True
+    local[:, 0] = quat.mul(a_rot, local[:, 0])
+    pos[:, 0] = a_pos + a_scale * quat.mul_vec(a_rot, pos[:, 0])
+    # to world-aligned rest frames: G' = G * inv(rest_global), offsets turned by the parent's rest
+    parent_rest = np.where((parents >= 0)[:, None], rest_global[np.maximum(parents, 0)], quat.identity((J,)))
+    rot = quat.mul(quat.mul(parent_rest, local), quat.inv(rest_global))
+    rot[:, 0] = quat.mul(local[:, 0], quat.inv(rest_global[0]))
+    offsets = a_scale * quat.mul_vec(parent_rest, rest_t)
+    offsets[0] = a_pos + a_scale * quat.mul_vec(a_rot, rest_t[0])
+    pos[:, 1:] = a_scale * quat.mul_vec(parent_rest[None, 1:], pos[:, 1:])
+    channels = tuple(POSITION_CHANNELS + ("Zrotation", "Xrotation", "Yrotation") if j == 0 or moved[j] else ("Zrotation", "Xrotation", "Yrotation") for j in range(J))
+    names = tuple(doc.nodes[n].name or f"node{n}" for n in order)
+    if len(set(names)) != len(names):
+        names = tuple(f"{nm}.{n}" for nm, n in zip(names, order))
+    skeleton = Skeleton(names, parents, offsets, channels)
+    motion = Motion(skeleton, quat.normalize(rot), pos, fps)
+    parts = {p: names[index[n]] for p, n in _vrm_parts(doc).items() if n in index}
+    return GltfMotion(path, doc, blob, motion, order, rest_local, rest_global, (a_rot, a_pos, a_scale), parts, moved)
+
+
+def write_gltf_animation(path: str | Path, source: GltfMotion, motion: Motion) -> None:
+    """``source``'s file with its animations replaced by ``motion`` (on ``source.motion``'s
+    skeleton, same fps): same nodes, meshes, skins, materials and extensions; the rotation of
+    every joint and the translation of the root (and of joints whose translation was animated)
+    keyed at every frame."""
+    import copy
+
+    doc = copy.deepcopy(source.doc)
+    blob = bytearray(source.blob)
+    blob.extend(b"\0" * (-len(blob) % 4))
+    sk, J = motion.skeleton, motion.skeleton.n_joints
+    a_rot, a_pos, a_scale = source.above
+    parents = sk.parents
+    parent_rest = np.where((parents >= 0)[:, None], source.rest_global[np.maximum(parents, 0)], quat.identity((J,)))
+    local = quat.mul(quat.inv(parent_rest)[None], quat.mul(motion.rotations, source.rest_global[None]))
+    local[:, 0] = quat.mul(quat.inv(a_rot), local[:, 0])  # the root's parent_rest is identity: take its ancestors out
+    pos = np.empty_like(motion.positions)
+    pos[:, 0] = quat.mul_vec(quat.inv(a_rot), motion.positions[:, 0] - a_pos) / a_scale
+    pos[:, 1:] = quat.mul_vec(quat.inv(parent_rest)[None, 1:], motion.positions[:, 1:]) / a_scale
+
+    def add(array: np.ndarray, kind: str, with_bounds: bool = False) -> int:
+        data = np.ascontiguousarray(array, dtype=np.float32)
+        doc.bufferViews.append(gl.BufferView(buffer=0, byteOffset=len(blob), byteLength=data.nbytes))
+        blob.extend(data.tobytes())
+        blob.extend(b"\0" * (-len(blob) % 4))
+        bounds = {"min": data.reshape(len(data), -1).min(0).tolist(), "max": data.reshape(len(data), -1).max(0).tolist()} if with_bounds else {}
+        doc.accessors.append(gl.Accessor(bufferView=len(doc.bufferViews) - 1, componentType=gl.FLOAT, count=len(data), type=kind, **bounds))
+        return len(doc.accessors) - 1
+
+    times = add(np.arange(motion.n_frames) / motion.fps, gl.SCALAR, with_bounds=True)
+    samplers, channels = [], []
+    xyzw = quat.normalize(local)[..., [1, 2, 3, 0]]
+    for j, node in enumerate(source.nodes):
+        animated = [("rotation", add(xyzw[:, j], gl.VEC4))]
+        if j == 0 or source.animated_translation[j]:
+            animated.append(("translation", add(pos[:, j], gl.VEC3)))
+        for target, output in animated:
+            samplers.append(gl.AnimationSampler(input=times, output=output, interpolation="LINEAR"))
+            channels.append(gl.AnimationChannel(sampler=len(samplers) - 1, target=gl.AnimationChannelTarget(node=node, path=target)))
+    doc.animations = [gl.Animation(name="styleerd", samplers=samplers, channels=channels)]
+    doc.buffers = [gl.Buffer(byteLength=len(blob))]
     doc.set_binary_blob(bytes(blob))
     atomic_write(Path(path), lambda tmp: doc.save_binary(str(tmp)))

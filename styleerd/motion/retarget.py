@@ -149,6 +149,11 @@ class JointMap:
                 out.append((j, p, rel))
         return out
 
+    def source_legs(self) -> list[list[int]]:
+        """[[hip, knee, ankle] of the left leg, the same of the right], as source joints."""
+        parts, source_of = body_parts(self.target), dict(self.pairs)
+        return [[source_of[parts[f"{side}_{p}"]] for p in ("hip", "knee", "foot")] for side in ("left", "right")]
+
     def describe(self) -> str:
         lines = [f"  {self.target.names[t]:>14} <- {self.source.names[s]}" for t, s in self.pairs]
         unmapped = [n for j, n in enumerate(self.source.names) if j not in {s for _, s in self.pairs}]

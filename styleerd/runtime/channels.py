@@ -41,7 +41,7 @@ class ChannelStylizer:
         self.skeleton, self.fps, self.n = skeleton, fps, n_streams
         self.n_channels = sum(len(c) for c in skeleton.channels)
         self.stylizer = StreamStylizer(model, input_style, content, target, n_streams, fps, labeller=labeller, backend=backend)
-        self.lock = FootLock(skeleton, n_streams, fps) if cleanup else None
+        self.lock = FootLock(skeleton, n_streams, fps, legs=self.map.source_legs()) if cleanup else None
 
     def configure(self, streams, input_style: str | None, content: str | None, target: dict[str, float]) -> None:
         """Labels and target of some streams (a new stream taking a slot; see StreamStylizer)."""

@@ -13,9 +13,9 @@ from styleerd.errors import StyleERDError
 from styleerd.model.generator import StyleERD
 from styleerd.atomic import atomic_write
 from styleerd.motion import bvh, quat
-from styleerd.motion.gltf import write_glb
+from styleerd.motion.gltf import read_gltf, write_glb, write_gltf_animation
 from styleerd.motion.motion import Motion
-from styleerd.motion.retarget import JointMap, joint_map, to_source, to_target
+from styleerd.motion.retarget import JointMap, body_parts, joint_map, to_source, to_target
 from styleerd.motion.skeleton import Skeleton
 from styleerd.runtime.cleanup import FootLock
 from styleerd.runtime.stylizer import StreamStylizer
@@ -79,7 +79,7 @@ def _stylised_stream(
     if report:
         report(f"joint mapping (model <- input):\n{jm.describe()}")
     stylizer = StreamStylizer(model, input_style, content, target, fps=fps, backend=backend)
-    lock = FootLock(header.skeleton, 1, header.fps) if cleanup else None
+    lock = FootLock(header.skeleton, 1, header.fps, legs=jm.source_legs()) if cleanup else None
     return _checked(_stylised_rows(header, itertools.chain([first], chunks), jm, stylizer, lock, fps), header.path), stylizer
 
 
@@ -94,12 +94,21 @@ def transfer_motion(
     report: Callable[[str], None] | None = None,
     cleanup: bool = True,
     backend: str = "numpy",
+    labels: list | None = None,
+    where: str = "<motion>",
 ) -> Motion:
     """``transfer_file`` on a motion in memory: the stylised motion on the input's skeleton,
-    same frames and fps."""
-    header = bvh.Header(motion.skeleton, motion.n_frames, motion.fps, "<motion>")
-    rows, _ = _stylised_stream(header, iter([bvh.channel_values(motion)]), model, fps, input_style, content, target, explicit_map, report, cleanup, backend)
-    return bvh.motion_from_channels(motion.skeleton, np.concatenate(list(rows)), motion.fps)
+    same frames and fps. ``labels`` receives the (style, content) inferred at the last frame."""
+    header = bvh.Header(motion.skeleton, motion.n_frames, motion.fps, where)
+    rows, stylizer = _stylised_stream(header, iter([bvh.channel_values(motion)]), model, fps, input_style, content, target, explicit_map, report, cleanup, backend)
+    out = bvh.motion_from_channels(motion.skeleton, np.concatenate(list(rows)), motion.fps)
+    if stylizer.labeller is not None:
+        inferred = stylizer.inferred_labels()[0]
+        if labels is not None:
+            labels.append(inferred)
+        if report:
+            report(f"input labels at the last frame: style {inferred[0]}, content {inferred[1]} (inferred online where not given)")
+    return out
 
 
 def transfer_file(
@@ -128,6 +137,8 @@ def transfer_file(
     however long it is (a .glb output is built in memory; with ``mesh`` it carries a simple
     skinned body). Nothing is written unless the whole transfer succeeded."""
     kind = Path(output).suffix.lower()
+    if Path(source).suffix.lower() in GLTF_INPUTS:
+        return _transfer_gltf(Path(source), Path(output), model, fps, input_style, content, target, explicit_map, report, cleanup, backend)
     if kind not in (".bvh", ".glb"):
         raise StyleERDError(f"{output}: the output must be .bvh or .glb")
     header, chunks = bvh.stream(source, chunk)
@@ -146,6 +157,29 @@ def transfer_file(
     if report and labels:
         report(f"input labels at the last frame: style {labels[0]}, content {labels[1]} (inferred online where not given)")
     return TransferReport(header.n_frames, header.fps, labels)
+
+
+GLTF_INPUTS = (".glb", ".gltf", ".vrm")
+
+
+def _transfer_gltf(source: Path, output: Path, model: StyleERD, fps: float, input_style, content, target, explicit_map, report, cleanup, backend) -> TransferReport:
+    """A glTF/GLB/VRM character in: its first skin's skeleton and its animation, VRM humanoid
+    bones named for the mapping; out as the same file with the animation replaced (.glb,
+    .vrm) or as a BVH of its skeleton."""
+    kind = output.suffix.lower()
+    if kind not in (".bvh", ".glb", ".vrm"):
+        raise StyleERDError(f"{output}: from a glTF input the output must be .glb, .vrm or .bvh")
+    src = read_gltf(source)
+    model_parts = body_parts(model.skeleton)
+    explicit = {model.skeleton.names[model_parts[p]]: name for p, name in src.parts.items() if p in model_parts}
+    explicit.update(explicit_map or {})
+    lines: list[str] = []
+    out = transfer_motion(src.motion, model, fps, input_style, content, target, explicit or None, report, cleanup, backend, labels=lines, where=str(source))
+    if kind == ".bvh":
+        bvh.write(output, out)
+    else:
+        write_gltf_animation(output, src, out)
+    return TransferReport(out.n_frames, out.fps, tuple(lines[0]) if lines else None)
 
 
 def _checked(rows: Iterator[np.ndarray], source) -> Iterator[np.ndarray]:

@@ -27,7 +27,7 @@ from styleerd.data.features import stream_features
 from styleerd.errors import StyleERDError
 from styleerd.model.checkpoint import load_labeller
 from styleerd.model.generator import StyleERD
-from styleerd.model.labeller import OnlineLabeller
+from styleerd.model.labeller import OnlineLabeller, toward_neutral
 from styleerd.motion import quat
 from styleerd.motion.skeleton import BodyRoles
 from styleerd.runtime.backends import NumpyLabeller, make_backend
@@ -138,6 +138,7 @@ class StreamStylizer:
         self.blend_frames = max(1, blend_frames)
         c = model.config
         S, C = len(c.styles), len(c.contents)
+        self.neutral = c.styles.index(c.neutral_style)
         self.given_style, self.given_content = np.zeros((n_streams, S), np.float32), np.zeros((n_streams, C), np.float32)
         self.known_style, self.known_content = np.zeros(n_streams, bool), np.zeros(n_streams, bool)
         self.labeller: NumpyLabeller | None = None
@@ -240,6 +241,7 @@ class StreamStylizer:
         style, content = self.given_style[sel], self.given_content[sel]
         if self.labeller is not None:
             p_style, p_content, labeller_state = self.labeller.step(x, rows)
+            p_style = toward_neutral(p_style, self.neutral)
             style = np.where(self.known_style[sel, None], style, p_style)
             content = np.where(self.known_content[sel, None], content, p_content)
         rot, _ = self.backend.step(x, style, content, weights[sel], rows)

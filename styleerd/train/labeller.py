@@ -2,8 +2,12 @@
 
 Training sequences are ``length``-frame stretches of training clips, each starting from a
 fresh state (a stream can begin anywhere in a motion); the loss is the labels' cross-entropy
-at every frame, so early frames learn to guess and later ones to be sure. Accuracy is measured
-on streams that start at the first frame of each clip of a split, after 1, 10 and 30 frames.
+at every frame, so early frames learn to guess and later ones to be sure. Beside the clips as
+recorded, ``copies`` versions of each as another performer on another rig would give it
+(``data.augment.other_performer``: proportions, speed, joint offsets, mirroring) keep the
+labeller from reading one performer's build or one rig's conventions as a style. Accuracy is
+measured on streams that start at the first frame of each clip of a split, after 1, 10 and 30
+frames.
 """
 
 from __future__ import annotations
@@ -16,9 +20,11 @@ import torch
 import torch.nn.functional as F
 from tqdm import tqdm
 
+from styleerd.data.augment import other_performer
 from styleerd.data.cache import FeatureSet
+from styleerd.data.features import features_to_motion, motion_features
 from styleerd.model import checkpoint as ckpt
-from styleerd.model.labeller import OnlineLabeller
+from styleerd.model.labeller import OnlineLabeller, toward_neutral
 from styleerd.train.batches import TrainingData, windows
 from styleerd.train.config import TrainConfig
 from styleerd.train.trainer import setup
@@ -27,9 +33,11 @@ AFTER_FRAMES = (1, 10, 30)
 
 
 @torch.no_grad()
-def stream_accuracy(model: OnlineLabeller, fs: FeatureSet, data: TrainingData, split: str, after: tuple[int, ...] = AFTER_FRAMES) -> dict[int, dict[str, float]]:
+def stream_accuracy(model: OnlineLabeller, fs: FeatureSet, data: TrainingData, split: str, after: tuple[int, ...] = AFTER_FRAMES,
+                    neutral: str | None = None) -> dict[int, dict[str, float]]:  # fmt: skip
     """{n: {"style": acc, "content": acc, "streams": k}}: labels right after n frames of a
-    stream that starts at a clip's first frame (clips shorter than n frames not counted)."""
+    stream that starts at a clip's first frame (clips shorter than n frames not counted).
+    With ``neutral``, unsure style posteriors lean to it first, as the stylizer does."""
     model.eval()
     clips = fs.clips(split)
     longest = max(after)
@@ -39,7 +47,10 @@ def stream_accuracy(model: OnlineLabeller, fs: FeatureSet, data: TrainingData, s
     for sl in rows:
         n = min(longest, sl.stop - sl.start)
         s, c, _ = model(data.frames[sl.start : sl.start + n][None])
-        style_pred.append(s[0].argmax(-1).numpy())
+        p = torch.softmax(s[0], -1).numpy()
+        if neutral is not None:
+            p = toward_neutral(p, data.styles.index(neutral))
+        style_pred.append(p.argmax(-1))
         content_pred.append(c[0].argmax(-1).numpy())
         length.append(n)
     true_s = np.array([data.styles.index(s) for s in fs.styles[clips]])
@@ -54,8 +65,38 @@ def stream_accuracy(model: OnlineLabeller, fs: FeatureSet, data: TrainingData, s
     return out
 
 
-def train_labeller(fs: FeatureSet, data: TrainingData, epochs: int = 6, length: int = 40, stride: int = 4, batch: int = 64, lr: float = 2e-3, seed: int = 0, max_clips: int = 0, progress: bool = True) -> tuple[OnlineLabeller, dict]:
-    """Train; keep the epoch whose validation streams are labelled best after 30 frames."""
+def augmented_clips(fs: FeatureSet, data: TrainingData, clips: np.ndarray, copies: int, reference_pose: np.ndarray, seed: int, progress: bool = True) -> tuple[torch.Tensor, np.ndarray, np.ndarray, np.ndarray]:
+    """``copies`` other-performer versions of every clip: (normalised frames ``[N, D]``, clip
+    starts ``[C + 1]``, style and content index per clip)."""
+    rng = np.random.default_rng(seed + 1)
+    frames, starts, styles, contents = [], [0], [], []
+    for c in tqdm(np.repeat(clips, copies), desc="other performers", disable=not progress, leave=False):
+        sl = fs.frames(int(c))
+        motion = features_to_motion(fs.features[sl], fs.trajectory[sl], fs.skeleton, fs.params.fps)
+        motion, content = other_performer(motion, str(fs.contents[c]), reference_pose, rng)
+        frames.append(data.stats.normalize(motion_features(motion)[0]).astype(np.float32))
+        starts.append(starts[-1] + len(frames[-1]))
+        styles.append(data.styles.index(fs.styles[c]))
+        contents.append(data.contents.index(content))
+    return torch.from_numpy(np.concatenate(frames)), np.array(starts), np.array(styles), np.array(contents)
+
+
+def _stretches(clip_start: np.ndarray, length: int, stride: int) -> tuple[np.ndarray, np.ndarray]:
+    """Start rows of every ``length``-frame stretch inside a clip, every ``stride`` frames, and
+    their clip."""
+    starts, clip = [], []
+    for c in range(len(clip_start) - 1):
+        s = np.arange(clip_start[c], clip_start[c + 1] - length + 1, stride)
+        starts.append(s)
+        clip.append(np.full(len(s), c))
+    return np.concatenate(starts), np.concatenate(clip)
+
+
+def train_labeller(fs: FeatureSet, data: TrainingData, epochs: int = 6, length: int = 40, stride: int = 4, batch: int = 64, lr: float = 2e-3, seed: int = 0,
+                   max_clips: int = 0, progress: bool = True, copies: int = 2, reference_pose: np.ndarray | None = None) -> tuple[OnlineLabeller, dict]:  # fmt: skip
+    """Train; keep the epoch whose validation streams are labelled best after 30 frames.
+    ``copies`` other-performer versions of each training clip join the clips themselves
+    (``reference_pose``: a natural pose of the skeleton, for mirroring; default its average)."""
     torch.manual_seed(seed)
     rng = np.random.default_rng(seed)
     model = OnlineLabeller(data.frames.shape[1], len(data.styles), len(data.contents))
@@ -63,7 +104,16 @@ def train_labeller(fs: FeatureSet, data: TrainingData, epochs: int = 6, length: 
     ws = windows(fs, data, "train", stride, max_clips)
     idx = torch.as_tensor(ws.starts[:, None] + np.arange(length))
     ok = (idx[:, -1] < torch.as_tensor(fs.clip_start[ws.clip + 1])).numpy()  # whole stretch inside its clip
-    starts, style, content = ws.starts[ok], torch.as_tensor(ws.style[ok]), torch.as_tensor(ws.content[ok])
+    starts, style, content = ws.starts[ok], ws.style[ok], ws.content[ok]
+    frames = data.frames
+    if copies:
+        reference = data.stats.reference if reference_pose is None else reference_pose
+        extra, extra_start, extra_style, extra_content = augmented_clips(fs, data, np.unique(ws.clip), copies, reference, seed, progress)
+        s2, c2 = _stretches(extra_start, length, stride)
+        frames = torch.cat([frames, extra])
+        starts = np.concatenate([starts, s2 + len(data.frames)])
+        style, content = np.concatenate([style, extra_style[c2]]), np.concatenate([content, extra_content[c2]])
+    style, content = torch.as_tensor(style), torch.as_tensor(content)
     best, best_score, history = copy.deepcopy(model), -1.0, []
     for epoch in range(epochs):
         model.train()
@@ -71,7 +121,7 @@ def train_labeller(fs: FeatureSet, data: TrainingData, epochs: int = 6, length: 
         bar = tqdm(range(0, len(order) - batch + 1, batch), desc=f"labeller {epoch + 1}/{epochs}", disable=not progress, leave=False)
         for i in bar:
             b = order[i : i + batch]
-            x = data.frames[torch.as_tensor(starts[b][:, None] + np.arange(length))]
+            x = frames[torch.as_tensor(starts[b][:, None] + np.arange(length))]
             s_logits, c_logits, _ = model(x)
             loss = F.cross_entropy(s_logits.reshape(-1, len(data.styles)), style[b].repeat_interleave(length)) + F.cross_entropy(
                 c_logits.reshape(-1, len(data.contents)), content[b].repeat_interleave(length)
@@ -85,7 +135,7 @@ def train_labeller(fs: FeatureSet, data: TrainingData, epochs: int = 6, length: 
         history.append({"epoch": epoch + 1, "val": val})
         if score > best_score:
             best, best_score = copy.deepcopy(model), score
-    return best.eval(), {"history": history}
+    return best.eval(), {"history": history, "other_performer_copies": copies}
 
 
 def train_and_save(config: TrainConfig, data_dir: str | None = None, out: Path | None = None, progress: bool = True) -> dict:
@@ -95,6 +145,7 @@ def train_and_save(config: TrainConfig, data_dir: str | None = None, out: Path |
     s = setup(config, data_dir, progress)
     model, report = train_labeller(s.fs, s.data, seed=config.seed, max_clips=config.max_train_clips, progress=progress)
     report["test"] = stream_accuracy(model, s.fs, s.data, "test")
+    report["test_leaning_neutral"] = stream_accuracy(model, s.fs, s.data, "test", neutral=config.neutral_style)
     meta = {"kind": "styleerd-labeller", "config": model.config(), "styles": s.data.styles, "contents": s.data.contents, "dataset": config.dataset, **report}
     ckpt.save_tensors(out or ckpt.MODELS_DIR / ckpt.LABELLER, ckpt.prefixed("labeller", model), meta)
     return report
