@@ -318,3 +318,37 @@ def test_stream_bvh_writes_the_stylised_stream(server, tmp_path):
     r = subprocess.run([sys.executable, "-m", "styleerd.cli", "stream-bvh", str(tmp_path / "in.bvh"), "--to", "ws://127.0.0.1:9/", "--style", "elderly"],
                        capture_output=True, text=True)  # fmt: skip
     assert r.returncode == 2 and "cannot connect" in r.stderr and "Traceback" not in r.stderr
+
+
+def test_bone_fronts_follow_each_bones_roll(server, clip):
+    """With ``"fronts": true`` each frame also carries every bone's front: a unit vector
+    perpendicular to the bone, equal to its parent's global rotation (scipy, from the channel
+    values sent back) applied to the bone's rest front; what the viewer turns bones with."""
+    from scipy.spatial.transform import Rotation
+
+    from styleerd.motion.kinematics import bone_fronts
+
+    url, _ = server
+    m, values = clip
+    J = m.skeleton.n_joints
+    ws, ready = open_stream(url, m, positions=True, fronts=True)
+    for i in range(5):
+        ws.send(frame(i, values[i]))
+    _, payloads, _ = replies(ws, 5)
+    ws.close()
+    C = values.shape[1]
+    out = payloads[-1]
+    assert len(out) == C + 12 * J
+    positions, fronts = out[C + 3 * J : C + 6 * J].reshape(J, 3), out[C + 9 * J :].reshape(J, 3)
+    motion = bvh.motion_from_channels(m.skeleton, out[None, :C].astype(np.float64), 30.0)
+    world = []
+    for j, p in enumerate(m.skeleton.parents):
+        r = Rotation.from_quat(motion.rotations[0, j], scalar_first=True)
+        world.append(r if p < 0 else world[p] * r)
+    rest = bone_fronts(m.skeleton)
+    for j in range(1, J):
+        expected = world[m.skeleton.parents[j]].apply(rest[j])
+        assert np.allclose(fronts[j], expected, atol=1e-4), m.skeleton.names[j]
+        bone = positions[j] - positions[m.skeleton.parents[j]]
+        if np.linalg.norm(bone) > 1e-3:
+            assert abs(np.dot(fronts[j], bone / np.linalg.norm(bone))) < 1e-3 and np.isclose(np.linalg.norm(fronts[j]), 1, atol=1e-4)

@@ -30,6 +30,7 @@ from styleerd.data.windows import split_takes
 from styleerd.model import torch_quat
 from styleerd.model.fmd import MotionAutoencoder
 from styleerd.model.generator import StyleERD
+from styleerd.motion import bvh
 from styleerd.motion.kinematics import foot_contacts, forward_positions
 from styleerd.motion.skeleton import BodyRoles
 from styleerd.runtime.cleanup import FootLock
@@ -224,9 +225,32 @@ def _run(model: StyleERD, rot, pos, styles, contents, targets, switch: dict | No
     return out
 
 
+def other_performer_labels(model: StyleERD, labeller, data_dir: str | None = None, after: tuple[int, ...] = (1, 10, 30)) -> dict[str, dict]:
+    """The style the stylizer tells the encoder (labeller posterior, unsure ones leaning to
+    neutral) for each xia-sample clip, streamed as ``transfer`` streams it (retargeted,
+    resampled to 30 fps): after ``after`` frames and at the clip's end."""
+    from styleerd.motion.resample import resample
+    from styleerd.motion.retarget import to_target
+    from styleerd.runtime.offline import map_skeleton
+
+    out = {}
+    for path in sorted((data_root(data_dir) / "xia-sample").glob("*.bvh")):
+        m = bvh.read(path)
+        on_model = resample(to_target(m, map_skeleton(m.skeleton, model, first_pose=m.rotations[0])), 30.0)
+        st = StreamStylizer(model, None, None, {model.config.neutral_style: 1.0}, labeller=labeller)
+        seen = []
+        for t in range(on_model.n_frames):
+            st.step(on_model.rotations[t : t + 1], on_model.positions[t : t + 1])
+            seen.append(st.inferred_labels()[0][0])
+        out[path.stem] = {**{str(n): seen[min(n, len(seen)) - 1] for n in after}, "end": seen[-1]}
+    return out
+
+
 def runtime_report(model: StyleERD, labeller, data_dir: str | None = None, frames: int = 90, blend_frames: int = 8) -> dict:
     s = setup(TrainConfig(), data_dir, progress=False)
-    report: dict = {"labels": stream_accuracy(labeller, s.fs, s.data, "test", neutral=model.config.neutral_style)}
+    report: dict = {"labels": stream_accuracy(labeller, s.fs, s.data, "test", neutral=model.config.neutral_style),
+                    "labels_raw": stream_accuracy(labeller, s.fs, s.data, "test"),
+                    "xia_labels": other_performer_labels(model, labeller, data_dir)}  # fmt: skip
     rot, pos, styles, contents, targets = _streams(model, data_dir, frames)
     sk = model.skeleton
     roles = BodyRoles.of(sk)

@@ -36,8 +36,8 @@ from websockets.http11 import Request, Response
 from styleerd.errors import StyleERDError
 from styleerd.model.checkpoint import load_generator
 from styleerd.model.generator import StyleERD
-from styleerd.motion import bvh
-from styleerd.motion.kinematics import forward_positions
+from styleerd.motion import bvh, quat
+from styleerd.motion.kinematics import bone_fronts, forward_kinematics
 from styleerd.motion.skeleton import Skeleton
 from styleerd.runtime.channels import ChannelStylizer
 from styleerd.runtime.stylizer import label_vector, target_weights
@@ -82,6 +82,7 @@ class Stream:
     binary: bool
     positions: bool  # send joint positions of input and output with every frame
     outbox: asyncio.Queue
+    fronts: bool = False  # and, after them, the bones' fronts (their roll)
     pending: deque = field(default_factory=deque)  # (seq, channel values) waiting to be stylised
     watchers: set = field(default_factory=set)
     frames: int = 0
@@ -97,6 +98,7 @@ class Watcher:
     name: str | None  # the stream name it follows; None: any stream
     outbox: asyncio.Queue
     stream: Stream | None = None
+    fronts: bool = False  # also receive the bones' fronts
 
 
 class Pool:
@@ -107,6 +109,7 @@ class Pool:
         neutral = model.config.neutral_style
         self.stylizer = ChannelStylizer(model, skeleton, {neutral: 1.0}, neutral, model.config.contents[0], fps, capacity, cleanup=cleanup, backend=backend)
         self.skeleton = skeleton
+        self.fronts = bone_fronts(skeleton)  # rest fronts of the bones, for viewers that show their roll
         self.free = list(range(capacity - 1, -1, -1))
         self.streams: dict[int, Stream] = {}
 
@@ -186,7 +189,8 @@ class StyleServer:
         pool.stylizer.configure([row], labels["input_style"], labels["content"], target)
         self.next_id += 1
         stream = Stream(self.next_id, str(msg.get("name") or f"stream-{self.next_id}"), ws, pool, row, fmt == "binary",
-                        bool(msg.get("positions", False)), asyncio.Queue(self.config.queue), private=bool(msg.get("private", False)))  # fmt: skip
+                        bool(msg.get("positions", False)), asyncio.Queue(self.config.queue), bool(msg.get("fronts", False)),
+                        private=bool(msg.get("private", False)))  # fmt: skip
         pool.streams[row] = stream
         self.streams[stream.id] = stream
         for w in self.watchers:
@@ -332,9 +336,9 @@ class StyleServer:
                 self._fail(streams[i], INTERNAL, f"frame {items[i][0]}: the stylised frame is not finite")
         wants = [i for i, s in enumerate(streams) if (s.positions or s.watchers) and not bad[i]]
         if wants:
-            seen = _joint_positions(pool.skeleton, values[wants], pool.stylizer.fps)
-            made = _joint_positions(pool.skeleton, out[wants], pool.stylizer.fps)
-            positions = {i: (seen[k], made[k]) for k, i in enumerate(wants)}
+            seen, seen_fronts = _joint_positions(pool.skeleton, values[wants], pool.stylizer.fps, pool.fronts)
+            made, made_fronts = _joint_positions(pool.skeleton, out[wants], pool.stylizer.fps, pool.fronts)
+            positions = {i: (seen[k], made[k], seen_fronts[k], made_fronts[k]) for k, i in enumerate(wants)}
         for i, (stream, (seq, _)) in enumerate(zip(streams, items)):
             if bad[i]:
                 continue
@@ -342,17 +346,19 @@ class StyleServer:
             if stream.binary:
                 parts = [SEQ.pack(seq), out[i].astype("<f4").tobytes()]
                 if stream.positions:
-                    parts += [pos[0].astype("<f4").tobytes(), pos[1].astype("<f4").tobytes()]
+                    parts += [p.astype("<f4").tobytes() for p in (pos if stream.fronts else pos[:2])]
                 message = b"".join(parts)
             else:
                 reply = {"type": "frame", "seq": seq, "values": np.round(out[i], 6).tolist()}
                 if stream.positions:
                     reply["input_positions"], reply["output_positions"] = np.round(pos[0], 4).tolist(), np.round(pos[1], 4).tolist()
+                    if stream.fronts:
+                        reply["input_fronts"], reply["output_fronts"] = np.round(pos[2], 4).tolist(), np.round(pos[3], 4).tolist()
                 message = json.dumps(reply)
             if not _offer(stream.outbox, message):
                 self._fail(stream, POLICY, f"more than {self.config.queue} stylised frames unsent: the client does not read")
             for w in stream.watchers:
-                _offer(w.outbox, SEQ.pack(seq) + pos[0].astype("<f4").tobytes() + pos[1].astype("<f4").tobytes(), drop_oldest=True)
+                _offer(w.outbox, SEQ.pack(seq) + b"".join(p.astype("<f4").tobytes() for p in (pos if w.fronts else pos[:2])), drop_oldest=True)
 
     def _fail(self, stream: Stream, code: int, message: str) -> None:
         """End a stream from the stepping task: its frames stop here, the client is told."""
@@ -382,7 +388,7 @@ class StyleServer:
 
     async def _watch(self, ws: ServerConnection, msg: dict) -> None:
         name = msg.get("stream")
-        watcher = Watcher(ws, name if isinstance(name, str) else None, asyncio.Queue(self.config.queue))
+        watcher = Watcher(ws, name if isinstance(name, str) else None, asyncio.Queue(self.config.queue), fronts=bool(msg.get("fronts", False)))
         self.watchers.add(watcher)
         candidates = [s for s in self.streams.values() if self._follows(watcher, s)]
         await ws.send(json.dumps({"type": "waiting", "streams": [s.name for s in self.streams.values() if not s.private]}))
@@ -440,10 +446,14 @@ def _response(status: HTTPStatus, body: bytes, kind: str) -> Response:
     return Response(status.value, status.phrase, headers, body)
 
 
-def _joint_positions(skeleton: Skeleton, values: np.ndarray, fps: float) -> np.ndarray:
-    """Global joint positions ``[N, J, 3]`` (float32) of channel values ``[N, channels]``."""
+def _joint_positions(skeleton: Skeleton, values: np.ndarray, fps: float, rest_fronts: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Global joint positions ``[N, J, 3]`` and bone fronts ``[N, J, 3]`` (float32: the unit
+    front of the bone from each joint's parent, turned with the parent, so a viewer can show
+    its roll) of channel values ``[N, channels]``."""
     m = bvh.motion_from_channels(skeleton, values, fps)
-    return forward_positions(m.rotations, m.positions, skeleton.parents).astype(np.float32)
+    g_rot, g_pos = forward_kinematics(m.rotations, m.positions, skeleton.parents)
+    fronts = quat.mul_vec(g_rot[:, np.maximum(skeleton.parents, 0)], rest_fronts)
+    return g_pos.astype(np.float32), fronts.astype(np.float32)
 
 
 def _json(message: bytes | str) -> dict:

@@ -37,17 +37,23 @@ function resize() {
 window.addEventListener("resize", resize);
 
 class Figure {
-  // One skeleton drawn as capsule-like bones (cylinders) and joint spheres.
+  // One skeleton drawn as oriented bones (boxes with a fin on their front, so a bone rolled
+  // about itself shows) and joint spheres.
   constructor(parents, radius, color) {
     this.parents = parents;
     const material = new THREE.MeshStandardMaterial({ color, roughness: 0.55, metalness: 0.05 });
+    const finMaterial = new THREE.MeshStandardMaterial({ color: 0x222222, roughness: 0.6 });
     const jointMaterial = new THREE.MeshStandardMaterial({ color: new THREE.Color(color).multiplyScalar(0.8), roughness: 0.5 });
     this.group = new THREE.Group();
+    const box = new THREE.BoxGeometry(radius * 1.9, 1, radius * 1.3);
+    const fin = new THREE.BoxGeometry(radius * 0.35, 0.8, radius * 0.9).translate(0, 0, radius * 0.95);
     this.bones = parents.map((p) => {
       if (p < 0) return null;
-      const mesh = new THREE.Mesh(new THREE.CylinderGeometry(radius, radius * 0.8, 1, 12), material);
-      this.group.add(mesh);
-      return mesh;
+      const bone = new THREE.Group();
+      bone.add(new THREE.Mesh(box, material));
+      bone.add(new THREE.Mesh(fin, finMaterial));
+      this.group.add(bone);
+      return bone;
     });
     this.joints = parents.map(() => {
       const mesh = new THREE.Mesh(new THREE.SphereGeometry(radius * 1.15, 14, 10), jointMaterial);
@@ -56,9 +62,9 @@ class Figure {
     });
     scene.add(this.group);
   }
-  pose(positions, shift) {
+  pose(positions, fronts, shift) {
     const p = (j) => new THREE.Vector3(positions[3 * j] + shift, positions[3 * j + 1], positions[3 * j + 2]);
-    const up = new THREE.Vector3(0, 1, 0);
+    const basis = new THREE.Matrix4();
     this.parents.forEach((parent, j) => {
       const at = p(j);
       this.joints[j].position.copy(at);
@@ -69,9 +75,17 @@ class Figure {
       const length = d.length();
       bone.visible = length > 1e-6;
       if (!bone.visible) return;
-      bone.position.copy(from).addScaledVector(d, 0.5);
+      d.divideScalar(length);
+      // the bone's frame: y along the bone, z its front (fronts from the server), x across
+      let front = new THREE.Vector3(fronts[3 * j], fronts[3 * j + 1], fronts[3 * j + 2]);
+      front.addScaledVector(d, -front.dot(d));
+      if (front.lengthSq() < 1e-8) front = new THREE.Vector3(0, 0, 1).addScaledVector(d, -d.z);
+      front.normalize();
+      const across = new THREE.Vector3().crossVectors(d, front);
+      basis.makeBasis(across, d, front);
+      bone.position.copy(from).addScaledVector(d, 0.5 * length);
+      bone.quaternion.setFromRotationMatrix(basis);
       bone.scale.set(1, length, 1);
-      bone.quaternion.setFromUnitVectors(up, d.divideScalar(length));
     });
   }
   dispose() {
@@ -101,10 +115,10 @@ function buildFigures(parents, firstPositions) {
 }
 
 let follow = null; // the camera follows the characters' root
-function draw(seq, input, output) {
+function draw(seq, input, output, inputFronts, outputFronts) {
   if (!figures) return;
-  figures[0].pose(input, -spacing / 2);
-  figures[1].pose(output, spacing / 2);
+  figures[0].pose(input, inputFronts, -spacing / 2);
+  figures[1].pose(output, outputFronts, spacing / 2);
   const root = new THREE.Vector3(input[0], input[1], input[2]);
   if (follow) {
     const delta = root.clone().sub(follow);
@@ -180,9 +194,10 @@ function connect(hello, onReady) {
     const floats = new Float32Array(event.data, 4);
     const skip = viewer.mode === "clip" ? channels : 0;
     const input = floats.subarray(skip, skip + 3 * joints), output = floats.subarray(skip + 3 * joints, skip + 6 * joints);
+    const inputFronts = floats.subarray(skip + 6 * joints, skip + 9 * joints), outputFronts = floats.subarray(skip + 9 * joints, skip + 12 * joints);
     if (sentAt.has(seq)) { latency = 0.9 * latency + 0.1 * (performance.now() - sentAt.get(seq)); sentAt.delete(seq); }
     if (!figures) buildFigures(viewer.parents, input);
-    draw(seq, input, output);
+    draw(seq, input, output, inputFronts, outputFronts);
     if (viewer.mode === "clip") { ui.frame.textContent = `${seq + 1} / ${clip.frames.length}`; ui.scrub.value = seq; }
   };
 }
@@ -200,7 +215,7 @@ function playClip(c) {
   figures = null; follow = null;
   frameIndex = 0;
   ui.scrub.max = clip.frames.length - 1;
-  const hello = { type: "hello", skeleton: clip.header, fps: clip.fps, format: "binary", positions: true, name: "viewer", private: true, ...targetMessage() };
+  const hello = { type: "hello", skeleton: clip.header, fps: clip.fps, format: "binary", positions: true, fronts: true, name: "viewer", private: true, ...targetMessage() };
   connect(hello, (msg) => {
     if (msg.type !== "ready") return;
     joints = msg.joints.length; channels = msg.channels;
@@ -241,7 +256,7 @@ function watchLive() {
   ui.live.classList.add("on");
   figures?.forEach((f) => f.dispose());
   figures = null; follow = null;
-  connect({ type: "watch" }, (msg) => {
+  connect({ type: "watch", fronts: true }, (msg) => {
     if (msg.type === "waiting") { viewer.ready = true; viewer.stream = null; setStatus(msg.streams.length ? "live: attaching…" : "live: waiting for a stream (styleerd stream-bvh FILE)"); }
     if (msg.type === "watching") {
       joints = msg.joints.length; viewer.parents = msg.parents; viewer.stream = msg.stream; viewer.target = msg.target;
