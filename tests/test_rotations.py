@@ -130,3 +130,20 @@ def test_xia_clips_keep_their_twist(shared_data, model, tmp_path):
         if path.stem.split("_")[1] in ("01", "13"):  # walks and runs: contents the model was trained on
             assert max(v[2] for v in legs_and_trunk.values()) < 30, (path.name, legs_and_trunk)
             assert max(v[2] for v in errors.values()) < 50, (path.name, errors)
+
+
+def test_a_live_stream_on_a_rolled_rig_takes_its_bone_frames_from_its_first_frame(model):
+    """ChannelStylizer (the server's and the VMC bridge's path) gets the skeleton before any
+    frame: on a rig whose rest pose says nothing about bone rolls it maps again at the first
+    frame, and then gives exactly what the file transfer gives."""
+    from styleerd.runtime.channels import ChannelStylizer
+
+    g, meta = model
+    rolled = rig_variants(walk(2.0, fps=30.0))["joint frames rolled about their bones"]
+    live = ChannelStylizer(g, rolled.skeleton, {"elderly": 1.0}, "normal", "walk", fps=30.0)
+    assert live.map.wants_first_frame
+    values = bvh.channel_values(rolled)
+    streamed = np.stack([live.step(values[t])[0] for t in range(rolled.n_frames)])
+    assert not live.map.wants_first_frame and "first frame" in live.map.source_reference
+    whole = bvh.channel_values(transfer_motion(rolled, g, 30.0, "normal", "walk", {"elderly": 1.0}))
+    assert np.abs(streamed - whole).max() < 1e-5

@@ -118,6 +118,7 @@ class JointMap:
     target_tpose: np.ndarray  # [Jt, 4]
     scale: float  # target units per source unit (ratio of leg lengths)
     source_reference: str = "rest pose"  # which pose fixed the source's bone frames (see ``joint_map``)
+    wants_first_frame: bool = False  # the source's rest is no T- or A-pose and no first frame was given
 
     @cached_property
     def joints(self) -> tuple[np.ndarray, np.ndarray]:
@@ -304,7 +305,7 @@ def _source_frames(source: Skeleton, parts: dict[str, int], shared: set[str], fi
     if natural_rest(source, parts, shared):
         return tpose_rotations(source, parts, shared), "the rest pose (a T- or A-pose)"
     if first_pose is None:
-        return tpose_rotations(source, parts, shared), "the rest pose, though it is no T- or A-pose (no first frame given): bone rolls may be off"
+        return tpose_rotations(source, parts, shared), "the rest pose, though it is no T- or A-pose (no first frame given yet): bone rolls may be off"
     return tpose_rotations(source, parts, shared, first_pose), "the first frame (the rest pose is no T- or A-pose)"
 
 
@@ -356,7 +357,7 @@ def joint_map(
         reference = "the model's own frames (the same rig)"
     else:
         source_t, reference = _source_frames(source, sp, shared, source_pose)
-    return JointMap(source, target, pairs, source_t, target_t, scale, reference)
+    return JointMap(source, target, pairs, source_t, target_t, scale, reference, "no first frame given" in reference)
 
 
 def _local_from_global(g_rot: np.ndarray, parents: np.ndarray) -> np.ndarray:

@@ -38,6 +38,7 @@ class ChannelStylizer:
         first_pose: np.ndarray | None = None,
     ):
         self.map = map_skeleton(skeleton, model, explicit_map, first_pose=first_pose)
+        self.model, self.explicit_map = model, explicit_map
         self.skeleton, self.fps, self.n = skeleton, fps, n_streams
         self.n_channels = sum(len(c) for c in skeleton.channels)
         self.stylizer = StreamStylizer(model, input_style, content, target, n_streams, fps, labeller=labeller, backend=backend)
@@ -70,6 +71,8 @@ class ChannelStylizer:
     def step_pose(self, source: Motion, rows=None) -> Motion:
         """The same on poses: ``source`` holds this frame of the N streams (or of ``rows``) as
         N "frames" of local rotations and translations on the user's skeleton."""
+        if self.map.wants_first_frame:  # a rest pose that says nothing about bone rolls: the first frame seen does
+            self.map = map_skeleton(self.skeleton, self.model, self.explicit_map, first_pose=source.rotations[0])
         on_model = to_target(source, self.map)
         rot, pos = self.stylizer.step(on_model.rotations, on_model.positions, rows)
         out = to_source(Motion(self.map.target, rot, pos, self.fps), self.map, source)
