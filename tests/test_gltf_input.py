@@ -7,7 +7,6 @@ import json
 import numpy as np
 import pygltflib as gl
 import pytest
-from scipy.spatial.transform import Rotation
 
 from styleerd.errors import StyleERDError
 from styleerd.eval.rotations import rotation_errors
@@ -17,6 +16,7 @@ from styleerd.motion.gltf import read_gltf, write_glb
 from styleerd.motion.procedural import walk, with_rest_frames
 from styleerd.runtime.offline import transfer_file
 from test_gltf_mesh import needs_node, validate
+from test_rotations import scipy_globals
 
 VRM_BONES = {"Hips": "hips", "Spine": "spine", "Spine2": "upperChest", "Spine1": "chest", "Neck": "neck", "Head": "head"}
 for side in ("Left", "Right"):
@@ -54,20 +54,12 @@ def model():
     return load_generator()
 
 
-def scipy_world(motion) -> list[Rotation]:
-    out: list[Rotation] = []
-    for j, p in enumerate(motion.skeleton.parents):
-        r = Rotation.from_quat(motion.rotations[:, j], scalar_first=True)
-        out.append(r if p < 0 else out[p] * r)
-    return out
-
-
 def test_reading_a_character_gives_its_movement(tmp_path):
     original = vrm_character(tmp_path / "character.vrm")
     got = read_gltf(tmp_path / "character.vrm")
     assert got.motion.n_frames == original.n_frames and got.motion.fps == 30.0
     assert got.parts["left_knee"] == "bone_15" and got.parts["chest"] == "bone_03"  # upperChest wins over chest
-    for a, b in zip(scipy_world(original), scipy_world(got.motion)):  # world-aligned rest: the same rotations as the T-pose rig
+    for a, b in zip(scipy_globals(original), scipy_globals(got.motion)):  # world-aligned rest: the same rotations as the T-pose rig
         assert np.degrees((a.inv() * b).magnitude()).max() < 1e-3
     g = got.motion
     from styleerd.motion.kinematics import forward_kinematics

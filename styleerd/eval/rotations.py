@@ -24,6 +24,9 @@ from styleerd.motion.kinematics import forward_kinematics
 from styleerd.motion.motion import Motion
 from styleerd.motion.procedural import rig_variants
 from styleerd.motion.retarget import body_parts
+
+BODY_PARTS = ("hips", "spine", "chest", "neck", "head") + tuple(f"{side}_{p}" for side in ("left", "right")
+                                                                for p in ("collar", "shoulder", "elbow", "hand", "hip", "knee", "foot", "toe"))  # fmt: skip
 from styleerd.runtime.offline import transfer_motion
 
 
@@ -97,7 +100,8 @@ def rotation_report(model: StyleERD, fps: float, data_dir: str | None = None, cl
         same = transfer_motion(motion, model, fps, style, None, {style: 1.0}, cleanup=False)
         styled = transfer_motion(motion, model, fps, style, None, {stylised: 1.0}, cleanup=False)
         round_trip, change = rotation_errors(motion, same, joints), rotation_errors(motion, styled, joints)
-        rows.append({"group": group, "input": name, "input_style": style, "frames": motion.n_frames, "fps": motion.fps,
+        parts = {p: motion.skeleton.names[j] for p, j in body_parts(motion.skeleton).items()}
+        rows.append({"group": group, "input": name, "input_style": style, "frames": motion.n_frames, "fps": motion.fps, "parts": parts,
                      "round_trip": round_trip, "stylised": change,
                      "round_trip_worst": worst(round_trip), "stylised_worst": worst(change)})  # fmt: skip
     return {"stylised_target": stylised, "rows": rows}
@@ -118,6 +122,19 @@ def markdown(report: dict) -> str:
     for group, rows in groups.items():
         per = lambda key, k: np.median([np.median([v[k] for v in r[key].values()]) for r in rows])  # noqa: E731
         lines.append(f"| {group} | all mapped | {per('round_trip', 1):.1f} / {per('round_trip', 2):.1f} | {per('stylised', 1):.1f} / {per('stylised', 2):.1f} |")
+    names = list(groups)
+    lines += ["", "Per body part, the median over a group's clips of the joint's median angle, swing / twist (round trip | into the style):", "",
+              "| body part | " + " | ".join(names) + " |", "| --- |" + " --- |" * len(names)]  # fmt: skip
+    for part in BODY_PARTS:
+        cells = []
+        for group in names:
+            found = [(r["round_trip"][r["parts"][part]], r["stylised"][r["parts"][part]]) for r in groups[group] if part in r.get("parts", {})]
+            if not found:
+                cells.append("-")
+                continue
+            rt, st = np.median([f[0] for f in found], axis=0), np.median([f[1] for f in found], axis=0)
+            cells.append(f"{rt[1]:.1f} / {rt[2]:.1f} \\| {st[1]:.1f} / {st[2]:.1f}")
+        lines.append(f"| {part.replace('_', ' ')} | " + " | ".join(cells) + " |")
     return "\n".join(lines) + "\n"
 
 

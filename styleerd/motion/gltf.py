@@ -43,6 +43,21 @@ def guess_metres_per_unit(motion: Motion) -> float:
     return 0.9 / max(leg, 1e-9)
 
 
+def _append(views: list, accessors: list, blob: bytearray, array: np.ndarray, kind: str, with_bounds: bool = False,
+            component: int = gl.FLOAT, target: int | None = None) -> int:  # fmt: skip
+    """Append ``array`` to ``blob`` (4-byte aligned) with a buffer view and an accessor of
+    buffer 0; returns the accessor's index."""
+    dtype = {gl.FLOAT: np.float32, gl.UNSIGNED_SHORT: np.uint16, gl.UNSIGNED_INT: np.uint32}[component]
+    data = np.ascontiguousarray(array, dtype=dtype)
+    views.append(gl.BufferView(buffer=0, byteOffset=len(blob), byteLength=data.nbytes, target=target))
+    blob.extend(data.tobytes())
+    blob.extend(b"\0" * (-len(blob) % 4))
+    flat = data.reshape(len(data), -1)
+    bounds = {"min": flat.min(0).tolist(), "max": flat.max(0).tolist()} if with_bounds else {}
+    accessors.append(gl.Accessor(bufferView=len(views) - 1, componentType=component, count=len(data), type=kind, **bounds))
+    return len(accessors) - 1
+
+
 def bone_prisms(skeleton, rest_positions: np.ndarray, rest_rotations: np.ndarray, thickness: float) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """A body of one prism per bone (parent joint -> joint), in the bind pose given by the
     joints' global rest positions and rotations: (positions ``[V, 3]``, normals ``[V, 3]``,
@@ -89,15 +104,7 @@ def write_glb(path: str | Path, motion: Motion, metres_per_unit: float | None = 
     views, accessors = [], []
 
     def add(array: np.ndarray, kind: str, with_bounds: bool = False, component: int = gl.FLOAT, target: int | None = None) -> int:
-        dtype = {gl.FLOAT: np.float32, gl.UNSIGNED_SHORT: np.uint16, gl.UNSIGNED_INT: np.uint32}[component]
-        data = np.ascontiguousarray(array, dtype=dtype)
-        views.append(gl.BufferView(buffer=0, byteOffset=len(blob), byteLength=data.nbytes, target=target))
-        blob.extend(data.tobytes())
-        blob.extend(b"\0" * (-len(blob) % 4))
-        flat = data.reshape(len(data), -1)
-        bounds = {"min": flat.min(0).tolist(), "max": flat.max(0).tolist()} if with_bounds else {}
-        accessors.append(gl.Accessor(bufferView=len(views) - 1, componentType=component, count=len(data), type=kind, **bounds))
-        return len(accessors) - 1
+        return _append(views, accessors, blob, array, kind, with_bounds, component, target)
 
     xyzw = quat.normalize(motion.rotations)[..., [1, 2, 3, 0]]
     rest_local = quat.identity((sk.n_joints,)) if rest_rotations is None else quat.normalize(np.asarray(rest_rotations, dtype=np.float64))
@@ -376,13 +383,7 @@ def write_gltf_animation(path: str | Path, source: GltfMotion, motion: Motion) -
     pos[:, 1:] = quat.mul_vec(quat.inv(parent_rest)[None, 1:], motion.positions[:, 1:]) / a_scale
 
     def add(array: np.ndarray, kind: str, with_bounds: bool = False) -> int:
-        data = np.ascontiguousarray(array, dtype=np.float32)
-        doc.bufferViews.append(gl.BufferView(buffer=0, byteOffset=len(blob), byteLength=data.nbytes))
-        blob.extend(data.tobytes())
-        blob.extend(b"\0" * (-len(blob) % 4))
-        bounds = {"min": data.reshape(len(data), -1).min(0).tolist(), "max": data.reshape(len(data), -1).max(0).tolist()} if with_bounds else {}
-        doc.accessors.append(gl.Accessor(bufferView=len(doc.bufferViews) - 1, componentType=gl.FLOAT, count=len(data), type=kind, **bounds))
-        return len(doc.accessors) - 1
+        return _append(doc.bufferViews, doc.accessors, blob, array, kind, with_bounds)
 
     times = add(np.arange(motion.n_frames) / motion.fps, gl.SCALAR, with_bounds=True)
     samplers, channels = [], []
