@@ -109,3 +109,13 @@ def test_gltf_to_bvh_and_bad_gltf_inputs(model, tmp_path):
     with pytest.raises(StyleERDError, match="the output must be .glb, .vrm or .bvh"):
         transfer_file(tmp_path / "c.glb", tmp_path / "x.fbx", g, 30.0, "normal", "walk", {"elderly": 1.0})
     assert not (tmp_path / "x.glb").exists()
+
+
+def test_vrm_0x_humanoid_names_the_bones_too(tmp_path):
+    vrm_character(tmp_path / "c.vrm", seconds=1.0)
+    doc = gl.GLTF2().load_binary(str(tmp_path / "c.vrm"))
+    bones = doc.extensions["VRMC_vrm"]["humanoid"]["humanBones"]
+    doc.extensionsUsed = ["VRM"]
+    doc.extensions = {"VRM": {"humanoid": {"humanBones": [{"bone": b, "node": v["node"]} for b, v in bones.items()]}}}
+    doc.save_binary(str(tmp_path / "old.vrm"))
+    assert read_gltf(tmp_path / "old.vrm").parts == read_gltf(tmp_path / "c.vrm").parts
