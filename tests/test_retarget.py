@@ -152,3 +152,10 @@ def test_xia_clips_round_trip_exactly_and_keep_limb_directions(shared_data, mode
         back = to_source(on_model, jm, src)
         assert np.abs(quat.mul(quat.inv(back.rotations), src.rotations)[..., 0]).min() > 1 - 1e-12
         assert np.array_equal(back.positions, src.positions)
+
+
+def test_a_skeleton_with_no_leg_length_is_refused_with_a_clear_error(model_skeleton):
+    other = generated(model_motion(model_skeleton), 0, 1.0)
+    flat = Skeleton(other.skeleton.names, other.skeleton.parents, np.zeros_like(other.skeleton.offsets), other.skeleton.channels)
+    with pytest.raises(ValueError, match="the input skeleton's legs have no length"):
+        joint_map(model_skeleton, flat)

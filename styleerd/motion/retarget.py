@@ -4,12 +4,16 @@ Both skeletons are brought into one shared reference pose, a T-pose (Y up, facin
 character's left along +X, arms out sideways, legs straight down, feet forward), whatever
 their rest poses are (T-pose, A-pose, or a rest where every bone lies along its local X as in
 Bandai-Namco's data). For each skeleton, ``tpose_rotations`` gives every joint's global
-rotation in that T-pose. A mapped joint then carries its global rotation over relative to the
-T-pose:
+rotation in that T-pose with each bone's full frame fixed, its roll about itself included
+(the roll is what a skinned body shows and positions do not): the frames are read off a pose in
+which the bones have their natural roll (a T- or A-pose rest, the model's average pose, an
+input's first frame; ``joint_map`` says which). A mapped joint then carries its global rotation
+over relative to the T-pose:
 
     G_target[j](t) = G_source[s](t) * inv(T_source[s]) * T_target[j]
 
-so every mapped bone points the same way on both skeletons at every frame. The way back
+so every mapped bone points the same way and is rolled the same way on both skeletons at every
+frame. The way back
 inverts this exactly for mapped joints; joints with no counterpart keep their own local
 rotation (fingers, extra spine or neck joints). Root translation is scaled by the ratio of leg
 lengths. BVH world axes are assumed Y up (the convention of CMU, Xia, Mixamo and Bandai data).
@@ -345,10 +349,10 @@ def joint_map(
         raise ValueError(f"the model skeleton's root {target.names[0]!r} is not its hips")
     shared = {p for p in tp if p in sp}
     pairs = tuple(sorted((tp[p], sp[p]) for p in shared))
-    scale = leg_length(target, tp) / leg_length(source, sp)
     for name, length in (("input", leg_length(source, sp)), ("model", leg_length(target, tp))):
-        if not np.isfinite(length) or length <= 0:
+        if not np.isfinite(length) or length <= 1e-9:
             raise ValueError(f"the {name} skeleton's legs have no length (hip, knee and foot at one spot)")
+    scale = leg_length(target, tp) / leg_length(source, sp)
     target_t = tpose_rotations(target, tp, shared, None if natural_rest(target, tp, shared) else target_pose)
     if same_rest_frames(target, source, pairs):
         source_t = tpose_rotations(source, sp, shared)  # only its mapped joints are used: the target's frames
