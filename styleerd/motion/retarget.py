@@ -215,6 +215,30 @@ def _body_frames(P: np.ndarray, parts: dict[str, int], shared: set[str]) -> dict
     return out
 
 
+# The elbow's hinge (upper arm x forearm, both pointing away from the body) in the T-pose with
+# the palms down: a bending elbow brings the forearm forward.
+HINGES = {"left_shoulder": np.cross(LEFT, FORWARD), "right_shoulder": np.cross(RIGHT, FORWARD)}
+
+
+def _elbow_hinge(P: np.ndarray, parts: dict[str, int], shoulder: str, shared: set[str], min_degrees: float = 20.0) -> np.ndarray | None:
+    """The unit hinge axis of a bent elbow in pose positions ``P`` (None if the elbow is
+    nearly straight there, as in a T-pose, so its plane says nothing)."""
+    elbow = shoulder.replace("shoulder", "elbow")
+    upper, fore = _bone(P, parts, shoulder, shared), (_bone(P, parts, elbow, shared) if elbow in shared else None)
+    if upper is None or fore is None:
+        return None
+    axis = np.cross(_unit(upper), _unit(fore))
+    return _unit(axis) if np.linalg.norm(axis) > np.sin(np.radians(min_degrees)) else None
+
+
+def _roll_onto(v: np.ndarray, target: np.ndarray, axis: np.ndarray) -> np.ndarray:
+    """The rotation [3, 3] about unit ``axis`` that turns ``v`` (perpendicular to it, or
+    nearly) onto ``target``."""
+    a = v - axis * np.dot(v, axis)
+    angle = np.arctan2(np.dot(np.cross(a, target), axis), np.dot(a, target))
+    return quat.to_xform(quat.from_angle_axis(angle, axis))
+
+
 def tpose_rotations(skeleton: Skeleton, parts: dict[str, int], shared: set[str], pose: np.ndarray | None = None) -> np.ndarray:
     """Global rotations ``[J, 4]`` of the skeleton in the canonical T-pose, each bone's full
     frame fixed (its direction and its roll about itself), found from a reference pose of the
@@ -242,6 +266,8 @@ def tpose_rotations(skeleton: Skeleton, parts: dict[str, int], shared: set[str],
                     continue
                 carried = next((turn[a] for a in reversed(chain[: chain.index(p)]) if a in turn), np.eye(3))
                 turn[p] = quat.to_xform(quat.between(carried @ bone, TPOSE_DIRECTIONS[p])) @ carried
+                if p.endswith("shoulder") and (hinge := _elbow_hinge(P, parts, p, shared)) is not None:
+                    turn[p] = _roll_onto(turn[p] @ hinge, HINGES[p], TPOSE_DIRECTIONS[p]) @ turn[p]
     by_joint = {parts[p]: m for p, m in turn.items()}
     T = np.empty((skeleton.n_joints, 3, 3))
     for j in range(skeleton.n_joints):  # parents first
