@@ -158,6 +158,10 @@ FAULTS = {
     "absurd values": (lambda ws, v: ws.send(frame(1, np.full_like(v[0], 3e38))), 1007, "is out of range"),
     "frames faster than real time": (lambda ws, v: [ws.send(frame(i, v[0])) for i in range(400)], 1008, f"more than {QUEUE} frames waiting"),
     "unknown style": (lambda ws, v: ws.send(json.dumps({"type": "set", "style": "zombie"})), 1008, "valid: active, elderly"),
+    # a JSON frame on a binary stream whose seq cannot be packed as uint32 once stopped every stream
+    "seq past uint32": (lambda ws, v: ws.send(json.dumps({"type": "frame", "seq": 2**40, "values": v[0].tolist()})), 1007, "'seq' must be an integer"),
+    "negative seq": (lambda ws, v: ws.send(json.dumps({"type": "frame", "seq": -1, "values": v[0].tolist()})), 1007, "'seq' must be an integer"),
+    "seq not a number": (lambda ws, v: ws.send(json.dumps({"type": "frame", "seq": "7", "values": v[0].tolist()})), 1007, "'seq' must be an integer"),
 }
 
 

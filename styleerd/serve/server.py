@@ -267,7 +267,7 @@ class StyleServer:
             n = stream.pool.stylizer.n_channels
             if not isinstance(values, list) or len(values) != n or not all(isinstance(v, (int, float)) for v in values):
                 raise ClientError(POLICY, f"a frame's 'values' must be a list of {n} numbers")
-            self._enqueue(stream, int(msg.get("seq", stream.frames)), np.asarray(values, np.float64))
+            self._enqueue(stream, _sequence_number(msg.get("seq", stream.frames)), np.asarray(values, np.float64))
         elif kind == "set":
             self._set_target(stream, msg)
         elif kind == "reset":
@@ -307,7 +307,13 @@ class StyleServer:
                 if not work:
                     break
                 for pool, streams in work:
-                    self._step(pool, streams)
+                    try:
+                        self._step(pool, streams)
+                    except Exception:  # a bug anywhere in a step ends only that step's streams, never the stepping task
+                        log.exception("step failed for streams %s", [s.id for s in streams])
+                        for stream in streams:
+                            if not stream.closing:
+                                self._fail(stream, INTERNAL, "internal error while stylising this stream")
                 await asyncio.sleep(0)  # let replies go out and frames come in
 
     def _step(self, pool: Pool, streams: list[Stream]) -> None:
@@ -444,6 +450,13 @@ class StyleServer:
 def _response(status: HTTPStatus, body: bytes, kind: str) -> Response:
     headers = Headers([("Content-Type", kind), ("Content-Length", str(len(body))), ("Cache-Control", "no-store")])
     return Response(status.value, status.phrase, headers, body)
+
+
+def _sequence_number(value) -> int:
+    """A JSON frame's ``seq``: an integer that fits the binary replies' uint32."""
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or not float(value).is_integer() or not 0 <= value <= 0xFFFFFFFF:
+        raise ClientError(INVALID_DATA, f"a frame's 'seq' must be an integer in 0..{0xFFFFFFFF}, got {value!r}")
+    return int(value)
 
 
 def _joint_positions(skeleton: Skeleton, values: np.ndarray, fps: float, rest_fronts: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
