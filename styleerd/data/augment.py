@@ -12,7 +12,7 @@ from __future__ import annotations
 import numpy as np
 
 from styleerd.motion import quat
-from styleerd.motion.kinematics import forward_kinematics
+from styleerd.motion.kinematics import forward_kinematics, local_rotations
 from styleerd.motion.motion import Motion
 from styleerd.motion.resample import resample
 from styleerd.motion.retarget import body_parts, tpose_rotations
@@ -21,12 +21,6 @@ from styleerd.motion.skeleton import Skeleton
 # contents that a mirror turns into each other
 MIRRORED_CONTENT = {"wave-left-hand": "wave-right-hand", "raise-up-left-hand": "raise-up-right-hand", "walk-turn-left": "walk-turn-right"}
 MIRRORED_CONTENT.update({v: k for k, v in MIRRORED_CONTENT.items()})
-
-
-def _local(g_rot: np.ndarray, parents: np.ndarray) -> np.ndarray:
-    local = g_rot.copy()
-    local[..., 1:, :] = quat.mul(quat.inv(g_rot[..., parents[1:], :]), g_rot[..., 1:, :])
-    return local
 
 
 def with_proportions(motion: Motion, legs: float, arms: float, trunk: float) -> Motion:
@@ -57,7 +51,7 @@ def with_joint_offsets(motion: Motion, offsets: np.ndarray) -> Motion:
     (what another rig's conventions leave after retargeting)."""
     parents = motion.skeleton.parents
     g, _ = forward_kinematics(motion.rotations, motion.positions, parents)
-    return Motion(motion.skeleton, quat.normalize(_local(quat.mul(g, offsets), parents)), motion.positions, motion.fps)
+    return Motion(motion.skeleton, quat.normalize(local_rotations(quat.mul(g, offsets), parents)), motion.positions, motion.fps)
 
 
 def random_joint_offsets(n_joints: int, degrees: float, rng: np.random.Generator) -> np.ndarray:
@@ -83,7 +77,7 @@ def mirror(motion: Motion, reference_pose: np.ndarray) -> Motion:
     g_new = quat.mul(reflected[:, counterpart], C)
     pos = motion.positions.copy()
     pos[:, 0, 0] *= -1
-    return Motion(sk, quat.normalize(_local(g_new, sk.parents)), pos, motion.fps)
+    return Motion(sk, quat.normalize(local_rotations(g_new, sk.parents)), pos, motion.fps)
 
 
 def other_performer(motion: Motion, content: str, reference_pose: np.ndarray, rng: np.random.Generator) -> tuple[Motion, str]:

@@ -28,8 +28,8 @@ from styleerd.motion.procedural import walk
 from styleerd.motion.retarget import to_target
 from styleerd.runtime.backends import BACKENDS, make_backend
 from styleerd.runtime.channels import ChannelStylizer
-from styleerd.runtime.stylizer import StreamStylizer
 from styleerd.runtime.offline import map_skeleton
+from styleerd.runtime.stylizer import StreamStylizer
 
 PAPER_GTX1060_MS = {"online per frame": 1.73, "L=60": 7.47, "L=90": 10.18, "L=120": 13.22, "input frames needed": 1}
 STREAMS = (1, 4, 10, 16, 64, 100, 256, 1000, 4096)  # the throughput curve's points

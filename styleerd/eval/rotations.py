@@ -24,10 +24,10 @@ from styleerd.motion.kinematics import forward_kinematics
 from styleerd.motion.motion import Motion
 from styleerd.motion.procedural import rig_variants
 from styleerd.motion.retarget import body_parts
+from styleerd.runtime.offline import transfer_motion
 
 BODY_PARTS = ("hips", "spine", "chest", "neck", "head") + tuple(f"{side}_{p}" for side in ("left", "right")
                                                                 for p in ("collar", "shoulder", "elbow", "hand", "hip", "knee", "foot", "toe"))  # fmt: skip
-from styleerd.runtime.offline import transfer_motion
 
 
 def bone_axes(skeleton) -> np.ndarray:
@@ -43,7 +43,7 @@ def bone_axes(skeleton) -> np.ndarray:
 
 
 def _degrees(q: np.ndarray) -> np.ndarray:
-    return np.degrees(2.0 * np.arccos(np.clip(np.abs(q[..., 0]), 0.0, 1.0)))
+    return np.degrees(quat.angle_between(quat.identity(), q))
 
 
 def rotation_errors(reference: Motion, motion: Motion, joints: list[int] | None = None) -> dict[str, tuple[float, float, float]]:

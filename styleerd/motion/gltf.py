@@ -21,10 +21,10 @@ import numpy as np
 import pygltflib as gl
 
 from styleerd.atomic import atomic_write
+from styleerd.errors import StyleERDError
 from styleerd.motion import quat
 from styleerd.motion.kinematics import bone_fronts, forward_kinematics
 from styleerd.motion.motion import Motion
-from styleerd.errors import StyleERDError
 from styleerd.motion.skeleton import POSITION_CHANNELS, Skeleton, find_role
 
 
@@ -181,12 +181,10 @@ class GltfMotion:
     world-aligned (the glTF's rest pose with every joint's rest rotation taken out, as BVH
     has it), and what it takes to put a motion back into the same file."""
 
-    path: Path
     doc: gl.GLTF2
     blob: bytes
     motion: Motion
     nodes: list[int]  # skeleton joint -> node
-    rest_rotations: np.ndarray  # [J, 4] the nodes' local rest rotations (the root's after its ancestors)
     rest_global: np.ndarray  # [J, 4] their global rest rotations
     above: tuple[np.ndarray, np.ndarray, float]  # the root's ancestors: rotation, translation, uniform scale
     parts: dict[str, str]  # body part -> joint name, from a VRM humanoid (empty otherwise)
@@ -258,12 +256,12 @@ def read_gltf(path: str | Path, animation: int = 0, fps: float | None = None) ->
     path = Path(path)
     doc, blob = _load(path)
     try:
-        return _read(path, doc, blob, animation, fps)
+        return _read(doc, blob, animation, fps)
     except (ValueError, KeyError, IndexError, TypeError) as e:
         raise StyleERDError(f"{path}: {e}") from None
 
 
-def _read(path: Path, doc: gl.GLTF2, blob: bytes, animation: int, fps: float | None) -> GltfMotion:
+def _read(doc: gl.GLTF2, blob: bytes, animation: int, fps: float | None) -> GltfMotion:
     if not doc.skins:
         raise ValueError("no skin: the file has no skeleton to stylise")
     if not doc.animations or animation >= len(doc.animations):
@@ -359,7 +357,7 @@ def _read(path: Path, doc: gl.GLTF2, blob: bytes, animation: int, fps: float | N
     skeleton = Skeleton(names, parents, offsets, channels)
     motion = Motion(skeleton, quat.normalize(rot), pos, fps)
     parts = {p: names[index[n]] for p, n in _vrm_parts(doc).items() if n in index}
-    return GltfMotion(path, doc, blob, motion, order, rest_local, rest_global, (a_rot, a_pos, a_scale), parts, moved)
+    return GltfMotion(doc, blob, motion, order, rest_global, (a_rot, a_pos, a_scale), parts, moved)
 
 
 def write_gltf_animation(path: str | Path, source: GltfMotion, motion: Motion) -> None:
@@ -372,9 +370,8 @@ def write_gltf_animation(path: str | Path, source: GltfMotion, motion: Motion) -
     doc = copy.deepcopy(source.doc)
     blob = bytearray(source.blob)
     blob.extend(b"\0" * (-len(blob) % 4))
-    sk, J = motion.skeleton, motion.skeleton.n_joints
+    parents, J = motion.skeleton.parents, motion.skeleton.n_joints
     a_rot, a_pos, a_scale = source.above
-    parents = sk.parents
     parent_rest = np.where((parents >= 0)[:, None], source.rest_global[np.maximum(parents, 0)], quat.identity((J,)))
     local = quat.mul(quat.inv(parent_rest)[None], quat.mul(motion.rotations, source.rest_global[None]))
     local[:, 0] = quat.mul(quat.inv(a_rot), local[:, 0])  # the root's parent_rest is identity: take its ancestors out

@@ -90,6 +90,13 @@ def foot_contacts(global_positions: np.ndarray, previous_positions: np.ndarray, 
     return (np.linalg.norm(step, axis=-1) * fps < max_speed).astype(np.float64)
 
 
+def local_rotations(global_rotations: np.ndarray, parents: np.ndarray) -> np.ndarray:
+    """Local rotations ``[..., J, 4]`` of global ones: each joint's relative to its parent's."""
+    local = global_rotations.copy()
+    local[..., 1:, :] = quat.mul(quat.inv(global_rotations[..., parents[1:], :]), global_rotations[..., 1:, :])
+    return local
+
+
 def bone_fronts(skeleton) -> np.ndarray:
     """Per joint j, the rest-pose front ``[J, 3]`` of the bone from j's parent to j, in the
     parent's frame: +Z made perpendicular to the bone (+Y for a bone along Z, such as a foot);

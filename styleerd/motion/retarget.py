@@ -27,7 +27,7 @@ from functools import cached_property
 import numpy as np
 
 from styleerd.motion import quat
-from styleerd.motion.kinematics import forward_kinematics
+from styleerd.motion.kinematics import forward_kinematics, local_rotations
 from styleerd.motion.motion import Motion
 from styleerd.motion.skeleton import Skeleton, find_role
 
@@ -328,15 +328,15 @@ def leg_length(skeleton: Skeleton, parts: dict[str, int]) -> float:
     return float(np.linalg.norm(P[knee] - P[hip]) + np.linalg.norm(P[foot] - P[knee]))
 
 
-def _source_frames(source: Skeleton, parts: dict[str, int], shared: set[str], first_pose: np.ndarray | None) -> tuple[np.ndarray, str]:
-    """The source's T-pose rotations and what they came from: a T- or A-pose rest, else the
-    first frame (a rest such as every bone along its parent's X, or joint frames rolled in the
-    rig, says nothing about the bones' natural roll)."""
+def _source_frames(source: Skeleton, parts: dict[str, int], shared: set[str], first_pose: np.ndarray | None) -> tuple[np.ndarray, str, bool]:
+    """The source's T-pose rotations, what they came from, and whether a first frame is still
+    wanted: a T- or A-pose rest, else the first frame (a rest such as every bone along its
+    parent's X, or joint frames rolled in the rig, says nothing about the bones' natural roll)."""
     if natural_rest(source, parts, shared):
-        return tpose_rotations(source, parts, shared), "the rest pose (a T- or A-pose)"
+        return tpose_rotations(source, parts, shared), "the rest pose (a T- or A-pose)", False
     if first_pose is None:
-        return tpose_rotations(source, parts, shared), "the rest pose, though it is no T- or A-pose (no first frame given yet): bone rolls may be off"
-    return tpose_rotations(source, parts, shared, first_pose), "the first frame (the rest pose is no T- or A-pose)"
+        return tpose_rotations(source, parts, shared), "the rest pose, though it is no T- or A-pose (no first frame given yet): bone rolls may be off", True
+    return tpose_rotations(source, parts, shared, first_pose), "the first frame (the rest pose is no T- or A-pose)", False
 
 
 def joint_map(
@@ -381,19 +381,13 @@ def joint_map(
     scale = leg_length(target, tp) / leg_length(source, sp)
     target_t = tpose_rotations(target, tp, shared, None if natural_rest(target, tp, shared) else target_pose)
     if same_rest_frames(target, source, pairs):
-        source_t = tpose_rotations(source, sp, shared)  # only its mapped joints are used: the target's frames
+        source_t = quat.identity((source.n_joints,))  # only the mapped joints' are ever used: the target's frames
         t_idx, s_idx = (np.array(x) for x in zip(*pairs))
         source_t[s_idx] = target_t[t_idx]
-        reference = "the model's own frames (the same rig)"
+        reference, wants_first_frame = "the model's own frames (the same rig)", False
     else:
-        source_t, reference = _source_frames(source, sp, shared, source_pose)
-    return JointMap(source, target, pairs, source_t, target_t, scale, reference, "no first frame given" in reference)
-
-
-def _local_from_global(g_rot: np.ndarray, parents: np.ndarray) -> np.ndarray:
-    local = g_rot.copy()
-    local[..., 1:, :] = quat.mul(quat.inv(g_rot[..., parents[1:], :]), g_rot[..., 1:, :])
-    return local
+        source_t, reference, wants_first_frame = _source_frames(source, sp, shared, source_pose)
+    return JointMap(source, target, pairs, source_t, target_t, scale, reference, wants_first_frame)
 
 
 def to_target(motion: Motion, jm: JointMap) -> Motion:
@@ -408,7 +402,7 @@ def to_target(motion: Motion, jm: JointMap) -> Motion:
         out[:, j] = quat.mul(out[:, p], rel) if p >= 0 else rel
     pos = np.broadcast_to(tgt.offsets, (T, tgt.n_joints, 3)).copy()
     pos[:, 0] = g_pos[:, s_idx[0]] * jm.scale  # pairs are sorted by target joint; the hips (joint 0) are always mapped
-    return Motion(tgt, _local_from_global(out, tgt.parents), pos, motion.fps)
+    return Motion(tgt, local_rotations(out, tgt.parents), pos, motion.fps)
 
 
 def to_source(target_motion: Motion, jm: JointMap, source_motion: Motion) -> Motion:
@@ -423,4 +417,4 @@ def to_source(target_motion: Motion, jm: JointMap, source_motion: Motion) -> Mot
     for s in sorted(set(range(src.n_joints)) - set(s_idx.tolist())):  # parents first: their globals are ready
         p = src.parents[s]
         g[:, s] = quat.mul(g[:, p], source_motion.rotations[:, s]) if p >= 0 else source_motion.rotations[:, s]
-    return Motion(src, quat.normalize(_local_from_global(g, src.parents)), source_motion.positions.copy(), target_motion.fps, source_motion.euler_hint)
+    return Motion(src, quat.normalize(local_rotations(g, src.parents)), source_motion.positions.copy(), target_motion.fps, source_motion.euler_hint)

@@ -102,12 +102,9 @@ def transfer_motion(
     header = bvh.Header(motion.skeleton, motion.n_frames, motion.fps, where)
     rows, stylizer = _stylised_stream(header, iter([bvh.channel_values(motion)]), model, fps, input_style, content, target, explicit_map, report, cleanup, backend)
     out = bvh.motion_from_channels(motion.skeleton, np.concatenate(list(rows)), motion.fps)
-    if stylizer.labeller is not None:
-        inferred = stylizer.inferred_labels()[0]
-        if labels is not None:
-            labels.append(inferred)
-        if report:
-            report(f"input labels at the last frame: style {inferred[0]}, content {inferred[1]} (inferred online where not given)")
+    inferred = _inferred_labels(stylizer, report)
+    if inferred and labels is not None:
+        labels.append(inferred)
     return out
 
 
@@ -153,10 +150,18 @@ def transfer_file(
         atomic_write(output, write)
     else:
         write_glb(output, bvh.motion_from_channels(header.skeleton, np.concatenate(list(rows)), header.fps), mesh=mesh)
-    labels = stylizer.inferred_labels()[0] if stylizer.labeller is not None else None
-    if report and labels:
+    return TransferReport(header.n_frames, header.fps, _inferred_labels(stylizer, report))
+
+
+def _inferred_labels(stylizer: StreamStylizer, report: Callable[[str], None] | None) -> tuple[str, str] | None:
+    """The (style, content) the labeller inferred at the last frame, reported; None when both
+    labels were given."""
+    if stylizer.labeller is None:
+        return None
+    labels = stylizer.inferred_labels()[0]
+    if report:
         report(f"input labels at the last frame: style {labels[0]}, content {labels[1]} (inferred online where not given)")
-    return TransferReport(header.n_frames, header.fps, labels)
+    return labels
 
 
 GLTF_INPUTS = (".glb", ".gltf", ".vrm")
@@ -179,7 +184,7 @@ def _transfer_gltf(source: Path, output: Path, model: StyleERD, fps: float, inpu
         bvh.write(output, out)
     else:
         write_gltf_animation(output, src, out)
-    return TransferReport(out.n_frames, out.fps, tuple(lines[0]) if lines else None)
+    return TransferReport(out.n_frames, out.fps, lines[0] if lines else None)
 
 
 def _checked(rows: Iterator[np.ndarray], source) -> Iterator[np.ndarray]:

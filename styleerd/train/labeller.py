@@ -23,6 +23,7 @@ from tqdm import tqdm
 from styleerd.data.augment import other_performer
 from styleerd.data.cache import FeatureSet
 from styleerd.data.features import features_to_motion, motion_features
+from styleerd.data.windows import window_starts
 from styleerd.model import checkpoint as ckpt
 from styleerd.model.labeller import OnlineLabeller, toward_neutral
 from styleerd.train.batches import TrainingData, windows
@@ -81,17 +82,6 @@ def augmented_clips(fs: FeatureSet, data: TrainingData, clips: np.ndarray, copie
     return torch.from_numpy(np.concatenate(frames)), np.array(starts), np.array(styles), np.array(contents)
 
 
-def _stretches(clip_start: np.ndarray, length: int, stride: int) -> tuple[np.ndarray, np.ndarray]:
-    """Start rows of every ``length``-frame stretch inside a clip, every ``stride`` frames, and
-    their clip."""
-    starts, clip = [], []
-    for c in range(len(clip_start) - 1):
-        s = np.arange(clip_start[c], clip_start[c + 1] - length + 1, stride)
-        starts.append(s)
-        clip.append(np.full(len(s), c))
-    return np.concatenate(starts), np.concatenate(clip)
-
-
 def train_labeller(fs: FeatureSet, data: TrainingData, epochs: int = 6, length: int = 40, stride: int = 4, batch: int = 64, lr: float = 2e-3, seed: int = 0,
                    max_clips: int = 0, progress: bool = True, copies: int = 2, reference_pose: np.ndarray | None = None) -> tuple[OnlineLabeller, dict]:  # fmt: skip
     """Train; keep the epoch whose validation streams are labelled best after 30 frames.
@@ -109,7 +99,8 @@ def train_labeller(fs: FeatureSet, data: TrainingData, epochs: int = 6, length: 
     if copies:
         reference = data.stats.reference if reference_pose is None else reference_pose
         extra, extra_start, extra_style, extra_content = augmented_clips(fs, data, np.unique(ws.clip), copies, reference, seed, progress)
-        s2, c2 = _stretches(extra_start, length, stride)
+        s2 = window_starts(extra_start, np.arange(len(extra_start) - 1), length, stride)
+        c2 = np.searchsorted(extra_start, s2, side="right") - 1
         frames = torch.cat([frames, extra])
         starts = np.concatenate([starts, s2 + len(data.frames)])
         style, content = np.concatenate([style, extra_style[c2]]), np.concatenate([content, extra_content[c2]])
