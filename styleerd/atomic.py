@@ -1,5 +1,7 @@
-"""Atomic file writes: write beside the target, then rename into place, so a failure or a kill
-never leaves a partly written file behind."""
+"""Atomic file writes: write beside the target, flush it to disk, then rename into place, so a
+failure, a kill or a power cut never leaves a partly written file behind. A temporary file
+left by a killed writer (its name carries the writer's process id) is removed by the next
+write of the same file."""
 
 from __future__ import annotations
 
@@ -8,22 +10,78 @@ import tempfile
 from pathlib import Path
 from typing import Callable
 
+from styleerd.errors import StyleERDError
+
+
+def check_output(path: str | os.PathLike, *inputs: str | os.PathLike) -> Path:
+    """Fail early, with one line, where ``path`` cannot be written: its folder is missing or
+    not writable, it is a folder, or it is one of the ``inputs`` (it would replace them)."""
+    path = Path(path)
+    folder = path.parent
+    if path.is_dir():
+        raise StyleERDError(f"{path}: the output is a folder; give a file name")
+    if not folder.is_dir():
+        raise StyleERDError(f"{path}: the output's folder {folder} does not exist")
+    if not os.access(folder, os.W_OK | os.X_OK):
+        raise StyleERDError(f"{path}: the output's folder {folder} is not writable")
+    for source in inputs:
+        if path.exists() and Path(source).exists() and os.path.samefile(path, source):
+            raise StyleERDError(f"{path}: the output is the input file; write to another file")
+    return path
+
+
+def _pid_alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:
+        return True
+    return True
+
+
+def _remove_orphans(path: Path, suffix: str) -> None:
+    """Temporary files of ``path`` whose writer process is gone."""
+    for tmp in path.parent.glob(f".{path.name}.*{suffix}"):
+        pid = tmp.name[len(path.name) + 2 :].split(".", 1)[0]
+        if pid.isdigit() and int(pid) != os.getpid() and not _pid_alive(int(pid)):
+            tmp.unlink(missing_ok=True)
+
+
+def _fsync(path: str | os.PathLike, directory: bool = False) -> None:
+    fd = os.open(path, os.O_RDONLY | (os.O_DIRECTORY if directory else 0))
+    try:
+        os.fsync(fd)
+    finally:
+        os.close(fd)
+
 
 def atomic_write(path: str | os.PathLike, write: Callable[[str], None], suffix: str = ".tmp") -> None:
-    """Call ``write(tmp_path)`` and rename the result to ``path`` (mode 0644 less umask)."""
+    """Call ``write(tmp_path)`` and rename the result to ``path`` (mode 0644 less umask). An
+    operating-system failure (missing folder, no permission, a full disk, a file-size limit)
+    becomes one ``StyleERDError`` naming ``path``; nothing is left behind."""
     path = Path(path)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=suffix)
-    os.close(fd)
+    tmp = None
     try:
+        _remove_orphans(path, suffix)
+        fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.{os.getpid()}.", suffix=suffix)
+        os.close(fd)
         write(tmp)
         umask = os.umask(0)
         os.umask(umask)
         os.chmod(tmp, 0o666 & ~umask)
+        _fsync(tmp)
         os.replace(tmp, path)
-    except BaseException:
-        if os.path.exists(tmp):
+        tmp = None
+    except OSError as e:
+        raise StyleERDError(f"cannot write {path}: {e.strerror or e}") from None
+    finally:
+        if tmp is not None and os.path.exists(tmp):
             os.unlink(tmp)
-        raise
+    try:  # the rename itself to disk; some file systems cannot sync a folder, and the file is in place
+        _fsync(path.parent, directory=True)
+    except OSError:
+        pass
 
 
 def atomic_write_text(path: str | os.PathLike, text: str) -> None:

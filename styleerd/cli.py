@@ -4,9 +4,11 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import sys
 from pathlib import Path
 
+from styleerd.atomic import check_output
 from styleerd.errors import StyleERDError
 
 
@@ -23,9 +25,10 @@ def _data_prepare(args: argparse.Namespace) -> None:
 def _info(args: argparse.Namespace) -> None:
     from styleerd.motion import bvh
 
-    m = bvh.read(args.file)
-    sk = m.skeleton
-    print(f"{args.file}: {m.n_frames} frames at {m.fps:.6g} fps ({m.n_frames / m.fps:.2f} s), {sk.n_joints} joints, "
+    header, frames = bvh.stream(args.file)
+    n_frames = sum(len(chunk) for chunk in frames)  # every frame checked, in bounded memory
+    sk, fps = header.skeleton, header.fps
+    print(f"{args.file}: {n_frames} frames at {fps:.6g} fps ({n_frames / fps:.2f} s), {sk.n_joints} joints, "
           f"{sum(len(c) for c in sk.channels)} channels")
     for j, name in enumerate(sk.names):
         depth, p = 0, sk.parents[j]
@@ -40,6 +43,7 @@ def _resample(args: argparse.Namespace) -> None:
 
     if not 1 <= args.fps <= 1000:
         raise StyleERDError(f"--fps {args.fps:g} is outside [1, 1000]")
+    check_output(args.output, args.input)
     m = resample(bvh.read(args.input), args.fps)
     bvh.write(args.output, m)
     print(f"wrote {args.output}: {m.n_frames} frames at {args.fps:g} fps")
@@ -111,6 +115,7 @@ def _export_onnx(args: argparse.Namespace) -> None:
     from styleerd.model.checkpoint import load_generator
     from styleerd.runtime.onnx_export import export
 
+    check_output(args.output)
     model, meta = load_generator(args.model)
     export(model, meta, args.output)
     print(f"wrote {args.output} and {Path(args.output).with_suffix('.json')} (inputs, outputs and features: docs/ONNX.md)")
@@ -224,6 +229,8 @@ def _stream_bvh(args: argparse.Namespace) -> None:
     mix = _parse_mix(args.mix) if args.mix else None
     if args.style is None and mix is None:
         raise StyleERDError("give --style or --mix")
+    if args.output:
+        check_output(args.output, args.input)
     print(stream_bvh(args.input, args.to, args.style, args.intensity, mix, args.output, args.input_style, args.content, not args.fast))
 
 
@@ -245,8 +252,47 @@ def _demo(args: argparse.Namespace) -> None:
     print(run_demo(Path(args.out), args.data))
 
 
+def _whole(low: int):
+    """An argument type: a whole number of at least ``low``."""
+
+    def parse(text: str) -> int:
+        try:
+            value = int(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"{text!r} is not a whole number") from None
+        if value < low:
+            raise argparse.ArgumentTypeError(f"{value} is too small: at least {low}")
+        return value
+
+    return parse
+
+
+def _port(text: str) -> int:
+    value = _whole(0)(text)
+    if value > 65535:
+        raise argparse.ArgumentTypeError(f"{value}: a port number is 0..65535")
+    return value
+
+
+def _positive(text: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        value = float("nan")
+    if not 0 < value < float("inf"):
+        raise argparse.ArgumentTypeError(f"{text!r}: expected a positive number")
+    return value
+
+
+class _Parser(argparse.ArgumentParser):
+    """argparse, with a mistake reported on one line (the usage is one ``-h`` away)."""
+
+    def error(self, message: str):
+        self.exit(2, f"{self.prog}: error: {message} (see '{self.prog} -h')\n")
+
+
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(prog="styleerd", description="Online motion style transfer (Style-ERD).")
+    parser = _Parser(prog="styleerd", description="Online motion style transfer (Style-ERD).")
     sub = parser.add_subparsers(dest="command", required=True)
 
     data = sub.add_parser("data", help="datasets").add_subparsers(dest="data_command", required=True)
@@ -254,8 +300,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--data", help="data folder (default: $STYLEERD_DATA, else ../shared/data)")
     p.add_argument("--cache", help="cache folder (default: $STYLEERD_CACHE, else ~/.cache/styleerd)")
     p.add_argument("--datasets", nargs="+", metavar="NAME", help="subset of: bandai-namco-2 bandai-namco-1 xia-sample")
-    p.add_argument("--fps", type=float, default=30.0, help="frame rate of the features (default 30)")
-    p.add_argument("--workers", type=int, help="processes (default: one per core)")
+    p.add_argument("--fps", type=_positive, default=30.0, help="frame rate of the features (default 30)")
+    p.add_argument("--workers", type=_whole(1), help="processes (default: one per core)")
     p.set_defaults(func=_data_prepare)
 
     p = sub.add_parser("info", help="describe a BVH file")
@@ -330,8 +376,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--data", help="data folder")
     p.set_defaults(func=_eval_rotations)
     p = ev.add_parser("ablations", help="train what is missing (resumable) and tabulate the paper's ablations")
-    p.add_argument("--epochs", type=int, default=14, help="training budget of every model (default 14, about 9 min each)")
-    p.add_argument("--threads", type=int, default=1)
+    p.add_argument("--epochs", type=_whole(1), default=14, help="training budget of every model (default 14, about 9 min each)")
+    p.add_argument("--threads", type=_whole(1), default=1)
     p.add_argument("--runs", default="runs/ablations", help="run folders (checkpoints)")
     p.add_argument("--no-train", action="store_true", help="only evaluate the models in models/ablations/")
     p.add_argument("--out", default="docs/ablations.md", help="Markdown table (a .json beside it)")
@@ -340,15 +386,15 @@ def build_parser() -> argparse.ArgumentParser:
 
     p = sub.add_parser("bench", help="runtime table: latency per backend, whole clips, throughput curve, FLOPs, memory")
     p.add_argument("--model", help="model path without suffix (default: the shipped model)")
-    p.add_argument("--steps", type=int, default=2000, help="frames timed per latency figure")
-    p.add_argument("--streams", type=int, nargs="+", help="concurrent streams of the throughput curve (default 1 .. 4096)")
+    p.add_argument("--steps", type=_whole(1), default=2000, help="frames timed per latency figure")
+    p.add_argument("--streams", type=_whole(1), nargs="+", help="concurrent streams of the throughput curve (default 1 .. 4096)")
     p.add_argument("--json", default="docs/bench.json")
     p.add_argument("--plot", default="docs/throughput.png")
     p.set_defaults(func=_bench)
 
     p = sub.add_parser("report", help="regenerate docs/RESULTS.md: quality, ablations, runtime, online figures, pictures")
     p.add_argument("--docs", default="docs")
-    p.add_argument("--steps", type=int, default=2000, help="frames timed per latency figure")
+    p.add_argument("--steps", type=_whole(1), default=2000, help="frames timed per latency figure")
     p.add_argument("--data", help="data folder")
     p.set_defaults(func=_report)
 
@@ -362,11 +408,11 @@ def build_parser() -> argparse.ArgumentParser:
 
     p = sub.add_parser("serve", help="the real-time style server (WebSocket, docs/PROTOCOL.md) and its browser viewer")
     p.add_argument("--host", default="127.0.0.1", help="address to bind (default loopback only)")
-    p.add_argument("--port", type=int, default=8765)
-    p.add_argument("--workers", type=int, default=1, help="processes sharing the port (SO_REUSEPORT), e.g. one per core")
-    p.add_argument("--max-streams", type=int, default=256, help="open streams per worker")
-    p.add_argument("--max-message", type=int, default=1 << 20, help="largest message in bytes (larger: closed with 1009)")
-    p.add_argument("--queue", type=int, default=64, help="per stream: frames waiting, and stylised frames unsent")
+    p.add_argument("--port", type=_port, default=8765)
+    p.add_argument("--workers", type=_whole(1), default=1, help="processes sharing the port (SO_REUSEPORT), e.g. one per core")
+    p.add_argument("--max-streams", type=_whole(1), default=256, help="open streams per worker")
+    p.add_argument("--max-message", type=_whole(1024), default=1 << 20, help="largest message in bytes (larger: closed with 1009)")
+    p.add_argument("--queue", type=_whole(1), default=64, help="per stream: frames waiting, and stylised frames unsent")
     p.add_argument("--backend", default="numpy", choices=["numpy", "numba", "onnx"])
     p.add_argument("--data", help="data folder for the viewer's real demo clips (optional)")
     p.set_defaults(func=_serve)
@@ -384,20 +430,20 @@ def build_parser() -> argparse.ArgumentParser:
     p.set_defaults(func=_stream_bvh)
 
     p = sub.add_parser("load-test", help="N real-time stream-bvh clients against a fresh server: latency, drops, CPU")
-    p.add_argument("--clients", type=int, default=200)
-    p.add_argument("--seconds", type=float, default=60.0)
-    p.add_argument("--workers", type=int, default=1, help="server workers")
+    p.add_argument("--clients", type=_whole(1), default=200)
+    p.add_argument("--seconds", type=_positive, default=60.0)
+    p.add_argument("--workers", type=_whole(1), default=1, help="server workers")
     p.add_argument("-o", "--output", help="write the figures as JSON")
     p.set_defaults(func=_load_test)
 
     p = sub.add_parser("vmc", help="VMC protocol bridge: receive bones over OSC/UDP, stylise, send them on")
-    p.add_argument("--listen", type=int, default=39539, help="UDP port to receive VMC on")
-    p.add_argument("--send", type=int, default=39540, help="UDP port to send the stylised VMC to")
+    p.add_argument("--listen", type=_port, default=39539, help="UDP port to receive VMC on")
+    p.add_argument("--send", type=_port, default=39540, help="UDP port to send the stylised VMC to")
     p.add_argument("--host", default="127.0.0.1", help="host to send to (and to listen on)")
     p.add_argument("--style")
     p.add_argument("--intensity", type=float, default=1.0)
     p.add_argument("--mix")
-    p.add_argument("--fps", type=float, default=30.0, help="the sender's frame rate (velocities are per second)")
+    p.add_argument("--fps", type=_positive, default=30.0, help="the sender's frame rate (velocities are per second)")
     p.set_defaults(func=_vmc)
 
     p = sub.add_parser("demo", help="the main job on a bundled input: every style, BVH files + an HTML page to watch them")
@@ -417,6 +463,9 @@ def main(argv: list[str] | None = None) -> int:
     except KeyboardInterrupt:
         print("styleerd: interrupted", file=sys.stderr)
         return 130
+    except BrokenPipeError:  # `styleerd info F | head -1`: the reader left; stop quietly, as a Unix tool does
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())  # no second error when Python flushes stdout
+        return 141
     return 0
 
 

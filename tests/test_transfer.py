@@ -100,7 +100,7 @@ def test_channel_stream_equals_the_file_transfer_on_a_stream_at_model_rate(model
     values = bvh.channel_values(src)
     streamed = np.stack([stream.step(values[t])[0] for t in range(src.n_frames)])
     assert np.abs(streamed - bvh.channel_values(out)).max() < 1e-5  # degrees; the file went through 9-digit text
-    with pytest.raises(StyleERDError, match="channel 3 is not a finite number"):
+    with pytest.raises(StyleERDError, match="is not a finite number"):
         bad = values[0].copy()
         bad[3] = np.nan
         stream.step(bad)

@@ -8,7 +8,7 @@ import json
 from pathlib import Path
 
 import torch
-from safetensors import safe_open
+from safetensors import SafetensorError, safe_open
 from safetensors.torch import save_file
 from torch import nn
 
@@ -44,11 +44,29 @@ def load_tensors(stem: Path) -> tuple[dict[str, torch.Tensor], dict]:
     path = Path(stem).with_suffix(".safetensors")
     try:
         with safe_open(path, framework="pt") as f:
-            meta = json.loads((f.metadata() or {})["styleerd"])
+            text = (f.metadata() or {}).get("styleerd")
             tensors = {k: f.get_tensor(k) for k in f.keys()}
-    except (OSError, ValueError, KeyError) as e:
-        raise StyleERDError(f"cannot load model {path}: {e}") from None
+    except (OSError, SafetensorError) as e:  # missing, a folder, truncated, not a safetensors file
+        raise StyleERDError(f"cannot load model {path}: {getattr(e, 'strerror', None) or e}") from None
+    if text is None:
+        raise StyleERDError(f"cannot load model {path}: no styleerd configuration in its header (not saved by styleerd)")
+    try:
+        meta = json.loads(text)
+    except ValueError as e:
+        raise StyleERDError(f"cannot load model {path}: its configuration is not JSON ({e})") from None
     return tensors, meta
+
+
+def _loaded(stem: str | Path | None, default: str, build):
+    """``build(tensors, meta)`` of the model at ``stem``; a configuration or weights that do
+    not fit each other is one clear error, not a traceback."""
+    path = Path(stem) if stem else MODELS_DIR / default
+    tensors, meta = load_tensors(path)
+    try:
+        return build(tensors, meta), meta
+    except (KeyError, TypeError, ValueError, AttributeError, RuntimeError) as e:
+        problem = f"missing {e}" if isinstance(e, KeyError) else str(e).splitlines()[0]
+        raise StyleERDError(f"cannot load model {path.with_suffix('.safetensors')}: its configuration or weights are incomplete ({problem})") from None
 
 
 def prefixed(prefix: str, module: nn.Module) -> dict[str, torch.Tensor]:
@@ -69,10 +87,12 @@ def build_generator(meta: dict) -> StyleERD:
 
 def load_generator(stem: str | Path | None = None) -> tuple[StyleERD, dict]:
     """The generator saved at ``stem`` (default: the shipped model), in eval mode."""
-    tensors, meta = load_tensors(Path(stem) if stem else MODELS_DIR / DEFAULT_MODEL)
-    model = build_generator(meta)
-    model.load_state_dict(unprefixed("generator", tensors))
-    return model.eval(), meta
+    def build(tensors, meta):
+        model = build_generator(meta)
+        model.load_state_dict(unprefixed("generator", tensors))
+        return model.eval()
+
+    return _loaded(stem, DEFAULT_MODEL, build)
 
 
 def classifier_meta(model: WindowClassifier, labels: list[str], **extra) -> dict:
@@ -93,26 +113,32 @@ def build_classifier(meta: dict) -> WindowClassifier:
 
 def load_recognisers(stem: str | Path | None = None) -> tuple[WindowClassifier, WindowClassifier, dict]:
     """(style recogniser, content recogniser, meta) for evaluation."""
-    tensors, meta = load_tensors(Path(stem) if stem else MODELS_DIR / RECOGNISERS)
-    style = build_classifier(meta["style"])
-    style.load_state_dict(unprefixed("style", tensors))
-    content = build_classifier(meta["content"])
-    content.load_state_dict(unprefixed("content", tensors))
-    return style.eval(), content.eval(), meta
+    def build(tensors, meta):
+        style, content = build_classifier(meta["style"]), build_classifier(meta["content"])
+        style.load_state_dict(unprefixed("style", tensors))
+        content.load_state_dict(unprefixed("content", tensors))
+        return style.eval(), content.eval()
+
+    (style, content), meta = _loaded(stem, RECOGNISERS, build)
+    return style, content, meta
 
 
 def load_labeller(stem: str | Path | None = None) -> tuple[OnlineLabeller, dict]:
     """The online style/content labeller saved at ``stem`` (default: the shipped one)."""
-    tensors, meta = load_tensors(Path(stem) if stem else MODELS_DIR / LABELLER)
-    model = OnlineLabeller(**meta["config"])
-    model.load_state_dict(unprefixed("labeller", tensors))
-    return model.eval(), meta
+    def build(tensors, meta):
+        model = OnlineLabeller(**meta["config"])
+        model.load_state_dict(unprefixed("labeller", tensors))
+        return model.eval()
+
+    return _loaded(stem, LABELLER, build)
 
 
 def load_fmd(stem: str | Path | None = None) -> tuple[MotionAutoencoder, dict]:
     """The FMD feature extractor saved at ``stem`` (default: the shipped one)."""
-    tensors, meta = load_tensors(Path(stem) if stem else MODELS_DIR / FMD)
-    c = meta["config"]
-    model = MotionAutoencoder(c["n_joints"], tuple(c["channels"]), c["kernel"])
-    model.load_state_dict(unprefixed("autoencoder", tensors))
-    return model.eval(), meta
+    def build(tensors, meta):
+        c = meta["config"]
+        model = MotionAutoencoder(c["n_joints"], tuple(c["channels"]), c["kernel"])
+        model.load_state_dict(unprefixed("autoencoder", tensors))
+        return model.eval()
+
+    return _loaded(stem, FMD, build)

@@ -22,6 +22,10 @@ from styleerd.motion.motion import Motion
 from styleerd.motion.skeleton import CHANNELS, Skeleton
 
 _CANONICAL = {c.lower(): c for c in CHANNELS}
+MAX_DEPTH = 256  # joints in one chain: real rigs have tens; deeper is garbage (and Python's recursion limit)
+MAX_LINE = 1 << 22  # characters in one line: a frame of 10,000 channels fits; /dev/zero does not
+MAX_HEADER_LINES = 1 << 18  # lines before 'Frame Time'
+MAX_CHANNEL = 1e7  # |channel value| in BVH units (centimetres, degrees): 100 km or 27,000 turns is garbage, not motion
 
 
 class BVHError(StyleERDError):
@@ -95,11 +99,13 @@ def _parse_hierarchy(tokens: _Tokens) -> Skeleton:
         tokens.expect("OFFSET")
         return [tokens.number(f"{what} OFFSET") for _ in range(3)]
 
-    def joint(parent: int) -> None:
+    def joint(parent: int, depth: int) -> None:
         line = tokens.line()
         name = " ".join(tokens.rest_of_line(line))
         if not name:
             raise BVHError(path, line, "joint without a name")
+        if depth > MAX_DEPTH:
+            raise BVHError(path, line, f"joint {name!r} is {depth} joints deep; at most {MAX_DEPTH} are supported")
         if name in names:
             raise BVHError(path, line, f"duplicate joint name {name!r}")
         j = len(names)
@@ -133,7 +139,7 @@ def _parse_hierarchy(tokens: _Tokens) -> Skeleton:
             if tok == "}":
                 return
             if tok == "JOINT":
-                joint(j)
+                joint(j, depth + 1)
             elif tok == "End":
                 tokens.expect("Site")
                 tokens.expect("{")
@@ -148,7 +154,7 @@ def _parse_hierarchy(tokens: _Tokens) -> Skeleton:
     line = tokens.line()
     if tokens.next("ROOT") != "ROOT":
         raise BVHError(path, line, "expected ROOT after HIERARCHY")
-    joint(-1)
+    joint(-1, 1)
     if tokens.peek() is not None:
         raise BVHError(path, tokens.line(), f"unexpected {tokens.peek()!r} after the root joint (only one ROOT is supported)")
     return Skeleton(tuple(names), np.array(parents), np.array(offsets), tuple(channels), tuple(end_sites))
@@ -204,7 +210,7 @@ def _parse_header(lines: list[str], path: str) -> tuple[Skeleton, int, float, in
             raise BVHError(path, n + 1, f"'{key}:' value {value.strip()!r} is not a number") from None
 
     frames = header(m + 1, "Frames")
-    if frames != int(frames) or frames < 0:
+    if not (np.isfinite(frames) and frames == int(frames) and 0 <= frames < 1 << 40):
         raise BVHError(path, m + 2, f"Frames: {frames!r} is not a frame count")
     frame_time = header(m + 2, "Frame Time")
     if not (np.isfinite(frame_time) and frame_time > 0):
@@ -245,6 +251,23 @@ class Header:
     path: str
 
 
+def _lines(f, path: str, first: int = 1) -> Iterator[str]:
+    """The lines of an open text file, each at most ``MAX_LINE`` characters (memory stays
+    bounded on a file of one endless line); ``first`` numbers the first in errors."""
+    n = first
+    while True:
+        try:
+            line = f.readline(MAX_LINE + 1)
+        except UnicodeDecodeError as e:
+            raise BVHError(path, n, f"not a text file ({e.reason})") from None
+        if not line:
+            return
+        if len(line) > MAX_LINE:
+            raise BVHError(path, n, f"line longer than {MAX_LINE} characters")
+        yield line
+        n += 1
+
+
 def stream(path: str | os.PathLike, chunk: int = 1024) -> tuple[Header, Iterator[np.ndarray]]:
     """Read a BVH file's header, and iterate over its frames' channel values in chunks of
     ``chunk`` frames (``[k, n_channels]``), so files of any length use bounded memory. The
@@ -256,16 +279,22 @@ def stream(path: str | os.PathLike, chunk: int = 1024) -> tuple[Header, Iterator
         raise BVHError(path, None, e.strerror or str(e)) from None
     try:
         lines = []
-        for line in f:
+        for line in _lines(f, path):
             lines.append(line.rstrip("\r\n"))
             if len(lines) == 1 and not line.lstrip().startswith("HIERARCHY"):
                 raise BVHError(path, 1, "not a BVH file: it does not start with HIERARCHY")
             if line.strip().startswith("Frame Time"):
                 break
+            if len(lines) > MAX_HEADER_LINES:
+                raise BVHError(path, len(lines), f"no 'Frame Time' line in the first {MAX_HEADER_LINES} lines")
+        if not lines:
+            raise BVHError(path, 1, "not a BVH file: it is empty")
         skeleton, n_frames, frame_time, first = _parse_header(lines, path)
-    except UnicodeDecodeError as e:
+    except BVHError as e:
         f.close()
-        raise BVHError(path, None, f"not a text file ({e.reason} at byte {e.start})") from None
+        if e.problem.startswith("not a text file") and e.line == 1:  # a binary file: no line to name
+            raise BVHError(path, None, e.problem) from None
+        raise
     except BaseException:
         f.close()
         raise
@@ -274,31 +303,43 @@ def stream(path: str | os.PathLike, chunk: int = 1024) -> tuple[Header, Iterator
     def frames() -> Iterator[np.ndarray]:
         line_no, done, trailing_blank = first, 0, None
         with f:
-            try:
-                batch: list[str] = []
-                for line in f:
-                    line_no += 1
-                    if not line.strip():
-                        trailing_blank = trailing_blank or line_no
-                        continue
-                    if trailing_blank is not None:
-                        raise BVHError(path, trailing_blank, "blank line inside the frame data")
-                    if done + len(batch) >= n_frames:
-                        extra = 1 + sum(1 for rest in f if rest.strip())  # count on, in bounded memory
-                        raise BVHError(path, line_no, f"Frames says {n_frames}, found {n_frames + extra} frame lines")
-                    batch.append(line)
-                    if len(batch) == chunk:
-                        yield _frame_values(batch, line_no - len(batch) + 1, n_channels, path)
-                        done, batch = done + len(batch), []
-                if batch:
+            batch: list[str] = []
+            rest = _lines(f, path, first + 1)
+            for line in rest:
+                line_no += 1
+                if not line.strip():
+                    trailing_blank = trailing_blank or line_no
+                    continue
+                if trailing_blank is not None:
+                    raise BVHError(path, trailing_blank, "blank line inside the frame data")
+                if done + len(batch) >= n_frames:
+                    extra = 1 + sum(1 for more in rest if more.strip())  # count on, in bounded memory
+                    raise BVHError(path, line_no, f"Frames says {n_frames}, found {n_frames + extra} frame lines")
+                batch.append(line)
+                if len(batch) == chunk:
                     yield _frame_values(batch, line_no - len(batch) + 1, n_channels, path)
-                    done += len(batch)
-            except UnicodeDecodeError as e:
-                raise BVHError(path, line_no, f"not a text file ({e.reason})") from None
+                    done, batch = done + len(batch), []
+            if batch:
+                yield _frame_values(batch, line_no - len(batch) + 1, n_channels, path)
+                done += len(batch)
         if done < n_frames:
             raise BVHError(path, line_no, f"truncated MOTION section: Frames says {n_frames}, found {done} frame lines")
 
     return Header(skeleton, n_frames, 1.0 / frame_time, path), frames()
+
+
+def channel_problem(skeleton: Skeleton, values: np.ndarray) -> tuple[int, str] | None:
+    """The first channel value ``[T, n_channels]`` that cannot be motion (NaN, infinite, or
+    ``|value| >= MAX_CHANNEL``) as (frame row, "joint 'Hips' Xposition = 1e+30 is ..."), else
+    None. The one check of values to stylise: files (``transfer``) and streams (the server)."""
+    ok = np.abs(values) < MAX_CHANNEL  # False for NaN too
+    if ok.all():
+        return None
+    row, column = (int(i) for i in np.argwhere(~ok)[0])
+    joint, channel = [(name, c) for name, chans in zip(skeleton.names, skeleton.channels) for c in chans][column]
+    value = values[row, column]
+    problem = "is not a finite number" if not np.isfinite(value) else f"= {value:.3g} is out of range (|value| < {MAX_CHANNEL:g})"
+    return row, f"joint {joint!r} {channel} {problem}"
 
 
 def motion_from_channels(skeleton: Skeleton, values: np.ndarray, fps: float) -> Motion:
@@ -318,17 +359,10 @@ def motion_from_channels(skeleton: Skeleton, values: np.ndarray, fps: float) -> 
 
 
 def read(path: str | os.PathLike) -> Motion:
-    path = str(path)
-    try:
-        with open(path, "r", encoding="utf-8", errors="strict") as f:
-            text = f.read()
-    except UnicodeDecodeError as e:
-        raise BVHError(path, None, f"not a text file ({e.reason} at byte {e.start})") from None
-    except OSError as e:
-        raise BVHError(path, None, e.strerror or str(e)) from None
-    if not text.lstrip().startswith("HIERARCHY"):
-        raise BVHError(path, 1, "not a BVH file: it does not start with HIERARCHY")
-    return parse(text, path)
+    """A whole BVH file (read through ``stream``: the same checks, bounded lines)."""
+    header, frames = stream(path)
+    values = np.concatenate([np.zeros((0, sum(len(c) for c in header.skeleton.channels))), *frames])
+    return motion_from_channels(header.skeleton, values, header.fps)
 
 
 def channel_values(motion: Motion) -> np.ndarray:

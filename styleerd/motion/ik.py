@@ -37,7 +37,7 @@ def two_bone_ik(
     upper, lower = np.linalg.norm(b - a, axis=-1), np.linalg.norm(c - b, axis=-1)
     reach = np.clip(np.linalg.norm(target - a, axis=-1), np.abs(upper - lower) + eps, upper + lower - eps)
     inner_now = _angle(a - b, c - b)
-    inner_new = np.arccos(np.clip((upper**2 + lower**2 - reach**2) / (2 * upper * lower), -1.0, 1.0))
+    inner_new = np.arccos(np.clip((upper**2 + lower**2 - reach**2) / np.maximum(2 * upper * lower, 1e-300), -1.0, 1.0))
     axis = np.cross(b - a, c - b)
     straight = np.linalg.norm(axis, axis=-1, keepdims=True) < 1e-6 * (upper * lower)[..., None]
     axis = _unit(np.where(straight, bend_axis, axis))
@@ -46,4 +46,6 @@ def two_bone_ik(
     b_new = quat.mul(bend, b_global)
     c_new = b + quat.mul_vec(bend, c - b)
     swing = quat.between(c_new - a, target - a)
-    return quat.mul(swing, a_global), quat.mul(swing, b_new)
+    # a limb with a bone of no length (garbage input: every joint at one point) has no IK: kept
+    degenerate = (np.minimum(upper, lower) < eps)[..., None]
+    return np.where(degenerate, a_global, quat.mul(swing, a_global)), np.where(degenerate, b_global, quat.mul(swing, b_new))

@@ -295,9 +295,12 @@ def slerp(a: np.ndarray, b: np.ndarray, t: np.ndarray) -> np.ndarray:
 
 
 def between(v0: np.ndarray, v1: np.ndarray) -> np.ndarray:
-    """Shortest rotation taking direction ``v0`` to direction ``v1`` (both ``[..., 3]``)."""
-    v0 = v0 / np.linalg.norm(v0, axis=-1, keepdims=True)
-    v1 = v1 / np.linalg.norm(v1, axis=-1, keepdims=True)
+    """Shortest rotation taking direction ``v0`` to direction ``v1`` (both ``[..., 3]``); the
+    identity where either has no length (no direction to turn from or to)."""
+    n0, n1 = np.linalg.norm(v0, axis=-1, keepdims=True), np.linalg.norm(v1, axis=-1, keepdims=True)
+    none = (n0 < 1e-12) | (n1 < 1e-12)
+    v0 = np.where(none, [1.0, 0.0, 0.0], v0 / np.where(none, 1.0, n0))
+    v1 = np.where(none, [1.0, 0.0, 0.0], v1 / np.where(none, 1.0, n1))
     c = np.cross(v0, v1)
     w = 1.0 + np.sum(v0 * v1, axis=-1, keepdims=True)
     # Opposite vectors: rotate by pi about any axis orthogonal to v0.

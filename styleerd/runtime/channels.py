@@ -18,9 +18,6 @@ from styleerd.runtime.offline import map_skeleton
 from styleerd.runtime.stylizer import StreamStylizer
 
 
-MAX_CHANNEL = 1e7  # BVH units (centimetres, degrees): 100 km or 27,000 turns is garbage, not motion
-
-
 class ChannelStylizer:
     def __init__(
         self,
@@ -60,12 +57,9 @@ class ChannelStylizer:
         state unchanged."""
         n = self.n if rows is None else len(rows)
         values = np.asarray(values, dtype=np.float64).reshape(n, self.n_channels)
-        if not (np.abs(values) < MAX_CHANNEL).all():  # NaN, inf, or absurd (wrong units, garbage)
-            stream, channel = np.argwhere(~(np.abs(values) < MAX_CHANNEL))[0]
-            value = values[stream, channel]
-            stream = stream if rows is None else rows[stream]
-            problem = "is not a finite number" if not np.isfinite(value) else f"= {value:.3g} is out of range (|value| < {MAX_CHANNEL:g})"
-            raise StyleERDError(f"frame rejected: stream {stream}, channel {channel} {problem}")
+        bad = bvh.channel_problem(self.skeleton, values)  # NaN, inf, or absurd (wrong units, garbage)
+        if bad is not None:
+            raise StyleERDError(f"frame rejected: stream {bad[0] if rows is None else rows[bad[0]]}: {bad[1]}")
         return bvh.channel_values(self.step_pose(bvh.motion_from_channels(self.skeleton, values, self.fps), rows))
 
     def step_pose(self, source: Motion, rows=None) -> Motion:

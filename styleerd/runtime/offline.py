@@ -11,7 +11,7 @@ import numpy as np
 
 from styleerd.errors import StyleERDError
 from styleerd.model.generator import StyleERD
-from styleerd.atomic import atomic_write
+from styleerd.atomic import atomic_write, check_output
 from styleerd.motion import bvh, quat
 from styleerd.motion.gltf import read_gltf, write_glb, write_gltf_animation
 from styleerd.motion.motion import Motion
@@ -134,6 +134,7 @@ def transfer_file(
     however long it is (a .glb output is built in memory; with ``mesh`` it carries a simple
     skinned body). Nothing is written unless the whole transfer succeeded."""
     kind = Path(output).suffix.lower()
+    check_output(output, source)
     if Path(source).suffix.lower() in GLTF_INPUTS:
         return _transfer_gltf(Path(source), Path(output), model, fps, input_style, content, target, explicit_map, report, cleanup, backend)
     if kind not in (".bvh", ".glb"):
@@ -229,6 +230,9 @@ def _stylised_rows(header: bvh.Header, chunks: Iterator[np.ndarray], jm: JointMa
     out: dict[int, tuple] = {}  # model frame -> stylised (rotations, positions)
     i, j, k = -1, 0, 0
     for values in chunks:
+        bad = bvh.channel_problem(header.skeleton, values)
+        if bad is not None:
+            raise StyleERDError(f"{header.path}: frame {i + 1 + bad[0]}: {bad[1]}; nothing written")
         motion = bvh.motion_from_channels(header.skeleton, values, fs)
         on_model = to_target(motion, jm)
         rows = []

@@ -15,6 +15,7 @@ takes the label's place.
 
 from __future__ import annotations
 
+import math
 from concurrent.futures import ThreadPoolExecutor
 from contextlib import nullcontext
 from dataclasses import dataclass
@@ -56,13 +57,14 @@ def target_weights(model: StyleERD, style: str | None = None, intensity: float =
     intensity (the rest goes to neutral; 0 = neutral, 1 = full style, above 1 exaggerates up to
     ``max_intensity``)."""
     neutral = model.config.neutral_style
-    if not 0.0 <= intensity <= max_intensity:
+    if not 0.0 <= intensity <= max_intensity:  # NaN fails this too
         raise StyleERDError(f"intensity {intensity:g} is outside [0, {max_intensity:g}]")
     if mix:
-        total = sum(mix.values())
-        if total <= 0 or any(w < 0 for w in mix.values()):
-            raise StyleERDError(f"mixture weights must be non-negative and sum above 0, got {mix}")
-        weights = {k: v / total for k, v in mix.items()}
+        if not all(isinstance(w, (int, float)) and not isinstance(w, bool) and 0 <= w < math.inf for w in mix.values()) or max(mix.values()) <= 0:
+            raise StyleERDError(f"mixture weights must be finite, non-negative numbers, not all 0; got {mix}")
+        top = max(mix.values())  # scaled to at most 1 first: 1e308 + 1e308 would overflow the sum
+        total = sum(v / top for v in mix.values())
+        weights = {k: v / top / total for k, v in mix.items()}
     elif style is None:
         raise StyleERDError("give a target style or a mixture")
     else:

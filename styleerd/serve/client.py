@@ -124,7 +124,7 @@ def stream_bvh(path: str, url: str, style: str | None, intensity: float, mix: di
         raise StyleERDError(f"the server closed the stream: {result.error}")
     if output is not None and result.received == motion.n_frames:
         out = bvh.motion_from_channels(motion.skeleton, result.output, motion.fps)
-        atomic_write(output, lambda tmp: bvh.write(tmp, out))
+        bvh.write(output, out)
     lat = np.array(result.latencies_ms) if result.latencies_ms else np.zeros(1)
     return (f"{path}: sent {result.sent} frames at {motion.fps:g} fps, received {result.received}, reordered {result.reordered}; "
             f"latency p50 {np.percentile(lat, 50):.2f} ms, p99 {np.percentile(lat, 99):.2f} ms" + (f"; wrote {output}" if output else ""))  # fmt: skip

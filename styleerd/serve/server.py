@@ -282,9 +282,9 @@ class StyleServer:
     def _enqueue(self, stream: Stream, seq: int, values: np.ndarray) -> None:
         if stream.closing:
             return
-        if not np.isfinite(values).all():
-            channel = int(np.argmax(~np.isfinite(values)))
-            raise ClientError(INVALID_DATA, f"frame {seq}: channel {channel} is not a finite number")
+        bad = bvh.channel_problem(stream.pool.skeleton, values[None])  # the same check as transfer's
+        if bad is not None:
+            raise ClientError(INVALID_DATA, f"frame {seq}: {bad[1]}")
         if len(stream.pending) >= self.config.queue:
             raise ClientError(POLICY, f"more than {self.config.queue} frames waiting: send no faster than the stream's frame rate")
         stream.pending.append((seq, values))
@@ -543,7 +543,10 @@ def serve_forever(config: ServeConfig, workers: int = 1) -> None:
     """``workers`` processes on one port (SO_REUSEPORT: the kernel spreads connections)."""
     _setup_logging()
     if workers <= 1:
-        asyncio.run(run_server(config))
+        try:
+            asyncio.run(run_server(config))
+        except OSError as e:  # the address is taken or cannot be bound
+            raise StyleERDError(f"cannot serve on {config.host}:{config.port}: {e.strerror or e}") from None
         return
     def interrupt(*_):
         raise KeyboardInterrupt
@@ -555,8 +558,10 @@ def serve_forever(config: ServeConfig, workers: int = 1) -> None:
     try:
         for p in procs:
             p.start()
-        for e in events:
-            e.wait()
+        for p, e in zip(procs, events):
+            while not e.wait(0.2):
+                if not p.is_alive():  # it could not bind (the port is taken): say so once, stop the rest
+                    raise StyleERDError(f"cannot serve on {config.host}:{config.port}: a worker could not start (is the port in use?)")
         print(f"styleerd serve: {workers} workers on ws://{config.host}:{config.port}/  viewer: http://{config.host}:{config.port}/", flush=True)
         for p in procs:
             p.join()
