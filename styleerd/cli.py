@@ -219,7 +219,8 @@ def _filmstrip(args: argparse.Namespace) -> None:
 def _serve(args: argparse.Namespace) -> None:
     from styleerd.serve.server import ServeConfig, serve_forever
 
-    config = ServeConfig(args.host, args.port, args.max_streams, args.max_message, args.queue, args.backend, args.data)
+    config = ServeConfig(args.host, args.port, args.max_streams, args.max_message, args.queue, args.backend, args.data,
+                         args.max_joints, tuple(args.allow_origin), tuple(args.allow_host))  # fmt: skip
     serve_forever(config, args.workers)
 
 
@@ -415,6 +416,11 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--queue", type=_whole(1), default=64, help="per stream: frames waiting, and stylised frames unsent")
     p.add_argument("--backend", default="numpy", choices=["numpy", "numba", "onnx"])
     p.add_argument("--data", help="data folder for the viewer's real demo clips (optional)")
+    p.add_argument("--max-joints", type=_whole(1), default=512, help="joints of a stream's skeleton (default 512)")
+    p.add_argument("--allow-origin", action="append", default=[], metavar="ORIGIN",
+                   help="a web page origin (e.g. https://app.example) that may open streams besides the server's own; '*': any")
+    p.add_argument("--allow-host", action="append", default=[], metavar="NAME",
+                   help="a host name the server answers to (default: its address, and localhost names on loopback)")
     p.set_defaults(func=_serve)
 
     p = sub.add_parser("stream-bvh", help="play a BVH to a style server in real time, as a mocap source")

@@ -194,7 +194,7 @@ def test_hello_problems_and_a_full_server(server, clip):
     for msg, code, text in [({"type": "hello", "fps": 30}, 1008, "needs 'skeleton'"),
                             ({**hello(m, 30.0, "zombie", 1.0, None, None)}, 1008, "unknown style 'zombie'"),
                             ({**hello(m, 5.0, "elderly", 1.0, None, None)}, 1008, "'fps' must be a number in [10, 480]"),
-                            ({"type": "hello", "skeleton": "HIERARCHY\nROOT Hips\n{\n OFFSET 0 0\n}\n", "fps": 30}, 1008, "handshake skeleton:5: joint 'Hips' OFFSET"),
+                            ({"type": "hello", "skeleton": "HIERARCHY\nROOT Hips\n{\n OFFSET 0 0\n}\n", "fps": 30, "style": "elderly"}, 1008, "handshake skeleton:5: joint 'Hips' OFFSET"),
                             ({"type": "hello", "preset": "model", "fps": 30, "style": "elderly", "input_style": "sleepy"}, 1008, "unknown input_style")]:  # fmt: skip
         ws = connect(url, open_timeout=20, legacy=True)
         ws.send(json.dumps(msg))

@@ -20,6 +20,7 @@ from styleerd.motion import bvh
 from styleerd.motion.motion import Motion
 
 SEQ = struct.Struct("<I")
+IN_FLIGHT = 16  # frames sent ahead of their replies when not in real time (the server queues 64 by default)
 
 
 @dataclass
@@ -44,8 +45,9 @@ def hello(motion: Motion, fps: float, style: str | None, intensity: float, mix: 
 
 
 async def play(url: str, motion: Motion, hello_msg: dict, seconds: float | None = None, keep: bool = False, realtime: bool = True) -> StreamResult:
-    """Send the motion's frames (looped until ``seconds`` when given) at its frame rate, one
-    binary frame each, and collect the replies; returns what was sent and received."""
+    """Send the motion's frames (looped until ``seconds`` when given) at its frame rate (or,
+    not ``realtime``, as fast as replies come: at most ``IN_FLIGHT`` unanswered), one binary
+    frame each, and collect the replies; returns what was sent and received."""
     values = bvh.channel_values(motion).astype("<f4")
     fps = float(hello_msg["fps"])
     total = len(values) if seconds is None else int(round(seconds * fps))
@@ -59,11 +61,15 @@ async def play(url: str, motion: Motion, hello_msg: dict, seconds: float | None 
             if ready.get("type") != "ready":
                 raise StyleERDError(f"{url}: the server refused the stream: {ready.get('message', ready)}")
 
+            replied = asyncio.Event()
+
             async def receive() -> None:
                 try:
                     await receive_replies()
                 except ConnectionClosed as e:
                     result.close_code = e.rcvd.code if e.rcvd else None
+                finally:
+                    replied.set()  # a sender waiting for replies stops waiting
 
             async def receive_replies() -> None:
                 expected = 0
@@ -80,6 +86,7 @@ async def play(url: str, motion: Motion, hello_msg: dict, seconds: float | None 
                     if kept is not None:
                         kept[seq] = np.frombuffer(message, "<f4", count=values.shape[1], offset=SEQ.size)
                     result.received += 1
+                    replied.set()
                     if result.received == total:
                         return
 
@@ -93,6 +100,10 @@ async def play(url: str, motion: Motion, hello_msg: dict, seconds: float | None 
                         await asyncio.sleep(wait)
                     elif wait < -1.0 / fps:
                         result.late_sends += 1
+                else:
+                    while result.sent - result.received >= min(IN_FLIGHT, max(1, ready.get("queue", IN_FLIGHT) // 2)) and not receiver.done():
+                        replied.clear()
+                        await asyncio.wait_for(replied.wait(), 30.0)
                 sent_at[i] = time.perf_counter()
                 await ws.send(SEQ.pack(i) + values[i % len(values)].tobytes())
                 result.sent += 1

@@ -8,16 +8,24 @@ more than one. Frames of a stream are answered one for one, in order.
 
 Bounds: a stream may have at most ``queue`` frames waiting to be stylised (a client sending
 faster than the server steps is told and closed) and at most ``queue`` stylised frames unsent
-(a client that stops reading is told and closed): memory per stream is bounded.
+(a client that stops reading is told and closed): memory per stream is bounded. A hello's
+skeleton has at most ``max_joints`` joints, and its setup (parsing, mapping, a new pool) runs
+in a worker thread, one at a time, so a heavy hello never stalls the streams being stepped.
+
+Who may connect: a browser page only from the server's own origin (or ``origins``), and only
+under a host name the server answers to (so a rebound DNS name cannot reach a loopback
+server); a private stream is watched or steered only with the token its ``ready`` carries.
 """
 
 from __future__ import annotations
 
 import asyncio
+import ipaddress
 import json
 import logging
 import mimetypes
 import multiprocessing
+import secrets
 import signal
 import socket
 import struct
@@ -26,6 +34,7 @@ from collections import deque
 from dataclasses import dataclass, field
 from http import HTTPStatus
 from pathlib import Path
+from urllib.parse import urlsplit
 
 import numpy as np
 from websockets.asyncio.server import ServerConnection, serve
@@ -62,6 +71,9 @@ class ServeConfig:
     queue: int = 64  # per stream: frames waiting to be stylised, and stylised frames unsent
     backend: str = "numpy"
     data: str | None = None  # data folder for the viewer's real demo clips (optional)
+    max_joints: int = 512  # joints of a hello's skeleton (a humanoid has 20 to 100)
+    origins: tuple[str, ...] = ()  # browser origins allowed besides the server's own ("*": any)
+    hosts: tuple[str, ...] = ()  # host names answered besides the bound address and, on loopback, localhost
 
 
 class ClientError(Exception):
@@ -86,7 +98,8 @@ class Stream:
     pending: deque = field(default_factory=deque)  # (seq, channel values) waiting to be stylised
     watchers: set = field(default_factory=set)
     frames: int = 0
-    private: bool = False  # not shown to live viewers that follow any stream
+    private: bool = False  # not listed; watched or steered only with ``token``
+    token: str = ""
     closing: bool = False  # refused: its frames are no longer stylised
 
 
@@ -99,6 +112,7 @@ class Watcher:
     outbox: asyncio.Queue
     stream: Stream | None = None
     fronts: bool = False  # also receive the bones' fronts
+    token: str = ""  # a private stream's token, to watch it
 
 
 class Pool:
@@ -112,12 +126,39 @@ class Pool:
         self.fronts = bone_fronts(skeleton)  # rest fronts of the bones, for viewers that show their roll
         self.free = list(range(capacity - 1, -1, -1))
         self.streams: dict[int, Stream] = {}
+        self.key: tuple = ()
 
 
-def _skeleton_from_text(text: str, fps: float) -> Skeleton:
+def _skeleton_from_text(text: str, fps: float, max_joints: int) -> Skeleton:
     """The skeleton of a BVH hierarchy (anything from MOTION on is ignored)."""
     hierarchy = text.split("MOTION")[0].rstrip()
+    joints = hierarchy.count("JOINT") + hierarchy.count("ROOT")  # counted before parsing anything large
+    if joints > max_joints:
+        raise ClientError(POLICY, f"the skeleton has {joints} joints; this server takes at most {max_joints}")
     return bvh.parse(f"{hierarchy}\nMOTION\nFrames: 0\nFrame Time: {1.0 / fps:.9f}\n", "handshake skeleton").skeleton
+
+
+def _origin_allowed(origin: str | None, host: str, allowed: tuple[str, ...]) -> bool:
+    """A browser's ``Origin``: the server's own (same scheme-less host:port as ``Host``) or one
+    listed; clients that are not browsers send none."""
+    if origin is None or "*" in allowed or origin in allowed:
+        return True
+    parts = urlsplit(origin)
+    return parts.scheme in ("http", "https") and parts.netloc.lower() == host.lower()
+
+
+def _host_names(bound: str, extra: tuple[str, ...]) -> set[str] | None:
+    """Host names the server answers to (None: any). A loopback server answers only to
+    loopback names, so a page whose DNS name was rebound to 127.0.0.1 is refused."""
+    names = {h.lower().strip("[]") for h in extra}
+    if bound in ("", "0.0.0.0", "::"):
+        return names or None  # every interface: any name, unless names are given
+    local = {"localhost", "127.0.0.1", "::1"}
+    try:
+        loopback = ipaddress.ip_address(bound).is_loopback
+    except ValueError:
+        loopback = bound == "localhost"
+    return names | local | {bound.lower().strip("[]")} if loopback else names | {bound.lower().strip("[]")} | local
 
 
 def _number(msg: dict, key: str, default: float, low: float, high: float) -> float:
@@ -137,6 +178,8 @@ class StyleServer:
         self.watchers: set[Watcher] = set()
         self.next_id = 0
         self.due = asyncio.Event()
+        self.setup = asyncio.Lock()  # one hello set up at a time, off the event loop
+        self.host_names = _host_names(config.host, config.hosts)
         self.steps = 0
         self.frames = 0
 
@@ -153,18 +196,11 @@ class StyleServer:
         except StyleERDError as e:
             raise ClientError(POLICY, str(e)) from None
 
-    def _open_stream(self, ws: ServerConnection, msg: dict) -> Stream:
+    async def _open_stream(self, ws: ServerConnection, msg: dict) -> Stream:
         if len(self.streams) >= self.config.max_streams:
             raise ClientError(TRY_LATER, f"the server is full ({self.config.max_streams} streams); try again later")
         fps = _number(msg, "fps", 30.0, 10.0, 480.0)
-        if msg.get("preset") == "model":
-            skeleton = self.model.skeleton
-        elif isinstance(msg.get("skeleton"), str):
-            try:
-                skeleton = _skeleton_from_text(msg["skeleton"], fps)
-            except StyleERDError as e:
-                raise ClientError(POLICY, str(e)) from None
-        else:
+        if msg.get("preset") != "model" and not isinstance(msg.get("skeleton"), str):
             raise ClientError(POLICY, "the hello needs 'skeleton' (a BVH HIERARCHY text) or 'preset': 'model'")
         labels = {}
         for key, names in (("input_style", self.model.config.styles), ("content", self.model.config.contents)):
@@ -177,27 +213,41 @@ class StyleServer:
         if fmt not in ("binary", "json"):
             raise ClientError(POLICY, f"'format' must be 'binary' or 'json', got {fmt!r}")
         cleanup = bool(msg.get("cleanup", True))
-        key = (bvh.format_header(skeleton, 0, fps), fps, cleanup)
-        if key not in self.pools:
-            try:
-                self.pools[key] = Pool(self.model, skeleton, fps, cleanup, self.config.max_streams, self.config.backend)
-            except StyleERDError as e:
-                raise ClientError(POLICY, str(e)) from None
-        pool = self.pools[key]
+        async with self.setup:  # the worker thread shares the interpreter with the stepping: one at a time
+            pool = await asyncio.to_thread(self._pool, msg.get("skeleton") if msg.get("preset") != "model" else None, fps, cleanup)
+        if len(self.streams) >= self.config.max_streams:  # others came in while this one was set up
+            raise ClientError(TRY_LATER, f"the server is full ({self.config.max_streams} streams); try again later")
+        pool = self.pools.setdefault(pool.key, pool)  # registered here, on the event loop
         row = pool.free.pop()
         pool.stylizer.reset([row])
         pool.stylizer.configure([row], labels["input_style"], labels["content"], target)
         self.next_id += 1
-        stream = Stream(self.next_id, str(msg.get("name") or f"stream-{self.next_id}"), ws, pool, row, fmt == "binary",
+        name = msg.get("name")
+        stream = Stream(self.next_id, name[:200] if isinstance(name, str) and name else f"stream-{self.next_id}", ws, pool, row, fmt == "binary",
                         bool(msg.get("positions", False)), asyncio.Queue(self.config.queue), bool(msg.get("fronts", False)),
-                        private=bool(msg.get("private", False)))  # fmt: skip
+                        private=bool(msg.get("private", False)), token=secrets.token_urlsafe(16))  # fmt: skip
         pool.streams[row] = stream
         self.streams[stream.id] = stream
         for w in self.watchers:
             if w.stream is None and self._follows(w, stream):
                 self._attach(w, stream)
-        log.info("stream %d %r opened: %d joints, %g fps, target %s", stream.id, stream.name, skeleton.n_joints, fps, target)
+        log.info("stream %d %r opened: %d joints, %g fps, target %s", stream.id, stream.name, pool.skeleton.n_joints, fps, target)
         return stream
+
+    def _pool(self, text: str | None, fps: float, cleanup: bool) -> Pool:
+        """The pool of a hello's skeleton: the existing one, or a new one (not yet registered).
+        Runs in a worker thread: reads ``self.pools``, never changes it."""
+        try:
+            skeleton = self.model.skeleton if text is None else _skeleton_from_text(text, fps, self.config.max_joints)
+            key = (bvh.format_header(skeleton, 0, fps), fps, cleanup)
+            existing = self.pools.get(key)
+            if existing is not None:
+                return existing
+            pool = Pool(self.model, skeleton, fps, cleanup, self.config.max_streams, self.config.backend)
+        except StyleERDError as e:
+            raise ClientError(POLICY, str(e)) from None
+        pool.key = key
+        return pool
 
     def _close_stream(self, stream: Stream) -> None:
         log.info("stream %d %r closed after %d frames (%s)", stream.id, stream.name, stream.frames, stream.ws.close_code)
@@ -213,10 +263,11 @@ class StyleServer:
 
     def _ready(self, stream: Stream) -> dict:
         sk, c = stream.pool.skeleton, self.model.config
-        return {"type": "ready", "stream": stream.name, "id": stream.id, "channels": stream.pool.stylizer.n_channels,
+        private = {"token": stream.token} if stream.private else {}
+        return {"type": "ready", "stream": stream.name, "id": stream.id, **private, "channels": stream.pool.stylizer.n_channels,
                 "fps": stream.pool.stylizer.fps, "joints": list(sk.names), "parents": [int(p) for p in sk.parents],
                 "styles": list(c.styles), "contents": list(c.contents), "neutral": c.neutral_style,
-                "target": self._weights(stream), "mapping": stream.pool.stylizer.map.describe()}  # fmt: skip
+                "target": self._weights(stream), "mapping": stream.pool.stylizer.map.describe(), "queue": self.config.queue}  # fmt: skip
 
     def _weights(self, stream: Stream) -> dict[str, float]:
         w = stream.pool.stylizer.stylizer.blend.end[stream.row]
@@ -237,7 +288,7 @@ class StyleServer:
                 return await self._watch(ws, msg)
             if msg.get("type") != "hello":
                 raise ClientError(POLICY, f"the first message must be a hello or a watch, got type {msg.get('type')!r}")
-            stream = self._open_stream(ws, msg)
+            stream = await self._open_stream(ws, msg)
             await ws.send(json.dumps(self._ready(stream)))
             sender = asyncio.create_task(_send_loop(ws, stream.outbox))
             async for message in ws:
@@ -247,6 +298,9 @@ class StyleServer:
             await _refuse(ws, e.code, str(e))
         except ConnectionClosed:
             pass
+        except Exception as e:  # a bug: this connection ends with a message, the others go on
+            log.exception("connection %s failed", ws.remote_address)
+            await _refuse(ws, INTERNAL, f"internal error ({type(e).__name__}); the server goes on")
         finally:
             if stream is not None:
                 self._close_stream(stream)
@@ -376,7 +430,9 @@ class StyleServer:
 
     @staticmethod
     def _follows(watcher: Watcher, stream: Stream) -> bool:
-        return watcher.name == stream.name if watcher.name is not None else not stream.private
+        if stream.private and not secrets.compare_digest(watcher.token, stream.token):
+            return False
+        return watcher.name is None or watcher.name == stream.name
 
     def _set_target(self, stream: Stream, msg: dict) -> None:
         stream.pool.stylizer.stylizer.set_target(self._target(msg), [stream.row])
@@ -393,8 +449,9 @@ class StyleServer:
                                            "parents": [int(p) for p in sk.parents], "target": self._weights(stream)}), drop_oldest=True)  # fmt: skip
 
     async def _watch(self, ws: ServerConnection, msg: dict) -> None:
-        name = msg.get("stream")
-        watcher = Watcher(ws, name if isinstance(name, str) else None, asyncio.Queue(self.config.queue), fronts=bool(msg.get("fronts", False)))
+        name, token = msg.get("stream"), msg.get("token")
+        watcher = Watcher(ws, name if isinstance(name, str) else None, asyncio.Queue(self.config.queue), fronts=bool(msg.get("fronts", False)),
+                          token=token if isinstance(token, str) else "")  # fmt: skip
         self.watchers.add(watcher)
         candidates = [s for s in self.streams.values() if self._follows(watcher, s)]
         await ws.send(json.dumps({"type": "waiting", "streams": [s.name for s in self.streams.values() if not s.private]}))
@@ -417,9 +474,28 @@ class StyleServer:
     # ---- HTTP: the viewer page, its files, demo clips, the list of streams ----
 
     def http(self, connection: ServerConnection, request: Request) -> Response | None:
+        hosts, origins = request.headers.get_all("Host"), request.headers.get_all("Origin")
+        if len(hosts) > 1 or len(origins) > 1:
+            return _response(HTTPStatus.BAD_REQUEST, b"one Host and at most one Origin header, please", "text/plain")
+        host = hosts[0] if hosts else ""
+        try:
+            name = urlsplit(f"//{host}").hostname or ""
+        except ValueError:  # not a host at all
+            name = ""
+        if self.host_names is not None and name.lower() not in self.host_names:
+            return _response(HTTPStatus.FORBIDDEN, f"this server does not answer to host {host!r} (serve --allow-host)".encode(), "text/plain")
         if "upgrade" in request.headers.get("Connection", "").lower():
+            if not _origin_allowed(origins[0] if origins else None, host, self.config.origins):
+                return _response(HTTPStatus.FORBIDDEN, b"a page of another origin may not open a stream here (serve --allow-origin)", "text/plain")
             return None  # a WebSocket handshake
-        path = request.path.split("?")[0]
+        if len(request.path) > 2048:
+            return _response(HTTPStatus.REQUEST_URI_TOO_LONG, b"the path is too long", "text/plain")
+        try:
+            return self._page(request.path.split("?")[0])
+        except (OSError, StyleERDError, ValueError) as e:  # a name the file system refuses, a clip that cannot be read
+            return _response(HTTPStatus.NOT_FOUND, f"not found: {e}".encode(errors="replace"), "text/plain")
+
+    def _page(self, path: str) -> Response:
         if path == "/favicon.ico":
             return _response(HTTPStatus.NO_CONTENT, b"", "image/x-icon")
         if path == "/":
