@@ -219,8 +219,9 @@ def _filmstrip(args: argparse.Namespace) -> None:
 def _serve(args: argparse.Namespace) -> None:
     from styleerd.serve.server import ServeConfig, serve_forever
 
-    config = ServeConfig(args.host, args.port, args.max_streams, args.max_message, args.queue, args.backend, args.data,
-                         args.max_joints, tuple(args.allow_origin), tuple(args.allow_host))  # fmt: skip
+    config = ServeConfig(host=args.host, port=args.port, max_streams=args.max_streams, max_message=args.max_message, queue=args.queue,
+                         backend=args.backend, data=args.data, max_joints=args.max_joints, origins=tuple(args.allow_origin),
+                         hosts=tuple(args.allow_host))  # fmt: skip
     serve_forever(config, args.workers)
 
 
@@ -238,7 +239,7 @@ def _stream_bvh(args: argparse.Namespace) -> None:
 def _load_test(args: argparse.Namespace) -> None:
     from styleerd.serve.loadtest import run_load_test
 
-    print(run_load_test(args.clients, args.seconds, args.workers, args.output))
+    print(run_load_test(args.clients, args.seconds, args.workers, args.output, args.faulty))
 
 
 def _vmc(args: argparse.Namespace) -> None:
@@ -435,10 +436,11 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("-o", "--output", help="write the stylised stream as BVH")
     p.set_defaults(func=_stream_bvh)
 
-    p = sub.add_parser("load-test", help="N real-time stream-bvh clients against a fresh server: latency, drops, CPU")
+    p = sub.add_parser("load-test", help="N real-time stream-bvh clients against a fresh server: latency, drops, CPU (with --faulty: a soak test)")
     p.add_argument("--clients", type=_whole(1), default=200)
     p.add_argument("--seconds", type=_positive, default=60.0)
     p.add_argument("--workers", type=_whole(1), default=1, help="server workers")
+    p.add_argument("--faulty", type=_whole(0), default=0, help="soak test: this many more clients misbehave in turn (malformed frames, slow readers, vanishing, bad hellos)")
     p.add_argument("-o", "--output", help="write the figures as JSON")
     p.set_defaults(func=_load_test)
 

@@ -69,7 +69,7 @@ def test_numpy_labeller_equals_the_torch_labeller():
     import torch
 
     from styleerd.model.checkpoint import load_labeller
-    from styleerd.runtime.backends import NumpyLabeller
+    from styleerd.runtime.numpy_step import NumpyLabeller
 
     labeller, _ = load_labeller()
     x = np.random.default_rng(0).normal(0, 1, (2, 20, labeller.in_dim)).astype(np.float32)
@@ -112,7 +112,7 @@ def test_fast_tanh_is_tanh_to_float32_precision():
 
 @pytest.mark.parametrize("n", [5, 300])
 def test_compiled_lstm_cell_equals_numpy_cell(n):
-    from styleerd.runtime.backends import _numpy_cell
+    from styleerd.runtime.numpy_step import _numpy_cell
     from styleerd.runtime.compiled import compiled_cell
 
     rng = np.random.default_rng(0)

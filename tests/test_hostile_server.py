@@ -103,7 +103,7 @@ ATTACKS = {
     "hello mix Infinity": (['{"type": "hello", "preset": "model", "mix": {"elderly": Infinity, "feminine": 1}}'], 1008, "mixture weights must be finite"),
     "hello mix a list": ([_hello(mix=[1, 2])], 1008, "'mix' must be an object"),
     "hello mix unknown style": ([_hello(mix={"zombie": 1})], 1008, "unknown style 'zombie'"),
-    "hello style a number": ([_hello(style=5)], 1008, "unknown style"),
+    "hello style a number": ([_hello(style=5)], 1008, "'style' must be a style name"),
     "hello input_style a list": ([_hello(input_style=["normal"])], 1008, "unknown input_style"),
     "hello content an object": ([_hello(content={"a": 1})], 1008, "unknown content"),
     "hello format xml": ([_hello(format="xml")], 1008, "'format' must be 'binary' or 'json'"),
@@ -295,3 +295,87 @@ def test_raw_socket_garbage_and_half_handshakes(server, clip):
     slow = RawClient(port)  # a handshake and then silence: no hello
     probe(url, clip)
     slow.sock.close()
+
+
+# ---- the message boundary, fuzzed in process: any hello or message is a stream or a ClientError
+
+
+def _json_values():
+    from hypothesis import strategies as st
+
+    scalars = st.none() | st.booleans() | st.integers(-(2**70), 2**70) | st.floats(allow_nan=True, allow_infinity=True) | st.text(max_size=8)
+    return st.recursive(scalars, lambda inner: st.lists(inner, max_size=3) | st.dictionaries(st.text(max_size=6), inner, max_size=3), max_leaves=6)
+
+
+@pytest.fixture(scope="module")
+def style_server():
+    import asyncio
+
+    from styleerd.serve.server import ServeConfig, StyleServer
+
+    loop = asyncio.new_event_loop()
+    server = loop.run_until_complete(_make(StyleServer, ServeConfig(max_streams=4, queue=4)))
+    yield server, loop
+    loop.close()
+
+
+async def _make(cls, config):
+    return cls(config, load_generator()[0])
+
+
+class _FakeConnection:
+    remote_address = ("fuzz", 0)
+    close_code = None
+
+
+def test_fuzzed_hellos_open_a_stream_or_are_refused_clearly(style_server):
+    from hypothesis import HealthCheck, given, settings
+    from hypothesis import strategies as st
+
+    from styleerd.serve.server import ClientError
+
+    server, loop = style_server
+    keys = st.sampled_from(["fps", "style", "intensity", "mix", "input_style", "content", "format", "cleanup", "name", "private", "positions", "preset", "skeleton"])
+    good = json.loads(_hello())
+
+    @settings(max_examples=300, deadline=None, suppress_health_check=list(HealthCheck), derandomize=True)
+    @given(st.dictionaries(keys, _json_values(), max_size=4))
+    def run(changes):
+        msg = {**good, **changes}
+        try:
+            stream = loop.run_until_complete(server._open_stream(_FakeConnection(), msg))
+        except ClientError as e:
+            assert e.code in (1008, 1013) and str(e) and "\n" not in str(e).strip()
+        else:
+            server._close_stream(stream)
+        assert not server.streams
+
+    run()
+
+
+def test_fuzzed_messages_on_an_open_stream_are_taken_or_refused_clearly(style_server):
+    from hypothesis import HealthCheck, given, settings
+    from hypothesis import strategies as st
+
+    from styleerd.serve.server import ClientError
+
+    server, loop = style_server
+    stream = loop.run_until_complete(server._open_stream(_FakeConnection(), json.loads(_hello())))
+    n = stream.pool.stylizer.n_channels
+    messages = (st.binary(max_size=4 + 4 * n + 8) | st.builds(lambda v: frame(0, np.asarray(v, np.float32)), st.lists(st.floats(width=32), min_size=n, max_size=n))
+                | st.builds(json.dumps, st.dictionaries(st.sampled_from(["type", "seq", "values", "style", "mix", "intensity"]), _json_values(), max_size=4))
+                | st.builds(lambda t, v: json.dumps({"type": t, "values": v}), st.sampled_from(["frame", "set", "reset", "stats"]), _json_values()))  # fmt: skip
+
+    @settings(max_examples=400, deadline=None, suppress_health_check=list(HealthCheck), derandomize=True)
+    @given(messages)
+    def run(message):
+        try:
+            server._receive(stream, message)
+        except ClientError as e:
+            assert e.code in (1007, 1008) and str(e)
+        stream.pending.clear()
+        while not stream.outbox.empty():
+            stream.outbox.get_nowait()
+
+    run()
+    server._close_stream(stream)

@@ -16,7 +16,7 @@ import numpy as np
 from numba.typed import List
 
 from styleerd.model.generator import StyleERD
-from styleerd.runtime.backends import NumpyBackend, _numpy_step
+from styleerd.runtime.numpy_step import NumpyBackend, _numpy_step
 
 COMPILED_UP_TO = 32  # streams per step (measured, 1 thread: 32 streams 178 us compiled, 187 us numpy + compiled cell; 48: 258 vs 247)
 
@@ -58,7 +58,7 @@ def _sigmoid(v):
 # Serial and GIL-free: threads come from StreamStylizer's shards of streams (runtime.stylizer.SHARD_FROM).
 @nb.njit(cache=True, fastmath=True, error_model="numpy", nogil=True)
 def compiled_cell(g, b, h, c):
-    """NumpyBackend's LSTM cell update (``backends._numpy_cell``), one pass per stream."""
+    """NumpyBackend's LSTM cell update (``numpy_step._numpy_cell``), one pass per stream."""
     H = h.shape[1]
     for n in range(g.shape[0]):
         for j in range(H):

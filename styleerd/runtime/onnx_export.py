@@ -23,6 +23,7 @@ from onnx import TensorProto, helper, numpy_helper
 
 from styleerd.atomic import atomic_write, atomic_write_text
 from styleerd.model.generator import StyleERD
+from styleerd.runtime.numpy_step import step_weights
 
 OPSET = 17
 
@@ -73,8 +74,6 @@ def _lstm_stack(g: _Graph, x: str, h: str, c: str, layers, keep: str | None) -> 
 
 
 def step_graph(model: StyleERD) -> onnx.ModelProto:
-    from styleerd.runtime.backends import step_weights
-
     w = step_weights(model)
     c = model.config
     D, nS, nC, H, J = c.feature_dim, len(c.styles), len(c.contents), c.hidden, c.n_joints

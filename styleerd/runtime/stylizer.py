@@ -31,7 +31,8 @@ from styleerd.model.generator import StyleERD
 from styleerd.model.labeller import OnlineLabeller, toward_neutral
 from styleerd.motion import quat
 from styleerd.motion.skeleton import BodyRoles
-from styleerd.runtime.backends import NumpyLabeller, make_backend
+from styleerd.runtime.backends import make_backend
+from styleerd.runtime.numpy_step import NumpyLabeller
 
 
 MAX_FEATURE = 1e6

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import asyncio
 import json
+import socket
 import struct
 import time
 from dataclasses import dataclass, field
@@ -31,8 +32,10 @@ class StreamResult:
     latencies_ms: list[float] = field(default_factory=list)
     late_sends: int = 0  # frames the client itself sent more than a frame late (an overloaded client)
     error: str | None = None  # the server's error message, if it closed the stream
+    error_at: float | None = None  # seconds into the stream
     close_code: int | None = None
     output: np.ndarray | None = None  # the stylised channel values, when kept
+    max_error: float = 0.0  # largest difference from ``reference`` (float32 on the wire), when given
 
 
 def hello(motion: Motion, fps: float, style: str | None, intensity: float, mix: dict[str, float] | None, name: str | None,
@@ -44,10 +47,12 @@ def hello(motion: Motion, fps: float, style: str | None, intensity: float, mix: 
     return msg
 
 
-async def play(url: str, motion: Motion, hello_msg: dict, seconds: float | None = None, keep: bool = False, realtime: bool = True) -> StreamResult:
+async def play(url: str, motion: Motion, hello_msg: dict, seconds: float | None = None, keep: bool = False, realtime: bool = True,
+               reference: np.ndarray | None = None) -> StreamResult:  # fmt: skip
     """Send the motion's frames (looped until ``seconds`` when given) at its frame rate (or,
     not ``realtime``, as fast as replies come: at most ``IN_FLIGHT`` unanswered), one binary
-    frame each, and collect the replies; returns what was sent and received."""
+    frame each, and collect the replies; returns what was sent and received, and how far the
+    replies are from ``reference`` (the expected output of every frame sent) when given."""
     values = bvh.channel_values(motion).astype("<f4")
     fps = float(hello_msg["fps"])
     total = len(values) if seconds is None else int(round(seconds * fps))
@@ -77,14 +82,18 @@ async def play(url: str, motion: Motion, hello_msg: dict, seconds: float | None 
                     if isinstance(message, str):
                         reply = json.loads(message)
                         if reply.get("type") == "error":
-                            result.error = reply["message"]
+                            result.error, result.error_at = reply["message"], time.perf_counter() - start
                         continue
                     seq = SEQ.unpack_from(message)[0]
                     result.latencies_ms.append((time.perf_counter() - sent_at[seq]) * 1e3)
                     result.reordered += seq != expected
                     expected = seq + 1
-                    if kept is not None:
-                        kept[seq] = np.frombuffer(message, "<f4", count=values.shape[1], offset=SEQ.size)
+                    if kept is not None or reference is not None:
+                        out = np.frombuffer(message, "<f4", count=values.shape[1], offset=SEQ.size)
+                        if kept is not None:
+                            kept[seq] = out
+                        if reference is not None:
+                            result.max_error = max(result.max_error, float(np.abs(out - reference[seq]).max()))
                     result.received += 1
                     replied.set()
                     if result.received == total:
@@ -155,23 +164,101 @@ async def server_stats(url: str) -> dict:
                 return reply
 
 
-async def load_test(url: str, motion: Motion, clients: int, seconds: float, fps: float = 30.0, style: str = "elderly") -> dict:
-    """``clients`` concurrent real-time streams of ``seconds`` each; latency percentiles,
-    dropped and reordered frames, the server's CPU use over the run."""
+FAULTS = ("malformed frame", "slow reader", "vanishes", "bad hello")
+_BAD_MESSAGES = (lambda n: SEQ.pack(0) + b"\0" * (4 * n - 2), lambda n: SEQ.pack(0) + np.full(n, np.nan, "<f4").tobytes(), lambda n: "{not json",
+                 lambda n: json.dumps({"type": "frame", "seq": 2**40, "values": [0.0] * n}), lambda n: json.dumps({"type": "set", "style": "zombie"}))  # fmt: skip
+
+
+async def faulty_client(url: str, motion: Motion, kind: str, seed: int) -> dict:
+    """One episode of a faulty client of ``kind`` (see ``FAULTS``) -> what happened: the close
+    code the server sent, or how the connection ended."""
+    rng = np.random.default_rng(seed)
+    values = bvh.channel_values(motion).astype("<f4")
+    msg = hello(motion, 30.0, "elderly", 1.0, None, f"faulty-{seed}")
+    if kind == "bad hello":
+        msg = [{**msg, "fps": float("nan")}, {**msg, "mix": {"elderly": -1}}, {**msg, "skeleton": "HIERARCHY\nROOT"}, {"type": "hello"}][int(rng.integers(4))]
+    outcome = {"kind": kind, "code": None}
+    sock = socket.socket()
+    if kind == "slow reader":  # a small receive buffer: the server's replies back up in seconds, not minutes
+        sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 4096)
+    try:
+        host, port = url.split("//")[1].split("/")[0].rsplit(":", 1)
+        sock.setblocking(False)
+        await asyncio.wait_for(asyncio.get_running_loop().sock_connect(sock, (host, int(port))), 20)
+        async with connect(url, sock=sock, max_size=1 << 22, open_timeout=20, close_timeout=2, compression=None, max_queue=1) as ws:
+            await ws.send(json.dumps(msg, allow_nan=True))
+            if json.loads(await ws.recv()).get("type") != "ready":
+                await ws.recv()  # the close
+            frames = int(rng.integers(5, 60)) if kind != "slow reader" else 30 * 30
+            for i in range(frames):  # real time; the slow reader never reads a reply
+                await ws.send(SEQ.pack(i) + values[i % len(values)].tobytes())
+                await asyncio.sleep(1 / 30)
+            if kind == "vanishes":
+                ws.transport.abort()  # no close handshake
+                outcome["code"] = "vanished"
+                return outcome
+            if kind == "malformed frame":
+                await ws.send(_BAD_MESSAGES[int(rng.integers(len(_BAD_MESSAGES)))](values.shape[1]))
+                while True:
+                    await ws.recv()
+            outcome["code"] = "never closed"  # a slow reader the server did not drop in 30 s
+    except ConnectionClosed as e:
+        outcome["code"] = e.rcvd.code if e.rcvd else "dropped"
+    except (OSError, TimeoutError) as e:
+        outcome["code"] = f"dropped ({type(e).__name__})"
+    finally:
+        sock.close()
+    return outcome
+
+
+async def _faulty_loop(url: str, motion: Motion, deadline: float, index: int) -> list[dict]:
+    episodes = []
+    while time.perf_counter() < deadline - 5:
+        episodes.append(await faulty_client(url, motion, FAULTS[(index + len(episodes)) % len(FAULTS)], 1000 * index + len(episodes)))
+    return episodes
+
+
+async def load_test(url: str, motion: Motion, clients: int, seconds: float, fps: float = 30.0, style: str = "elderly",
+                    faulty: int = 0, reference: np.ndarray | None = None) -> dict:  # fmt: skip
+    """``clients`` concurrent real-time streams of ``seconds`` each, and ``faulty`` clients
+    misbehaving in turn (``FAULTS``) meanwhile; latency percentiles, dropped and reordered
+    frames, the largest difference from ``reference`` (the expected output of the looped
+    clip), the server's CPU use over the run, and what happened to each faulty episode."""
     before = await server_stats(url)
     t0 = time.perf_counter()
-    runs = [play(url, motion, hello(motion, fps, style, 1.0, None, f"load-{i}"), seconds) for i in range(clients)]
-    results = await asyncio.gather(*runs)
+    stalls: list[tuple[float, float]] = []  # (seconds into the run, ms) where this process's own loop stalled past 100 ms
+
+    async def watch_loop() -> None:
+        while time.perf_counter() < t0 + seconds:
+            t = time.perf_counter()
+            await asyncio.sleep(0.05)
+            late = (time.perf_counter() - t - 0.05) * 1e3
+            if late > 100:
+                stalls.append((round(t - t0, 1), round(late)))
+
+    watcher = asyncio.create_task(watch_loop())
+    runs = [play(url, motion, hello(motion, fps, style, 1.0, None, f"load-{i}"), seconds, reference=reference) for i in range(clients)]
+    bad = [_faulty_loop(url, motion, t0 + seconds, i) for i in range(faulty)]
+    done = await asyncio.gather(*runs, *bad)
+    results, episodes = done[:clients], [e for loop in done[clients:] for e in loop]
+    watcher.cancel()
     wall = time.perf_counter() - t0
     after = await server_stats(url)
     lat = np.concatenate([np.array(r.latencies_ms) for r in results if r.latencies_ms] or [np.zeros(1)])
     sent = sum(r.sent for r in results)
+    outcomes: dict[str, dict[str, int]] = {}
+    for e in episodes:
+        kind = outcomes.setdefault(e["kind"], {})
+        kind[str(e["code"])] = kind.get(str(e["code"]), 0) + 1
     return {
         "clients": clients, "seconds": seconds, "fps": fps, "frames_sent": sent,
         "frames_received": sum(r.received for r in results), "dropped": sent - sum(r.received for r in results),
         "reordered": sum(r.reordered for r in results), "errors": [r.error for r in results if r.error],
+        "errors_at_s": sorted(round(r.error_at, 1) for r in results if r.error), "client_loop_stalls": stalls,
+        "max_error_deg": max((r.max_error for r in results), default=0.0) if reference is not None else None,
         "late_client_sends": sum(r.late_sends for r in results),
         "latency_ms_p50": float(np.percentile(lat, 50)), "latency_ms_p99": float(np.percentile(lat, 99)), "latency_ms_max": float(lat.max()),
         "server_cpu_cores": (after["cpu_seconds"] - before["cpu_seconds"]) / wall, "wall_s": wall,
         "server_frames": after["frames"] - before["frames"], "mean_batch": (after["frames"] - before["frames"]) / max(1, after["steps"] - before["steps"]),
+        "faulty_clients": faulty, "faulty_episodes": len(episodes), "faulty_outcomes": outcomes, "streams_left": after["streams"] - 1,
     }  # fmt: skip

@@ -6,9 +6,11 @@ Each connection is one stream with its own stylizer state, held as a slot of a p
 batched step per pool over every stream that has a frame waiting, so many streams cost little
 more than one. Frames of a stream are answered one for one, in order.
 
-Bounds: a stream may have at most ``queue`` frames waiting to be stylised (a client sending
-faster than the server steps is told and closed) and at most ``queue`` stylised frames unsent
-(a client that stops reading is told and closed): memory per stream is bounded. A hello's
+Bounds: a stream may have ``queue`` frames waiting to be stylised; past that, a client ahead of
+real time (more frames than its frame rate allows since its hello) is told and closed, while a
+client in time whose frames wait because the server is behind may have up to ``OVERLOAD`` x
+``queue`` (then 1013: the server is overloaded). At most ``queue`` stylised frames may be
+unsent (a client that stops reading is told and closed): memory per stream is bounded. A hello's
 skeleton has at most ``max_joints`` joints, and its setup (parsing, mapping, a new pool) runs
 in a worker thread, one at a time, so a heavy hello never stalls the streams being stepped.
 
@@ -20,7 +22,6 @@ server); a private stream is watched or steered only with the token its ``ready`
 from __future__ import annotations
 
 import asyncio
-import ipaddress
 import json
 import logging
 import mimetypes
@@ -58,6 +59,7 @@ SEQ = struct.Struct("<I")  # binary frames start with the frame's sequence numbe
 # close codes (RFC 6455)
 GOING_AWAY, INVALID_DATA, POLICY, INTERNAL, TRY_LATER = 1001, 1007, 1008, 1011, 1013  # 1009 (too big) is websockets' own
 HELLO_TIMEOUT_S = 10.0
+OVERLOAD = 4  # x queue: frames a client in real time may have waiting while the server is behind
 log = logging.getLogger("styleerd.serve")
 SEND_BUFFER = 1 << 16  # bytes of kernel send buffer per connection
 
@@ -69,6 +71,7 @@ class ServeConfig:
     max_streams: int = 256  # open streams, all pools together
     max_message: int = 1 << 20  # bytes; a larger message closes its connection with 1009
     queue: int = 64  # per stream: frames waiting to be stylised, and stylised frames unsent
+    batch_wait: float = 0.004  # seconds a frame may wait for other streams' frames to share its step
     backend: str = "numpy"
     data: str | None = None  # data folder for the viewer's real demo clips (optional)
     max_joints: int = 512  # joints of a hello's skeleton (a humanoid has 20 to 100)
@@ -95,9 +98,10 @@ class Stream:
     positions: bool  # send joint positions of input and output with every frame
     outbox: asyncio.Queue
     fronts: bool = False  # and, after them, the bones' fronts (their roll)
-    pending: deque = field(default_factory=deque)  # (seq, channel values) waiting to be stylised
+    pending: deque = field(default_factory=deque)  # (seq, channel values, arrival time) waiting to be stylised
     watchers: set = field(default_factory=set)
     frames: int = 0
+    opened: float = field(default_factory=time.perf_counter)
     private: bool = False  # not listed; watched or steered only with ``token``
     token: str = ""
     closing: bool = False  # refused: its frames are no longer stylised
@@ -148,17 +152,12 @@ def _origin_allowed(origin: str | None, host: str, allowed: tuple[str, ...]) -> 
 
 
 def _host_names(bound: str, extra: tuple[str, ...]) -> set[str] | None:
-    """Host names the server answers to (None: any). A loopback server answers only to
-    loopback names, so a page whose DNS name was rebound to 127.0.0.1 is refused."""
+    """Host names the server answers to (None: any): the bound address, the loopback names and
+    ``extra``. A loopback server so refuses a page whose DNS name was rebound to 127.0.0.1."""
     names = {h.lower().strip("[]") for h in extra}
     if bound in ("", "0.0.0.0", "::"):
         return names or None  # every interface: any name, unless names are given
-    local = {"localhost", "127.0.0.1", "::1"}
-    try:
-        loopback = ipaddress.ip_address(bound).is_loopback
-    except ValueError:
-        loopback = bound == "localhost"
-    return names | local | {bound.lower().strip("[]")} if loopback else names | {bound.lower().strip("[]")} | local
+    return names | {"localhost", "127.0.0.1", "::1", bound.lower().strip("[]")}
 
 
 def _number(msg: dict, key: str, default: float, low: float, high: float) -> float:
@@ -186,11 +185,13 @@ class StyleServer:
     # ---- the handshake and the per-connection loop ----
 
     def _target(self, msg: dict) -> dict[str, float]:
-        mix = msg.get("mix")
+        mix, style = msg.get("mix"), msg.get("style")
+        if style is not None and not isinstance(style, str):
+            raise ClientError(POLICY, f"'style' must be a style name, got {style!r}")
         if mix is not None and (not isinstance(mix, dict) or not all(isinstance(v, (int, float)) for v in mix.values())):
             raise ClientError(POLICY, f"'mix' must be an object of style -> weight, got {mix!r}")
         try:
-            weights = target_weights(self.model, msg.get("style"), _number(msg, "intensity", 1.0, 0.0, 2.0), mix)
+            weights = target_weights(self.model, style, _number(msg, "intensity", 1.0, 0.0, 2.0), mix)
             label_vector(self.model.config.styles, weights, "style")  # names the valid styles
             return weights
         except StyleERDError as e:
@@ -340,8 +341,13 @@ class StyleServer:
         if bad is not None:
             raise ClientError(INVALID_DATA, f"frame {seq}: {bad[1]}")
         if len(stream.pending) >= self.config.queue:
-            raise ClientError(POLICY, f"more than {self.config.queue} frames waiting: send no faster than the stream's frame rate")
-        stream.pending.append((seq, values))
+            # whose fault: a client ahead of real time, or a server behind it (never the client's)
+            ahead = stream.frames - stream.pool.stylizer.fps * (time.perf_counter() - stream.opened)
+            if ahead > self.config.queue:
+                raise ClientError(POLICY, f"more than {self.config.queue} frames waiting, {ahead:.0f} ahead of real time: send no faster than the stream's frame rate")
+            if len(stream.pending) >= OVERLOAD * self.config.queue:
+                raise ClientError(TRY_LATER, f"more than {OVERLOAD * self.config.queue} frames waiting: the server is overloaded; try again later")
+        stream.pending.append((seq, values, time.perf_counter()))
         stream.frames += 1
         self.due.set()
 
@@ -360,6 +366,14 @@ class StyleServer:
                 work = [(pool, streams) for pool, streams in work if streams]
                 if not work:
                     break
+                # a step costs about a millisecond whatever its batch: while other streams' frames are
+                # on their way, wait for them (at most batch_wait) and step them together, or small
+                # steps back to back take the whole core and leave none for the sockets
+                oldest = min(s.pending[0][2] for _, streams in work for s in streams)
+                wait = oldest + self.config.batch_wait - time.perf_counter()
+                if wait > 0 and sum(len(streams) for _, streams in work) < len(self.streams):
+                    await asyncio.sleep(wait)
+                    continue
                 for pool, streams in work:
                     try:
                         self._step(pool, streams)
@@ -373,7 +387,7 @@ class StyleServer:
     def _step(self, pool: Pool, streams: list[Stream]) -> None:
         rows = np.array([s.row for s in streams])
         items = [s.pending.popleft() for s in streams]
-        values = np.stack([v for _, v in items])
+        values = np.stack([v for _, v, _ in items])
         try:
             out = pool.stylizer.step(values, rows)
         except StyleERDError:  # a frame the stylizer refuses (no state changed): find it, end only its stream
@@ -399,7 +413,7 @@ class StyleServer:
             seen, seen_fronts = _joint_positions(pool.skeleton, values[wants], pool.stylizer.fps, pool.fronts)
             made, made_fronts = _joint_positions(pool.skeleton, out[wants], pool.stylizer.fps, pool.fronts)
             positions = {i: (seen[k], made[k], seen_fronts[k], made_fronts[k]) for k, i in enumerate(wants)}
-        for i, (stream, (seq, _)) in enumerate(zip(streams, items)):
+        for i, (stream, (seq, _, _)) in enumerate(zip(streams, items)):
             if bad[i]:
                 continue
             pos = positions.get(i) if wants else None

@@ -1,0 +1,179 @@
+"""The network's per-frame step in numpy: the generator's weights laid out for ``x @ W + b``
+and its arithmetic fused by hand (no framework overhead), for N streams whose recurrent state
+the backend keeps; and the online labeller's step the same way. The compiled backend
+(``runtime.compiled``) and the ONNX export (``runtime.onnx_export``) build on these."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from styleerd.model.generator import StyleERD
+
+
+@dataclass
+class StepWeights:
+    """The generator's parameters as float32 arrays laid out for ``x @ W + b``."""
+
+    encoder: list[tuple[np.ndarray, np.ndarray]]
+    neutral: list[tuple[np.ndarray, np.ndarray, np.ndarray]]  # per layer: W_input [in, 4H], W_hidden [H, 4H], b [4H]
+    branches: list[list[tuple[np.ndarray, np.ndarray, np.ndarray]]]
+    branch_styles: list[int]
+    decoder: list[tuple[np.ndarray, np.ndarray]]
+    neutral_init: tuple[np.ndarray, np.ndarray]  # h0, c0: [nC, L0, H]
+    branch_init: tuple[np.ndarray, np.ndarray]  # h0, c0: [K, L1, H]
+    n_joints: int
+    hidden: int
+
+
+def step_weights(model: StyleERD) -> StepWeights:
+    sd = {k: v.detach().float().numpy() for k, v in model.state_dict().items()}
+
+    def linear(prefix: str, count: int) -> list[tuple[np.ndarray, np.ndarray]]:
+        return [(sd[f"{prefix}.{2 * i}.weight"].T.copy(), sd[f"{prefix}.{2 * i}.bias"]) for i in range(count)]
+
+    def lstm(prefix: str, layers: int) -> list[tuple[np.ndarray, np.ndarray, np.ndarray]]:
+        return [
+            (sd[f"{prefix}.weight_ih_l{i}"].T.copy(), sd[f"{prefix}.weight_hh_l{i}"].T.copy(), sd[f"{prefix}.bias_ih_l{i}"] + sd[f"{prefix}.bias_hh_l{i}"])
+            for i in range(layers)
+        ]
+
+    c = model.config
+    return StepWeights(
+        encoder=linear("encoder", len(c.encoder)),
+        neutral=lstm("neutral", c.neutral_layers),
+        branches=[lstm(f"branches.{k}", c.style_layers) for k in range(len(model.branch_styles))],
+        branch_styles=list(model.branch_styles),
+        decoder=linear("decoder", len(c.decoder) + 1),
+        neutral_init=(sd["neutral_h0"], sd["neutral_c0"]),
+        branch_init=(sd["branch_h0"], sd["branch_c0"]),
+        n_joints=c.n_joints,
+        hidden=c.hidden,
+    )
+
+
+def _sigmoid(x: np.ndarray) -> np.ndarray:
+    return 0.5 * np.tanh(0.5 * x) + 0.5
+
+
+def _numpy_cell(g: np.ndarray, b: np.ndarray, h: np.ndarray, c: np.ndarray) -> None:
+    """An LSTM cell's update from its pre-activations ``g [N, 4H]`` (bias not yet added; torch
+    gate order i, f, g, o): writes h, c ``[N, H]`` in place."""
+    H = h.shape[-1]
+    g += b
+    s = _sigmoid(g)
+    c[:] = s[:, H : 2 * H] * c + s[:, :H] * np.tanh(g[:, 2 * H : 3 * H])
+    h[:] = s[:, 3 * H :] * np.tanh(c)
+
+
+def _lstm_stack(layers, x: np.ndarray, h: np.ndarray, c: np.ndarray, cell=_numpy_cell) -> np.ndarray:
+    """Run stacked LSTM cells one step; updates h, c [L, N, H] in place and returns the last
+    layer's output."""
+    for i, (w_in, w_hid, b) in enumerate(layers):
+        g = x @ w_in
+        g += h[i] @ w_hid
+        cell(g, b, h[i], c[i])
+        x = h[i]
+    return x
+
+
+def _rotations(y: np.ndarray, n_joints: int) -> tuple[np.ndarray, np.ndarray]:
+    q = y[:, : 4 * n_joints].reshape(len(y), n_joints, 4)
+    return q / np.maximum(np.sqrt(np.einsum("nji,nji->nj", q, q))[..., None], 1e-8), y[:, 4 * n_joints :]
+
+
+class NumpyBackend:
+    def __init__(self, model: StyleERD, n_streams: int):
+        self.w, self.n = step_weights(model), n_streams
+        w, H = self.w, self.w.hidden
+        self.h = np.zeros((len(w.neutral), n_streams, H), np.float32)
+        self.c = np.zeros_like(self.h)
+        self.hb = np.zeros((len(w.branches), len(w.branches[0]) if w.branches else 0, n_streams, H), np.float32)
+        self.cb = np.zeros_like(self.hb)
+        self.first = np.ones(n_streams, dtype=bool)
+
+    def reset(self, streams: np.ndarray | None = None) -> None:
+        self.first[slice(None) if streams is None else streams] = True
+
+    def step(self, x: np.ndarray, style: np.ndarray, content: np.ndarray, target: np.ndarray, rows: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+        """One frame of every stream, or of the streams ``rows`` only (the others keep their
+        state): what a server with streams arriving at different times steps. Rows given as a
+        slice are stepped in place (views), so disjoint slices may step concurrently."""
+        x, style, content, target = (np.ascontiguousarray(a, np.float32) for a in (x, style, content, target))
+        sel = slice(None) if rows is None else rows
+        h, c, hb, cb, first = self.h[:, sel], self.c[:, sel], self.hb[:, :, sel], self.cb[:, :, sel], self.first[sel]
+        out = self._arithmetic(x, style, content, target, h, c, hb, cb, first)
+        if not isinstance(sel, slice):  # rows by index gave copies: put them back
+            self.h[:, sel], self.c[:, sel], self.hb[:, :, sel], self.cb[:, :, sel], self.first[sel] = h, c, hb, cb, first
+        return out
+
+    def _arithmetic(self, x, style, content, target, h, c, hb, cb, first) -> tuple[np.ndarray, np.ndarray]:
+        """The step on explicit state arrays (updated in place); the numba backend overrides it."""
+        return _numpy_step(self.w, x, style, content, target, h, c, hb, cb, first)
+
+
+def _numpy_step(w: StepWeights, x, style, content, target, h, c, hb, cb, first, cell=_numpy_cell) -> tuple[np.ndarray, np.ndarray]:
+    """The generator's step on float32 arrays; updates the states h, c [L, N, H], hb, cb
+    [K, L, N, H] and the first-frame flags [N] in place. ``cell``: the LSTM cell update."""
+    if first.any():
+        rows = np.nonzero(first)[0]
+        h[:, rows] = np.einsum("nc,clh->lnh", content[rows], w.neutral_init[0])
+        c[:, rows] = np.einsum("nc,clh->lnh", content[rows], w.neutral_init[1])
+        hb[:, :, rows] = w.branch_init[0][:, :, None]
+        cb[:, :, rows] = w.branch_init[1][:, :, None]
+        first[:] = False
+    z = np.concatenate([x, style, content], -1)
+    for i, (W, b) in enumerate(w.encoder):
+        z = z @ W + b
+        if i < len(w.encoder) - 1:
+            z = np.maximum(z, 0.0)
+    out = _lstm_stack(w.neutral, z, h, c, cell).copy()
+    for k, s in enumerate(w.branch_styles):
+        rows = np.nonzero(target[:, s])[0]
+        if len(rows) == len(x):
+            out += target[:, s, None] * _lstm_stack(w.branches[k], z, hb[k], cb[k], cell)
+        elif len(rows):
+            hk, ck = hb[k][:, rows], cb[k][:, rows]
+            out[rows] += target[rows, s, None] * _lstm_stack(w.branches[k], z[rows], hk, ck, cell)
+            hb[k][:, rows], cb[k][:, rows] = hk, ck
+    y = np.concatenate([out, target], -1)
+    for i, (W, b) in enumerate(w.decoder):
+        y = y @ W + b
+        if i < len(w.decoder) - 1:
+            y = np.maximum(y, 0.0)
+    return _rotations(y, w.n_joints)
+
+
+class NumpyLabeller:
+    """The OnlineLabeller's step in numpy (torch's GRU gate order r, z, n), one state row per
+    stream; returns style and content probabilities after each frame."""
+
+    def __init__(self, labeller, n_streams: int):
+        sd = {k: v.detach().float().numpy() for k, v in labeller.state_dict().items()}
+        self.w_in, self.b_in = sd["inp.0.weight"].T.copy(), sd["inp.0.bias"]
+        self.w_ih, self.b_ih = sd["gru.weight_ih_l0"].T.copy(), sd["gru.bias_ih_l0"]
+        self.w_hh, self.b_hh = sd["gru.weight_hh_l0"].T.copy(), sd["gru.bias_hh_l0"]
+        self.heads = [(sd["style.weight"].T.copy(), sd["style.bias"]), (sd["content.weight"].T.copy(), sd["content.bias"])]
+        self.h = np.zeros((n_streams, labeller.hidden), np.float32)
+
+    def reset(self, streams: np.ndarray | None = None) -> None:
+        self.h[slice(None) if streams is None else streams] = 0.0
+
+    def step(self, x: np.ndarray, rows: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """-> (style probabilities, content probabilities, the new state of the streams
+        ``rows`` (default all)); the state is kept only when the caller commits it
+        (``self.h[rows] = state``)."""
+        H = self.h.shape[1]
+        h = self.h if rows is None else self.h[rows]
+        a = np.maximum(x @ self.w_in + self.b_in, 0.0)
+        gi, gh = a @ self.w_ih + self.b_ih, h @ self.w_hh + self.b_hh
+        r, z = _sigmoid(gi[:, :H] + gh[:, :H]), _sigmoid(gi[:, H : 2 * H] + gh[:, H : 2 * H])
+        n = np.tanh(gi[:, 2 * H :] + r * gh[:, 2 * H :])
+        h = (1.0 - z) * n + z * h
+        probs = []
+        for W, b in self.heads:
+            logits = h @ W + b
+            e = np.exp(logits - logits.max(-1, keepdims=True))
+            probs.append(e / e.sum(-1, keepdims=True))
+        return probs[0], probs[1], h
