@@ -4,7 +4,7 @@
 
 Starts ``styleerd serve`` (default settings), plays a 30 fps real-time stream twice: alone,
 then while ten clients at once send hellos with skeletons of each size in ``--joints`` (a
-humanoid plus a chain of extra joints: 8,000 is refused by --max-joints, 480 is accepted and
+humanoid plus chains of extra joints: 8,000 is refused by --max-joints, 480 is accepted and
 set up). Prints the stream's latency p50/p99/max both times, side by side in one run.
 """
 
@@ -16,6 +16,7 @@ import json
 
 import numpy as np
 from websockets.asyncio.client import connect
+from websockets.exceptions import ConnectionClosed
 
 from styleerd.motion import bvh
 from styleerd.motion.procedural import walk
@@ -23,18 +24,28 @@ from styleerd.serve.client import hello, play
 from styleerd.serve.loadtest import free_port, start_server, stop_server
 
 
-def chain_skeleton(extra: int) -> str:
-    """The walk's BVH hierarchy with a chain of ``extra`` joints under the root."""
+def extra_joints_skeleton(extra: int, chain: int = 20) -> str:
+    """The walk's BVH hierarchy with ``extra`` more joints under the root, in chains of
+    ``chain`` (hair, cloth, props: what a real rig adds)."""
     text = bvh.format_header(walk(0.2, fps=30.0).skeleton, 0, 30.0).split("MOTION")[0]
-    chain = "".join(f"JOINT X{k}\n{{\nOFFSET 0 1 0\nCHANNELS 3 Zrotation Xrotation Yrotation\n" for k in range(extra)) + "}\n" * extra
+    joint = "JOINT X{}\n{{\nOFFSET 0 1 0\nCHANNELS 3 Zrotation Xrotation Yrotation\n"
+    chains = []
+    for start in range(0, extra, chain):
+        n = min(chain, extra - start)
+        chains.append("".join(joint.format(k) for k in range(start, start + n)) + "}\n" * n)
     head, tail = text.rsplit("}", 1)
-    return head + chain + "}" + tail
+    return head + "".join(chains) + "}" + tail
 
 
 async def heavy_hello(url: str, text: str) -> str:
+    """-> "ready", "error: ..." (the server's message), or "closed CODE" with no message."""
     async with connect(url, max_size=1 << 22, open_timeout=30) as ws:
         await ws.send(json.dumps({"type": "hello", "skeleton": text, "fps": 30, "style": "elderly"}))
-        return json.loads(await ws.recv())["type"]
+        try:
+            reply = json.loads(await ws.recv())
+        except ConnectionClosed as e:
+            return f"closed {e.rcvd.code if e.rcvd else None} without a message"
+        return reply["type"] if reply["type"] == "ready" else f"{reply['type']}: {reply.get('message', '')[:60]}"
 
 
 async def stream_with(url: str, seconds: float, texts: list[str]) -> tuple[dict, list[str]]:
@@ -58,7 +69,7 @@ def main() -> None:
     try:
         rows = [("alone", *asyncio.run(stream_with(url, args.seconds, [])))]
         for joints in args.joints:
-            rows.append((f"10 hellos of +{joints} joints", *asyncio.run(stream_with(url, args.seconds, [chain_skeleton(joints)] * 10))))
+            rows.append((f"10 hellos of +{joints} joints", *asyncio.run(stream_with(url, args.seconds, [extra_joints_skeleton(joints)] * 10))))
     finally:
         stop_server(server)
     print("| the 30 fps stream | latency p50 ms | p99 ms | max ms | frames received/sent | the heavy hellos got |")

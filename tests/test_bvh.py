@@ -206,3 +206,8 @@ def test_streamed_reading_gives_the_same_values(tmp_path, chunk):
     whole = bvh.read(tmp_path / "m.bvh")
     assert header.skeleton == whole.skeleton and header.n_frames == 7 and np.isclose(header.fps, whole.fps)
     assert np.allclose(np.concatenate(list(frames)), bvh.channel_values(whole), rtol=0, atol=1e-9)
+
+
+def test_a_byte_order_mark_and_leading_blank_lines_are_read(tmp_path):
+    (tmp_path / "bom.bvh").write_text("\n\n" + GOOD, encoding="utf-8-sig")
+    assert bvh.read(tmp_path / "bom.bvh").n_frames == 2

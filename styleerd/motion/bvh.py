@@ -274,15 +274,17 @@ def stream(path: str | os.PathLike, chunk: int = 1024) -> tuple[Header, Iterator
     same checks as ``read``; a problem in the frame data raises when its chunk is read."""
     path = str(path)
     try:
-        f = open(path, "r", encoding="utf-8", errors="strict")
+        f = open(path, "r", encoding="utf-8-sig", errors="strict")  # -sig: a byte-order mark some Windows tools write
     except OSError as e:
         raise BVHError(path, None, e.strerror or str(e)) from None
     try:
-        lines = []
+        lines, started = [], False
         for line in _lines(f, path):
             lines.append(line.rstrip("\r\n"))
-            if len(lines) == 1 and not line.lstrip().startswith("HIERARCHY"):
-                raise BVHError(path, 1, "not a BVH file: it does not start with HIERARCHY")
+            if not started and line.strip():  # the first line with text
+                if not line.lstrip().startswith("HIERARCHY"):
+                    raise BVHError(path, len(lines), "not a BVH file: it does not start with HIERARCHY")
+                started = True
             if line.strip().startswith("Frame Time"):
                 break
             if len(lines) > MAX_HEADER_LINES:
