@@ -5,7 +5,6 @@ and checks the reader never fails any other way."""
 
 from __future__ import annotations
 
-import json
 import resource
 import subprocess
 import sys

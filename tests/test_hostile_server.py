@@ -17,7 +17,7 @@ from websockets.sync.client import connect
 
 from styleerd.model.checkpoint import load_generator
 from styleerd.motion import bvh
-from styleerd.motion.procedural import walk
+from styleerd.motion.procedural import walk, with_extra_joints
 from styleerd.runtime.channels import ChannelStylizer
 from styleerd.serve.client import hello
 from styleerd.serve.loadtest import free_port, server_log, start_server, stop_server
@@ -73,12 +73,9 @@ def _hello(**fields) -> str:
     return json.dumps({**hello(m, 30.0, "elderly", 1.0, None, None), **fields})
 
 
-def _chain_skeleton(joints: int, depth_first: bool = True) -> str:
-    m = walk(0.2, fps=30.0)
-    text = bvh.format_header(m.skeleton, 0, 30.0).split("MOTION")[0]
-    extra = "".join(f"JOINT X{k}\n{{\nOFFSET 0 1 0\nCHANNELS 3 Zrotation Xrotation Yrotation\n" for k in range(joints)) + "}\n" * joints
-    head, tail = text.rsplit("}", 1)  # inside the root
-    return head + extra + "}" + tail
+def _large_skeleton(extra: int) -> str:
+    """A hello's skeleton text with ``extra`` more joints, unindented: 8,000 fit in a 1 MB message."""
+    return bvh.format_header(with_extra_joints(walk(0.2, fps=30.0).skeleton, extra), 0, 30.0).replace("\t", "")
 
 
 def _frames(values: np.ndarray, tail: list) -> list:
@@ -111,7 +108,7 @@ ATTACKS = {
     "hello skeleton empty": ([_hello(skeleton="")], 1008, "handshake skeleton"),
     "hello skeleton garbage": ([_hello(skeleton="HIERARCHY\nROOT\n{{{{")], 1008, "handshake skeleton"),
     "hello skeleton 1,200 deep": ([_hello(skeleton="HIERARCHY\nROOT R\n{\nOFFSET 0 0 0\n" + "JOINT J\n{\nOFFSET 0 1 0\n" * 1200)], 1008, "joints; this server takes at most"),
-    "hello 8,000 extra joints": ([_hello(skeleton=_chain_skeleton(8000))], 1008, f"this server takes at most {MAX_JOINTS}"),
+    "hello 8,000 extra joints": ([_hello(skeleton=_large_skeleton(8000))], 1008, f"this server takes at most {MAX_JOINTS}"),
     "hello without legs": ([_hello(skeleton="HIERARCHY\nROOT Hips\n{\nOFFSET 0 0 0\nCHANNELS 3 Zrotation Xrotation Yrotation\n}\n")], 1008, "input"),
     "hello zero leg length": ([_hello(skeleton=bvh.format_header(type(V.skeleton)(V.skeleton.names, V.skeleton.parents, np.zeros_like(V.skeleton.offsets), V.skeleton.channels, ()), 0, 30.0))], 1008, "no length"),
     "hello over 1 MB": ([_hello(name="x" * (1 << 20))], 1009, None),
@@ -255,7 +252,7 @@ def test_heavy_hellos_do_not_stall_other_streams(server, clip):
     def heavy(joints: int) -> None:
         try:
             with connect(url, open_timeout=20, max_size=1 << 22) as ws:
-                ws.send(_hello(skeleton=_chain_skeleton(joints)))
+                ws.send(_hello(skeleton=_large_skeleton(joints)))
                 done.append((joints, json.loads(ws.recv(timeout=30))["type"]))
         except Exception as e:  # noqa: BLE001 - reported below
             done.append(repr(e))

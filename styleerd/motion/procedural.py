@@ -49,6 +49,17 @@ def tpose_skeleton() -> Skeleton:
     )  # fmt: skip
 
 
+def with_extra_joints(skeleton: Skeleton, extra: int, chain: int = 20) -> Skeleton:
+    """``skeleton`` with ``extra`` more joints under its root, in chains of ``chain`` (hair,
+    cloth, props: what production rigs add), for tests and benchmarks of large skeletons."""
+    names, parents, offsets = list(skeleton.names), list(skeleton.parents), list(skeleton.offsets)
+    for k in range(extra):
+        parents.append(0 if k % chain == 0 else len(names) - 1)
+        names.append(f"X{k}")
+        offsets.append(np.array([0.0, 1.0, 0.0]))
+    return Skeleton(tuple(names), np.array(parents), np.array(offsets), skeleton.channels + (_ROT,) * extra, skeleton.end_sites)
+
+
 def _rx(deg):
     return quat.from_angle_axis(np.radians(deg), np.array([1.0, 0, 0]))
 

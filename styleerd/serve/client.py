@@ -10,12 +10,12 @@ import struct
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
+from urllib.parse import urlsplit
 
 import numpy as np
 from websockets.asyncio.client import connect
 from websockets.exceptions import ConnectionClosed, InvalidURI
 
-from styleerd.atomic import atomic_write
 from styleerd.errors import StyleERDError
 from styleerd.motion import bvh
 from styleerd.motion.motion import Motion
@@ -182,9 +182,9 @@ async def faulty_client(url: str, motion: Motion, kind: str, seed: int) -> dict:
     if kind == "slow reader":  # a small receive buffer: the server's replies back up in seconds, not minutes
         sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 4096)
     try:
-        host, port = url.split("//")[1].split("/")[0].rsplit(":", 1)
+        where = urlsplit(url)
         sock.setblocking(False)
-        await asyncio.wait_for(asyncio.get_running_loop().sock_connect(sock, (host, int(port))), 20)
+        await asyncio.wait_for(asyncio.get_running_loop().sock_connect(sock, (where.hostname, where.port or 80)), 20)
         async with connect(url, sock=sock, max_size=1 << 22, open_timeout=20, close_timeout=2, compression=None, max_queue=1) as ws:
             await ws.send(json.dumps(msg, allow_nan=True))
             if json.loads(await ws.recv()).get("type") != "ready":

@@ -123,14 +123,14 @@ class Pool:
     """The streams of one skeleton, frame rate and cleanup setting: a slot each in one
     ChannelStylizer, stepped together."""
 
-    def __init__(self, model: StyleERD, skeleton: Skeleton, fps: float, cleanup: bool, capacity: int, backend: str):
+    def __init__(self, model: StyleERD, skeleton: Skeleton, fps: float, cleanup: bool, capacity: int, backend: str, key: tuple):
         neutral = model.config.neutral_style
         self.stylizer = ChannelStylizer(model, skeleton, {neutral: 1.0}, neutral, model.config.contents[0], fps, capacity, cleanup=cleanup, backend=backend)
         self.skeleton = skeleton
         self.fronts = bone_fronts(skeleton)  # rest fronts of the bones, for viewers that show their roll
         self.free = list(range(capacity - 1, -1, -1))
         self.streams: dict[int, Stream] = {}
-        self.key: tuple = ()
+        self.key = key  # (skeleton header, fps, cleanup): streams that share all three share the pool
 
 
 def _skeleton_from_text(text: str, fps: float, max_joints: int) -> Skeleton:
@@ -244,11 +244,9 @@ class StyleServer:
             existing = self.pools.get(key)
             if existing is not None:
                 return existing
-            pool = Pool(self.model, skeleton, fps, cleanup, self.config.max_streams, self.config.backend)
+            return Pool(self.model, skeleton, fps, cleanup, self.config.max_streams, self.config.backend, key)
         except StyleERDError as e:
             raise ClientError(POLICY, str(e)) from None
-        pool.key = key
-        return pool
 
     def _close_stream(self, stream: Stream) -> None:
         log.info("stream %d %r closed after %d frames (%s)", stream.id, stream.name, stream.frames, stream.ws.close_code)
