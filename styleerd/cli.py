@@ -86,11 +86,12 @@ def _parse_mix(text: str) -> dict[str, float]:
 
 
 def _transfer(args: argparse.Namespace) -> None:
-    from styleerd.model.checkpoint import load_generator
+    from styleerd.model.stored import load_generator_weights
     from styleerd.runtime.offline import transfer_file
     from styleerd.runtime.stylizer import target_weights
 
-    model, meta = load_generator(args.model)
+    model = load_generator_weights(args.model)
+    meta = model.meta
     c = model.config
     for value, names, what in ((args.input_style, c.styles, "--input-style"), (args.content, c.contents, "--content")):
         if value is not None and value not in names:
@@ -112,19 +113,21 @@ def _read_joint_map(path: str) -> dict[str, str]:
 
 
 def _export_onnx(args: argparse.Namespace) -> None:
-    from styleerd.model.checkpoint import load_generator
+    from styleerd.model.stored import load_generator_weights
     from styleerd.runtime.onnx_export import export
 
     check_output(args.output)
-    model, meta = load_generator(args.model)
+    model = load_generator_weights(args.model)
+    meta = model.meta
     export(model, meta, args.output)
     print(f"wrote {args.output} and {Path(args.output).with_suffix('.json')} (inputs, outputs and features: docs/ONNX.md)")
 
 
 def _styles(args: argparse.Namespace) -> None:
-    from styleerd.model.checkpoint import load_generator
+    from styleerd.model.stored import load_generator_weights
 
-    model, meta = load_generator(args.model)
+    model = load_generator_weights(args.model)
+    meta = model.meta
     print(f"styles:   {', '.join(model.config.styles)} (neutral: {model.config.neutral_style})")
     print(f"contents: {', '.join(model.config.contents)}")
     print(f"skeleton: {model.skeleton.n_joints} joints, trained at {meta['data']['fps']:g} fps on {meta['data']['dataset']}")

@@ -6,7 +6,7 @@ from scipy.spatial.transform import Rotation
 
 from styleerd.data.augment import MIRRORED_CONTENT, mirror, other_performer, random_joint_offsets, with_joint_offsets, with_proportions, with_speed
 from styleerd.model.checkpoint import load_generator
-from styleerd.model.labeller import toward_neutral
+from styleerd.model.stored import toward_neutral
 from styleerd.motion import quat
 from styleerd.motion.kinematics import forward_kinematics
 from styleerd.motion.motion import Motion

@@ -9,7 +9,6 @@ from pathlib import Path
 
 from tqdm import tqdm
 
-from styleerd.model.checkpoint import MODELS_DIR
 from styleerd.train.config import TrainConfig
 from styleerd.train.trainer import train
 
@@ -22,6 +21,7 @@ ABLATIONS = {
     "zero initial states": {"learned_init": False},
 }
 BASE_CONFIG = Path(__file__).resolve().parents[2] / "configs" / "bandai2.yaml"
+ABLATIONS_DIR = Path(__file__).resolve().parents[2] / "models" / "ablations"  # research runs: in a checkout, not in the package
 
 
 def slug(name: str) -> str:
@@ -34,7 +34,7 @@ def ablation_config(name: str, epochs: int, threads: int = 1) -> TrainConfig:
 
 def model_stem(name: str) -> Path:
     """Where an ablation's model is kept (in git, so tables regenerate without retraining)."""
-    return MODELS_DIR / "ablations" / slug(name)
+    return ABLATIONS_DIR / slug(name)
 
 
 def train_ablations(root: Path, epochs: int, data_dir: str | None = None, threads: int = 1) -> dict[str, Path]:

@@ -17,7 +17,7 @@ from styleerd.data.datasets import data_root, find_clips
 from styleerd.data.windows import split_takes
 from styleerd.errors import StyleERDError
 from styleerd.eval.viewer import write_html
-from styleerd.model.checkpoint import load_generator
+from styleerd.model.stored import load_generator_weights
 from styleerd.motion import bvh
 from styleerd.motion.kinematics import forward_kinematics
 from styleerd.motion.procedural import walk
@@ -32,7 +32,8 @@ def _mean_change_cm(a, b) -> float:
 
 def run_demo(out: Path, data_dir: str | None = None) -> str:
     out.mkdir(parents=True, exist_ok=True)
-    model, meta = load_generator()
+    model = load_generator_weights()
+    meta = model.meta
     c = model.config
     inputs = [("generated walk", out / "input-walk.bvh", "normal", "walk")]
     bvh.write(inputs[0][1], walk())

@@ -1,6 +1,7 @@
-"""Models on disk: ``NAME.safetensors`` (weights) + ``NAME.json`` (everything else: config,
-skeleton, labels, feature statistics, training config, code version, data checksum).
-No pickle anywhere; both files are written atomically."""
+"""Models on disk as torch modules (training and evaluation): ``NAME.safetensors`` (weights) +
+``NAME.json`` (everything else: config, skeleton, labels, feature statistics, training config,
+code version, data checksum). No pickle anywhere; both files are written atomically. Reading
+without torch, and where models are found: ``model.stored``."""
 
 from __future__ import annotations
 
@@ -8,24 +9,18 @@ import json
 from pathlib import Path
 
 import torch
-from safetensors import SafetensorError, safe_open
 from safetensors.torch import save_file
 from torch import nn
 
 from styleerd.atomic import atomic_write, atomic_write_text
 from styleerd.data.features import FeatureStats
-from styleerd.errors import StyleERDError
 from styleerd.model.classifiers import WindowClassifier
-from styleerd.model.generator import GeneratorConfig, StyleERD
+from styleerd.model.config import GeneratorConfig
+from styleerd.model.generator import StyleERD
 from styleerd.model.fmd import MotionAutoencoder
 from styleerd.model.labeller import OnlineLabeller
+from styleerd.model.stored import DEFAULT_MODEL, FMD, LABELLER, MODELS_DIR, RECOGNISERS, GeneratorWeights, load_arrays, loaded  # noqa: F401 (re-exported)
 from styleerd.motion.skeleton import Skeleton
-
-MODELS_DIR = Path(__file__).resolve().parents[2] / "models"
-DEFAULT_MODEL = "styleerd-bandai2"
-RECOGNISERS = "recognisers-bandai2"
-LABELLER = "labeller-bandai2"
-FMD = "fmd-bandai2"
 
 
 def save_tensors(stem: Path, tensors: dict[str, torch.Tensor], meta: dict, sidecar: bool = True) -> None:
@@ -41,32 +36,13 @@ def save_tensors(stem: Path, tensors: dict[str, torch.Tensor], meta: dict, sidec
 
 
 def load_tensors(stem: Path) -> tuple[dict[str, torch.Tensor], dict]:
-    path = Path(stem).with_suffix(".safetensors")
-    try:
-        with safe_open(path, framework="pt") as f:
-            text = (f.metadata() or {}).get("styleerd")
-            tensors = {k: f.get_tensor(k) for k in f.keys()}
-    except (OSError, SafetensorError) as e:  # missing, a folder, truncated, not a safetensors file
-        raise StyleERDError(f"cannot load model {path}: {getattr(e, 'strerror', None) or e}") from None
-    if text is None:
-        raise StyleERDError(f"cannot load model {path}: no styleerd configuration in its header (not saved by styleerd)")
-    try:
-        meta = json.loads(text)
-    except ValueError as e:
-        raise StyleERDError(f"cannot load model {path}: its configuration is not JSON ({e})") from None
-    return tensors, meta
+    arrays, meta = load_arrays(stem)
+    return {k: torch.from_numpy(v) for k, v in arrays.items()}, meta
 
 
-def _loaded(stem: str | Path | None, default: str, build):
-    """``build(tensors, meta)`` of the model at ``stem``; a configuration or weights that do
-    not fit each other is one clear error, not a traceback."""
-    path = Path(stem) if stem else MODELS_DIR / default
-    tensors, meta = load_tensors(path)
-    try:
-        return build(tensors, meta), meta
-    except (KeyError, TypeError, ValueError, AttributeError, RuntimeError) as e:
-        problem = f"missing {e}" if isinstance(e, KeyError) else str(e).splitlines()[0]
-        raise StyleERDError(f"cannot load model {path.with_suffix('.safetensors')}: its configuration or weights are incomplete ({problem})") from None
+def _loaded(name: str | Path | None, default: str, build):
+    """``loaded`` (model.stored) with the weights as torch tensors."""
+    return loaded(name, default, lambda arrays, meta: build({k: torch.from_numpy(v) for k, v in arrays.items()}, meta))
 
 
 def prefixed(prefix: str, module: nn.Module) -> dict[str, torch.Tensor]:
@@ -83,6 +59,13 @@ def generator_meta(model: StyleERD, skeleton: Skeleton, stats: FeatureStats, **e
 
 def build_generator(meta: dict) -> StyleERD:
     return StyleERD(GeneratorConfig.from_dict(meta["config"]), Skeleton.from_dict(meta["skeleton"]), FeatureStats.from_dict(meta["stats"]))
+
+
+def torch_generator(weights: GeneratorWeights) -> StyleERD:
+    """The torch module of generator weights read without torch (``model.stored``)."""
+    model = StyleERD(weights.config, weights.skeleton, weights.stats())
+    model.load_state_dict({k: torch.from_numpy(v) for k, v in weights.arrays.items()})
+    return model.eval()
 
 
 def load_generator(stem: str | Path | None = None) -> tuple[StyleERD, dict]:

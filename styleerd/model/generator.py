@@ -14,46 +14,15 @@ explicit recurrent state, and the two agree exactly.
 
 from __future__ import annotations
 
-from dataclasses import asdict, dataclass, field
+from dataclasses import dataclass, field
 
 import torch
 from torch import nn
 
 from styleerd.data.features import FeatureLayout, FeatureStats
+from styleerd.model.config import GeneratorConfig
 from styleerd.model import torch_quat
 from styleerd.motion.skeleton import Skeleton
-
-
-@dataclass
-class GeneratorConfig:
-    n_joints: int
-    styles: tuple[str, ...]
-    contents: tuple[str, ...]
-    neutral_style: str = "normal"
-    encoder: tuple[int, ...] = (64, 32)
-    hidden: int = 32
-    neutral_layers: int = 6
-    style_layers: int = 4
-    decoder: tuple[int, ...] = (58, 86, 128)
-    learned_init: bool = True  # False: the "zero initial states" ablation
-
-    @property
-    def feature_dim(self) -> int:
-        return FeatureLayout(self.n_joints).dim
-
-    @property
-    def neutral_index(self) -> int:
-        return self.styles.index(self.neutral_style)
-
-    def to_dict(self) -> dict:
-        return asdict(self)
-
-    @classmethod
-    def from_dict(cls, d: dict) -> "GeneratorConfig":
-        d = dict(d)
-        for key in ("styles", "contents", "encoder", "decoder"):
-            d[key] = tuple(d[key])
-        return cls(**d)
 
 
 def mlp(sizes: list[int], last_activation: bool = False) -> nn.Sequential:
@@ -87,7 +56,7 @@ class StyleERD(nn.Module):
         self.layout = FeatureLayout(J)
         self.encoder = mlp([D + nS + nC, *c.encoder])
         self.neutral = nn.LSTM(H, H, c.neutral_layers, batch_first=True)
-        self.branch_styles = [s for s in range(nS) if s != c.neutral_index]
+        self.branch_styles = c.branch_styles
         self.branches = nn.ModuleList(nn.LSTM(H, H, c.style_layers, batch_first=True) for _ in self.branch_styles)
         init = nn.Parameter if c.learned_init else (lambda t: nn.Parameter(t, requires_grad=False))
         self.neutral_h0 = init(torch.zeros(nC, c.neutral_layers, H))

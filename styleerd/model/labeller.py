@@ -8,7 +8,6 @@ learned initial states and the encoder accept probabilities as well as one-hot l
 
 from __future__ import annotations
 
-import numpy as np
 import torch
 from torch import nn
 
@@ -29,14 +28,3 @@ class OnlineLabeller(nn.Module):
 
     def config(self) -> dict:
         return {"in_dim": self.in_dim, "n_styles": self.n_styles, "n_contents": self.n_contents, "hidden": self.hidden}
-
-
-def toward_neutral(p_style: np.ndarray, neutral: int, unsure: float = 0.5, sure: float = 0.9) -> np.ndarray:
-    """Style posteriors ``[N, nS]`` the labeller is unsure of, leaning to the neutral style:
-    a top probability at ``unsure`` or below becomes the neutral label, one at ``sure`` or above
-    is kept, linearly between. Telling the encoder "neutral" when in doubt costs little (the
-    target branch still adds the style); a wrong confident style gets it subtracted."""
-    keep = np.clip((p_style.max(-1, keepdims=True) - unsure) / (sure - unsure), 0.0, 1.0)
-    out = keep * p_style
-    out[..., neutral] += 1.0 - keep[..., 0]
-    return out.astype(p_style.dtype)

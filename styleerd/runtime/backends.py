@@ -1,4 +1,4 @@
-"""Backends for the network's per-frame step: ``torch`` (the reference: ``StyleERD.step``),
+"""Backends for the network's per-frame step: ``torch`` (the reference: ``StyleERD.step``; needs torch),
 ``numpy`` (the same arithmetic fused by hand: ``runtime.numpy_step``), ``numba`` (that
 arithmetic compiled: ``runtime.compiled``, the fastest at batch 1) and ``onnx`` (onnxruntime on
 the exported step graph of ``runtime.onnx_export``).
@@ -12,29 +12,38 @@ streams that give its style a non-zero weight.
 from __future__ import annotations
 
 import numpy as np
-import torch
 
 from styleerd.errors import StyleERDError
-from styleerd.model.generator import RecurrentState, StyleERD
+from styleerd.model.stored import GeneratorWeights, generator_weights
 from styleerd.runtime.numpy_step import NumpyBackend, step_weights
 
 BACKENDS = ("torch", "numpy", "numba", "onnx")
 
 
 class TorchBackend:
-    def __init__(self, model: StyleERD, n_streams: int):
-        self.model, self.n = model.eval(), n_streams
-        self.state: RecurrentState | None = None
+    """Needs torch (``styleerd[train]``): the reference the other backends are tested against."""
+
+    def __init__(self, model: GeneratorWeights, n_streams: int):
+        from styleerd.model.checkpoint import torch_generator  # torch: only when asked for
+
+        self.model, self.n = torch_generator(model), n_streams
+        self.state = None
         self.first = np.ones(n_streams, dtype=bool)
 
     def reset(self, streams: np.ndarray | None = None) -> None:
         self.first[slice(None) if streams is None else streams] = True
 
-    @torch.no_grad()
     def step(self, x: np.ndarray, style: np.ndarray, content: np.ndarray, target: np.ndarray, rows: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+        import torch
+
         if rows is not None:
             raise StyleERDError("the torch backend (the reference) steps all its streams at once; use numpy or onnx to step some")
-        x, style, content, target = (torch.as_tensor(np.asarray(a), dtype=torch.float32) for a in (x, style, content, target))
+        with torch.no_grad():
+            return self._step(*(torch.as_tensor(np.asarray(a), dtype=torch.float32) for a in (x, style, content, target)))
+
+    def _step(self, x, style, content, target) -> tuple[np.ndarray, np.ndarray]:
+        import torch
+
         if self.first.all():
             self.state = None
         elif self.first.any():  # restart some streams: their rows go back to the initial states
@@ -51,7 +60,7 @@ class TorchBackend:
 
 
 class OnnxBackend:
-    def __init__(self, model: StyleERD, n_streams: int, threads: int = 1):
+    def __init__(self, model: GeneratorWeights, n_streams: int, threads: int = 1):
         import onnxruntime as ort
 
         from styleerd.runtime.onnx_export import step_graph
@@ -87,9 +96,10 @@ class OnnxBackend:
         return rot, vel
 
 
-def make_backend(name: str, model: StyleERD, n_streams: int):
+def make_backend(name: str, model: GeneratorWeights, n_streams: int):
     if name not in BACKENDS:
         raise StyleERDError(f"unknown backend {name!r}; valid: {', '.join(BACKENDS)}")
+    model = generator_weights(model)
     if name == "numba":
         from styleerd.runtime.compiled import CompiledBackend  # imports numba: only when asked for
 

@@ -7,8 +7,7 @@ from __future__ import annotations
 import numpy as np
 
 from styleerd.errors import StyleERDError
-from styleerd.model.generator import StyleERD
-from styleerd.model.labeller import OnlineLabeller
+from styleerd.model.stored import GeneratorWeights, LabellerWeights
 from styleerd.motion import bvh
 from styleerd.motion.motion import Motion
 from styleerd.motion.retarget import to_source, to_target
@@ -21,7 +20,7 @@ from styleerd.runtime.stylizer import StreamStylizer
 class ChannelStylizer:
     def __init__(
         self,
-        model: StyleERD,
+        model: GeneratorWeights,
         skeleton: Skeleton,
         target: dict[str, float],
         input_style: str | None = None,
@@ -31,7 +30,7 @@ class ChannelStylizer:
         explicit_map: dict[str, str] | None = None,
         cleanup: bool = True,
         backend: str = "numpy",
-        labeller: OnlineLabeller | None = None,
+        labeller: LabellerWeights | None = None,
         first_pose: np.ndarray | None = None,
     ):
         self.map = map_skeleton(skeleton, model, explicit_map, first_pose=first_pose)

@@ -15,7 +15,7 @@ import numba as nb
 import numpy as np
 from numba.typed import List
 
-from styleerd.model.generator import StyleERD
+from styleerd.model.stored import GeneratorWeights
 from styleerd.runtime.numpy_step import NumpyBackend, _numpy_step
 
 COMPILED_UP_TO = 32  # streams per step (measured, 1 thread: 32 streams 178 us compiled, 187 us numpy + compiled cell; 48: 258 vs 247)
@@ -127,7 +127,7 @@ class CompiledBackend(NumpyBackend):
     """The ``numba`` backend: NumpyBackend's state, stepped by the compiled kernel for a few
     streams and by numpy's arithmetic for more."""
 
-    def __init__(self, model: StyleERD, n_streams: int):
+    def __init__(self, model: GeneratorWeights, n_streams: int):
         super().__init__(model, n_streams)
         w = self.w
         f32 = lambda a: np.ascontiguousarray(a, dtype=np.float32)  # noqa: E731

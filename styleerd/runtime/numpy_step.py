@@ -9,7 +9,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from styleerd.model.generator import StyleERD
+from styleerd.model.stored import GeneratorWeights, LabellerWeights, generator_weights, labeller_weights
 
 
 @dataclass
@@ -27,8 +27,10 @@ class StepWeights:
     hidden: int
 
 
-def step_weights(model: StyleERD) -> StepWeights:
-    sd = {k: v.detach().float().numpy() for k, v in model.state_dict().items()}
+def step_weights(model) -> StepWeights:
+    """The step's layout of a generator (``GeneratorWeights`` or a torch ``StyleERD``)."""
+    model = generator_weights(model)
+    sd = model.arrays
 
     def linear(prefix: str, count: int) -> list[tuple[np.ndarray, np.ndarray]]:
         return [(sd[f"{prefix}.{2 * i}.weight"].T.copy(), sd[f"{prefix}.{2 * i}.bias"]) for i in range(count)]
@@ -84,7 +86,7 @@ def _rotations(y: np.ndarray, n_joints: int) -> tuple[np.ndarray, np.ndarray]:
 
 
 class NumpyBackend:
-    def __init__(self, model: StyleERD, n_streams: int):
+    def __init__(self, model: GeneratorWeights, n_streams: int):
         self.w, self.n = step_weights(model), n_streams
         w, H = self.w, self.w.hidden
         self.h = np.zeros((len(w.neutral), n_streams, H), np.float32)
@@ -149,13 +151,14 @@ class NumpyLabeller:
     """The OnlineLabeller's step in numpy (torch's GRU gate order r, z, n), one state row per
     stream; returns style and content probabilities after each frame."""
 
-    def __init__(self, labeller, n_streams: int):
-        sd = {k: v.detach().float().numpy() for k, v in labeller.state_dict().items()}
+    def __init__(self, labeller: LabellerWeights, n_streams: int):
+        labeller = labeller_weights(labeller)
+        sd = labeller.arrays
         self.w_in, self.b_in = sd["inp.0.weight"].T.copy(), sd["inp.0.bias"]
         self.w_ih, self.b_ih = sd["gru.weight_ih_l0"].T.copy(), sd["gru.bias_ih_l0"]
         self.w_hh, self.b_hh = sd["gru.weight_hh_l0"].T.copy(), sd["gru.bias_hh_l0"]
         self.heads = [(sd["style.weight"].T.copy(), sd["style.bias"]), (sd["content.weight"].T.copy(), sd["content.bias"])]
-        self.h = np.zeros((n_streams, labeller.hidden), np.float32)
+        self.h = np.zeros((n_streams, labeller.config["hidden"]), np.float32)
 
     def reset(self, streams: np.ndarray | None = None) -> None:
         self.h[slice(None) if streams is None else streams] = 0.0

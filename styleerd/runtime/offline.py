@@ -10,7 +10,7 @@ from pathlib import Path
 import numpy as np
 
 from styleerd.errors import StyleERDError
-from styleerd.model.generator import StyleERD
+from styleerd.model.stored import GeneratorWeights
 from styleerd.atomic import atomic_write, check_output
 from styleerd.motion import bvh, quat
 from styleerd.motion.gltf import read_gltf, write_glb, write_gltf_animation
@@ -21,7 +21,7 @@ from styleerd.runtime.cleanup import FootLock
 from styleerd.runtime.stylizer import StreamStylizer
 
 
-def stylise_motion(model: StyleERD, motion: Motion, input_style: str | None, content: str | None, target: dict[str, float], backend: str = "numpy") -> Motion:
+def stylise_motion(model: GeneratorWeights, motion: Motion, input_style: str | None, content: str | None, target: dict[str, float], backend: str = "numpy") -> Motion:
     """The motion in the target style(s): joint rotations from the network, root trajectory
     (position and facing) and joint translations from the input. Labels left None are
     inferred online."""
@@ -36,7 +36,7 @@ def run_stream(stylizer: StreamStylizer, motion: Motion) -> Motion:
     return Motion(motion.skeleton, out, motion.positions.copy(), motion.fps)
 
 
-def map_skeleton(skeleton: Skeleton, model: StyleERD, explicit: dict[str, str] | None = None, where: str = "input", first_pose: np.ndarray | None = None) -> JointMap:
+def map_skeleton(skeleton: Skeleton, model: GeneratorWeights, explicit: dict[str, str] | None = None, where: str = "input", first_pose: np.ndarray | None = None) -> JointMap:
     """The mapping of a skeleton onto the model's, or a clear error naming what is missing.
     The model's bone frames come from its average pose; the input's from its rest pose when
     that is a T- or A-pose, else from ``first_pose`` (local rotations of its first frame)."""
@@ -56,7 +56,7 @@ class TransferReport:
 def _stylised_stream(
     header: bvh.Header,
     chunks: Iterator[np.ndarray],
-    model: StyleERD,
+    model: GeneratorWeights,
     fps: float,
     input_style: str | None,
     content: str | None,
@@ -85,7 +85,7 @@ def _stylised_stream(
 
 def transfer_motion(
     motion: Motion,
-    model: StyleERD,
+    model: GeneratorWeights,
     fps: float,
     input_style: str | None,
     content: str | None,
@@ -111,7 +111,7 @@ def transfer_motion(
 def transfer_file(
     source: str | Path,
     output: str | Path,
-    model: StyleERD,
+    model: GeneratorWeights,
     fps: float,
     input_style: str | None,
     content: str | None,
@@ -168,7 +168,7 @@ def _inferred_labels(stylizer: StreamStylizer, report: Callable[[str], None] | N
 GLTF_INPUTS = (".glb", ".gltf", ".vrm")
 
 
-def _transfer_gltf(source: Path, output: Path, model: StyleERD, fps: float, input_style, content, target, explicit_map, report, cleanup, backend) -> TransferReport:
+def _transfer_gltf(source: Path, output: Path, model: GeneratorWeights, fps: float, input_style, content, target, explicit_map, report, cleanup, backend) -> TransferReport:
     """A glTF/GLB/VRM character in: its first skin's skeleton and its animation, VRM humanoid
     bones named for the mapping; out as the same file with the animation replaced (.glb,
     .vrm) or as a BVH of its skeleton."""

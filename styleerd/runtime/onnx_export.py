@@ -22,7 +22,7 @@ import onnx
 from onnx import TensorProto, helper, numpy_helper
 
 from styleerd.atomic import atomic_write, atomic_write_text
-from styleerd.model.generator import StyleERD
+from styleerd.model.stored import GeneratorWeights
 from styleerd.runtime.numpy_step import step_weights
 
 OPSET = 17
@@ -73,7 +73,7 @@ def _lstm_stack(g: _Graph, x: str, h: str, c: str, layers, keep: str | None) -> 
     return x, g.op("Concat", *hs, axis=0), g.op("Concat", *cs, axis=0)
 
 
-def step_graph(model: StyleERD) -> onnx.ModelProto:
+def step_graph(model: GeneratorWeights) -> onnx.ModelProto:
     w = step_weights(model)
     c = model.config
     D, nS, nC, H, J = c.feature_dim, len(c.styles), len(c.contents), c.hidden, c.n_joints
@@ -145,7 +145,7 @@ def step_graph(model: StyleERD) -> onnx.ModelProto:
     return proto
 
 
-def export(model: StyleERD, meta: dict, path: str | Path) -> None:
+def export(model: GeneratorWeights, meta: dict, path: str | Path) -> None:
     """Write the step graph to ``path`` (.onnx) and beside it a JSON file with what a runtime
     needs around it: label orders, the skeleton, and the feature normalisation."""
     path = Path(path)

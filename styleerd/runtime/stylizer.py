@@ -26,9 +26,7 @@ import numpy as np
 
 from styleerd.data.features import stream_features
 from styleerd.errors import StyleERDError
-from styleerd.model.checkpoint import load_labeller
-from styleerd.model.generator import StyleERD
-from styleerd.model.labeller import OnlineLabeller, toward_neutral
+from styleerd.model.stored import GeneratorWeights, LabellerWeights, generator_weights, labeller_weights, load_labeller_weights, toward_neutral
 from styleerd.motion import quat
 from styleerd.motion.skeleton import BodyRoles
 from styleerd.runtime.backends import make_backend
@@ -53,7 +51,7 @@ def label_vector(names: tuple[str, ...], weights: dict[str, float], what: str) -
     return v
 
 
-def target_weights(model: StyleERD, style: str | None = None, intensity: float = 1.0, mix: dict[str, float] | None = None, max_intensity: float = 2.0) -> dict[str, float]:
+def target_weights(model: GeneratorWeights, style: str | None = None, intensity: float = 1.0, mix: dict[str, float] | None = None, max_intensity: float = 2.0) -> dict[str, float]:
     """Target weights from a style, or a mixture of styles (weights normalised to sum 1), at an
     intensity (the rest goes to neutral; 0 = neutral, 1 = full style, above 1 exaggerates up to
     ``max_intensity``)."""
@@ -116,18 +114,18 @@ class StreamStylizer:
 
     def __init__(
         self,
-        model: StyleERD,
+        model: GeneratorWeights,
         input_style: str | list[str | None] | None,
         content: str | list[str | None] | None,
         target: dict[str, float] | list[dict[str, float]],
         n_streams: int = 1,
         fps: float = 30.0,
         blend_frames: int = 8,
-        labeller: OnlineLabeller | None = None,
+        labeller: LabellerWeights | None = None,
         backend: str = "numpy",
         threads: int = 1,
     ):
-        self.model = model.eval()
+        self.model = model = generator_weights(model)  # a torch StyleERD is read as its arrays
         self.backend = make_backend(backend, model, n_streams)
         # steps of many streams split into this many shards on a thread pool (numpy and numba:
         # their kernels and BLAS calls release the GIL; torch and onnx have their own threads)
@@ -145,7 +143,7 @@ class StreamStylizer:
         self.given_style, self.given_content = np.zeros((n_streams, S), np.float32), np.zeros((n_streams, C), np.float32)
         self.known_style, self.known_content = np.zeros(n_streams, bool), np.zeros(n_streams, bool)
         self.labeller: NumpyLabeller | None = None
-        self.labeller_model = labeller
+        self.labeller_model = None if labeller is None else labeller_weights(labeller)
         self.blend = _Blend(np.zeros((n_streams, S)), np.zeros((n_streams, S)), np.full(n_streams, self.blend_frames))
         self.previous = np.zeros((n_streams, self.skeleton.n_joints, 3))  # global joint positions of the last frame
         self.facing = np.zeros((n_streams, 3))  # facing direction of the last frame
@@ -169,8 +167,8 @@ class StreamStylizer:
         self.blend.start[rows] = self.blend.end[rows] = w
         self.blend.frame[rows] = self.blend_frames
         if self.labeller is None and not (self.known_style[rows].all() and self.known_content[rows].all()):
-            labeller = self.labeller_model or load_labeller()[0]
-            if (labeller.n_styles, labeller.n_contents, labeller.in_dim) != (len(c.styles), len(c.contents), c.feature_dim):
+            labeller = self.labeller_model or load_labeller_weights()
+            if (labeller.config["n_styles"], labeller.config["n_contents"], labeller.config["in_dim"]) != (len(c.styles), len(c.contents), c.feature_dim):
                 raise StyleERDError("the labeller does not fit this model's labels: give --input-style and --content")
             self.labeller = NumpyLabeller(labeller, self.n)
 

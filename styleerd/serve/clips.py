@@ -9,7 +9,7 @@ from urllib.parse import unquote
 from styleerd.data.datasets import data_root, find_clips
 from styleerd.data.windows import split_takes
 from styleerd.errors import StyleERDError
-from styleerd.model.generator import StyleERD
+from styleerd.model.stored import GeneratorWeights
 from styleerd.motion import bvh
 from styleerd.motion.procedural import walk
 
@@ -17,7 +17,7 @@ REAL_CONTENTS = ("walk", "run", "wave-both-hands", "raise-up-both-hands", "walk-
 
 
 class DemoClips:
-    def __init__(self, model: StyleERD, data: str | None = None):
+    def __init__(self, model: GeneratorWeights, data: str | None = None):
         self.paths = {}
         try:
             clips = find_clips(data_root(data), "bandai-namco-2")

@@ -78,11 +78,11 @@ def _rss_mb(pid: int) -> float:
 def expected_output(motion: Motion, frames: int, fps: float = 30.0, style: str = "elderly") -> np.ndarray:
     """What a well-behaved client of the load test should get back: its looped clip stylised
     locally, one stream, from float32 values as they go over the wire."""
-    from styleerd.model.checkpoint import load_generator
+    from styleerd.model.stored import load_generator_weights
     from styleerd.runtime.channels import ChannelStylizer
 
     values = bvh.channel_values(motion).astype("<f4").astype(np.float64)
-    local = ChannelStylizer(load_generator()[0], motion.skeleton, {style: 1.0}, fps=fps)
+    local = ChannelStylizer(load_generator_weights(), motion.skeleton, {style: 1.0}, fps=fps)
     return np.stack([local.step(values[i % len(values)])[0] for i in tqdm(range(frames), desc="local reference", unit="frame", leave=False)])
 
 

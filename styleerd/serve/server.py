@@ -44,8 +44,7 @@ from websockets.exceptions import ConnectionClosed
 from websockets.http11 import Request, Response
 
 from styleerd.errors import StyleERDError
-from styleerd.model.checkpoint import load_generator
-from styleerd.model.generator import StyleERD
+from styleerd.model.stored import GeneratorWeights, load_generator_weights
 from styleerd.motion import bvh, quat
 from styleerd.motion.kinematics import bone_fronts, forward_kinematics
 from styleerd.motion.skeleton import Skeleton
@@ -123,7 +122,7 @@ class Pool:
     """The streams of one skeleton, frame rate and cleanup setting: a slot each in one
     ChannelStylizer, stepped together."""
 
-    def __init__(self, model: StyleERD, skeleton: Skeleton, fps: float, cleanup: bool, capacity: int, backend: str, key: tuple):
+    def __init__(self, model: GeneratorWeights, skeleton: Skeleton, fps: float, cleanup: bool, capacity: int, backend: str, key: tuple):
         neutral = model.config.neutral_style
         self.stylizer = ChannelStylizer(model, skeleton, {neutral: 1.0}, neutral, model.config.contents[0], fps, capacity, cleanup=cleanup, backend=backend)
         self.skeleton = skeleton
@@ -168,9 +167,9 @@ def _number(msg: dict, key: str, default: float, low: float, high: float) -> flo
 
 
 class StyleServer:
-    def __init__(self, config: ServeConfig, model: StyleERD | None = None):
+    def __init__(self, config: ServeConfig, model: GeneratorWeights | None = None):
         self.config = config
-        self.model = model or load_generator()[0]
+        self.model = model or load_generator_weights()
         self.clips = DemoClips(self.model, config.data)
         self.pools: dict[tuple, Pool] = {}
         self.streams: dict[int, Stream] = {}

@@ -29,8 +29,7 @@ from pythonosc.osc_message_builder import OscMessageBuilder
 from pythonosc.osc_packet import OscPacket, ParseError
 
 from styleerd.errors import StyleERDError
-from styleerd.model.checkpoint import load_generator
-from styleerd.model.generator import StyleERD
+from styleerd.model.stored import GeneratorWeights, load_generator_weights
 from styleerd.motion import quat
 from styleerd.motion.motion import Motion
 from styleerd.motion.skeleton import POSITION_CHANNELS, Skeleton
@@ -105,7 +104,7 @@ def humanoid_skeleton(bones: dict[str, np.ndarray]) -> Skeleton:
 class VMCBridge:
     """Datagrams in, datagrams out (no sockets here: ``run_bridge`` owns them)."""
 
-    def __init__(self, model: StyleERD, target: dict[str, float], fps: float = 30.0, cleanup: bool = True, report=print):
+    def __init__(self, model: GeneratorWeights, target: dict[str, float], fps: float = 30.0, cleanup: bool = True, report=print):
         self.model, self.target, self.fps, self.cleanup, self.report = model, target, fps, cleanup, report
         self.stylizer: ChannelStylizer | None = None
         self.skeleton: Skeleton | None = None
@@ -184,7 +183,7 @@ def _message(address: str, params: list):
 
 def run_bridge(listen: int, send: int, style: str | None, intensity: float, mix: dict[str, float] | None, host: str = "127.0.0.1", fps: float = 30.0) -> None:
     """``styleerd vmc``: receive on ``host:listen``, send the stylised stream to ``host:send``."""
-    model, _ = load_generator()
+    model = load_generator_weights()
     target = target_weights(model, style, intensity, mix)
     bridge = VMCBridge(model, target, fps, report=lambda text: print(text, flush=True))
     rx = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)

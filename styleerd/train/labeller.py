@@ -25,7 +25,8 @@ from styleerd.data.cache import FeatureSet
 from styleerd.data.features import features_to_motion, motion_features
 from styleerd.data.windows import window_starts
 from styleerd.model import checkpoint as ckpt
-from styleerd.model.labeller import OnlineLabeller, toward_neutral
+from styleerd.model.labeller import OnlineLabeller
+from styleerd.model.stored import toward_neutral
 from styleerd.train.batches import TrainingData, windows
 from styleerd.train.config import TrainConfig
 from styleerd.train.trainer import setup

@@ -1,0 +1,177 @@
+"""Models on disk, read without torch: what inference (transfer, serve, vmc, export) needs.
+
+A model is ``NAME.safetensors`` (weights, with its configuration in the header) + ``NAME.json``
+(the same configuration, readable). The shipped models are package data (``styleerd/models``,
+found through ``importlib.resources``); a model is named by path, or by name in a folder of
+``$STYLEERD_MODELS`` (``os.pathsep``-separated) or among the shipped ones.
+
+The weights come back as float32 numpy arrays under torch's state-dict names, so the torch
+modules (``model.checkpoint``, for training and evaluation) and the numpy runtime read the
+same files.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+from dataclasses import dataclass, field
+from importlib import resources
+from pathlib import Path
+
+import numpy as np
+from safetensors import SafetensorError, safe_open
+
+from styleerd.data.features import FeatureStats
+from styleerd.errors import StyleERDError
+from styleerd.model.config import GeneratorConfig
+from styleerd.motion.skeleton import Skeleton
+
+MODELS_DIR = Path(os.fspath(resources.files("styleerd") / "models"))  # the shipped models
+DEFAULT_MODEL = "styleerd-bandai2"
+RECOGNISERS = "recognisers-bandai2"
+LABELLER = "labeller-bandai2"
+FMD = "fmd-bandai2"
+LICENCE = "CC BY-NC 4.0 (trained on Bandai-Namco-Research-Motiondataset, CC BY-NC 4.0): non-commercial use"
+
+
+def model_folders() -> list[Path]:
+    """Where models are looked up by name: ``$STYLEERD_MODELS``'s folders, then the shipped ones."""
+    user = [Path(p).expanduser() for p in os.environ.get("STYLEERD_MODELS", "").split(os.pathsep) if p]
+    return [*user, MODELS_DIR]
+
+
+def model_stem(name: str | Path | None, default: str = DEFAULT_MODEL) -> Path:
+    """The path (without suffix) of the model ``name``: a path to a model (with or without
+    ``.safetensors``), or a bare name found in ``model_folders()``. A name found nowhere comes
+    back as given, so that loading it names the missing file."""
+    name = Path(name) if name else Path(default)
+    stem = name.with_suffix("") if name.suffix in (".safetensors", ".json") else name
+    if stem.with_suffix(".safetensors").exists() or len(stem.parts) > 1:
+        return stem
+    for folder in model_folders():
+        if (folder / stem).with_suffix(".safetensors").exists():
+            return folder / stem
+    return stem
+
+
+def load_arrays(stem: str | Path) -> tuple[dict[str, np.ndarray], dict]:
+    """(weights as numpy arrays, configuration) of the model file at ``stem``; anything wrong
+    with the file is one ``StyleERDError`` naming it."""
+    path = Path(stem).with_suffix(".safetensors")
+    try:
+        with safe_open(path, framework="numpy") as f:
+            text = (f.metadata() or {}).get("styleerd")
+            arrays = {k: f.get_tensor(k) for k in f.keys()}
+    except (OSError, SafetensorError) as e:  # missing, a folder, truncated, not a safetensors file
+        raise StyleERDError(f"cannot load model {path}: {getattr(e, 'strerror', None) or e}") from None
+    if text is None:
+        raise StyleERDError(f"cannot load model {path}: no styleerd configuration in its header (not saved by styleerd)")
+    try:
+        meta = json.loads(text)
+    except ValueError as e:
+        raise StyleERDError(f"cannot load model {path}: its configuration is not JSON ({e})") from None
+    return arrays, meta
+
+
+def loaded(name: str | Path | None, default: str, build):
+    """``(build(arrays, meta), meta)`` of the model ``name``; a configuration and weights that
+    do not fit each other is one clear error, not a traceback."""
+    path = model_stem(name, default)
+    arrays, meta = load_arrays(path)
+    try:
+        return build(arrays, meta), meta
+    except (KeyError, TypeError, ValueError, AttributeError, RuntimeError) as e:
+        problem = f"missing {e}" if isinstance(e, KeyError) else str(e).splitlines()[0]
+        raise StyleERDError(f"cannot load model {path.with_suffix('.safetensors')}: its configuration or weights are incomplete ({problem})") from None
+
+
+@dataclass
+class GeneratorWeights:
+    """The generator as inference needs it: configuration, skeleton, feature normalisation and
+    parameters (float32 arrays under torch's state-dict names). Duck-types the torch
+    ``StyleERD`` where the runtime reads it (``config``, ``skeleton``, ``stats()``,
+    ``branch_styles``)."""
+
+    config: GeneratorConfig
+    skeleton: Skeleton
+    feature_stats: FeatureStats
+    arrays: dict[str, np.ndarray]
+    meta: dict = field(default_factory=dict)
+
+    @property
+    def branch_styles(self) -> list[int]:
+        return self.config.branch_styles
+
+    def stats(self) -> FeatureStats:
+        return self.feature_stats
+
+
+def generator_weights(model) -> GeneratorWeights:
+    """``model`` as ``GeneratorWeights``: itself, or the arrays of a torch ``StyleERD``."""
+    if isinstance(model, GeneratorWeights):
+        return model
+    arrays = {k: v.detach().float().cpu().numpy() for k, v in model.state_dict().items()}
+    return GeneratorWeights(model.config, model.skeleton, model.stats(), arrays)
+
+
+def _generator(arrays: dict[str, np.ndarray], meta: dict) -> GeneratorWeights:
+    config = GeneratorConfig.from_dict(meta["config"])
+    skeleton, stats = Skeleton.from_dict(meta["skeleton"]), FeatureStats.from_dict(meta["stats"])
+    weights = {k[len("generator.") :]: v for k, v in arrays.items() if k.startswith("generator.")}
+    H, nS, nC, J = config.hidden, len(config.styles), len(config.contents), config.n_joints
+    expected = {  # the shapes the runtime relies on: a file that disagrees is refused here, not mid-stream
+        "encoder.0.weight": (config.encoder[0], config.feature_dim + nS + nC),
+        "neutral_h0": (nC, config.neutral_layers, H),
+        "branch_h0": (len(config.branch_styles), config.style_layers, H),
+        f"decoder.{2 * len(config.decoder)}.weight": (7 * J, config.decoder[-1]),
+    }
+    for key, shape in expected.items():
+        if weights[key].shape != shape:
+            raise ValueError(f"{key} has shape {weights[key].shape}, the configuration says {shape}")
+    if skeleton.n_joints != J:
+        raise ValueError(f"the skeleton has {skeleton.n_joints} joints, the configuration says {J}")
+    return GeneratorWeights(config, skeleton, stats, weights, meta)
+
+
+def load_generator_weights(name: str | Path | None = None) -> GeneratorWeights:
+    """The generator ``name`` (default: the shipped model) as numpy arrays, without torch."""
+    return loaded(name, DEFAULT_MODEL, _generator)[0]
+
+
+@dataclass
+class LabellerWeights:
+    """The online labeller as inference needs it: its configuration (in_dim, n_styles,
+    n_contents, hidden) and its parameters as float32 arrays."""
+
+    config: dict
+    arrays: dict[str, np.ndarray]
+
+
+def labeller_weights(labeller) -> LabellerWeights:
+    """``labeller`` as ``LabellerWeights``: itself, or the arrays of a torch ``OnlineLabeller``."""
+    if isinstance(labeller, LabellerWeights):
+        return labeller
+    return LabellerWeights(labeller.config(), {k: v.detach().float().cpu().numpy() for k, v in labeller.state_dict().items()})
+
+
+def load_labeller_weights(name: str | Path | None = None) -> LabellerWeights:
+    """The online style/content labeller ``name`` (default: the shipped one), without torch."""
+    def build(arrays, meta):
+        config = {k: int(meta["config"][k]) for k in ("in_dim", "n_styles", "n_contents", "hidden")}
+        weights = {k[len("labeller.") :]: v for k, v in arrays.items() if k.startswith("labeller.")}
+        if weights["inp.0.weight"].shape != (config["hidden"], config["in_dim"]):
+            raise ValueError(f"inp.0.weight has shape {weights['inp.0.weight'].shape}, the configuration says {(config['hidden'], config['in_dim'])}")
+        return LabellerWeights(config, weights)
+
+    return loaded(name, LABELLER, build)[0]
+
+
+def toward_neutral(p_style: np.ndarray, neutral: int, unsure: float = 0.5, sure: float = 0.9) -> np.ndarray:
+    """Style posteriors ``[N, nS]`` the labeller is unsure of, leaning to the neutral style:
+    a top probability at ``unsure`` or below becomes the neutral label, one at ``sure`` or above
+    is kept, linearly between. Telling the encoder "neutral" when in doubt costs little (the
+    target branch still adds the style); a wrong confident style gets it subtracted."""
+    keep = np.clip((p_style.max(-1, keepdims=True) - unsure) / (sure - unsure), 0.0, 1.0)
+    out = keep * p_style
+    out[..., neutral] += 1.0 - keep[..., 0]
+    return out.astype(p_style.dtype)
