@@ -124,13 +124,15 @@ def _export_onnx(args: argparse.Namespace) -> None:
 
 
 def _styles(args: argparse.Namespace) -> None:
-    from styleerd.model.stored import load_generator_weights
+    from styleerd.model.stored import LICENCE, load_generator_weights, model_stem
 
     model = load_generator_weights(args.model)
     meta = model.meta
+    print(f"model:    {model_stem(args.model).with_suffix('.safetensors')}")
     print(f"styles:   {', '.join(model.config.styles)} (neutral: {model.config.neutral_style})")
     print(f"contents: {', '.join(model.config.contents)}")
     print(f"skeleton: {model.skeleton.n_joints} joints, trained at {meta['data']['fps']:g} fps on {meta['data']['dataset']}")
+    print(f"licence:  {meta.get('licence', LICENCE)}")
 
 
 def _evaluate(args: argparse.Namespace) -> None:

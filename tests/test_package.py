@@ -1,0 +1,119 @@
+"""styleerd as users install it: a wheel built from this checkout, installed into a fresh
+virtualenv outside it without torch, runs transfer, export and the server (viewer page and its
+vendored three.js answer); the README's Python API example runs as written."""
+
+from __future__ import annotations
+
+import json
+import os
+import re
+import socket
+import subprocess
+import sys
+import time
+import urllib.request
+import zipfile
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from styleerd.motion import bvh, procedural
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def readme_example() -> str:
+    """The first ```python block of the README's "Python API" section."""
+    section = ROOT.joinpath("README.md").read_text().split("\n## Python API\n", 1)[1]
+    return re.search(r"```python\n(.*?)```", section, re.S).group(1)
+
+
+def test_readme_python_example_runs_as_written(tmp_path):
+    (tmp_path / "example.py").write_text(readme_example())
+    env = {**os.environ, "PYTHONPATH": str(ROOT)}
+    done = subprocess.run([sys.executable, "example.py"], cwd=tmp_path, env=env, capture_output=True, text=True, timeout=600)
+    assert done.returncode == 0, done.stderr
+    assert "no torch needed" in done.stdout
+    out = bvh.read(tmp_path / "walk-elderly.bvh")
+    source = bvh.read(tmp_path / "walk.bvh")
+    assert out.n_frames == source.n_frames and out.skeleton.names == source.skeleton.names
+    assert np.degrees(np.abs(out.rotations - source.rotations)).max() > 1.0  # stylised, not copied
+
+
+def _free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def _run(args: list, **kw) -> subprocess.CompletedProcess:
+    done = subprocess.run([str(a) for a in args], capture_output=True, text=True, timeout=900, **kw)
+    assert done.returncode == 0, f"{args}: {done.stdout[-2000:]}\n{done.stderr[-4000:]}"
+    return done
+
+
+@pytest.fixture(scope="module")
+def wheel(tmp_path_factory) -> Path:
+    out = tmp_path_factory.mktemp("wheel")
+    _run([sys.executable, "-m", "pip", "wheel", "--quiet", "--no-deps", "-w", out, ROOT])
+    (path,) = out.glob("styleerd-*.whl")
+    return path
+
+
+def test_the_wheel_carries_the_models_and_the_viewer(wheel):
+    names = set(zipfile.ZipFile(wheel).namelist())
+    for stem in ("styleerd-bandai2", "labeller-bandai2", "recognisers-bandai2", "fmd-bandai2"):
+        assert {f"styleerd/models/{stem}.safetensors", f"styleerd/models/{stem}.json"} <= names
+    assert {"styleerd/serve/static/index.html", "styleerd/serve/static/vendor/three.module.js", "styleerd/serve/static/vendor/three.core.js"} <= names
+    assert not any(n.startswith(("tests/", "models/ablations", "benchmarks/")) for n in names)
+    metadata = next(zipfile.ZipFile(wheel).read(n).decode() for n in names if n.endswith("METADATA"))
+    requires = [line for line in metadata.splitlines() if line.startswith("Requires-Dist:") and "extra ==" not in line]
+    assert requires and not any("torch" in line or "matplotlib" in line for line in requires)
+
+
+@pytest.fixture(scope="module")
+def light_install(wheel, tmp_path_factory) -> Path:
+    """A fresh virtualenv outside the checkout with the wheel and its light dependencies."""
+    venv = tmp_path_factory.mktemp("light") / "venv"
+    _run([sys.executable, "-m", "venv", venv])
+    _run([venv / "bin/python", "-m", "pip", "install", "--quiet", wheel])
+    return venv
+
+
+def test_light_install_runs_transfer_export_and_api_without_torch(light_install, tmp_path):
+    python, cli = light_install / "bin/python", light_install / "bin/styleerd"
+    bvh.write(tmp_path / "walk.bvh", procedural.walk(seconds=3.0))
+    env = {k: v for k, v in os.environ.items() if k != "PYTHONPATH"}
+    missing = subprocess.run([python, "-c", "import torch"], capture_output=True, cwd=tmp_path, env=env)
+    assert missing.returncode != 0  # torch is not part of the light install
+    styles = _run([cli, "styles"], cwd=tmp_path, env=env).stdout
+    assert "elderly" in styles and "CC BY-NC 4.0" in styles
+    _run([cli, "transfer", "walk.bvh", "--style", "elderly", "-o", "out.bvh"], cwd=tmp_path, env=env)
+    assert bvh.read(tmp_path / "out.bvh").n_frames == bvh.read(tmp_path / "walk.bvh").n_frames
+    _run([cli, "export-onnx", "-o", "step.onnx"], cwd=tmp_path, env=env)
+    assert json.loads((tmp_path / "step.json").read_text())["styles"]
+    api = "import styleerd, sys; m = styleerd.load(); print(styleerd.transfer('walk.bvh', 'feminine').n_frames, 'torch' in sys.modules, styleerd.__file__)"
+    frames, torch_loaded, where = _run([python, "-c", api], cwd=tmp_path, env=env).stdout.split()
+    assert frames == str(bvh.read(tmp_path / "walk.bvh").n_frames) and torch_loaded == "False"
+    assert Path(where).is_relative_to(light_install) and not Path(where).is_relative_to(ROOT)
+
+
+def test_light_install_serves_the_viewer(light_install, tmp_path):
+    port = _free_port()
+    env = {k: v for k, v in os.environ.items() if k != "PYTHONPATH"}
+    server = subprocess.Popen([light_install / "bin/styleerd", "serve", "--port", str(port)], cwd=tmp_path, env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT)
+    try:
+        deadline, page = time.monotonic() + 120, None
+        while page is None:
+            try:
+                page = urllib.request.urlopen(f"http://127.0.0.1:{port}/", timeout=5).read().decode()
+            except OSError:
+                assert server.poll() is None and time.monotonic() < deadline, server.stdout.read().decode() if server.poll() is not None else "no answer"
+                time.sleep(0.5)
+        assert "<canvas" in page or "viewer.js" in page
+        three = urllib.request.urlopen(f"http://127.0.0.1:{port}/static/vendor/three.module.js", timeout=5).read()
+        assert len(three) > 100_000
+    finally:
+        server.terminate()
+        server.wait(30)
