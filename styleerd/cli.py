@@ -87,19 +87,29 @@ def _parse_mix(text: str) -> dict[str, float]:
 
 def _transfer(args: argparse.Namespace) -> None:
     from styleerd.model.stored import load_generator_weights
-    from styleerd.runtime.offline import transfer_file
+    from styleerd.runtime.batch import TransferOptions, batch_pairs, transfer_batch, transfer_one
     from styleerd.runtime.stylizer import target_weights
 
     model = load_generator_weights(args.model)
-    meta = model.meta
     c = model.config
     for value, names, what in ((args.input_style, c.styles, "--input-style"), (args.content, c.contents, "--content")):
         if value is not None and value not in names:
             raise StyleERDError(f"{what} {value!r} is not one of: {', '.join(names)}")
     target = target_weights(model, args.style, args.intensity, _parse_mix(args.mix) if args.mix else None)
     explicit = _read_joint_map(args.joint_map) if args.joint_map else None
-    done = transfer_file(args.input, args.output, model, meta["data"]["fps"], args.input_style, args.content, target, explicit, report=print, cleanup=not args.no_cleanup, backend=args.backend, mesh=args.mesh)
-    print(f"wrote {args.output}: {done.frames} frames at {done.fps:.6g} fps, target {target}")
+    options = TransferOptions(target, args.input_style, args.content, explicit, not args.no_cleanup, args.backend, args.mesh)
+    out = Path(args.output)
+    if len(args.input) == 1 and not Path(args.input[0]).is_dir() and not out.is_dir() and not args.output.endswith(os.sep):
+        done = transfer_one(Path(args.input[0]), out, model, options, report=print)
+        print(f"wrote {args.output}: {done.frames} frames at {done.fps:.6g} fps, target {target}")
+        return
+    if out.exists() and not out.is_dir():
+        raise StyleERDError(f"-o {out}: several inputs need a folder to write into")
+    pairs = batch_pairs(args.input, out, f".{args.to}" if args.to else None)
+    failed = transfer_batch(pairs, args.model, options, args.jobs)
+    print(f"wrote {len(pairs) - len(failed)} of {len(pairs)} files to {out}/, target {target}")
+    if failed:
+        raise StyleERDError(f"{len(failed)} of {len(pairs)} files skipped: " + "; ".join(f"{src.name}: {why}" for src, why in failed[:3]) + (" ..." if len(failed) > 3 else ""))
 
 
 def _read_joint_map(path: str) -> dict[str, str]:
@@ -336,7 +346,7 @@ def build_parser() -> argparse.ArgumentParser:
         p.set_defaults(func=_train_helper)
 
     p = sub.add_parser("transfer", help="stylise a BVH or a glTF/VRM character's animation (any humanoid skeleton)")
-    p.add_argument("input", help="IN.bvh, or IN.glb / .gltf / .vrm (its first skin and animation; written back as the same file)")
+    p.add_argument("input", nargs="+", help="IN.bvh, IN.glb / .gltf / .vrm (its first skin and animation; written back as the same file) or IN.fbx (through Blender: styleerd[blender]); several files or folders with -o DIR")
     p.add_argument("--style", help="target style")
     p.add_argument("--intensity", type=float, default=1.0, help="0 = neutral, 1 = full style, up to 2")
     p.add_argument("--mix", help="a mixture instead of --style, e.g. elderly=0.5,feminine=0.5 (scaled by --intensity)")
@@ -346,7 +356,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--no-cleanup", action="store_true", help="leave the feet as the network outputs them (default: pin planted feet)")
     p.add_argument("--joint-map", help="JSON object {model joint: input joint} completing or overriding the automatic mapping")
     p.add_argument("--model", help="model path without suffix (default: the shipped model)")
-    p.add_argument("-o", "--output", required=True, help="OUT.bvh (the input's skeleton and channel layout), OUT.glb, or from a glTF input OUT.glb/.vrm (the input file, animation replaced)")
+    p.add_argument("-o", "--output", required=True, help="OUT.bvh (the input's skeleton and channel layout), OUT.glb, OUT.fbx, or from a glTF input OUT.glb/.vrm (the input file, animation replaced); a folder for several inputs")
+    p.add_argument("--jobs", type=_whole(1), help="with several inputs: worker processes (default: one per core)")
+    p.add_argument("--to", choices=["bvh", "glb", "fbx"], help="with several inputs: the outputs' kind (default: each input's own)")
     p.add_argument("--mesh", action="store_true", help=".glb: add a simple skinned body (a prism per bone, its front marked) so the file shows in any viewer")
     p.set_defaults(func=_transfer)
 
