@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import os
+import subprocess
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -13,6 +15,23 @@ from styleerd.motion.motion import Motion
 from styleerd.motion.skeleton import Skeleton
 
 SHARED_DATA = Path(__file__).resolve().parents[1] / ".." / "shared" / "data"
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def run_checked(args: list, **kw) -> subprocess.CompletedProcess:
+    """A command that must succeed; its output tail is the failure message."""
+    done = subprocess.run([str(a) for a in args], capture_output=True, text=True, timeout=900, **kw)
+    assert done.returncode == 0, f"{args}: {done.stdout[-2000:]}\n{done.stderr[-4000:]}"
+    return done
+
+
+@pytest.fixture(scope="session")
+def wheel(tmp_path_factory) -> Path:
+    """The wheel built from this checkout (models and the vendored viewer inside)."""
+    out = tmp_path_factory.mktemp("wheel")
+    run_checked([sys.executable, "-m", "pip", "wheel", "--quiet", "--no-deps", "-w", out, ROOT])
+    (path,) = out.glob("styleerd-*.whl")
+    return path
 
 
 @pytest.fixture(scope="session")

@@ -19,6 +19,7 @@ import numpy as np
 import pytest
 
 from styleerd.motion import bvh, procedural
+from conftest import run_checked as _run
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -45,20 +46,6 @@ def _free_port() -> int:
     with socket.socket() as s:
         s.bind(("127.0.0.1", 0))
         return s.getsockname()[1]
-
-
-def _run(args: list, **kw) -> subprocess.CompletedProcess:
-    done = subprocess.run([str(a) for a in args], capture_output=True, text=True, timeout=900, **kw)
-    assert done.returncode == 0, f"{args}: {done.stdout[-2000:]}\n{done.stderr[-4000:]}"
-    return done
-
-
-@pytest.fixture(scope="module")
-def wheel(tmp_path_factory) -> Path:
-    out = tmp_path_factory.mktemp("wheel")
-    _run([sys.executable, "-m", "pip", "wheel", "--quiet", "--no-deps", "-w", out, ROOT])
-    (path,) = out.glob("styleerd-*.whl")
-    return path
 
 
 def test_the_wheel_carries_the_models_and_the_viewer(wheel):

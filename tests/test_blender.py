@@ -1,0 +1,98 @@
+"""FBX and Blender, as an animator meets them: ``pip install styleerd[blender]`` (Blender's own
+``bpy`` module) into a fresh virtualenv, a Mixamo-named character made in Blender (bones rolled
+their own ways, a skinned body) exported as FBX, stylised to FBX by the command line and by the
+add-on's operator, re-imported in Blender and compared, bone by bone and frame by frame, with a
+BVH run of the same motion (tests/blender_checks.py does the Blender side)."""
+
+from __future__ import annotations
+
+import importlib.util
+import json
+import os
+import platform
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from conftest import run_checked
+from styleerd.motion import bvh
+
+CHECKS = Path(__file__).with_name("blender_checks.py")
+# mathutils computes in float32: two equal rotations measure up to ~0.03 deg apart
+TOLERANCE_DEG = 0.1
+
+
+@pytest.fixture(scope="module")
+def blender_venv(wheel, tmp_path_factory) -> Path:
+    if sys.version_info[:2] != (3, 11) or platform.machine() not in ("x86_64", "AMD64", "arm64"):
+        pytest.skip(f"bpy 4.2-5.0 is built for Python 3.11 on x86_64 / Apple arm64 only, not Python {sys.version_info[0]}.{sys.version_info[1]} on {platform.machine()}")
+    venv = tmp_path_factory.mktemp("blender") / "venv"
+    run_checked([sys.executable, "-m", "venv", venv])
+    run_checked([venv / "bin/python", "-m", "pip", "install", "--quiet", f"{wheel}[blender]"])  # bpy from PyPI (about 360 MB)
+    return venv
+
+
+def _blender(venv: Path, what: str, work: Path) -> dict:
+    env = {k: v for k, v in os.environ.items() if k != "PYTHONPATH"}
+    out = run_checked([venv / "bin/python", CHECKS, what, work], cwd=work, env=env).stdout
+    return json.loads(next(line for line in out.splitlines() if line.startswith("RESULT "))[7:])
+
+
+@pytest.fixture(scope="module")
+def character(blender_venv, tmp_path_factory) -> Path:
+    work = tmp_path_factory.mktemp("character")
+    made = _blender(blender_venv, "make", work)
+    assert made["keyed_error_deg"] < TOLERANCE_DEG  # the character moves as walk.bvh does
+    cli = blender_venv / "bin/styleerd"
+    run_checked([cli, "transfer", "walk.bvh", "--style", "elderly", "-o", "ref.bvh"], cwd=work)
+    return work
+
+
+def test_fbx_to_fbx_matches_the_bvh_run_and_keeps_the_character(blender_venv, character):
+    done = run_checked([blender_venv / "bin/styleerd", "transfer", "walk.fbx", "--style", "elderly", "-o", "out.fbx"], cwd=character)
+    assert "wrote out.fbx: 120 frames" in done.stdout
+    result = _blender(blender_venv, "compare", character)
+    assert result["bones"] == result["source_bones"] and len(result["bones"]) == 22
+    assert result["frames"] == bvh.read(character / "walk.bvh").n_frames
+    assert result["meshes"] == result["source_meshes"] == ["Body"]  # the skinned body comes through
+    assert result["stylised_change_deg"] > 10.0  # the output is stylised, not the input
+    assert result["max_error_deg"] < TOLERANCE_DEG, result
+
+
+def test_fbx_to_bvh_and_glb_and_bvh_to_fbx(blender_venv, character):
+    cli = blender_venv / "bin/styleerd"
+    run_checked([cli, "transfer", "walk.fbx", "--style", "elderly", "-o", "from-fbx.bvh"], cwd=character)
+    ref, out = bvh.read(character / "ref.bvh"), bvh.read(character / "from-fbx.bvh")
+    assert out.n_frames == ref.n_frames and out.fps == pytest.approx(ref.fps)
+    assert [n.removeprefix("mixamorig:") for n in out.skeleton.names] == list(ref.skeleton.names)
+    run_checked([cli, "transfer", "walk.fbx", "--style", "elderly", "-o", "from-fbx.glb"], cwd=character)
+    assert (character / "from-fbx.glb").read_bytes()[:4] == b"glTF"
+    run_checked([cli, "transfer", "walk.bvh", "--style", "elderly", "-o", "from-bvh.fbx"], cwd=character)
+    assert (character / "from-bvh.fbx").read_bytes()[:18] == b"Kaydara FBX Binary"
+
+
+def test_addon_writes_a_new_action_matching_the_bvh_run(blender_venv, character):
+    result = _blender(blender_venv, "addon", character)
+    assert result["status"] == ["FINISHED"]
+    assert result["action"] == f"{result['original']}-elderly" and sorted([result["original"], result["action"]]) == result["actions"]
+    assert result["original_kept"]
+    assert result["frames"] == 120 and result["max_error_deg"] < TOLERANCE_DEG, result
+
+
+def test_fbx_errors_are_one_line(blender_venv, tmp_path):
+    (tmp_path / "junk.fbx").write_bytes(b"Kaydara FBX Binary  \x00" + bytes(64))
+    for args, message in ((["junk.fbx", "-o", "x.fbx"], "junk.fbx"), (["junk.fbx", "-o", "x.vrm"], "must be .fbx, .bvh or .glb")):
+        done = subprocess.run([blender_venv / "bin/styleerd", "transfer", *args, "--style", "elderly"], cwd=tmp_path, capture_output=True, text=True, timeout=300)
+        assert done.returncode == 2 and message in done.stderr and "Traceback" not in done.stderr, done.stderr
+        assert not list(tmp_path.glob("x.*"))
+
+
+def test_fbx_without_blender_says_how_to_get_it(tmp_path):
+    (tmp_path / "a.fbx").write_bytes(b"x")
+    done = subprocess.run([sys.executable, "-m", "styleerd.cli", "transfer", "a.fbx", "--style", "elderly", "-o", "b.bvh"], cwd=tmp_path, capture_output=True, text=True, timeout=300)
+    if importlib.util.find_spec("bpy") is not None:
+        pytest.skip("bpy is installed in this environment: the message for its absence cannot show")
+    assert done.returncode == 2 and "styleerd[blender]" in done.stderr and "Traceback" not in done.stderr, done.stderr
+    assert not list(tmp_path.glob("b.*"))
