@@ -308,11 +308,34 @@ class _Parser(argparse.ArgumentParser):
         self.exit(2, f"{self.prog}: error: {message} (see '{self.prog} -h')\n")
 
 
-def build_parser() -> argparse.ArgumentParser:
-    parser = _Parser(prog="styleerd", description="Online motion style transfer (Style-ERD).")
-    sub = parser.add_subparsers(dest="command", required=True)
+GROUPS = {
+    "use": ("transfer", "styles", "info", "resample", "export-onnx", "demo"),
+    "live": ("serve", "stream-bvh", "vmc", "load-test"),
+    "train (styleerd[train])": ("data", "train", "train-labeller", "train-recognisers", "train-fmd"),
+    "evaluate (styleerd[train])": ("evaluate", "eval", "eval-runtime", "bench", "report", "filmstrip"),
+}
 
-    data = sub.add_parser("data", help="datasets").add_subparsers(dest="data_command", required=True)
+
+def _grouped(helps: dict[str, str]) -> str:
+    lines = []
+    for group, names in GROUPS.items():
+        lines.append(f"{group}:")
+        lines += [f"  {name:<18} {helps[name]}" for name in names]
+    return "\n".join(lines) + "\n\n'styleerd COMMAND -h' for a command's options."
+
+
+def build_parser() -> argparse.ArgumentParser:
+    from styleerd.model.stored import LICENCE, shipped_styles
+
+    parser = _Parser(prog="styleerd", description="Online motion style transfer (Style-ERD), frame by frame, on a CPU.", formatter_class=argparse.RawDescriptionHelpFormatter)
+    sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND", help="one of the commands below")
+    helps: dict[str, str] = {}
+
+    def command(name: str, text: str) -> argparse.ArgumentParser:
+        helps[name] = text
+        return sub.add_parser(name, description=text)
+
+    data = command("data", "datasets").add_subparsers(dest="data_command", required=True)
     p = data.add_parser("prepare", help="unpack, parse and cache features; print clips and frames per style x content")
     p.add_argument("--data", help="data folder (default: $STYLEERD_DATA, else ../shared/data)")
     p.add_argument("--cache", help="cache folder (default: $STYLEERD_CACHE, else ~/.cache/styleerd)")
@@ -321,33 +344,33 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--workers", type=_whole(1), help="processes (default: one per core)")
     p.set_defaults(func=_data_prepare)
 
-    p = sub.add_parser("info", help="describe a BVH file")
+    p = command("info", "describe a BVH file")
     p.add_argument("file")
     p.set_defaults(func=_info)
 
-    p = sub.add_parser("resample", help="change a BVH file's frame rate")
+    p = command("resample", "change a BVH file's frame rate")
     p.add_argument("input")
     p.add_argument("--fps", type=float, required=True)
     p.add_argument("-o", "--output", required=True)
     p.set_defaults(func=_resample)
 
-    p = sub.add_parser("train", help="train a Style-ERD model (resumable: rerun the same command)")
+    p = command("train", "train a Style-ERD model (resumable: rerun the same command)")
     p.add_argument("--config", required=True, help="YAML file of TrainConfig fields (see configs/)")
     p.add_argument("--out", help="run folder (default runs/<name>)")
     p.add_argument("--data", help="data folder")
     p.add_argument("--export", help="also write the best generator to this model path (no suffix)")
     p.set_defaults(func=_train)
 
-    for command, (text, default, _) in HELPER_MODELS.items():
-        p = sub.add_parser(command, help=text)
+    for name, (text, default, _) in HELPER_MODELS.items():
+        p = command(name, text)
         p.add_argument("--config", help="YAML TrainConfig (dataset, seed, threads, window, classifier_* fields)")
         p.add_argument("--out", help=f"model path without suffix (default models/{default})")
         p.add_argument("--data", help="data folder")
         p.set_defaults(func=_train_helper)
 
-    p = sub.add_parser("transfer", help="stylise a BVH or a glTF/VRM character's animation (any humanoid skeleton)")
+    p = command("transfer", "stylise BVH, glTF/VRM or FBX motion on any humanoid skeleton; several files or folders at once")
     p.add_argument("input", nargs="+", help="IN.bvh, IN.glb / .gltf / .vrm (its first skin and animation; written back as the same file) or IN.fbx (through Blender: styleerd[blender]); several files or folders with -o DIR")
-    p.add_argument("--style", help="target style")
+    p.add_argument("--style", help=f"target style; the shipped model's: {', '.join(shipped_styles())} ('styleerd styles --model M' for another)")
     p.add_argument("--intensity", type=float, default=1.0, help="0 = neutral, 1 = full style, up to 2")
     p.add_argument("--mix", help="a mixture instead of --style, e.g. elderly=0.5,feminine=0.5 (scaled by --intensity)")
     p.add_argument("--input-style", help="the input's style (default: inferred online from the frames)")
@@ -355,41 +378,41 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--backend", default="numpy", choices=["torch", "numpy", "numba", "onnx"], help="network step backend (default numpy; torch is the reference; numba is the fastest)")
     p.add_argument("--no-cleanup", action="store_true", help="leave the feet as the network outputs them (default: pin planted feet)")
     p.add_argument("--joint-map", help="JSON object {model joint: input joint} completing or overriding the automatic mapping")
-    p.add_argument("--model", help="model path without suffix (default: the shipped model)")
+    p.add_argument("--model", help="a model file, or a model name in $STYLEERD_MODELS or among the shipped ones (default: styleerd-bandai2)")
     p.add_argument("-o", "--output", required=True, help="OUT.bvh (the input's skeleton and channel layout), OUT.glb, OUT.fbx, or from a glTF input OUT.glb/.vrm (the input file, animation replaced); a folder for several inputs")
     p.add_argument("--jobs", type=_whole(1), help="with several inputs: worker processes (default: one per core)")
     p.add_argument("--to", choices=["bvh", "glb", "fbx"], help="with several inputs: the outputs' kind (default: each input's own)")
     p.add_argument("--mesh", action="store_true", help=".glb: add a simple skinned body (a prism per bone, its front marked) so the file shows in any viewer")
     p.set_defaults(func=_transfer)
 
-    p = sub.add_parser("export-onnx", help="the network step as a plain ONNX graph (opset 17) with explicit state")
-    p.add_argument("--model", help="model path without suffix (default: the shipped model)")
+    p = command("export-onnx", "the network step as a plain ONNX graph (opset 17) with explicit state")
+    p.add_argument("--model", help="a model file, or a model name in $STYLEERD_MODELS or among the shipped ones (default: styleerd-bandai2)")
     p.add_argument("-o", "--output", default="stylizer.onnx")
     p.set_defaults(func=_export_onnx)
 
-    p = sub.add_parser("styles", help="styles and contents of the model")
-    p.add_argument("--model", help="model path without suffix (default: the shipped model)")
+    p = command("styles", "styles and contents of the model")
+    p.add_argument("--model", help="a model file, or a model name in $STYLEERD_MODELS or among the shipped ones (default: styleerd-bandai2)")
     p.set_defaults(func=_styles)
 
-    p = sub.add_parser("evaluate", help="SRA, CRA and reconstruction error of a model on real test windows")
-    p.add_argument("--model", help="model path without suffix (default: the shipped model)")
+    p = command("evaluate", "SRA, CRA and reconstruction error of a model on real test windows")
+    p.add_argument("--model", help="a model file, or a model name in $STYLEERD_MODELS or among the shipped ones (default: styleerd-bandai2)")
     p.add_argument("--split", default="test", choices=["train", "val", "test"])
     p.add_argument("--recognisers", help="recognisers path without suffix (default: the shipped ones)")
     p.add_argument("--data", help="data folder")
     p.set_defaults(func=_evaluate)
 
-    p = sub.add_parser("eval-runtime", help="label inference accuracy, foot skate before/after cleanup, pop at a style switch (test split)")
-    p.add_argument("--model", help="model path without suffix (default: the shipped model)")
+    p = command("eval-runtime", "label inference accuracy, foot skate before/after cleanup, pop at a style switch (test split)")
+    p.add_argument("--model", help="a model file, or a model name in $STYLEERD_MODELS or among the shipped ones (default: styleerd-bandai2)")
     p.add_argument("--data", help="data folder")
     p.set_defaults(func=_eval_runtime)
 
-    ev = sub.add_parser("eval", help="quality figures: FMD, SRA, CRA, responsiveness, ablations").add_subparsers(dest="eval_command", required=True)
+    ev = command("eval", "quality figures: FMD, SRA, CRA, responsiveness, ablations").add_subparsers(dest="eval_command", required=True)
     p = ev.add_parser("quality", help="FMD (and its floor), SRA, CRA, responsiveness, jitter, reconstruction of one model")
-    p.add_argument("--model", help="model path without suffix (default: the shipped model)")
+    p.add_argument("--model", help="a model file, or a model name in $STYLEERD_MODELS or among the shipped ones (default: styleerd-bandai2)")
     p.add_argument("--data", help="data folder")
     p.set_defaults(func=_eval_quality)
     p = ev.add_parser("rotations", help="joint rotations on other skeletons, swing and twist: round trip at intensity 0, and the change a style makes")
-    p.add_argument("--model", help="model path without suffix (default: the shipped model)")
+    p.add_argument("--model", help="a model file, or a model name in $STYLEERD_MODELS or among the shipped ones (default: styleerd-bandai2)")
     p.add_argument("--style", default="elderly", help="the style whose change is measured (default elderly)")
     p.add_argument("--out", default="docs/rotations.md", help="Markdown table (a .json beside it); empty: print only")
     p.add_argument("--data", help="data folder")
@@ -403,29 +426,29 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--data", help="data folder")
     p.set_defaults(func=_eval_ablations)
 
-    p = sub.add_parser("bench", help="runtime table: latency per backend, whole clips, throughput curve, FLOPs, memory")
-    p.add_argument("--model", help="model path without suffix (default: the shipped model)")
+    p = command("bench", "runtime table: latency per backend, whole clips, throughput curve, FLOPs, memory")
+    p.add_argument("--model", help="a model file, or a model name in $STYLEERD_MODELS or among the shipped ones (default: styleerd-bandai2)")
     p.add_argument("--steps", type=_whole(1), default=2000, help="frames timed per latency figure")
     p.add_argument("--streams", type=_whole(1), nargs="+", help="concurrent streams of the throughput curve (default 1 .. 4096)")
     p.add_argument("--json", default="docs/bench.json")
     p.add_argument("--plot", default="docs/throughput.png")
     p.set_defaults(func=_bench)
 
-    p = sub.add_parser("report", help="regenerate docs/RESULTS.md: quality, ablations, runtime, online figures, pictures")
+    p = command("report", "regenerate docs/RESULTS.md: quality, ablations, runtime, online figures, pictures")
     p.add_argument("--docs", default="docs")
     p.add_argument("--steps", type=_whole(1), default=2000, help="frames timed per latency figure")
     p.add_argument("--data", help="data folder")
     p.set_defaults(func=_report)
 
-    p = sub.add_parser("filmstrip", help="picture: a neutral test clip and its transfer into every style")
-    p.add_argument("--model", help="model path without suffix (default: the shipped model)")
+    p = command("filmstrip", "picture: a neutral test clip and its transfer into every style")
+    p.add_argument("--model", help="a model file, or a model name in $STYLEERD_MODELS or among the shipped ones (default: styleerd-bandai2)")
     p.add_argument("--clip", help="Bandai-Namco-2 clip name (default: the first neutral test clip of --content)")
     p.add_argument("--content", default="walk")
     p.add_argument("--data", help="data folder")
     p.add_argument("-o", "--output", default="docs/filmstrip-bandai2.png")
     p.set_defaults(func=_filmstrip)
 
-    p = sub.add_parser("serve", help="the real-time style server (WebSocket, docs/PROTOCOL.md) and its browser viewer")
+    p = command("serve", "the real-time style server (WebSocket, docs/PROTOCOL.md) and its browser viewer")
     p.add_argument("--host", default="127.0.0.1", help="address to bind (default loopback only)")
     p.add_argument("--port", type=_port, default=8765)
     p.add_argument("--workers", type=_whole(1), default=1, help="processes sharing the port (SO_REUSEPORT), e.g. one per core")
@@ -441,7 +464,7 @@ def build_parser() -> argparse.ArgumentParser:
                    help="a host name the server answers to (default: its address, and localhost names on loopback)")
     p.set_defaults(func=_serve)
 
-    p = sub.add_parser("stream-bvh", help="play a BVH to a style server in real time, as a mocap source")
+    p = command("stream-bvh", "play a BVH to a style server in real time, as a mocap source")
     p.add_argument("input")
     p.add_argument("--to", default="ws://127.0.0.1:8765/", help="server URL")
     p.add_argument("--style")
@@ -453,7 +476,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("-o", "--output", help="write the stylised stream as BVH")
     p.set_defaults(func=_stream_bvh)
 
-    p = sub.add_parser("load-test", help="N real-time stream-bvh clients against a fresh server: latency, drops, CPU (with --faulty: a soak test)")
+    p = command("load-test", "N real-time stream-bvh clients against a fresh server: latency, drops, CPU (with --faulty: a soak test)")
     p.add_argument("--clients", type=_whole(1), default=200)
     p.add_argument("--seconds", type=_positive, default=60.0)
     p.add_argument("--workers", type=_whole(1), default=1, help="server workers")
@@ -461,7 +484,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("-o", "--output", help="write the figures as JSON")
     p.set_defaults(func=_load_test)
 
-    p = sub.add_parser("vmc", help="VMC protocol bridge: receive bones over OSC/UDP, stylise, send them on")
+    p = command("vmc", "VMC protocol bridge: receive bones over OSC/UDP, stylise, send them on")
     p.add_argument("--listen", type=_port, default=39539, help="UDP port to receive VMC on")
     p.add_argument("--send", type=_port, default=39540, help="UDP port to send the stylised VMC to")
     p.add_argument("--host", default="127.0.0.1", help="host to send to (and to listen on)")
@@ -471,10 +494,11 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--fps", type=_positive, default=30.0, help="the sender's frame rate (velocities are per second)")
     p.set_defaults(func=_vmc)
 
-    p = sub.add_parser("demo", help="the main job on a bundled input: every style, BVH files + an HTML page to watch them")
+    p = command("demo", "the main job on a bundled input: every style, BVH files + an HTML page to watch them")
     p.add_argument("--out", default="out/demo", help="output folder (default out/demo)")
     p.add_argument("--data", help="data folder (optional: adds a real test clip)")
     p.set_defaults(func=_demo)
+    parser.epilog = _grouped(helps) + f"\nShipped models: {LICENCE}."
     return parser
 
 

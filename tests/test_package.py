@@ -4,6 +4,7 @@ vendored three.js answer); the README's Python API example runs as written."""
 
 from __future__ import annotations
 
+import argparse
 import json
 import os
 import re
@@ -104,3 +105,34 @@ def test_light_install_serves_the_viewer(light_install, tmp_path):
     finally:
         server.terminate()
         server.wait(30)
+
+
+def test_help_groups_every_command_and_transfer_help_lists_the_styles():
+    from styleerd.cli import GROUPS, build_parser
+    from styleerd.model.stored import load_generator_weights
+
+    parser = build_parser()
+    commands = set(next(a for a in parser._actions if isinstance(a, argparse._SubParsersAction)).choices)
+    grouped = [name for names in GROUPS.values() for name in names]
+    assert sorted(grouped) == sorted(commands) and len(grouped) == len(set(grouped))
+    top = parser.format_help()
+    assert all(f"{group}:" in top for group in GROUPS) and "CC BY-NC 4.0" in top
+    transfer = subprocess.run([sys.executable, "-m", "styleerd.cli", "transfer", "--help"], capture_output=True, text=True, timeout=60).stdout
+    assert all(style in transfer for style in load_generator_weights().config.styles)
+
+
+def test_models_are_found_by_path_by_name_in_styleerd_models_and_shipped(tmp_path):
+    from styleerd.model.stored import MODELS_DIR
+
+    mine = tmp_path / "mine"
+    mine.mkdir()
+    for suffix in (".safetensors", ".json"):
+        (mine / f"my-model{suffix}").write_bytes((MODELS_DIR / f"styleerd-bandai2{suffix}").read_bytes())
+    env = {**os.environ, "STYLEERD_MODELS": f"{tmp_path / 'nothing-here'}{os.pathsep}{mine}"}
+    for name in ("my-model", str(mine / "my-model"), str(mine / "my-model.safetensors")):
+        done = subprocess.run([sys.executable, "-m", "styleerd.cli", "styles", "--model", name], capture_output=True, text=True, timeout=60, env=env)
+        assert done.returncode == 0 and f"model:    {mine / 'my-model.safetensors'}" in done.stdout, done.stderr
+    shipped = subprocess.run([sys.executable, "-m", "styleerd.cli", "styles"], capture_output=True, text=True, timeout=60, env=env)
+    assert f"model:    {MODELS_DIR / 'styleerd-bandai2.safetensors'}" in shipped.stdout
+    missing = subprocess.run([sys.executable, "-m", "styleerd.cli", "styles", "--model", "nope"], capture_output=True, text=True, timeout=60, env=env)
+    assert missing.returncode == 2 and "cannot load model nope.safetensors" in missing.stderr

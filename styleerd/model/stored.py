@@ -175,3 +175,11 @@ def toward_neutral(p_style: np.ndarray, neutral: int, unsure: float = 0.5, sure:
     out = keep * p_style
     out[..., neutral] += 1.0 - keep[..., 0]
     return out.astype(p_style.dtype)
+
+
+def shipped_styles() -> tuple[str, ...]:
+    """The shipped model's styles, from its readable sidecar (cheap enough for ``--help``)."""
+    try:
+        return tuple(json.loads((MODELS_DIR / f"{DEFAULT_MODEL}.json").read_text())["config"]["styles"])
+    except (OSError, ValueError, KeyError):
+        return ()
