@@ -216,9 +216,9 @@ def _filmstrip(args: argparse.Namespace) -> None:
     from styleerd.data.datasets import data_root, find_clips
     from styleerd.data.windows import split_takes
     from styleerd.eval.plots import style_filmstrip
-    from styleerd.model.checkpoint import load_generator
+    from styleerd.model.stored import load_generator_weights
 
-    model, _ = load_generator(args.model)
+    model = load_generator_weights(args.model)
     clips = find_clips(data_root(args.data), "bandai-namco-2")
     split = split_takes({c.name: (c.dataset, c.style, c.content) for c in clips})
     if args.clip:
@@ -227,7 +227,7 @@ def _filmstrip(args: argparse.Namespace) -> None:
         chosen = [c for c in clips if split[c.name] == "test" and c.style == model.config.neutral_style and c.content == args.content]
     if not chosen:
         raise StyleERDError(f"no clip {args.clip or f'(neutral {args.content} test clip)'} in bandai-namco-2")
-    style_filmstrip(model, chosen[0], args.output)
+    style_filmstrip(model, chosen[0], args.output, cards=args.cards)
     print(f"wrote {args.output} ({chosen[0].name})")
 
 
@@ -446,6 +446,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--content", default="walk")
     p.add_argument("--data", help="data folder")
     p.add_argument("-o", "--output", default="docs/filmstrip-bandai2.png")
+    p.add_argument("--cards", help="also one small picture per style in this folder (e.g. docs/styles)")
     p.set_defaults(func=_filmstrip)
 
     p = command("serve", "the real-time style server (WebSocket, docs/PROTOCOL.md) and its browser viewer")

@@ -79,6 +79,12 @@ def test_light_install_runs_transfer_export_and_api_without_torch(light_install,
     assert "elderly" in styles and "CC BY-NC 4.0" in styles
     _run([cli, "transfer", "walk.bvh", "--style", "elderly", "-o", "out.bvh"], cwd=tmp_path, env=env)
     assert bvh.read(tmp_path / "out.bvh").n_frames == bvh.read(tmp_path / "walk.bvh").n_frames
+    _run([cli, "transfer", "walk.bvh", "--style", "elderly", "--backend", "numba", "-o", "out-numba.bvh"], cwd=tmp_path, env=env)
+    a, b = bvh.read(tmp_path / "out.bvh"), bvh.read(tmp_path / "out-numba.bvh")
+    assert np.abs(a.rotations - b.rotations).max() < 1e-4  # the fast backend, the same output
+    for backend in ("torch", "onnx"):  # not in the light install: one line saying what to install
+        done = subprocess.run([cli, "transfer", "walk.bvh", "--style", "elderly", "--backend", backend, "-o", "x.bvh"], cwd=tmp_path, env=env, capture_output=True, text=True)
+        assert done.returncode == 2 and "styleerd[train]" in done.stderr and "Traceback" not in done.stderr, done.stderr
     _run([cli, "export-onnx", "-o", "step.onnx"], cwd=tmp_path, env=env)
     assert json.loads((tmp_path / "step.json").read_text())["styles"]
     api = "import styleerd, sys; m = styleerd.load(); print(styleerd.transfer('walk.bvh', 'feminine').n_frames, 'torch' in sys.modules, styleerd.__file__)"
@@ -136,3 +142,18 @@ def test_models_are_found_by_path_by_name_in_styleerd_models_and_shipped(tmp_pat
     assert f"model:    {MODELS_DIR / 'styleerd-bandai2.safetensors'}" in shipped.stdout
     missing = subprocess.run([sys.executable, "-m", "styleerd.cli", "styles", "--model", "nope"], capture_output=True, text=True, timeout=60, env=env)
     assert missing.returncode == 2 and "cannot load model nope.safetensors" in missing.stderr
+
+
+def test_the_docs_name_only_styles_the_model_has():
+    from styleerd.model.stored import load_generator_weights
+
+    styles = set(load_generator_weights().config.styles)
+    for doc in ("README.md", "docs/PROTOCOL.md"):
+        text = ROOT.joinpath(doc).read_text()
+        named = set(re.findall(r'"style": "([a-z-]+)"', text)) | set(re.findall(r"--style ([a-z-]+)", text))
+        named |= set(re.findall(r'\.(?:stylizer|transfer|set_style)\([^)]*?"([a-z-]+)"', text)) - {"walk.bvh"}
+        named |= {name for pair in re.findall(r"--mix ([a-z=0-9.,-]+)", text) for name in re.findall(r"([a-z-]+)=", pair)}
+        assert named and named <= styles, f"{doc} names styles the model does not have: {named - styles}"
+    for style in styles:
+        assert ROOT.joinpath("docs/styles", f"{style}.png").is_file() and f"docs/styles/{style}.png" in ROOT.joinpath("README.md").read_text()
+    assert "numba" in ROOT.joinpath("README.md").read_text().split("[--backend ", 1)[1].split("]", 1)[0]

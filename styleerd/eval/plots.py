@@ -12,7 +12,7 @@ import numpy as np  # noqa: E402
 
 from styleerd.atomic import atomic_write  # noqa: E402
 from styleerd.data.datasets import Clip, load_motion  # noqa: E402
-from styleerd.model.generator import StyleERD  # noqa: E402
+from styleerd.model.stored import GeneratorWeights  # noqa: E402
 from styleerd.motion import quat  # noqa: E402
 from styleerd.motion.kinematics import facing_directions, forward_kinematics, heading_rotations  # noqa: E402
 from styleerd.motion.motion import Motion  # noqa: E402
@@ -62,8 +62,9 @@ def filmstrip(rows: list[tuple[str, Motion]], path: str | Path, frames: int = 8,
     plt.close(fig)
 
 
-def style_filmstrip(model: StyleERD, clip: Clip, path: str | Path, frames: int = 8) -> None:
-    """A neutral clip and its transfer into every other style of ``model``."""
+def style_filmstrip(model: GeneratorWeights, clip: Clip, path: str | Path, frames: int = 8, cards: str | Path | None = None) -> None:
+    """A neutral clip and its transfer into every other style of ``model``; with ``cards``, also
+    one small picture per style there (``STYLE.png``, the input as ``STYLE.png`` of its own)."""
     motion = resample(load_motion(clip), 30.0)
     c = model.config
     rows = [(f"input: {clip.name} ({clip.style}, {clip.content})", motion)]
@@ -71,3 +72,7 @@ def style_filmstrip(model: StyleERD, clip: Clip, path: str | Path, frames: int =
         if style != clip.style:
             rows.append((f"-> {style}", stylise_motion(model, motion, clip.style, clip.content, {style: 1.0})))
     filmstrip(rows, path, frames, title=f"Style-ERD transfers of one test clip ({motion.n_frames} frames at 30 fps)")
+    if cards:
+        Path(cards).mkdir(parents=True, exist_ok=True)
+        for (label, moved), style in zip(rows, [clip.style] + [s for s in c.styles if s != clip.style]):
+            filmstrip([(label, moved)], Path(cards) / f"{style}.png", frames=5)

@@ -32,7 +32,7 @@ def pictures(docs: Path, data_dir: str | None) -> dict[str, str]:
     clip = _neutral_walk(data_dir, c.neutral_style)
     motion = resample(load_motion(clip), 30.0)
     out = {}
-    style_filmstrip(model, clip, docs / "filmstrip-bandai2.png")
+    style_filmstrip(model, clip, docs / "filmstrip-bandai2.png", cards=docs / "styles")
     out["every style"] = "filmstrip-bandai2.png"
     rows = [(f"elderly at intensity {a:g}", stylise_motion(model, motion, c.neutral_style, "walk", {"elderly": a, c.neutral_style: 1 - a})) for a in (0.0, 0.3, 0.6, 1.0)]
     filmstrip(rows, docs / "intensity-bandai2.png", title=f"Intensity (the paper's Fig. 5): {clip.name}")

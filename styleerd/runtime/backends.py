@@ -100,8 +100,11 @@ def make_backend(name: str, model: GeneratorWeights, n_streams: int):
     if name not in BACKENDS:
         raise StyleERDError(f"unknown backend {name!r}; valid: {', '.join(BACKENDS)}")
     model = generator_weights(model)
-    if name == "numba":
-        from styleerd.runtime.compiled import CompiledBackend  # imports numba: only when asked for
+    try:
+        if name == "numba":
+            from styleerd.runtime.compiled import CompiledBackend  # imports numba: only when asked for
 
-        return CompiledBackend(model, n_streams)
-    return {"torch": TorchBackend, "numpy": NumpyBackend, "onnx": OnnxBackend}[name](model, n_streams)
+            return CompiledBackend(model, n_streams)
+        return {"torch": TorchBackend, "numpy": NumpyBackend, "onnx": OnnxBackend}[name](model, n_streams)
+    except ImportError as e:  # the light install has numpy and numba; torch and onnxruntime come with styleerd[train]
+        raise StyleERDError(f"the {name} backend needs {e.name or e}: pip install 'styleerd[train]'") from None
