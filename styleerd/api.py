@@ -17,13 +17,14 @@ from pathlib import Path
 import numpy as np
 
 from styleerd.errors import StyleERDError
-from styleerd.model.stored import LICENCE, GeneratorWeights, load_generator_weights
+from styleerd.model.stored import GeneratorWeights, load_generator_weights
+from styleerd.models import LICENCE
 from styleerd.motion import bvh
 from styleerd.motion.gltf import read_gltf
 from styleerd.motion.motion import Motion
 from styleerd.motion.skeleton import Skeleton
 from styleerd.runtime.channels import ChannelStylizer
-from styleerd.runtime.offline import GLTF_INPUTS, transfer_file, transfer_motion
+from styleerd.runtime.offline import GLTF_INPUTS, TransferOptions, transfer_file, transfer_motion
 from styleerd.runtime.stylizer import target_weights
 
 PathLike = str | os.PathLike
@@ -131,12 +132,12 @@ class Model:
         """A whole motion (a ``Motion`` or a BVH/glTF/GLB/VRM file) in the target style, on its
         own skeleton, same frames and fps; also written to ``output`` (.bvh, .glb, .vrm) when
         given (atomically: nothing is written unless the transfer succeeded)."""
-        target = self.target(style, intensity, mix)
+        options = TransferOptions(self.target(style, intensity, mix), input_style, content, joint_map, cleanup, backend)
         if output is not None and not isinstance(source, Motion):
-            transfer_file(source, output, self.weights, self.fps, input_style, content, target, joint_map, cleanup=cleanup, backend=backend)
+            transfer_file(source, output, self.weights, self.fps, options)
             return read_motion(output)
         motion = source if isinstance(source, Motion) else read_motion(source)
-        out = transfer_motion(motion, self.weights, self.fps, input_style, content, target, joint_map, cleanup=cleanup, backend=backend)
+        out = transfer_motion(motion, self.weights, self.fps, options)
         if output is not None:
             if Path(output).suffix.lower() != ".bvh":
                 raise StyleERDError(f"{output}: a motion in memory is written as .bvh; give a file as the source for .glb or .vrm")

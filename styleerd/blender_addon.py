@@ -14,9 +14,10 @@ from functools import cache
 import bpy
 
 from styleerd.errors import StyleERDError
-from styleerd.model.stored import LICENCE, load_generator_weights
+from styleerd.model.stored import load_generator_weights
+from styleerd.models import LICENCE
 from styleerd.runtime.fbx import read_armature, write_action
-from styleerd.runtime.offline import transfer_motion
+from styleerd.runtime.offline import TransferOptions, transfer_motion
 from styleerd.runtime.stylizer import target_weights
 
 bl_info = {
@@ -86,8 +87,8 @@ class STYLEERD_OT_stylise_action(bpy.types.Operator):
             first, last = (int(round(x)) for x in source.frame_range)
             frames = range(first, last + 1)
             motion = read_armature(arm, frames, scene.render.fps / scene.render.fps_base)
-            out = transfer_motion(motion, model, model.meta["data"]["fps"], None if s.input_style == INFER else s.input_style,
-                                  None if s.content == INFER else s.content, target, cleanup=s.cleanup, where=arm.name)  # fmt: skip
+            options = TransferOptions(target, None if s.input_style == INFER else s.input_style, None if s.content == INFER else s.content, cleanup=s.cleanup)
+            out = transfer_motion(motion, model, model.meta["data"]["fps"], options, where=arm.name)
         except StyleERDError as e:
             self.report({"ERROR"}, str(e))
             return {"CANCELLED"}

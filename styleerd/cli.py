@@ -87,7 +87,8 @@ def _parse_mix(text: str) -> dict[str, float]:
 
 def _transfer(args: argparse.Namespace) -> None:
     from styleerd.model.stored import load_generator_weights
-    from styleerd.runtime.batch import TransferOptions, batch_pairs, transfer_batch, transfer_one
+    from styleerd.runtime.batch import batch_pairs, transfer_batch, transfer_one
+    from styleerd.runtime.offline import TransferOptions
     from styleerd.runtime.stylizer import target_weights
 
     model = load_generator_weights(args.model)
@@ -99,13 +100,26 @@ def _transfer(args: argparse.Namespace) -> None:
     explicit = _read_joint_map(args.joint_map) if args.joint_map else None
     options = TransferOptions(target, args.input_style, args.content, explicit, not args.no_cleanup, args.backend, args.mesh)
     out = Path(args.output)
-    if len(args.input) == 1 and not Path(args.input[0]).is_dir() and not out.is_dir() and not args.output.endswith(os.sep):
-        done = transfer_one(Path(args.input[0]), out, model, options, report=print)
-        print(f"wrote {args.output}: {done.frames} frames at {done.fps:.6g} fps, target {target}")
-        return
-    if out.exists() and not out.is_dir():
+    into_folder = len(args.input) > 1 or Path(args.input[0]).is_dir() or out.is_dir() or args.output.endswith(os.sep)
+    if not into_folder:
+        pairs = [(Path(args.input[0]), out)]
+    elif out.exists() and not out.is_dir():
         raise StyleERDError(f"-o {out}: several inputs need a folder to write into")
-    pairs = batch_pairs(args.input, out, f".{args.to}" if args.to else None)
+    else:
+        pairs = batch_pairs(args.input, out, f".{args.to}" if args.to else None)
+    if len(pairs) == 1:  # one file (into a folder or not): no pool, the mapping and labels reported
+        (source, output), made = pairs[0], None
+        if into_folder and not output.parent.exists():
+            made = output.parent
+            made.mkdir(parents=True)
+        try:
+            done = transfer_one(source, output, model, options, report=print)
+        except StyleERDError:
+            if made is not None:
+                made.rmdir()
+            raise
+        print(f"wrote {output}: {done.frames} frames at {done.fps:.6g} fps, target {target}")
+        return
     failed = transfer_batch(pairs, args.model, options, args.jobs)
     print(f"wrote {len(pairs) - len(failed)} of {len(pairs)} files to {out}/, target {target}")
     if failed:
@@ -134,7 +148,8 @@ def _export_onnx(args: argparse.Namespace) -> None:
 
 
 def _styles(args: argparse.Namespace) -> None:
-    from styleerd.model.stored import LICENCE, load_generator_weights, model_stem
+    from styleerd.model.stored import load_generator_weights, model_stem
+    from styleerd.models import LICENCE
 
     model = load_generator_weights(args.model)
     meta = model.meta
@@ -325,7 +340,7 @@ def _grouped(helps: dict[str, str]) -> str:
 
 
 def build_parser() -> argparse.ArgumentParser:
-    from styleerd.model.stored import LICENCE, shipped_styles
+    from styleerd.models import LICENCE, shipped_styles
 
     parser = _Parser(prog="styleerd", description="Online motion style transfer (Style-ERD), frame by frame, on a CPU.", formatter_class=argparse.RawDescriptionHelpFormatter)
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND", help="one of the commands below")

@@ -46,7 +46,7 @@ def test_mirror_reflects_every_joint_onto_its_counterpart(model_walk):
 def test_proportions_speed_and_joint_offsets(model_walk):
     g, m = model_walk
     longer = with_proportions(m, 1.1, 1.0, 1.0)
-    knee, hip = body_parts(m.skeleton)["left_knee"], body_parts(m.skeleton)["left_hip"]
+    knee = body_parts(m.skeleton)["left_knee"]
     assert np.isclose(np.linalg.norm(longer.skeleton.offsets[knee]), 1.1 * np.linalg.norm(m.skeleton.offsets[knee]))
     assert np.allclose(longer.rotations, m.rotations)
     assert with_speed(m, 1.25).n_frames == pytest.approx(m.n_frames / 1.25, abs=1)

@@ -61,3 +61,14 @@ def test_batch_to_another_kind(tmp_path):
     done = _cli("transfer", "in", "--style", "feminine", "--to", "glb", "-o", "out", cwd=tmp_path)
     assert done.returncode == 0, done.stderr
     assert sorted(p.name for p in Path(tmp_path / "out").iterdir()) == ["a.glb", "b.glb"]
+
+
+def test_one_file_into_a_folder_takes_its_name_and_reports_like_a_single_transfer(tmp_path):
+    bvh.write(tmp_path / "walk.bvh", procedural.walk(seconds=1.0))
+    (tmp_path / "out").mkdir()
+    done = _cli("transfer", "walk.bvh", "--style", "elderly", "-o", "out", cwd=tmp_path)
+    assert done.returncode == 0 and "joint mapping" in done.stdout and "wrote out/walk.bvh" in done.stdout, done.stderr
+    done = _cli("transfer", "walk.bvh", "--style", "elderly", "-o", "new/", cwd=tmp_path)
+    assert done.returncode == 0 and (tmp_path / "new/walk.bvh").is_file()
+    done = _cli("transfer", "walk.bvh", "--style", "nope", "-o", "other/", cwd=tmp_path)
+    assert done.returncode == 2 and not (tmp_path / "other").exists()

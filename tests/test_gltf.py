@@ -57,13 +57,13 @@ def test_glb_joint_positions_match_forward_kinematics(tmp_path):
 def test_transfer_writes_the_same_motion_as_glb_and_bvh(tmp_path):
     from styleerd.model.checkpoint import load_generator
     from styleerd.motion import bvh
-    from styleerd.runtime.offline import transfer_file
+    from styleerd.runtime.offline import TransferOptions, transfer_file
 
     model, meta = load_generator()
     bvh.write(tmp_path / "in.bvh", walk(1.0))
-    transfer_file(tmp_path / "in.bvh", tmp_path / "out.bvh", model, 30.0, "normal", "walk", {"elderly": 1.0})
+    transfer_file(tmp_path / "in.bvh", tmp_path / "out.bvh", model, 30.0, TransferOptions({"elderly": 1.0}, input_style="normal", content="walk"))
     a = bvh.read(tmp_path / "out.bvh")
-    transfer_file(tmp_path / "in.bvh", tmp_path / "out.glb", model, 30.0, "normal", "walk", {"elderly": 1.0})
+    transfer_file(tmp_path / "in.bvh", tmp_path / "out.glb", model, 30.0, TransferOptions({"elderly": 1.0}, input_style="normal", content="walk"))
     got, _, T = world_positions_from_glb(tmp_path / "out.glb")
     _, ours = forward_kinematics(a.rotations, a.positions, a.skeleton.parents)
     assert T == a.n_frames and np.abs(got - ours * 0.01).max() < 1e-4  # the BVH went through text

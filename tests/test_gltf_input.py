@@ -2,7 +2,6 @@
 joint frames, a units node above the root, VRM humanoid bone names), stylised, and written
 back as the same file with only the animation replaced; the Khronos validator passes both."""
 
-import json
 
 import numpy as np
 import pygltflib as gl
@@ -14,7 +13,7 @@ from styleerd.model.checkpoint import load_generator
 from styleerd.motion import bvh, quat
 from styleerd.motion.gltf import read_gltf, write_glb
 from styleerd.motion.procedural import walk, with_rest_frames
-from styleerd.runtime.offline import transfer_file
+from styleerd.runtime.offline import TransferOptions, transfer_file
 from test_gltf_mesh import needs_node, validate
 from test_rotations import scipy_globals
 
@@ -74,7 +73,7 @@ def test_vrm_round_trip_keeps_the_file_and_the_rotations(model, tmp_path):
     g, meta = model
     vrm_character(tmp_path / "character.vrm")
     lines = []
-    transfer_file(tmp_path / "character.vrm", tmp_path / "out.vrm", g, meta["data"]["fps"], "normal", "walk", {"normal": 1.0}, report=lines.append)
+    transfer_file(tmp_path / "character.vrm", tmp_path / "out.vrm", g, meta["data"]["fps"], TransferOptions({"normal": 1.0}, input_style="normal", content="walk"), report=lines.append)
     assert "first frame" not in lines[0] and "rest pose (a T- or A-pose)" in lines[0]  # the VRM's rest pose is its T-pose
     src, out = gl.GLTF2().load_binary(str(tmp_path / "character.vrm")), gl.GLTF2().load_binary(str(tmp_path / "out.vrm"))
     assert [n.name for n in out.nodes] == [n.name for n in src.nodes]
@@ -96,18 +95,18 @@ def test_vrm_round_trip_keeps_the_file_and_the_rotations(model, tmp_path):
 def test_gltf_to_bvh_and_bad_gltf_inputs(model, tmp_path):
     g, meta = model
     vrm_character(tmp_path / "c.glb", seconds=1.0)
-    transfer_file(tmp_path / "c.glb", tmp_path / "c.bvh", g, meta["data"]["fps"], "normal", "walk", {"elderly": 1.0})
+    transfer_file(tmp_path / "c.glb", tmp_path / "c.bvh", g, meta["data"]["fps"], TransferOptions({"elderly": 1.0}, input_style="normal", content="walk"))
     assert bvh.read(tmp_path / "c.bvh").n_frames == 30
     (tmp_path / "junk.glb").write_bytes(b"glTF\x02\x00\x00\x00garbage")
     with pytest.raises(StyleERDError, match="junk.glb: not a readable glTF file"):
-        transfer_file(tmp_path / "junk.glb", tmp_path / "x.glb", g, 30.0, "normal", "walk", {"elderly": 1.0})
+        transfer_file(tmp_path / "junk.glb", tmp_path / "x.glb", g, 30.0, TransferOptions({"elderly": 1.0}, input_style="normal", content="walk"))
     doc = gl.GLTF2().load_binary(str(tmp_path / "c.glb"))
     doc.animations = []
     doc.save_binary(str(tmp_path / "still.glb"))
     with pytest.raises(StyleERDError, match="still.glb: no animation to stylise"):
-        transfer_file(tmp_path / "still.glb", tmp_path / "x.glb", g, 30.0, "normal", "walk", {"elderly": 1.0})
+        transfer_file(tmp_path / "still.glb", tmp_path / "x.glb", g, 30.0, TransferOptions({"elderly": 1.0}, input_style="normal", content="walk"))
     with pytest.raises(StyleERDError, match="the output must be .glb, .vrm or .bvh"):
-        transfer_file(tmp_path / "c.glb", tmp_path / "x.fbx", g, 30.0, "normal", "walk", {"elderly": 1.0})
+        transfer_file(tmp_path / "c.glb", tmp_path / "x.fbx", g, 30.0, TransferOptions({"elderly": 1.0}, input_style="normal", content="walk"))
     assert not (tmp_path / "x.glb").exists()
 
 

@@ -15,7 +15,7 @@ import pytest
 from styleerd.model.checkpoint import load_generator
 from styleerd.motion import bvh
 from styleerd.motion.procedural import rig_variants
-from styleerd.runtime.offline import transfer_file
+from styleerd.runtime.offline import TransferOptions, transfer_file
 
 ROOT = Path(__file__).resolve().parents[1]
 VALIDATOR = ROOT / "node_modules" / "gltf-validator"
@@ -50,7 +50,7 @@ def model():
 def test_mesh_glb_passes_the_khronos_validator(model, tmp_path, rig):
     g, meta = model
     bvh.write(tmp_path / "in.bvh", rig_variants()[rig][:90])
-    transfer_file(tmp_path / "in.bvh", tmp_path / "out.glb", g, meta["data"]["fps"], "normal", "walk", {"elderly": 1.0}, mesh=True)
+    transfer_file(tmp_path / "in.bvh", tmp_path / "out.glb", g, meta["data"]["fps"], TransferOptions({"elderly": 1.0}, input_style="normal", content="walk", mesh=True))
     report = validate(tmp_path / "out.glb")
     issues = report["issues"]
     assert (issues["numErrors"], issues["numWarnings"]) == (0, 0), issues["messages"][:10]
@@ -62,7 +62,7 @@ def test_mesh_glb_passes_the_khronos_validator(model, tmp_path, rig):
 def test_mesh_glb_of_real_clips_passes_the_validator(model, tmp_path, shared_data):
     g, meta = model
     for path in [shared_data / "xia-sample" / "neutral_01_000.bvh"]:
-        transfer_file(path, tmp_path / "out.glb", g, meta["data"]["fps"], "normal", None, {"feminine": 1.0}, mesh=True)
+        transfer_file(path, tmp_path / "out.glb", g, meta["data"]["fps"], TransferOptions({"feminine": 1.0}, input_style="normal", mesh=True))
         issues = validate(tmp_path / "out.glb")["issues"]
         assert (issues["numErrors"], issues["numWarnings"]) == (0, 0), issues["messages"][:10]
 
@@ -104,7 +104,7 @@ def test_three_gltf_loader_skins_and_plays_the_body(model, tmp_path):
     g, meta = model
     walk = rig_variants()["Mixamo T-pose, centimetres"][:120]
     bvh.write(tmp_path / "in.bvh", walk)
-    transfer_file(tmp_path / "in.bvh", tmp_path / "out.glb", g, meta["data"]["fps"], "normal", "walk", {"elderly": 1.0}, mesh=True)
+    transfer_file(tmp_path / "in.bvh", tmp_path / "out.glb", g, meta["data"]["fps"], TransferOptions({"elderly": 1.0}, input_style="normal", content="walk", mesh=True))
     (tmp_path / "index.html").write_text(PAGE)
     os.symlink(THREE, tmp_path / "three")
     server = http.server.ThreadingHTTPServer(("127.0.0.1", 0), functools.partial(http.server.SimpleHTTPRequestHandler, directory=str(tmp_path)))

@@ -112,11 +112,11 @@ CASES = {
     "all offsets zero": (_transfer(lambda t: _zero_offsets(t / "in.bvh")), "no length"),
     "root X of 1e30": (_transfer(lambda t: _absurd_root(t / "in.bvh")), "frame 12: joint 'Hips' Xposition = 1e+30 is out of range"),
     "output folder missing": (_transfer(_walk, output="{tmp}/no/such/out.bvh"), "does not exist"),
-    "output is a folder": (_transfer(_walk, output="{tmp}"), "the output is a folder"),
+    "output is the input's folder": (_transfer(_walk, output="{tmp}"), "the output is the input file"),  # a folder takes the input's name
     "output not writable": (_transfer(_walk, output="/proc/out.bvh"), "/proc/out.bvh"),
     "output is the input": (_transfer(_walk, output="{in}"), "the output is the input file"),
     "resample onto its input": (lambda t: ["resample", str(_walk(t)), "--fps", "60", "-o", str(t / "in.bvh")], "the output is the input file"),
-    "output .fbx": (_transfer(_walk, output="out.fbx"), "the output must be .bvh or .glb"),
+    "output .txt": (_transfer(_walk, output="out.txt"), "the output must be .bvh, .glb or .fbx"),
     "truncated model": (lambda t: ["styles", "--model", _truncated_model(t)], "cannot load model"),
     "model without its config": (lambda t: ["styles", "--model", _model_without_config(t)], "no styleerd configuration"),
     "labeller given as the model": (lambda t: ["styles", "--model", _labeller_as_generator(t)], "incomplete"),

@@ -128,7 +128,7 @@ def test_help_groups_every_command_and_transfer_help_lists_the_styles():
 
 
 def test_models_are_found_by_path_by_name_in_styleerd_models_and_shipped(tmp_path):
-    from styleerd.model.stored import MODELS_DIR
+    from styleerd.models import MODELS_DIR
 
     mine = tmp_path / "mine"
     mine.mkdir()

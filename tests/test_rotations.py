@@ -11,7 +11,7 @@ from styleerd.model.checkpoint import load_generator
 from styleerd.motion import bvh, quat
 from styleerd.motion.procedural import rig_variants, walk
 from styleerd.motion.retarget import body_parts, natural_rest, to_target
-from styleerd.runtime.offline import map_skeleton, transfer_motion
+from styleerd.runtime.offline import TransferOptions, map_skeleton, transfer_motion
 
 
 @pytest.fixture(scope="module")
@@ -88,7 +88,7 @@ def test_round_trip_at_intensity_zero_keeps_rotations_on_every_rig(model):
     g, meta = model
     worst = {}
     for name, m in rig_variants().items():
-        out = transfer_motion(m, g, meta["data"]["fps"], "normal", "walk", {"normal": 1.0}, cleanup=False)
+        out = transfer_motion(m, g, meta["data"]["fps"], TransferOptions({"normal": 1.0}, input_style="normal", content="walk", cleanup=False))
         gi, go = scipy_globals(m), scipy_globals(out)
         axes = bone_axes(m.skeleton)
         errors = {}
@@ -107,7 +107,7 @@ def test_round_trip_at_intensity_zero_keeps_rotations_on_every_rig(model):
 def test_intensity_zero_on_the_demo_walk_is_nearly_the_input(model):
     g, meta = model
     m = walk(3.0)
-    out = transfer_motion(m, g, meta["data"]["fps"], "normal", "walk", {"elderly": 0.0, "normal": 1.0})
+    out = transfer_motion(m, g, meta["data"]["fps"], TransferOptions({"elderly": 0.0, "normal": 1.0}, input_style="normal", content="walk"))
     errors = rotation_errors(m, out, mapped_joints(m.skeleton))
     assert max(v[2] for v in errors.values()) < 25, errors  # was RightUpLeg 173, Spine 91, Head 86
 
@@ -122,7 +122,7 @@ def test_xia_clips_keep_their_twist(shared_data, model, tmp_path):
     g, meta = model
     for path in sorted((shared_data / "xia-sample").glob("*.bvh")):
         style = {"neutral": "normal", "old": "elderly"}.get(path.stem.split("_")[0], "normal")
-        transfer_file(path, tmp_path / "out.bvh", g, meta["data"]["fps"], style, None, {style: 1.0}, cleanup=False)
+        transfer_file(path, tmp_path / "out.bvh", g, meta["data"]["fps"], TransferOptions({style: 1.0}, input_style=style, cleanup=False))
         src, out = bvh.read(path), bvh.read(tmp_path / "out.bvh")
         errors = rotation_errors(src, out, mapped_joints(src.skeleton))
         legs_and_trunk = {k: v for k, v in errors.items() if any(s in k for s in ("UpLeg", "Leg", "Hips", "Spine", "Neck", "Head"))}
@@ -145,5 +145,5 @@ def test_a_live_stream_on_a_rolled_rig_takes_its_bone_frames_from_its_first_fram
     values = bvh.channel_values(rolled)
     streamed = np.stack([live.step(values[t])[0] for t in range(rolled.n_frames)])
     assert not live.map.wants_first_frame and "first frame" in live.map.source_reference
-    whole = bvh.channel_values(transfer_motion(rolled, g, 30.0, "normal", "walk", {"elderly": 1.0}))
+    whole = bvh.channel_values(transfer_motion(rolled, g, 30.0, TransferOptions({"elderly": 1.0}, input_style="normal", content="walk")))
     assert np.abs(streamed - whole).max() < 1e-5

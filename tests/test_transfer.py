@@ -13,7 +13,7 @@ from styleerd.motion import bvh
 from styleerd.motion.kinematics import forward_kinematics
 from styleerd.motion.motion import Motion
 from styleerd.motion.resample import resample
-from styleerd.runtime.offline import transfer_file
+from styleerd.runtime.offline import TransferOptions, transfer_file
 
 pytestmark = pytest.mark.slow
 
@@ -35,7 +35,7 @@ def test_test_clips_into_every_style_keep_layout_frames_and_trajectory(shared_da
         src = bvh.read(clip.path)
         for style in g.config.styles:
             out_path = tmp_path / f"{clip.name}-{style}.bvh"
-            transfer_file(clip.path, out_path, g, meta["data"]["fps"], clip.style, clip.content, {style: 1.0})
+            transfer_file(clip.path, out_path, g, meta["data"]["fps"], TransferOptions({style: 1.0}, input_style=clip.style, content=clip.content))
             out = bvh.read(out_path)
             assert out.skeleton == src.skeleton and out.n_frames == src.n_frames and np.isclose(out.fps, src.fps)
             assert np.isfinite(bvh.channel_values(out)).all()
@@ -47,7 +47,7 @@ def test_other_frame_rates_come_back_at_their_rate_and_length(shared_data, model
     clip = find_clips(shared_data, "bandai-namco-2")[0]
     fast = resample(bvh.read(clip.path), 60.0)
     bvh.write(tmp_path / "in60.bvh", fast)
-    done = transfer_file(tmp_path / "in60.bvh", tmp_path / "out60.bvh", g, meta["data"]["fps"], clip.style, clip.content, {"elderly": 1.0})
+    done = transfer_file(tmp_path / "in60.bvh", tmp_path / "out60.bvh", g, meta["data"]["fps"], TransferOptions({"elderly": 1.0}, input_style=clip.style, content=clip.content))
     assert done.frames == fast.n_frames == bvh.read(tmp_path / "out60.bvh").n_frames and np.isclose(bvh.read(tmp_path / "out60.bvh").fps, 60.0, rtol=1e-6)
 
 
@@ -58,7 +58,7 @@ def test_xia_clips_into_every_style_keep_skeleton_frames_and_root(shared_data, m
         src = bvh.read(path)
         for style in g.config.styles:
             out_path = tmp_path / f"{path.stem}-{style}.bvh"
-            transfer_file(path, out_path, g, meta["data"]["fps"], "normal", "walk", {style: 1.0}, report=lines.append)
+            transfer_file(path, out_path, g, meta["data"]["fps"], TransferOptions({style: 1.0}, input_style="normal", content="walk"), report=lines.append)
             out = bvh.read(out_path)
             assert out.skeleton == src.skeleton and out.n_frames == src.n_frames and np.isclose(out.fps, src.fps)
             assert np.isfinite(bvh.channel_values(out)).all()
@@ -73,7 +73,7 @@ def test_unmappable_skeleton_and_bad_labels_fail_cleanly(shared_data, model, tmp
     text = xia.read_text().replace("LeftHand", "Paw").replace("LeftForeArm", "Wrist2")
     (tmp_path / "odd.bvh").write_text(text)
     with pytest.raises(StyleERDError, match=r"odd.bvh: cannot map the skeleton: no joint found for left elbow \(model joint LowerArm_L\)"):
-        transfer_file(tmp_path / "odd.bvh", tmp_path / "x.bvh", g, 30.0, "normal", "walk", {"elderly": 1.0})
+        transfer_file(tmp_path / "odd.bvh", tmp_path / "x.bvh", g, 30.0, TransferOptions({"elderly": 1.0}, input_style="normal", content="walk"))
     assert not (tmp_path / "x.bvh").exists()
     (tmp_path / "map.json").write_text('{"LowerArm_L": "Wrist2", "Hand_L": "Paw"}')
     r = subprocess.run([sys.executable, "-m", "styleerd.cli", "transfer", str(tmp_path / "odd.bvh"), "--style", "elderly", "--input-style", "normal",
@@ -94,7 +94,7 @@ def test_channel_stream_equals_the_file_transfer_on_a_stream_at_model_rate(model
     source = walk(2.0, fps=30.0)
     bvh.write(tmp_path / "in.bvh", source)
     src = bvh.read(tmp_path / "in.bvh")
-    transfer_file(tmp_path / "in.bvh", tmp_path / "out.bvh", g, 30.0, "normal", "walk", {"elderly": 1.0})
+    transfer_file(tmp_path / "in.bvh", tmp_path / "out.bvh", g, 30.0, TransferOptions({"elderly": 1.0}, input_style="normal", content="walk"))
     out = bvh.read(tmp_path / "out.bvh")
     stream = ChannelStylizer(g, src.skeleton, {"elderly": 1.0}, "normal", "walk", fps=30.0)
     values = bvh.channel_values(src)
@@ -117,7 +117,7 @@ def _transfer_every_style(job):
     problems = []
     for target in g.config.styles:
         out_path = out_dir / f"{path.stem}-{target}.bvh"
-        transfer_file(path, out_path, g, meta["data"]["fps"], style, content, {target: 1.0})
+        transfer_file(path, out_path, g, meta["data"]["fps"], TransferOptions({target: 1.0}, input_style=style, content=content))
         out = bvh.read(out_path)
         if not (out.skeleton == src.skeleton and out.n_frames == src.n_frames and np.isclose(out.fps, src.fps)):
             problems.append(f"{target}: layout")
@@ -160,7 +160,7 @@ def test_streamed_file_transfer_equals_the_whole_motion_pipeline(model, tmp_path
     g, _ = model
     bvh.write(tmp_path / "in.bvh", walk(1.5, fps=fps))
     src = bvh.read(tmp_path / "in.bvh")
-    transfer_file(tmp_path / "in.bvh", tmp_path / "out.bvh", g, 30.0, "normal", "walk", {"elderly": 1.0}, chunk=7)
+    transfer_file(tmp_path / "in.bvh", tmp_path / "out.bvh", g, 30.0, TransferOptions({"elderly": 1.0}, input_style="normal", content="walk"), chunk=7)
     jm = map_skeleton(src.skeleton, g, first_pose=src.rotations[0])
     styled = run_stream(StreamStylizer(g, "normal", "walk", {"elderly": 1.0}, fps=30.0), resample(to_target(src, jm), 30.0))
     whole = to_source(resample(styled, src.fps, n_frames=src.n_frames), jm, src)
@@ -182,7 +182,7 @@ def test_memory_stays_bounded_however_long_the_file(model, tmp_path):
     for seconds in (8.0, 32.0):
         bvh.write(tmp_path / "in.bvh", walk(seconds, fps=30.0))
         tracemalloc.start()
-        transfer_file(tmp_path / "in.bvh", tmp_path / "out.bvh", g, 30.0, "normal", "walk", {"elderly": 1.0}, chunk=64)
+        transfer_file(tmp_path / "in.bvh", tmp_path / "out.bvh", g, 30.0, TransferOptions({"elderly": 1.0}, input_style="normal", content="walk"), chunk=64)
         peaks.append(tracemalloc.get_traced_memory()[1])
         tracemalloc.stop()
     assert bvh.read(tmp_path / "out.bvh").n_frames == 960
@@ -196,7 +196,7 @@ def test_bad_files_fail_with_one_line_and_nothing_written(model, tmp_path, case)
     m = walk(1.0, fps=30.0)
     path, out = tmp_path / "in.bvh", tmp_path / "out.bvh"
     expected = {"empty": "the motion has no frames", "slow": "5 fps is outside [10, 480]", "fast": "500 fps is outside [10, 480]",
-                "not bvh": "not a text file", "bad output": "the output must be .bvh or .glb"}[case]  # fmt: skip
+                "not bvh": "not a text file", "bad output": "the output must be .bvh, .glb or .fbx"}[case]  # fmt: skip
     if case == "empty":
         bvh.write(path, m[:0])
     elif case in ("slow", "fast"):
@@ -205,7 +205,7 @@ def test_bad_files_fail_with_one_line_and_nothing_written(model, tmp_path, case)
         path.write_bytes(b"\x89PNG\r\n\x1a\n not a motion")
     else:
         bvh.write(path, m)
-        out = tmp_path / "out.fbx"
+        out = tmp_path / "out.txt"
     r = subprocess.run([sys.executable, "-m", "styleerd.cli", "transfer", str(path), "--style", "elderly", "-o", str(out)], capture_output=True, text=True)
     assert r.returncode == 2 and expected in r.stderr and len(r.stderr.strip().splitlines()) == 1, r.stderr
     assert not out.exists() and sorted(p.name for p in tmp_path.iterdir()) == ["in.bvh"]
@@ -225,7 +225,7 @@ def test_a_stream_whose_content_changes_midway(shared_data, model, tmp_path):
     joined = Motion(a.skeleton, np.concatenate([a.rotations, b.rotations]), np.concatenate([a.positions, b.positions]), a.fps)
     bvh.write(tmp_path / "joined.bvh", joined)
     lines = []
-    done = transfer_file(tmp_path / "joined.bvh", tmp_path / "out.bvh", g, meta["data"]["fps"], None, None, {"elderly": 1.0}, report=lines.append)
+    done = transfer_file(tmp_path / "joined.bvh", tmp_path / "out.bvh", g, meta["data"]["fps"], TransferOptions({"elderly": 1.0}), report=lines.append)
     out = bvh.read(tmp_path / "out.bvh")
     assert out.n_frames == joined.n_frames and np.isfinite(bvh.channel_values(out)).all()
     assert done.labels == ("normal", "wave-both-hands")  # the labeller followed the change

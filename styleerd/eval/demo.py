@@ -21,7 +21,7 @@ from styleerd.model.stored import load_generator_weights
 from styleerd.motion import bvh
 from styleerd.motion.kinematics import forward_kinematics
 from styleerd.motion.procedural import walk
-from styleerd.runtime.offline import transfer_file
+from styleerd.runtime.offline import TransferOptions, transfer_file
 
 
 def _mean_change_cm(a, b) -> float:
@@ -56,7 +56,7 @@ def run_demo(out: Path, data_dir: str | None = None) -> str:
         stem = "generated" if style else "real"
         for name, suffix, weights in targets:
             target = out / f"{stem}-{suffix}.bvh"
-            transfer_file(path, target, model, meta["data"]["fps"], style, content, weights)
+            transfer_file(path, target, model, meta["data"]["fps"], TransferOptions(weights, input_style=style, content=content))
             result = bvh.read(target)
             rows.append((f"-> {name}", result))
             lines.append(f"{label[:28]:<28} {target.name:<34} {result.n_frames:>6} {result.fps:>4.0f} {_mean_change_cm(source, result):>15.1f} cm")

@@ -24,7 +24,7 @@ from styleerd.motion.kinematics import forward_kinematics
 from styleerd.motion.motion import Motion
 from styleerd.motion.procedural import rig_variants
 from styleerd.motion.retarget import body_parts
-from styleerd.runtime.offline import transfer_motion
+from styleerd.runtime.offline import TransferOptions, transfer_motion
 
 BODY_PARTS = ("hips", "spine", "chest", "neck", "head") + tuple(f"{side}_{p}" for side in ("left", "right")
                                                                 for p in ("collar", "shoulder", "elbow", "hand", "hip", "knee", "foot", "toe"))  # fmt: skip
@@ -97,8 +97,8 @@ def rotation_report(model: StyleERD, fps: float, data_dir: str | None = None, cl
     rows = []
     for group, name, motion, style in progress(_inputs(model, data_dir, clips_per_set), desc="rotations", unit="clip"):
         joints = mapped_joints(motion.skeleton)
-        same = transfer_motion(motion, model, fps, style, None, {style: 1.0}, cleanup=False)
-        styled = transfer_motion(motion, model, fps, style, None, {stylised: 1.0}, cleanup=False)
+        same = transfer_motion(motion, model, fps, TransferOptions({style: 1.0}, input_style=style, cleanup=False))
+        styled = transfer_motion(motion, model, fps, TransferOptions({stylised: 1.0}, input_style=style, cleanup=False))
         round_trip, change = rotation_errors(motion, same, joints), rotation_errors(motion, styled, joints)
         parts = {p: motion.skeleton.names[j] for p, j in body_parts(motion.skeleton).items()}
         rows.append({"group": group, "input": name, "input_style": style, "frames": motion.n_frames, "fps": motion.fps, "parts": parts,

@@ -1,8 +1,7 @@
 """Models on disk, read without torch: what inference (transfer, serve, vmc, export) needs.
 
 A model is ``NAME.safetensors`` (weights, with its configuration in the header) + ``NAME.json``
-(the same configuration, readable). The shipped models are package data (``styleerd/models``,
-found through ``importlib.resources``); a model is named by path, or by name in a folder of
+(the same configuration, readable). The shipped models are package data (``styleerd.models``); a model is named by path, or by name in a folder of
 ``$STYLEERD_MODELS`` (``os.pathsep``-separated) or among the shipped ones.
 
 The weights come back as float32 numpy arrays under torch's state-dict names, so the torch
@@ -15,7 +14,6 @@ from __future__ import annotations
 import json
 import os
 from dataclasses import dataclass, field
-from importlib import resources
 from pathlib import Path
 
 import numpy as np
@@ -24,14 +22,9 @@ from safetensors import SafetensorError, safe_open
 from styleerd.data.features import FeatureStats
 from styleerd.errors import StyleERDError
 from styleerd.model.config import GeneratorConfig
+from styleerd.models import DEFAULT_MODEL, LABELLER, MODELS_DIR
 from styleerd.motion.skeleton import Skeleton
 
-MODELS_DIR = Path(os.fspath(resources.files("styleerd") / "models"))  # the shipped models
-DEFAULT_MODEL = "styleerd-bandai2"
-RECOGNISERS = "recognisers-bandai2"
-LABELLER = "labeller-bandai2"
-FMD = "fmd-bandai2"
-LICENCE = "CC BY-NC 4.0 (trained on Bandai-Namco-Research-Motiondataset, CC BY-NC 4.0): non-commercial use"
 
 
 def model_folders() -> list[Path]:
@@ -176,10 +169,3 @@ def toward_neutral(p_style: np.ndarray, neutral: int, unsure: float = 0.5, sure:
     out[..., neutral] += 1.0 - keep[..., 0]
     return out.astype(p_style.dtype)
 
-
-def shipped_styles() -> tuple[str, ...]:
-    """The shipped model's styles, from its readable sidecar (cheap enough for ``--help``)."""
-    try:
-        return tuple(json.loads((MODELS_DIR / f"{DEFAULT_MODEL}.json").read_text())["config"]["styles"])
-    except (OSError, ValueError, KeyError):
-        return ()

@@ -10,7 +10,6 @@ from __future__ import annotations
 import os
 from collections.abc import Callable
 from concurrent.futures import ProcessPoolExecutor, as_completed
-from dataclasses import dataclass
 from multiprocessing import get_context
 from pathlib import Path
 
@@ -18,33 +17,21 @@ from tqdm import tqdm
 
 from styleerd.errors import StyleERDError
 from styleerd.model.stored import GeneratorWeights, load_generator_weights
-from styleerd.runtime.offline import GLTF_INPUTS, TransferReport, transfer_file
+from styleerd.runtime.offline import GLTF_INPUTS, TransferOptions, TransferReport, transfer_file
 
 MOTION_FILES = (".bvh", *GLTF_INPUTS, ".fbx")
-
-
-@dataclass(frozen=True)
-class TransferOptions:
-    """What a transfer does to every file: the target, the input's labels (None: inferred),
-    the joint map, foot cleanup, the backend, a body on .glb outputs."""
-
-    target: dict[str, float]
-    input_style: str | None = None
-    content: str | None = None
-    explicit_map: dict[str, str] | None = None
-    cleanup: bool = True
-    backend: str = "numpy"
-    mesh: bool = False
+OUTPUTS = (".bvh", ".glb", ".vrm", ".fbx")
 
 
 def transfer_one(source: Path, output: Path, model: GeneratorWeights, options: TransferOptions, report: Callable[[str], None] | None = None) -> TransferReport:
     """One file of any supported kind in, one out; FBX on either side goes through Blender."""
-    o, fps = options, model.meta["data"]["fps"]
+    if Path(output).suffix.lower() not in OUTPUTS:
+        raise StyleERDError(f"{output}: the output must be .bvh, .glb or .fbx (or .vrm from a VRM or glTF input)")
     if Path(source).suffix.lower() == ".fbx" or Path(output).suffix.lower() == ".fbx":
         from styleerd.runtime.fbx import transfer_fbx  # imports bpy: only for FBX
 
-        return transfer_fbx(Path(source), Path(output), model, o, report)
-    return transfer_file(source, output, model, fps, o.input_style, o.content, o.target, o.explicit_map, report=report, cleanup=o.cleanup, backend=o.backend, mesh=o.mesh)
+        return transfer_fbx(Path(source), Path(output), model, options, report)
+    return transfer_file(source, output, model, model.meta["data"]["fps"], options, report)
 
 
 def batch_pairs(inputs: list[str | Path], output_dir: str | Path, suffix: str | None = None) -> list[tuple[Path, Path]]:

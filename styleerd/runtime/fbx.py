@@ -23,7 +23,7 @@ from styleerd.motion.gltf import write_glb
 from styleerd.motion.kinematics import forward_kinematics
 from styleerd.motion.motion import Motion
 from styleerd.motion.skeleton import CHANNELS, Skeleton
-from styleerd.runtime.offline import TransferReport, transfer_motion
+from styleerd.runtime.offline import TransferOptions, TransferReport, transfer_motion
 
 Y_UP = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, 1.0], [0.0, -1.0, 0.0]])  # Blender's Z-up world -> Y-up
 ROTATIONS = ("Zrotation", "Xrotation", "Yrotation")
@@ -231,15 +231,15 @@ def export_fbx(path: Path, arm, frames: range, fps: float) -> None:
         scene.frame_set(frames.start)
 
 
-def transfer_fbx(source: Path, output: Path, model: GeneratorWeights, options, report=None) -> TransferReport:
+def transfer_fbx(source: Path, output: Path, model: GeneratorWeights, options: TransferOptions, report=None) -> TransferReport:
     """FBX -> FBX (the same file, a stylised action), FBX -> BVH/GLB, or BVH/glTF -> FBX (a new
-    armature), through Blender; ``options`` as in ``runtime.batch.TransferOptions``."""
+    armature), through Blender."""
     bpy = blender()
     kind = output.suffix.lower()
     if kind not in (".fbx", ".bvh", ".glb"):
         raise StyleERDError(f"{output}: from or to FBX the output must be .fbx, .bvh or .glb")
     check_output(output, source)
-    o, fps = options, model.meta["data"]["fps"]
+    fps = model.meta["data"]["fps"]
     if source.suffix.lower() == ".fbx":
         arm, frames, file_fps = import_fbx(source)
         motion = read_armature(arm, frames, file_fps)
@@ -251,11 +251,11 @@ def transfer_fbx(source: Path, output: Path, model: GeneratorWeights, options, r
         arm, frames = armature_from_motion(motion, source.stem), range(1, motion.n_frames + 1)
         file_fps = motion.fps
     labels: list = []
-    out = transfer_motion(motion, model, fps, o.input_style, o.content, o.target, o.explicit_map, report, o.cleanup, o.backend, labels=labels, where=str(source))
+    out = transfer_motion(motion, model, fps, options, report, labels=labels, where=str(source))
     if kind == ".bvh":
         bvh.write(output, out)
     elif kind == ".glb":
-        write_glb(output, out, mesh=o.mesh)
+        write_glb(output, out, mesh=options.mesh)
     else:
         previous = arm.animation_data.action.name if arm.animation_data and arm.animation_data.action else arm.name
         write_action(arm, out, frames, f"{previous}-stylised")

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import itertools
 from collections.abc import Callable, Iterator
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
@@ -46,6 +46,21 @@ def map_skeleton(skeleton: Skeleton, model: GeneratorWeights, explicit: dict[str
         raise StyleERDError(f"{where}: {e}") from None
 
 
+@dataclass(frozen=True)
+class TransferOptions:
+    """What a transfer does: the target weights, the input's labels (None: inferred online),
+    the joint map (model joint -> input joint) completing the automatic one, foot cleanup, the
+    step backend, and a simple skinned body on .glb outputs."""
+
+    target: dict[str, float]
+    input_style: str | None = None
+    content: str | None = None
+    explicit_map: dict[str, str] | None = None
+    cleanup: bool = True
+    backend: str = "numpy"
+    mesh: bool = False
+
+
 @dataclass
 class TransferReport:
     frames: int
@@ -54,17 +69,7 @@ class TransferReport:
 
 
 def _stylised_stream(
-    header: bvh.Header,
-    chunks: Iterator[np.ndarray],
-    model: GeneratorWeights,
-    fps: float,
-    input_style: str | None,
-    content: str | None,
-    target: dict[str, float],
-    explicit_map: dict[str, str] | None,
-    report: Callable[[str], None] | None,
-    cleanup: bool,
-    backend: str,
+    header: bvh.Header, chunks: Iterator[np.ndarray], model: GeneratorWeights, fps: float, options: TransferOptions, report: Callable[[str], None] | None
 ) -> tuple[Iterator[np.ndarray], StreamStylizer]:
     """The stylised channel values of a stream of frames, chunk by chunk, and its stylizer
     (for the labels it inferred): the checks, the mapping (bone frames from the first frame
@@ -75,11 +80,12 @@ def _stylised_stream(
         raise StyleERDError(f"{header.path}: {header.fps:.6g} fps is outside [10, 480]")
     first = next(chunks)
     first_pose = bvh.motion_from_channels(header.skeleton, first[:1], header.fps).rotations[0]
-    jm = map_skeleton(header.skeleton, model, explicit_map, str(header.path), first_pose)
+    o = options
+    jm = map_skeleton(header.skeleton, model, o.explicit_map, str(header.path), first_pose)
     if report:
         report(f"joint mapping (model <- input):\n{jm.describe()}")
-    stylizer = StreamStylizer(model, input_style, content, target, fps=fps, backend=backend)
-    lock = FootLock(header.skeleton, 1, header.fps, legs=jm.source_legs()) if cleanup else None
+    stylizer = StreamStylizer(model, o.input_style, o.content, o.target, fps=fps, backend=o.backend)
+    lock = FootLock(header.skeleton, 1, header.fps, legs=jm.source_legs()) if o.cleanup else None
     return _checked(_stylised_rows(header, itertools.chain([first], chunks), jm, stylizer, lock, fps), header.path), stylizer
 
 
@@ -87,20 +93,15 @@ def transfer_motion(
     motion: Motion,
     model: GeneratorWeights,
     fps: float,
-    input_style: str | None,
-    content: str | None,
-    target: dict[str, float],
-    explicit_map: dict[str, str] | None = None,
+    options: TransferOptions,
     report: Callable[[str], None] | None = None,
-    cleanup: bool = True,
-    backend: str = "numpy",
     labels: list | None = None,
     where: str = "<motion>",
 ) -> Motion:
     """``transfer_file`` on a motion in memory: the stylised motion on the input's skeleton,
     same frames and fps. ``labels`` receives the (style, content) inferred at the last frame."""
     header = bvh.Header(motion.skeleton, motion.n_frames, motion.fps, where)
-    rows, stylizer = _stylised_stream(header, iter([bvh.channel_values(motion)]), model, fps, input_style, content, target, explicit_map, report, cleanup, backend)
+    rows, stylizer = _stylised_stream(header, iter([bvh.channel_values(motion)]), model, fps, options, report)
     out = bvh.motion_from_channels(motion.skeleton, np.concatenate(list(rows)), motion.fps)
     inferred = _inferred_labels(stylizer, report)
     if inferred and labels is not None:
@@ -113,34 +114,28 @@ def transfer_file(
     output: str | Path,
     model: GeneratorWeights,
     fps: float,
-    input_style: str | None,
-    content: str | None,
-    target: dict[str, float],
-    explicit_map: dict[str, str] | None = None,
+    options: TransferOptions,
     report: Callable[[str], None] | None = None,
-    cleanup: bool = True,
-    backend: str = "numpy",
     chunk: int = 1024,
-    mesh: bool = False,
 ) -> TransferReport:
     """BVH in -> BVH (or binary glTF) out in the target style, on any humanoid skeleton
     (retargeted to the model's and back, at the model's frame rate ``fps`` and back): same
     skeleton, channel layout, fps, frame count and root trajectory as the input; joints the
     model does not have keep their motion. Labels left None are inferred online; with
-    ``cleanup``, feet planted in the input are pinned in the output (on the input's skeleton).
+    ``options.cleanup``, feet planted in the input are pinned in the output (on the input's skeleton).
     ``report`` receives the joint mapping and the labels used.
 
     The file is streamed through in chunks of ``chunk`` frames, so memory stays bounded
-    however long it is (a .glb output is built in memory; with ``mesh`` it carries a simple
-    skinned body). Nothing is written unless the whole transfer succeeded."""
+    however long it is (a .glb output is built in memory; with ``options.mesh`` it carries a
+    simple skinned body). Nothing is written unless the whole transfer succeeded."""
     kind = Path(output).suffix.lower()
     check_output(output, source)
     if Path(source).suffix.lower() in GLTF_INPUTS:
-        return _transfer_gltf(Path(source), Path(output), model, fps, input_style, content, target, explicit_map, report, cleanup, backend)
+        return _transfer_gltf(Path(source), Path(output), model, fps, options, report)
     if kind not in (".bvh", ".glb"):
         raise StyleERDError(f"{output}: the output must be .bvh or .glb")
     header, chunks = bvh.stream(source, chunk)
-    rows, stylizer = _stylised_stream(header, chunks, model, fps, input_style, content, target, explicit_map, report, cleanup, backend)
+    rows, stylizer = _stylised_stream(header, chunks, model, fps, options, report)
     if kind == ".bvh":
         def write(tmp: str) -> None:
             with open(tmp, "w", encoding="utf-8") as f:
@@ -150,7 +145,7 @@ def transfer_file(
 
         atomic_write(output, write)
     else:
-        write_glb(output, bvh.motion_from_channels(header.skeleton, np.concatenate(list(rows)), header.fps), mesh=mesh)
+        write_glb(output, bvh.motion_from_channels(header.skeleton, np.concatenate(list(rows)), header.fps), mesh=options.mesh)
     return TransferReport(header.n_frames, header.fps, _inferred_labels(stylizer, report))
 
 
@@ -168,7 +163,7 @@ def _inferred_labels(stylizer: StreamStylizer, report: Callable[[str], None] | N
 GLTF_INPUTS = (".glb", ".gltf", ".vrm")
 
 
-def _transfer_gltf(source: Path, output: Path, model: GeneratorWeights, fps: float, input_style, content, target, explicit_map, report, cleanup, backend) -> TransferReport:
+def _transfer_gltf(source: Path, output: Path, model: GeneratorWeights, fps: float, options: TransferOptions, report) -> TransferReport:
     """A glTF/GLB/VRM character in: its first skin's skeleton and its animation, VRM humanoid
     bones named for the mapping; out as the same file with the animation replaced (.glb,
     .vrm) or as a BVH of its skeleton."""
@@ -178,9 +173,9 @@ def _transfer_gltf(source: Path, output: Path, model: GeneratorWeights, fps: flo
     src = read_gltf(source)
     model_parts = body_parts(model.skeleton)
     explicit = {model.skeleton.names[model_parts[p]]: name for p, name in src.parts.items() if p in model_parts}
-    explicit.update(explicit_map or {})
+    explicit.update(options.explicit_map or {})
     lines: list[str] = []
-    out = transfer_motion(src.motion, model, fps, input_style, content, target, explicit or None, report, cleanup, backend, labels=lines, where=str(source))
+    out = transfer_motion(src.motion, model, fps, replace(options, explicit_map=explicit or None), report, labels=lines, where=str(source))
     if kind == ".bvh":
         bvh.write(output, out)
     else:
