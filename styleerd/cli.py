@@ -142,8 +142,8 @@ def _export_onnx(args: argparse.Namespace) -> None:
 
     check_output(args.output)
     model = load_generator_weights(args.model)
-    meta = model.meta
-    export(model, meta, args.output)
+    styles = tuple(s.strip() for s in args.styles.split(",")) if args.styles else None
+    export(model, model.meta, args.output, "plain" if args.plain else "lstm", styles)
     print(f"wrote {args.output} and {Path(args.output).with_suffix('.json')} (inputs, outputs and features: docs/ONNX.md)")
 
 
@@ -390,7 +390,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--mix", help="a mixture instead of --style, e.g. elderly=0.5,feminine=0.5 (scaled by --intensity)")
     p.add_argument("--input-style", help="the input's style (default: inferred online from the frames)")
     p.add_argument("--content", help="the input's content, e.g. walk (default: inferred online)")
-    p.add_argument("--backend", default="numpy", choices=["torch", "numpy", "numba", "onnx"], help="network step backend (default numpy; torch is the reference; numba is the fastest)")
+    p.add_argument("--backend", default="numpy", choices=["torch", "numpy", "numba", "onnx", "onnx-plain"], help="network step backend (default numpy; torch is the reference; numba is the fastest)")
     p.add_argument("--no-cleanup", action="store_true", help="leave the feet as the network outputs them (default: pin planted feet)")
     p.add_argument("--joint-map", help="JSON object {model joint: input joint} completing or overriding the automatic mapping")
     p.add_argument("--model", help="a model file, or a model name in $STYLEERD_MODELS or among the shipped ones (default: styleerd-bandai2)")
@@ -400,9 +400,11 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--mesh", action="store_true", help=".glb: add a simple skinned body (a prism per bone, its front marked) so the file shows in any viewer")
     p.set_defaults(func=_transfer)
 
-    p = command("export-onnx", "the network step as a plain ONNX graph (opset 17) with explicit state")
+    p = command("export-onnx", "the network step as an ONNX graph (LSTM ops, opset 15) with explicit state, for engines")
     p.add_argument("--model", help="a model file, or a model name in $STYLEERD_MODELS or among the shipped ones (default: styleerd-bandai2)")
     p.add_argument("-o", "--output", default="stylizer.onnx")
+    p.add_argument("--styles", help="only these styles' branches, e.g. elderly,feminine: a smaller, faster graph (default: every style)")
+    p.add_argument("--plain", action="store_true", help="the LSTM cells written out as MatMul/Sigmoid/Tanh (for runtimes without the LSTM op)")
     p.set_defaults(func=_export_onnx)
 
     p = command("styles", "styles and contents of the model")

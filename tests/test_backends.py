@@ -7,7 +7,8 @@ import pytest
 
 from styleerd.model.checkpoint import load_generator
 from styleerd.runtime.backends import BACKENDS, make_backend
-from styleerd.runtime.onnx_export import OPSET, step_graph
+from styleerd.errors import StyleERDError
+from styleerd.runtime.onnx_export import FORMS, OPSET, state_layers, step_graph
 
 
 @pytest.fixture(scope="module")
@@ -37,32 +38,46 @@ def test_backends_agree_with_the_torch_reference(model):
             for b in backends.values():
                 b.reset(np.array([1]))  # stream 1 starts over
         ref_rot, ref_vel = backends["torch"].step(x, s, c, w)
-        for name in ("numpy", "numba", "onnx"):
+        for name in ("numpy", "numba", "onnx", "onnx-plain"):
             rot, vel = backends[name].step(x, s, c, w)
             assert np.abs(rot - ref_rot).max() <= 1e-5, (name, t)
             assert np.abs(vel - ref_vel).max() <= 1e-4, (name, t)
 
 
-def test_exported_graph_is_plain_opset_17(model):
-    proto = step_graph(model)
-    assert proto.opset_import[0].version == OPSET <= 17
+@pytest.mark.parametrize("form", FORMS)
+def test_exported_graphs_pass_the_full_check_at_opset_15(model, form):
+    proto = step_graph(model, form)
+    assert proto.opset_import[0].version == OPSET <= 15
     kinds = {n.op_type for n in proto.graph.node}
-    assert "LSTM" not in kinds and {"MatMul", "Sigmoid", "Tanh"} <= kinds
-    assert [i.name for i in proto.graph.input][:5] == ["features", "style", "content", "target", "first_frame"]
+    if form == "lstm":  # one LSTM op per layer of every branch, no cell arithmetic
+        assert sum(n.op_type == "LSTM" for n in proto.graph.node) == len(state_layers(model)) and not {"Sigmoid", "Tanh"} & kinds
+    else:
+        assert "LSTM" not in kinds and {"MatMul", "Sigmoid", "Tanh"} <= kinds
+    assert [i.name for i in proto.graph.input] == ["features", "style", "content", "target", "first_frame", "h", "c"]
+    assert [o.name for o in proto.graph.output] == ["rotations", "velocities", "h_out", "c_out"]
     onnx.checker.check_model(proto, full_check=True)
 
 
-def test_export_onnx_command_writes_graph_and_sidecar(tmp_path):
-    import json
-    import subprocess
-    import sys
+def test_a_graph_of_some_styles_equals_the_reference_on_them(model):
+    import onnxruntime as ort
 
-    r = subprocess.run([sys.executable, "-m", "styleerd.cli", "export-onnx", "-o", str(tmp_path / "s.onnx")], capture_output=True, text=True)
-    assert r.returncode == 0, r.stderr
-    proto = onnx.load(str(tmp_path / "s.onnx"))
-    side = json.loads((tmp_path / "s.json").read_text())
-    assert side["styles"][5] == "normal" and side["state_shapes"]["h_neutral"] == [6, "N", 32]
-    assert len(side["stats"]["mean"]) == proto.graph.input[0].type.tensor_type.shape.dim[1].dim_value
+    styles = ("elderly", "youthful")
+    session = ort.InferenceSession(step_graph(model, "lstm", styles).SerializeToString(), providers=["CPUExecutionProvider"])
+    reference = make_backend("torch", model, 3)
+    c = model.config
+    S, H = len(state_layers(model, styles)), c.hidden
+    assert S == c.neutral_layers + 2 * c.style_layers
+    h = cc = np.zeros((S, 3, H), np.float32)
+    for t, (x, s, content, _) in enumerate(schedule(model)):
+        target = np.zeros((3, len(c.styles)), np.float32)
+        target[0, c.styles.index(styles[t // 6])] = 1.0  # a switch between the two
+        target[1, [c.styles.index(styles[0]), c.styles.index(styles[1])]] = [0.4, 0.6]
+        target[2, c.neutral_index] = 1.0
+        ref_rot, ref_vel = reference.step(x, s, content, target)
+        rot, vel, h, cc = session.run(None, {"features": x, "style": s, "content": content, "target": target, "first_frame": np.full((3, 1), float(t == 0), np.float32), "h": h, "c": cc})
+        assert np.abs(rot - ref_rot).max() <= 1e-5 and np.abs(vel - ref_vel).max() <= 1e-4, t
+    with pytest.raises(StyleERDError, match="no style branch for angry"):
+        step_graph(model, "lstm", ("angry",))
 
 
 def test_numpy_labeller_equals_the_torch_labeller():

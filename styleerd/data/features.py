@@ -30,6 +30,7 @@ from styleerd.motion.motion import Motion
 from styleerd.motion.skeleton import BodyRoles, Skeleton
 
 N_CONTACTS = 4
+CONTACT_SPEED = 0.25  # a foot slower than this many leg lengths per second is planted
 
 
 @dataclass(frozen=True)
@@ -64,7 +65,7 @@ def pose_features(
     skeleton: Skeleton,
     roles: BodyRoles,
     fps: float,
-    contact_speed: float = 0.25,
+    contact_speed: float = CONTACT_SPEED,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Features of frames ``[T, J, *]`` given the global joint positions of each frame's
     previous frame (``previous_global [T, J, 3]``; pass the frame itself for a first frame).
@@ -98,7 +99,7 @@ def stream_features(
     fps: float,
     stats: "FeatureStats",
     limit: float,
-    contact_speed: float = 0.25,
+    contact_speed: float = CONTACT_SPEED,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """One frame of N streams, the streaming hot path: ``pose_features`` of quaternions
     normalised first, then ``stats.normalize``, in one compiled loop. A stream not ``started``
@@ -194,7 +195,7 @@ def _stream_features_kernel(rot, pos, previous, previous_facing, started, parent
         ok[n] = good
 
 
-def motion_features(motion: Motion, roles: BodyRoles | None = None, contact_speed: float = 0.25) -> tuple[np.ndarray, np.ndarray]:
+def motion_features(motion: Motion, roles: BodyRoles | None = None, contact_speed: float = CONTACT_SPEED) -> tuple[np.ndarray, np.ndarray]:
     """Features ``[T, D]`` and trajectory ``[T, 7]`` of a whole motion (the same values a
     stream of its frames gives, frame by frame)."""
     roles = roles or BodyRoles.of(motion.skeleton)

@@ -1,7 +1,8 @@
 """Backends for the network's per-frame step: ``torch`` (the reference: ``StyleERD.step``; needs torch),
 ``numpy`` (the same arithmetic fused by hand: ``runtime.numpy_step``), ``numba`` (that
-arithmetic compiled: ``runtime.compiled``, the fastest at batch 1) and ``onnx`` (onnxruntime on
-the exported step graph of ``runtime.onnx_export``).
+arithmetic compiled: ``runtime.compiled``, the fastest at batch 1), ``onnx`` (onnxruntime on
+the exported step graph of ``runtime.onnx_export``, built on the ONNX LSTM op) and
+``onnx-plain`` (the same graph with the LSTM cells written out).
 
 Every backend keeps the recurrent state of N streams itself and has the same semantics as the
 reference: a stream's first frame starts from the learned initial states (neutral branch by
@@ -17,7 +18,7 @@ from styleerd.errors import StyleERDError
 from styleerd.model.stored import GeneratorWeights, generator_weights
 from styleerd.runtime.numpy_step import NumpyBackend, step_weights
 
-BACKENDS = ("torch", "numpy", "numba", "onnx")
+BACKENDS = ("torch", "numpy", "numba", "onnx", "onnx-plain")  # onnx: the LSTM-op graph; onnx-plain: cells written out
 
 
 class TorchBackend:
@@ -60,23 +61,20 @@ class TorchBackend:
 
 
 class OnnxBackend:
-    def __init__(self, model: GeneratorWeights, n_streams: int, threads: int = 1):
+    """onnxruntime on the exported step graph (``form``: the LSTM-op graph, or the plain one)."""
+
+    def __init__(self, model: GeneratorWeights, n_streams: int, threads: int = 1, form: str = "lstm"):
         import onnxruntime as ort
 
-        from styleerd.runtime.onnx_export import step_graph
+        from styleerd.runtime.onnx_export import state_layers, step_graph
 
         options = ort.SessionOptions()
         options.intra_op_num_threads, options.inter_op_num_threads = threads, 1
         options.graph_optimization_level = ort.GraphOptimizationLevel.ORT_ENABLE_ALL
-        self.session = ort.InferenceSession(step_graph(model).SerializeToString(), options, providers=["CPUExecutionProvider"])
-        w = step_weights(model)
-        self.n, self.joints, H = n_streams, w.n_joints, w.hidden
-        self.state = {
-            "h_neutral": np.zeros((len(w.neutral), n_streams, H), np.float32),
-            "c_neutral": np.zeros((len(w.neutral), n_streams, H), np.float32),
-            "h_branches": np.zeros((len(w.branches), len(w.branches[0]) if w.branches else 0, n_streams, H), np.float32),
-            "c_branches": np.zeros((len(w.branches), len(w.branches[0]) if w.branches else 0, n_streams, H), np.float32),
-        }
+        self.session = ort.InferenceSession(step_graph(model, form).SerializeToString(), options, providers=["CPUExecutionProvider"])
+        S, H = len(state_layers(model)), model.config.hidden
+        self.n = n_streams
+        self.state = {"h": np.zeros((S, n_streams, H), np.float32), "c": np.zeros((S, n_streams, H), np.float32)}
         self.first = np.ones((n_streams, 1), np.float32)
 
     def reset(self, streams: np.ndarray | None = None) -> None:
@@ -84,14 +82,9 @@ class OnnxBackend:
 
     def step(self, x: np.ndarray, style: np.ndarray, content: np.ndarray, target: np.ndarray, rows: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
         sel = slice(None) if rows is None else rows
-        state = {k: v[:, sel] if k.endswith("neutral") else v[:, :, sel] for k, v in self.state.items()}
-        feeds = {"features": x, "style": style, "content": content, "target": target, "first_frame": self.first[sel], **state}
-        rot, vel, *new = self.session.run(None, {k: np.asarray(v, np.float32) for k, v in feeds.items()})
-        for k, v in zip(("h_neutral", "c_neutral", "h_branches", "c_branches"), new):
-            if k.endswith("neutral"):
-                self.state[k][:, sel] = v
-            else:
-                self.state[k][:, :, sel] = v
+        feeds = {"features": x, "style": style, "content": content, "target": target, "first_frame": self.first[sel], "h": self.state["h"][:, sel], "c": self.state["c"][:, sel]}
+        rot, vel, h, c = self.session.run(None, {k: np.ascontiguousarray(v, np.float32) for k, v in feeds.items()})
+        self.state["h"][:, sel], self.state["c"][:, sel] = h, c
         self.first[sel] = 0.0
         return rot, vel
 
@@ -105,6 +98,8 @@ def make_backend(name: str, model: GeneratorWeights, n_streams: int):
             from styleerd.runtime.compiled import CompiledBackend  # imports numba: only when asked for
 
             return CompiledBackend(model, n_streams)
+        if name == "onnx-plain":
+            return OnnxBackend(model, n_streams, form="plain")
         return {"torch": TorchBackend, "numpy": NumpyBackend, "onnx": OnnxBackend}[name](model, n_streams)
     except ImportError as e:  # the light install has numpy and numba; torch and onnxruntime come with styleerd[train]
         raise StyleERDError(f"the {name} backend needs {e.name or e}: pip install 'styleerd[train]'") from None

@@ -1,0 +1,128 @@
+"""A reference host loop for the exported step graph: plain numpy + onnxruntime, no styleerd.
+
+What a game or avatar host does per frame, for one stream on the model's skeleton (retarget
+your character to it first): features of the pose, one step of the graph, the stylised pose
+back. docs/ONNX.md explains every line; tests/test_onnx_host.py runs this file and compares it
+with styleerd's own stylizer.
+
+    python examples/onnx_host.py stylizer.onnx poses.npz out.npz --style elderly [--input-style normal --content walk]
+
+``poses.npz`` holds ``rotations [T, J, 4]`` (local unit quaternions w, x, y, z) and
+``positions [T, J, 3]`` (local translations; the root's is its world position), ``fps``;
+``out.npz`` gets the stylised ``rotations`` (same layout; root position and translations are
+the input's).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+from pathlib import Path
+
+import numpy as np
+import onnxruntime as ort
+
+
+def qmul(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    aw, ax, ay, az = a[..., 0], a[..., 1], a[..., 2], a[..., 3]
+    bw, bx, by, bz = b[..., 0], b[..., 1], b[..., 2], b[..., 3]
+    return np.stack([aw * bw - ax * bx - ay * by - az * bz, aw * bx + ax * bw + ay * bz - az * by,
+                     aw * by - ax * bz + ay * bw + az * bx, aw * bz + ax * by - ay * bx + az * bw], -1)  # fmt: skip
+
+
+def qrot(q: np.ndarray, v: np.ndarray) -> np.ndarray:
+    """Rotate vectors ``v [..., 3]`` by unit quaternions ``q [..., 4]``."""
+    u, w = q[..., 1:], q[..., :1]
+    t = 2.0 * np.cross(u, v)
+    return v + w * t + np.cross(u, t)
+
+
+def forward_kinematics(rot: np.ndarray, pos: np.ndarray, parents: list[int]) -> np.ndarray:
+    """Global joint positions ``[J, 3]`` of local rotations and translations."""
+    g_rot, g_pos = np.empty_like(rot), np.empty_like(pos)
+    for j, p in enumerate(parents):
+        if p < 0:
+            g_rot[j], g_pos[j] = rot[j], pos[j]
+        else:
+            g_rot[j] = qmul(g_rot[p], rot[j])
+            g_pos[j] = g_pos[p] + qrot(g_rot[p], pos[j])
+    return g_pos
+
+
+class Host:
+    """One stream: the state the graph needs between frames, and the features it reads."""
+
+    def __init__(self, graph: Path, style: str, input_style: str, content: str):
+        self.side = json.loads(graph.with_suffix(".json").read_text())
+        s = self.side
+        options = ort.SessionOptions()
+        options.intra_op_num_threads = 1
+        self.session = ort.InferenceSession(str(graph), options, providers=["CPUExecutionProvider"])
+        self.parents = s["skeleton"]["parents"]
+        self.mean, self.std, self.reference = (np.array(s["stats"][k]) for k in ("mean", "std", "reference"))
+        r = s["roles"]
+        self.left, self.right, self.feet = r["left"], r["right"], r["feet"]
+        self.max_foot_speed = s["contact_speed_leg_lengths"] * r["leg_length"]
+        one_hot = lambda names, name: np.eye(len(names), dtype=np.float32)[[names.index(name)]]  # noqa: E731
+        self.style, self.content = one_hot(s["styles"], input_style), one_hot(s["contents"], content)
+        self.target = one_hot(s["styles"], style)
+        S, H = s["state_shapes"]["h"][0], s["state_shapes"]["h"][2]
+        self.h, self.c = np.zeros((S, 1, H), np.float32), np.zeros((S, 1, H), np.float32)
+        self.previous: np.ndarray | None = None  # global joint positions of the last frame
+        self.facing = np.array([0.0, 0.0, 1.0])
+
+    def features(self, rot: np.ndarray, pos: np.ndarray, fps: float) -> tuple[np.ndarray, np.ndarray]:
+        """The normalised feature vector ``[1, D]`` of this frame and its heading quaternion."""
+        rot = rot / np.linalg.norm(rot, axis=-1, keepdims=True)
+        g = forward_kinematics(rot, pos, self.parents)
+        # facing: across (left hip + left shoulder - right ones) x up, on the ground; heading about +Y
+        across = g[self.left].sum(0) - g[self.right].sum(0)
+        f = np.array([-across[2], 0.0, across[0]])
+        if np.hypot(f[0], f[2]) > 1e-6 * max(1.0, np.linalg.norm(across)):
+            self.facing = f / np.hypot(f[0], f[2])
+        half = np.arctan2(self.facing[0], self.facing[2]) / 2.0
+        heading = np.array([np.cos(half), 0.0, np.sin(half), 0.0])
+        inverse = heading * [1, -1, -1, -1]
+        local = rot.copy()
+        local[0] = qmul(inverse, rot[0])
+        local *= np.where(local[:, :1] < 0, -1.0, 1.0)  # w >= 0 ...
+        local *= np.where((local * self.reference).sum(-1, keepdims=True) < 0, -1.0, 1.0)  # ... then the reference's hemisphere
+        moved = self.previous is not None
+        previous = self.previous if moved else g
+        relative = qrot(inverse, g - g[0])
+        velocity = qrot(inverse, g - previous) * fps
+        speed = np.linalg.norm(g[self.feet] - previous[self.feet], axis=-1) * fps
+        contacts = (speed < self.max_foot_speed).astype(np.float64)  # left foot, left toe, right foot, right toe
+        x = np.concatenate([local.ravel(), relative.ravel(), velocity.ravel(), contacts])
+        self.previous = g
+        return ((x - self.mean) / self.std).astype(np.float32)[None], heading
+
+    def step(self, rot: np.ndarray, pos: np.ndarray, fps: float) -> np.ndarray:
+        """One frame's local rotations ``[J, 4]`` and translations ``[J, 3]`` -> stylised rotations."""
+        first = np.array([[0.0 if self.previous is not None else 1.0]], np.float32)
+        x, heading = self.features(rot, pos, fps)
+        out, _, self.h, self.c = self.session.run(None, {"features": x, "style": self.style, "content": self.content, "target": self.target,
+                                                         "first_frame": first, "h": self.h, "c": self.c})  # fmt: skip
+        out = out[0].astype(np.float64)
+        out[0] = qmul(heading, out[0])  # the root back from the heading frame
+        return out / np.linalg.norm(out, axis=-1, keepdims=True)
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("graph", type=Path)
+    parser.add_argument("poses", type=Path)
+    parser.add_argument("output", type=Path)
+    parser.add_argument("--style", required=True)
+    parser.add_argument("--input-style", default="normal")
+    parser.add_argument("--content", default="walk")
+    args = parser.parse_args()
+    poses = np.load(args.poses)
+    host = Host(args.graph, args.style, args.input_style, args.content)
+    out = np.stack([host.step(r, p, float(poses["fps"])) for r, p in zip(poses["rotations"], poses["positions"])])
+    np.savez(args.output, rotations=out)
+    print(f"stylised {len(out)} frames into {args.style}")
+
+
+if __name__ == "__main__":
+    main()
