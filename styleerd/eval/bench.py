@@ -23,6 +23,7 @@ import numpy as np
 import torch
 
 from styleerd.model.generator import StyleERD
+from styleerd.model.stored import generator_weights
 from styleerd.motion import bvh
 from styleerd.motion.procedural import walk
 from styleerd.motion.retarget import to_target
@@ -51,9 +52,16 @@ def _percentiles(seconds: list[float]) -> dict[str, float]:
     return {"p50_us": round(float(np.percentile(us, 50)), 1), "p99_us": round(float(np.percentile(us, 99)), 1)}
 
 
-def network_step(model: StyleERD, backend: str, steps: int) -> dict:
-    b = make_backend(backend, model, 1)
+def network_step(model: StyleERD, backend: str, steps: int, one_style: bool = False) -> dict:
+    """Step latency at batch 1 to a style target; ``one_style``: an ONNX graph with that style's
+    branch only (``export-onnx --styles``)."""
     c = model.config
+    if one_style:
+        from styleerd.runtime.backends import OnnxBackend
+
+        b = OnnxBackend(generator_weights(model), 1, form="plain" if backend == "onnx-plain" else "lstm", styles=(c.styles[(c.neutral_index + 1) % len(c.styles)],))
+    else:
+        b = make_backend(backend, model, 1)
     x = np.random.default_rng(0).normal(0, 1, (steps + 50, 1, c.feature_dim)).astype(np.float32)
     style = np.eye(len(c.styles), dtype=np.float32)[[c.neutral_index]]
     content = np.eye(len(c.contents), dtype=np.float32)[[0]]
@@ -152,6 +160,8 @@ def run_bench(model: StyleERD, steps: int = 2000, streams: tuple[int, ...] = STR
     for name in BACKENDS:
         set_threads(1)
         r = {"network_step": network_step(model, name, steps), "end_to_end": end_to_end(model, name, steps)}
+        if name.startswith("onnx"):
+            r["network_step_one_style_graph"] = network_step(model, name, steps, one_style=True)
         r["whole_clip_ms"] = {f"L={n}": whole_clip_ms(model, name, n) for n in (60, 90, 120)}
         set_threads(2)
         r["frames_per_second"] = {n: round(throughput(model, name, n)) for n in streams}
@@ -167,6 +177,7 @@ def run_bench(model: StyleERD, steps: int = 2000, streams: tuple[int, ...] = STR
 def table(report: dict) -> str:
     names = list(report["backends"])
     rows = [("network step p50 / p99 (us, batch 1, 1 thread)", lambda r: f"{r['network_step']['p50_us']:.0f} / {r['network_step']['p99_us']:.0f}"),
+            ("network step, one-style ONNX graph, p50 / p99 (us)", lambda r: f"{r['network_step_one_style_graph']['p50_us']:.0f} / {r['network_step_one_style_graph']['p99_us']:.0f}" if "network_step_one_style_graph" in r else ""),
             ("end to end p50 / p99 (us, batch 1, 1 thread)", lambda r: f"{r['end_to_end']['p50_us']:.0f} / {r['end_to_end']['p99_us']:.0f}"),
             *[(f"whole clip {k} (ms)", lambda r, k=k: f"{r['whole_clip_ms'][k]:.1f}") for k in ("L=60", "L=90", "L=120")],
             *[(f"frames/s, {n:,} streams (2 threads)", lambda r, n=n: f"{r['frames_per_second'][n]:,}") for n in next(iter(report['backends'].values()))['frames_per_second']],

@@ -16,7 +16,7 @@ import numpy as np
 
 from styleerd.errors import StyleERDError
 from styleerd.model.stored import GeneratorWeights, generator_weights
-from styleerd.runtime.numpy_step import NumpyBackend, step_weights
+from styleerd.runtime.numpy_step import NumpyBackend
 
 BACKENDS = ("torch", "numpy", "numba", "onnx", "onnx-plain")  # onnx: the LSTM-op graph; onnx-plain: cells written out
 
@@ -61,9 +61,10 @@ class TorchBackend:
 
 
 class OnnxBackend:
-    """onnxruntime on the exported step graph (``form``: the LSTM-op graph, or the plain one)."""
+    """onnxruntime on the exported step graph (``form``: the LSTM-op graph, or the plain one;
+    ``styles``: only these styles' branches, for targets that use no others)."""
 
-    def __init__(self, model: GeneratorWeights, n_streams: int, threads: int = 1, form: str = "lstm"):
+    def __init__(self, model: GeneratorWeights, n_streams: int, threads: int = 1, form: str = "lstm", styles: tuple[str, ...] | None = None):
         import onnxruntime as ort
 
         from styleerd.runtime.onnx_export import state_layers, step_graph
@@ -71,8 +72,8 @@ class OnnxBackend:
         options = ort.SessionOptions()
         options.intra_op_num_threads, options.inter_op_num_threads = threads, 1
         options.graph_optimization_level = ort.GraphOptimizationLevel.ORT_ENABLE_ALL
-        self.session = ort.InferenceSession(step_graph(model, form).SerializeToString(), options, providers=["CPUExecutionProvider"])
-        S, H = len(state_layers(model)), model.config.hidden
+        self.session = ort.InferenceSession(step_graph(model, form, styles).SerializeToString(), options, providers=["CPUExecutionProvider"])
+        S, H = len(state_layers(model, styles)), model.config.hidden
         self.n = n_streams
         self.state = {"h": np.zeros((S, n_streams, H), np.float32), "c": np.zeros((S, n_streams, H), np.float32)}
         self.first = np.ones((n_streams, 1), np.float32)
