@@ -17,12 +17,15 @@ $(STAMP): $(BIN)/python pyproject.toml
 	$(BIN)/python -m pip install --quiet -e ".[train,dev]"
 	touch $(STAMP)
 
-# the viewer's three.js, from npm (package-lock.json), vendored next to the page: no CDN
+# the viewer's three.js and the in-browser step's onnxruntime-web, from npm (package-lock.json),
+# vendored next to the pages: no CDN
 $(VENDOR)/three.module.js: package.json package-lock.json
 	npm ci --no-audit --no-fund --loglevel=error
 	mkdir -p $(VENDOR)
 	cp node_modules/three/build/three.module.js node_modules/three/build/three.core.js \
 	   node_modules/three/examples/jsm/controls/OrbitControls.js $(VENDOR)/
+	cp node_modules/onnxruntime-web/dist/ort.wasm.min.mjs node_modules/onnxruntime-web/dist/ort-wasm-simd-threaded.mjs \
+	   node_modules/onnxruntime-web/dist/ort-wasm-simd-threaded.wasm $(VENDOR)/
 
 install: $(STAMP) $(VENDOR)/three.module.js
 

@@ -143,7 +143,7 @@ def _export_onnx(args: argparse.Namespace) -> None:
     check_output(args.output)
     model = load_generator_weights(args.model)
     styles = tuple(s.strip() for s in args.styles.split(",")) if args.styles else None
-    export(model, model.meta, args.output, "plain" if args.plain else "lstm", styles)
+    export(model, args.output, "plain" if args.plain else "lstm", styles)
     print(f"wrote {args.output} and {Path(args.output).with_suffix('.json')} (inputs, outputs and features: docs/ONNX.md)")
 
 

@@ -26,7 +26,7 @@ WITHOUT_STYLEERD = "import runpy, sys; sys.modules['styleerd'] = None; sys.argv 
 @pytest.mark.parametrize("form", ["lstm", "plain"])
 def test_reference_host_loop_equals_the_stylizer(tmp_path, form):
     model = load_generator_weights()
-    export(model, model.meta, tmp_path / "stylizer.onnx", form)
+    export(model, tmp_path / "stylizer.onnx", form)
     source = walk(seconds=3.0, fps=30.0)
     on_model = to_target(source, map_skeleton(source.skeleton, model, first_pose=source.rotations[0]))
     np.savez(tmp_path / "poses.npz", rotations=on_model.rotations, positions=on_model.positions, fps=on_model.fps)

@@ -177,18 +177,14 @@ def step_graph(model: GeneratorWeights, form: str = "lstm", styles: tuple[str, .
     return proto
 
 
-def export(model: GeneratorWeights, meta: dict, path: str | Path, form: str = "lstm", styles: tuple[str, ...] | None = None) -> None:
-    """Write the step graph (``form``, the branches of ``styles`` or all) to ``path`` (.onnx)
-    and beside it a JSON file with what a host needs around it: label orders, the state's
-    rows, the skeleton, and the feature normalisation (docs/ONNX.md)."""
-    path = Path(path)
-    proto = step_graph(model, form, styles)
-    atomic_write(path, lambda tmp: onnx.save(proto, tmp))
+def sidecar(model: GeneratorWeights, proto: onnx.ModelProto, graph_name: str, form: str = "lstm", styles: tuple[str, ...] | None = None) -> dict:
+    """What a host needs around the graph: label orders, the state's rows, the body roles the
+    features use, the skeleton and the feature normalisation (docs/ONNX.md)."""
     model = generator_weights(model)
-    c, roles = model.config, BodyRoles.of(model.skeleton)
+    c, roles, meta = model.config, BodyRoles.of(model.skeleton), model.meta
     layers = state_layers(model, styles)
-    sidecar = {
-        "graph": path.name,
+    return {
+        "graph": graph_name,
         "opset": OPSET,
         "form": form,
         "styles": list(c.styles),
@@ -203,7 +199,15 @@ def export(model: GeneratorWeights, meta: dict, path: str | Path, form: str = "l
         # toe, right foot, right toe) and the leg length (hip to foot at rest) they are measured in
         "roles": {"left": list(roles.left), "right": list(roles.right), "feet": list(roles.feet), "leg_length": roles.leg_length},
         "contact_speed_leg_lengths": CONTACT_SPEED,
-        "skeleton": meta["skeleton"],
-        "stats": meta["stats"],
+        "skeleton": model.skeleton.to_dict(),
+        "stats": model.stats().to_dict(),
     }
-    atomic_write_text(path.with_suffix(".json"), json.dumps(sidecar, indent=1) + "\n")
+
+
+def export(model: GeneratorWeights, path: str | Path, form: str = "lstm", styles: tuple[str, ...] | None = None) -> None:
+    """Write the step graph (``form``, the branches of ``styles`` or all) to ``path`` (.onnx)
+    and its ``sidecar`` beside it (.json), both atomically."""
+    path = Path(path)
+    proto = step_graph(model, form, styles)
+    atomic_write(path, lambda tmp: onnx.save(proto, tmp))
+    atomic_write_text(path.with_suffix(".json"), json.dumps(sidecar(model, proto, path.name, form, styles), indent=1) + "\n")

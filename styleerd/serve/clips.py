@@ -4,6 +4,7 @@ copied into the project)."""
 
 from __future__ import annotations
 
+import json
 from urllib.parse import unquote
 
 from styleerd.data.datasets import data_root, find_clips
@@ -12,6 +13,9 @@ from styleerd.errors import StyleERDError
 from styleerd.model.stored import GeneratorWeights
 from styleerd.motion import bvh
 from styleerd.motion.procedural import walk
+from styleerd.motion.retarget import to_target
+from styleerd.runtime.offline import map_skeleton, run_stream
+from styleerd.runtime.stylizer import StreamStylizer, label_vector
 
 REAL_CONTENTS = ("walk", "run", "wave-both-hands", "raise-up-both-hands", "walk-turn-left")
 
@@ -41,3 +45,18 @@ class DemoClips:
         if name in self.paths:
             return self.paths[name].read_text()
         return None
+
+
+def reference_clip(model: GeneratorWeights, style: str) -> bytes:
+    """The generated walk on the model's skeleton (local rotations and translations, flat),
+    and its stylisation into ``style`` by this server's stylizer: what the in-browser step
+    (static/engine.html) reproduces and is compared with. JSON bytes."""
+    c = model.config
+    label_vector(c.styles, {style: 1.0}, "style")  # an unknown style is refused, naming the valid ones
+    source = walk(seconds=4.0, fps=30.0)
+    on_model = to_target(source, map_skeleton(source.skeleton, model, first_pose=source.rotations[0]))
+    stylised = run_stream(StreamStylizer(model, c.neutral_style, "walk", {style: 1.0}, fps=on_model.fps), on_model)
+    body = {"frames": on_model.n_frames, "fps": on_model.fps, "input_style": c.neutral_style, "content": "walk", "style": style,
+            "rotations": on_model.rotations.ravel().round(8).tolist(), "positions": on_model.positions.ravel().round(6).tolist(),
+            "stylised": stylised.rotations.ravel().round(8).tolist()}  # fmt: skip
+    return json.dumps(body).encode()

@@ -35,7 +35,7 @@ from collections import deque
 from dataclasses import dataclass, field
 from http import HTTPStatus
 from pathlib import Path
-from urllib.parse import urlsplit
+from urllib.parse import parse_qs, urlsplit
 
 import numpy as np
 from websockets.asyncio.server import ServerConnection, serve
@@ -50,7 +50,8 @@ from styleerd.motion.kinematics import bone_fronts, forward_kinematics
 from styleerd.motion.skeleton import Skeleton
 from styleerd.runtime.channels import ChannelStylizer
 from styleerd.runtime.stylizer import label_vector, target_weights
-from styleerd.serve.clips import DemoClips
+from styleerd.runtime.onnx_export import sidecar, step_graph
+from styleerd.serve.clips import DemoClips, reference_clip
 
 STATIC = Path(__file__).parent / "static"
 SEQ = struct.Struct("<I")  # binary frames start with the frame's sequence number
@@ -171,6 +172,8 @@ class StyleServer:
         self.config = config
         self.model = model or load_generator_weights()
         self.clips = DemoClips(self.model, config.data)
+        self._engine: dict[str, bytes] | None = None  # the in-browser step's graph and JSON, made on first request
+        self._references: dict[str, bytes] = {}
         self.pools: dict[tuple, Pool] = {}
         self.streams: dict[int, Stream] = {}
         self.watchers: set[Watcher] = set()
@@ -502,11 +505,29 @@ class StyleServer:
         if len(request.path) > 2048:
             return _response(HTTPStatus.REQUEST_URI_TOO_LONG, b"the path is too long", "text/plain")
         try:
-            return self._page(request.path.split("?")[0])
+            path, _, query = request.path.partition("?")
+            return self._page(path, parse_qs(query))
         except (OSError, StyleERDError, ValueError) as e:  # a name the file system refuses, a clip that cannot be read
             return _response(HTTPStatus.NOT_FOUND, f"not found: {e}".encode(errors="replace"), "text/plain")
 
-    def _page(self, path: str) -> Response:
+    def _engine_file(self, name: str, query: dict[str, list[str]]) -> bytes | None:
+        """The files the in-browser step (static/engine.html) reads: the step graph and its
+        JSON (exported from this server's model once, then kept), and a reference clip on the
+        model's skeleton with this server's stylisation of it."""
+        if name in ("stylizer.onnx", "stylizer.json"):
+            if self._engine is None:
+                proto = step_graph(self.model, "lstm")
+                self._engine = {"stylizer.onnx": proto.SerializeToString(), "stylizer.json": json.dumps(sidecar(self.model, proto, "stylizer.onnx")).encode()}
+            return self._engine[name]
+        if name == "reference.json":
+            style = (query.get("style") or ["elderly"])[0]
+            if style not in self._references:  # only the model's styles get here: others are refused
+                self._references[style] = reference_clip(self.model, style)
+            return self._references[style]
+        return None
+
+    def _page(self, path: str, query: dict[str, list[str]] | None = None) -> Response:
+        query = query or {}
         if path == "/favicon.ico":
             return _response(HTTPStatus.NO_CONTENT, b"", "image/x-icon")
         if path == "/":
@@ -527,6 +548,10 @@ class StyleServer:
         elif path == "/streams":
             body = [{"stream": s.name, "frames": s.frames} for s in self.streams.values() if not s.private]
             return _response(HTTPStatus.OK, json.dumps(body).encode(), "application/json")
+        elif path.startswith("/onnx/"):
+            body = self._engine_file(path[len("/onnx/") :], query)
+            if body is not None:
+                return _response(HTTPStatus.OK, body, "application/octet-stream" if path.endswith(".onnx") else "application/json")
         elif path == "/styles":
             c = self.model.config
             body = {"styles": list(c.styles), "contents": list(c.contents), "neutral": c.neutral_style}

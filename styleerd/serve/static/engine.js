@@ -1,0 +1,170 @@
+// The styleerd step in the browser: onnxruntime-web (vendored from npm, no CDN) runs the
+// exported LSTM-op graph; StyleHost computes each frame's features from a pose on the model's
+// skeleton, as examples/onnx_host.py and docs/ONNX.md describe, and keeps the stream's state.
+// A web avatar app retargets its avatar to the model's skeleton and calls host.step(pose).
+import * as ort from "/static/vendor/ort.wasm.min.mjs";
+
+ort.env.wasm.wasmPaths = "/static/vendor/";
+ort.env.wasm.numThreads = 1; // no cross-origin isolation needed, and one frame is small work
+
+const qmul = (a, b) => [
+  a[0] * b[0] - a[1] * b[1] - a[2] * b[2] - a[3] * b[3],
+  a[0] * b[1] + a[1] * b[0] + a[2] * b[3] - a[3] * b[2],
+  a[0] * b[2] - a[1] * b[3] + a[2] * b[0] + a[3] * b[1],
+  a[0] * b[3] + a[1] * b[2] - a[2] * b[1] + a[3] * b[0],
+];
+const cross = (a, b) => [a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]];
+function qrot(q, v) { // v + w t + u x t, t = 2 u x v
+  const u = [q[1], q[2], q[3]], t = cross(u, v).map((x) => 2 * x), ut = cross(u, t);
+  return [0, 1, 2].map((k) => v[k] + q[0] * t[k] + ut[k]);
+}
+const normalize = (q) => { const n = Math.hypot(...q) || 1; return q.map((x) => x / n); };
+
+export class StyleHost {
+  static async create(base = "/onnx/stylizer") {
+    const side = await (await fetch(`${base}.json`)).json();
+    const session = await ort.InferenceSession.create(`${base}.onnx`, { executionProviders: ["wasm"] });
+    return new StyleHost(side, session);
+  }
+
+  constructor(side, session) {
+    this.side = side;
+    this.session = session;
+    this.parents = side.skeleton.parents;
+    this.mean = side.stats.mean; this.std = side.stats.std; this.reference = side.stats.reference;
+    this.roles = side.roles;
+    this.maxFootSpeed = side.contact_speed_leg_lengths * side.roles.leg_length;
+    [this.S, , this.H] = side.state_shapes.h;
+    this.setLabels("normal", "walk", { elderly: 1 });
+    this.reset();
+  }
+
+  oneHot(names, weights) {
+    const v = new Float32Array(names.length);
+    for (const [name, w] of Object.entries(weights)) {
+      if (!names.includes(name)) throw new Error(`unknown label ${name}; valid: ${names.join(", ")}`);
+      v[names.indexOf(name)] = w;
+    }
+    return v;
+  }
+
+  setLabels(inputStyle, content, target) {
+    this.style = this.oneHot(this.side.styles, { [inputStyle]: 1 });
+    this.content = this.oneHot(this.side.contents, { [content]: 1 });
+    this.target = this.oneHot(this.side.styles, target);
+  }
+
+  reset() {
+    this.h = new Float32Array(this.S * this.H);
+    this.c = new Float32Array(this.S * this.H);
+    this.previous = null;
+    this.facing = [0, 0, 1];
+  }
+
+  features(rot, pos, fps) { // rot: J quaternions [w, x, y, z]; pos: J local translations
+    const J = this.parents.length;
+    rot = rot.map(normalize);
+    const gRot = [], g = [];
+    for (let j = 0; j < J; j++) {
+      const p = this.parents[j];
+      if (p < 0) { gRot.push(rot[j]); g.push(pos[j]); } else { gRot.push(qmul(gRot[p], rot[j])); g.push(qrot(gRot[p], pos[j]).map((x, k) => x + g[p][k])); }
+    }
+    const { left, right, feet } = this.roles;
+    const a = [0, 1, 2].map((k) => g[left[0]][k] + g[left[1]][k] - g[right[0]][k] - g[right[1]][k]);
+    const fx = -a[2], fz = a[0], fn = Math.hypot(fx, fz);
+    if (fn > 1e-6 * Math.max(1, Math.hypot(...a))) this.facing = [fx / fn, 0, fz / fn];
+    const half = Math.atan2(this.facing[0], this.facing[2]) / 2;
+    const heading = [Math.cos(half), 0, Math.sin(half), 0], inverse = [heading[0], 0, -heading[2], 0];
+    const x = new Float32Array(10 * J + 4);
+    const put = (d, value) => { x[d] = (value - this.mean[d]) / this.std[d]; };
+    for (let j = 0; j < J; j++) {
+      let q = j === 0 ? qmul(inverse, rot[0]) : rot[j];
+      if (q[0] < 0) q = q.map((v) => -v);
+      const r = this.reference[j];
+      if (q[0] * r[0] + q[1] * r[1] + q[2] * r[2] + q[3] * r[3] < 0) q = q.map((v) => -v);
+      q.forEach((v, k) => put(4 * j + k, v));
+    }
+    const previous = this.previous || g;
+    for (let j = 0; j < J; j++) {
+      qrot(inverse, [0, 1, 2].map((k) => g[j][k] - g[0][k])).forEach((v, k) => put(4 * J + 3 * j + k, v));
+      qrot(inverse, [0, 1, 2].map((k) => (g[j][k] - previous[j][k]) * fps)).forEach((v, k) => put(7 * J + 3 * j + k, v));
+    }
+    feet.forEach((f, k) => put(10 * J + k, Math.hypot(...[0, 1, 2].map((i) => g[f][i] - previous[f][i])) * fps < this.maxFootSpeed ? 1 : 0));
+    this.previous = g;
+    return { x, heading };
+  }
+
+  async step(rot, pos, fps) { // -> stylised local rotations, J quaternions
+    const first = this.previous === null ? 1 : 0;
+    const { x, heading } = this.features(rot, pos, fps);
+    const J = this.parents.length, t = (data, dims) => new ort.Tensor("float32", data, dims);
+    const out = await this.session.run({
+      features: t(x, [1, x.length]), style: t(this.style, [1, this.style.length]), content: t(this.content, [1, this.content.length]),
+      target: t(this.target, [1, this.target.length]), first_frame: t(new Float32Array([first]), [1, 1]),
+      h: t(this.h, [this.S, 1, this.H]), c: t(this.c, [this.S, 1, this.H]),
+    });
+    this.h = out.h_out.data; this.c = out.c_out.data;
+    const r = out.rotations.data, q = [];
+    for (let j = 0; j < J; j++) q.push([r[4 * j], r[4 * j + 1], r[4 * j + 2], r[4 * j + 3]]);
+    q[0] = qmul(heading, q[0]);
+    return q.map(normalize);
+  }
+}
+
+// The page: stylise a clip in the browser, compare with the server's output, draw it.
+async function main() {
+  const status = document.getElementById("status");
+  const params = new URLSearchParams(location.search);
+  const style = params.get("style") || "elderly";
+  const host = await StyleHost.create();
+  const clip = await (await fetch(`/onnx/reference.json?style=${encodeURIComponent(style)}`)).json();
+  host.setLabels(clip.input_style, clip.content, { [style]: 1 });
+  const J = host.parents.length, T = clip.frames, times = [], out = [];
+  let worst = 0;
+  for (let t = 0; t < T; t++) {
+    const rot = [], pos = [];
+    for (let j = 0; j < J; j++) {
+      rot.push(clip.rotations.slice((t * J + j) * 4, (t * J + j) * 4 + 4));
+      pos.push(clip.positions.slice((t * J + j) * 3, (t * J + j) * 3 + 3));
+    }
+    const t0 = performance.now();
+    const q = await host.step(rot, pos, clip.fps);
+    times.push(performance.now() - t0);
+    out.push({ q, pos });
+    for (let j = 0; j < J; j++) {
+      const s = clip.stylised.slice((t * J + j) * 4, (t * J + j) * 4 + 4);
+      const sign = q[j][0] * s[0] + q[j][1] * s[1] + q[j][2] * s[2] + q[j][3] * s[3] < 0 ? -1 : 1;
+      for (let k = 0; k < 4; k++) worst = Math.max(worst, Math.abs(sign * q[j][k] - s[k]));
+    }
+  }
+  const sorted = [...times].slice(10).sort((a, b) => a - b);
+  window.result = { frames: T, style, max_abs_difference: worst, p50_ms: sorted[Math.floor(sorted.length / 2)], p99_ms: sorted[Math.floor(sorted.length * 0.99)] };
+  status.textContent = `${T} frames stylised into ${style} in the browser (onnxruntime-web, wasm): ` +
+    `per frame p50 ${window.result.p50_ms.toFixed(3)} ms; largest difference from the server's output ${worst.toExponential(2)}`;
+  draw(out, host.parents);
+}
+
+function draw(frames, parents) { // the stylised clip as side-view stick figures, every 10th frame
+  const canvas = document.getElementById("view"), ctx = canvas.getContext("2d");
+  ctx.fillStyle = "#fff"; ctx.fillRect(0, 0, canvas.width, canvas.height);
+  const shown = frames.filter((_, t) => t % 10 === 0);
+  shown.forEach(({ q, pos }, i) => {
+    const gRot = [], g = [];
+    parents.forEach((p, j) => {
+      if (p < 0) { gRot.push(q[j]); g.push([0, pos[j][1], 0]); } else { gRot.push(qmul(gRot[p], q[j])); g.push(qrot(gRot[p], pos[j]).map((x, k) => x + g[p][k])); }
+    });
+    const scale = canvas.height / 220, x0 = 40 + i * (canvas.width - 80) / Math.max(1, shown.length - 1);
+    ctx.strokeStyle = "#c0392b"; ctx.lineWidth = 2;
+    parents.forEach((p, j) => {
+      if (p < 0) return;
+      ctx.beginPath();
+      ctx.moveTo(x0 + g[p][2] * scale, canvas.height - 10 - g[p][1] * scale);
+      ctx.lineTo(x0 + g[j][2] * scale, canvas.height - 10 - g[j][1] * scale);
+      ctx.stroke();
+    });
+  });
+}
+
+if (document.getElementById("view")) {
+  main().catch((e) => { document.getElementById("status").textContent = `error: ${e}`; console.error(e); window.result = { error: String(e) }; });
+}
