@@ -53,7 +53,8 @@ def test_the_wheel_carries_the_models_and_the_viewer(wheel):
     names = set(zipfile.ZipFile(wheel).namelist())
     for stem in ("styleerd-bandai2", "labeller-bandai2", "recognisers-bandai2", "fmd-bandai2"):
         assert {f"styleerd/models/{stem}.safetensors", f"styleerd/models/{stem}.json"} <= names
-    assert {"styleerd/serve/static/index.html", "styleerd/serve/static/vendor/three.module.js", "styleerd/serve/static/vendor/three.core.js"} <= names
+    assert {"styleerd/serve/static/index.html", "styleerd/serve/static/vendor/three.module.js", "styleerd/serve/static/vendor/three.core.js",
+            "styleerd/serve/static/engine.html", "styleerd/serve/static/vendor/ort.wasm.min.mjs", "styleerd/serve/static/vendor/ort-wasm-simd-threaded.wasm"} <= names
     assert not any(n.startswith(("tests/", "models/ablations", "benchmarks/")) for n in names)
     metadata = next(zipfile.ZipFile(wheel).read(n).decode() for n in names if n.endswith("METADATA"))
     requires = [line for line in metadata.splitlines() if line.startswith("Requires-Dist:") and "extra ==" not in line]

@@ -1,0 +1,128 @@
+"""The ONNX step graphs side by side in one run, in onnxruntime: the plain-op graph as it was
+before the LSTM-op export (taken from git), the plain-op and the LSTM-op graphs now, each with
+every style's branch and with one style's, next to the numpy and numba backends' network step.
+
+Batch 1 (1 thread): step latency p50 / p99 of ``session.run``. 1,000 streams: frames/s, 1 and 2
+intra-op threads. Every graph gets a style target with one style weighted (the usual case).
+Writes docs/onnx-bench.json.
+
+    python benchmarks/bench_onnx.py [--before COMMIT]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import subprocess
+import sys
+import time
+import types
+from pathlib import Path
+
+import numpy as np
+import onnx
+import onnxruntime as ort
+from threadpoolctl import threadpool_limits
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+
+from styleerd.model.stored import load_generator_weights  # noqa: E402
+from styleerd.runtime.backends import make_backend  # noqa: E402
+from styleerd.runtime.onnx_export import step_graph  # noqa: E402
+
+BEFORE = "10171e4"  # the last commit whose export was the plain-op graph only (opset 17)
+
+
+def graph_at(commit: str, model) -> bytes:
+    """The step graph as the code at ``commit`` exported it."""
+    source = subprocess.run(["git", "-C", str(ROOT), "show", f"{commit}:styleerd/runtime/onnx_export.py"], capture_output=True, text=True, check=True).stdout
+    module = types.ModuleType("onnx_export_before")
+    exec(compile(source, f"{commit}:onnx_export.py", "exec"), module.__dict__)
+    return module.step_graph(model).SerializeToString()
+
+
+def feeds(session: ort.InferenceSession, model, n: int) -> dict:
+    """Zeros for every input of the graph (its own names and shapes, N = n), labels one-hot:
+    input neutral, content walk, target the first style branch."""
+    c = model.config
+    out = {}
+    for i in session.get_inputs():
+        shape = [n if not isinstance(d, int) else d for d in i.shape]
+        out[i.name] = np.zeros(shape, np.float32)
+    out["style"][:, c.neutral_index] = 1.0
+    out["content"][:, c.contents.index("walk") if "walk" in c.contents else 0] = 1.0
+    out["target"][:, c.branch_styles[0]] = 1.0
+    return out
+
+
+def latency(step, n: int = 3000) -> dict:
+    times = []
+    for _ in range(n + 300):
+        t0 = time.perf_counter()
+        step()
+        times.append(time.perf_counter() - t0)
+    us = np.array(times[300:]) * 1e6
+    return {"p50_us": round(float(np.percentile(us, 50)), 1), "p99_us": round(float(np.percentile(us, 99)), 1)}
+
+
+def rate(step, n_streams: int, seconds: float = 2.0) -> float:
+    step()
+    frames, t0 = 0, time.perf_counter()
+    while time.perf_counter() - t0 < seconds:
+        step()
+        frames += n_streams
+    return round(frames / (time.perf_counter() - t0))
+
+
+def session(graph: bytes, threads: int) -> ort.InferenceSession:
+    options = ort.SessionOptions()
+    options.intra_op_num_threads, options.inter_op_num_threads = threads, 1
+    options.graph_optimization_level = ort.GraphOptimizationLevel.ORT_ENABLE_ALL
+    return ort.InferenceSession(graph, options, providers=["CPUExecutionProvider"])
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--before", default=BEFORE)
+    args = parser.parse_args()
+    model = load_generator_weights()
+    one = (model.config.styles[model.config.branch_styles[0]],)
+    graphs = {
+        f"plain, before ({args.before}, opset 17)": graph_at(args.before, model),
+        "plain (opset 15)": step_graph(model, "plain").SerializeToString(),
+        "LSTM op (opset 15)": step_graph(model, "lstm").SerializeToString(),
+        f"plain, one style ({one[0]})": step_graph(model, "plain", one).SerializeToString(),
+        f"LSTM op, one style ({one[0]})": step_graph(model, "lstm", one).SerializeToString(),
+    }
+    report = {"graphs": {}, "backends": {}}
+    for name, graph in graphs.items():
+        s1 = session(graph, 1)
+        f1, f1000 = feeds(s1, model, 1), feeds(s1, model, 1000)
+        s2 = session(graph, 2)
+        report["graphs"][name] = {"nodes": len(onnx.load_from_string(graph).graph.node), "batch_1": latency(lambda: s1.run(None, f1)),
+                                  "frames_per_s_1000_streams_1_thread": rate(lambda: s1.run(None, f1000), 1000),
+                                  "frames_per_s_1000_streams_2_threads": rate(lambda: s2.run(None, f1000), 1000)}  # fmt: skip
+        print(name, report["graphs"][name], flush=True)
+    c = model.config
+    for name in ("numpy", "numba"):
+        x1, x1000 = (np.zeros((n, c.feature_dim), np.float32) for n in (1, 1000))
+        labels = lambda n: (np.eye(len(c.styles), dtype=np.float32)[[c.neutral_index] * n], np.eye(len(c.contents), dtype=np.float32)[[0] * n],  # noqa: E731
+                            np.eye(len(c.styles), dtype=np.float32)[[c.branch_styles[0]] * n])  # fmt: skip
+        b1, b1000 = make_backend(name, model, 1), make_backend(name, model, 1000)
+        with threadpool_limits(1):
+            r = {"batch_1": latency(lambda: b1.step(x1, *labels(1))), "frames_per_s_1000_streams_1_thread": rate(lambda: b1000.step(x1000, *labels(1000)), 1000)}
+        report["backends"][name] = r
+        print(name, r, flush=True)
+    out = ROOT / "docs" / "onnx-bench.json"
+    out.write_text(json.dumps(report, indent=1) + "\n")
+    print(f"\n| graph (onnxruntime {ort.__version__}) | nodes | batch 1 p50 / p99 (us, 1 thread) | 1,000 streams, frames/s (1 thread / 2 threads) |\n| --- | --- | --- | --- |")
+    for name, r in report["graphs"].items():
+        print(f"| {name} | {r['nodes']} | {r['batch_1']['p50_us']:.0f} / {r['batch_1']['p99_us']:.0f} | {r['frames_per_s_1000_streams_1_thread']:,} / {r['frames_per_s_1000_streams_2_threads']:,} |")
+    for name, r in report["backends"].items():
+        print(f"| {name} backend (network step) | | {r['batch_1']['p50_us']:.0f} / {r['batch_1']['p99_us']:.0f} | {r['frames_per_s_1000_streams_1_thread']:,} / |")
+    print(f"wrote {out}")
+
+
+if __name__ == "__main__":
+    main()
