@@ -1,8 +1,9 @@
 """Models on disk, read without torch: what inference (transfer, serve, vmc, export) needs.
 
 A model is ``NAME.safetensors`` (weights, with its configuration in the header) + ``NAME.json``
-(the same configuration, readable). The shipped models are package data (``styleerd.models``); a model is named by path, or by name in a folder of
-``$STYLEERD_MODELS`` (``os.pathsep``-separated) or among the shipped ones.
+(the same configuration, readable). The shipped models are package data (``styleerd.models``);
+a model is named by path, or by name in a folder of ``$STYLEERD_MODELS`` (``os.pathsep``
+separated) or among the shipped ones.
 
 The weights come back as float32 numpy arrays under torch's state-dict names, so the torch
 modules (``model.checkpoint``, for training and evaluation) and the numpy runtime read the
@@ -24,7 +25,6 @@ from styleerd.errors import StyleERDError
 from styleerd.model.config import GeneratorConfig
 from styleerd.models import DEFAULT_MODEL, LABELLER, MODELS_DIR
 from styleerd.motion.skeleton import Skeleton
-
 
 
 def model_folders() -> list[Path]:
