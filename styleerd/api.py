@@ -20,21 +20,13 @@ from styleerd.errors import StyleERDError
 from styleerd.model.stored import GeneratorWeights, load_generator_weights
 from styleerd.models import LICENCE
 from styleerd.motion import bvh
-from styleerd.motion.gltf import read_gltf
 from styleerd.motion.motion import Motion
 from styleerd.motion.skeleton import Skeleton
 from styleerd.runtime.channels import ChannelStylizer
-from styleerd.runtime.offline import GLTF_INPUTS, TransferOptions, transfer_file, transfer_motion
-from styleerd.runtime.stylizer import target_weights
+from styleerd.runtime.offline import TransferOptions, read_motion, transfer_file, transfer_motion
+from styleerd.runtime.stylizer import label_vector, target_weights
 
 PathLike = str | os.PathLike
-
-
-def read_motion(path: PathLike) -> Motion:
-    """A motion from a BVH, glTF, GLB or VRM file (its first skin's skeleton and animation)."""
-    if Path(path).suffix.lower() in GLTF_INPUTS:
-        return read_gltf(path).motion
-    return bvh.read(path)
 
 
 class Stylizer:
@@ -81,9 +73,7 @@ class Model:
         """Target weights of a style (or a mixture ``{style: weight}``) at an intensity (0 =
         neutral, 1 = the style, up to 2 exaggerates); unknown styles are refused."""
         weights = target_weights(self.weights, style, intensity, mix)
-        for name in weights:
-            if name not in self.styles:
-                raise StyleERDError(f"unknown style {name!r}; valid: {', '.join(self.styles)}")
+        label_vector(self.styles, weights, "style")  # names the valid styles if one is not
         return weights
 
     def stylizer(

@@ -323,6 +323,7 @@ class _Parser(argparse.ArgumentParser):
         self.exit(2, f"{self.prog}: error: {message} (see '{self.prog} -h')\n")
 
 
+MODEL_HELP = "a model file, or a model name in $STYLEERD_MODELS or among the shipped ones (default: styleerd-bandai2)"
 GROUPS = {
     "use": ("transfer", "styles", "info", "resample", "export-onnx", "demo"),
     "live": ("serve", "stream-bvh", "vmc", "load-test"),
@@ -393,7 +394,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--backend", default="numpy", choices=["torch", "numpy", "numba", "onnx", "onnx-plain"], help="network step backend (default numpy; torch is the reference; numba is the fastest)")
     p.add_argument("--no-cleanup", action="store_true", help="leave the feet as the network outputs them (default: pin planted feet)")
     p.add_argument("--joint-map", help="JSON object {model joint: input joint} completing or overriding the automatic mapping")
-    p.add_argument("--model", help="a model file, or a model name in $STYLEERD_MODELS or among the shipped ones (default: styleerd-bandai2)")
+    p.add_argument("--model", help=MODEL_HELP)
     p.add_argument("-o", "--output", required=True, help="OUT.bvh (the input's skeleton and channel layout), OUT.glb, OUT.fbx, or from a glTF input OUT.glb/.vrm (the input file, animation replaced); a folder for several inputs")
     p.add_argument("--jobs", type=_whole(1), help="with several inputs: worker processes (default: one per core)")
     p.add_argument("--to", choices=["bvh", "glb", "fbx"], help="with several inputs: the outputs' kind (default: each input's own)")
@@ -401,35 +402,35 @@ def build_parser() -> argparse.ArgumentParser:
     p.set_defaults(func=_transfer)
 
     p = command("export-onnx", "the network step as an ONNX graph (LSTM ops, opset 15) with explicit state, for engines")
-    p.add_argument("--model", help="a model file, or a model name in $STYLEERD_MODELS or among the shipped ones (default: styleerd-bandai2)")
+    p.add_argument("--model", help=MODEL_HELP)
     p.add_argument("-o", "--output", default="stylizer.onnx")
     p.add_argument("--styles", help="only these styles' branches, e.g. elderly,feminine: a smaller, faster graph (default: every style)")
     p.add_argument("--plain", action="store_true", help="the LSTM cells written out as MatMul/Sigmoid/Tanh (for runtimes without the LSTM op)")
     p.set_defaults(func=_export_onnx)
 
     p = command("styles", "styles and contents of the model")
-    p.add_argument("--model", help="a model file, or a model name in $STYLEERD_MODELS or among the shipped ones (default: styleerd-bandai2)")
+    p.add_argument("--model", help=MODEL_HELP)
     p.set_defaults(func=_styles)
 
     p = command("evaluate", "SRA, CRA and reconstruction error of a model on real test windows")
-    p.add_argument("--model", help="a model file, or a model name in $STYLEERD_MODELS or among the shipped ones (default: styleerd-bandai2)")
+    p.add_argument("--model", help=MODEL_HELP)
     p.add_argument("--split", default="test", choices=["train", "val", "test"])
     p.add_argument("--recognisers", help="recognisers path without suffix (default: the shipped ones)")
     p.add_argument("--data", help="data folder")
     p.set_defaults(func=_evaluate)
 
     p = command("eval-runtime", "label inference accuracy, foot skate before/after cleanup, pop at a style switch (test split)")
-    p.add_argument("--model", help="a model file, or a model name in $STYLEERD_MODELS or among the shipped ones (default: styleerd-bandai2)")
+    p.add_argument("--model", help=MODEL_HELP)
     p.add_argument("--data", help="data folder")
     p.set_defaults(func=_eval_runtime)
 
     ev = command("eval", "quality figures: FMD, SRA, CRA, responsiveness, ablations").add_subparsers(dest="eval_command", required=True)
     p = ev.add_parser("quality", help="FMD (and its floor), SRA, CRA, responsiveness, jitter, reconstruction of one model")
-    p.add_argument("--model", help="a model file, or a model name in $STYLEERD_MODELS or among the shipped ones (default: styleerd-bandai2)")
+    p.add_argument("--model", help=MODEL_HELP)
     p.add_argument("--data", help="data folder")
     p.set_defaults(func=_eval_quality)
     p = ev.add_parser("rotations", help="joint rotations on other skeletons, swing and twist: round trip at intensity 0, and the change a style makes")
-    p.add_argument("--model", help="a model file, or a model name in $STYLEERD_MODELS or among the shipped ones (default: styleerd-bandai2)")
+    p.add_argument("--model", help=MODEL_HELP)
     p.add_argument("--style", default="elderly", help="the style whose change is measured (default elderly)")
     p.add_argument("--out", default="docs/rotations.md", help="Markdown table (a .json beside it); empty: print only")
     p.add_argument("--data", help="data folder")
@@ -444,7 +445,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.set_defaults(func=_eval_ablations)
 
     p = command("bench", "runtime table: latency per backend, whole clips, throughput curve, FLOPs, memory")
-    p.add_argument("--model", help="a model file, or a model name in $STYLEERD_MODELS or among the shipped ones (default: styleerd-bandai2)")
+    p.add_argument("--model", help=MODEL_HELP)
     p.add_argument("--steps", type=_whole(1), default=2000, help="frames timed per latency figure")
     p.add_argument("--streams", type=_whole(1), nargs="+", help="concurrent streams of the throughput curve (default 1 .. 4096)")
     p.add_argument("--json", default="docs/bench.json")
@@ -458,7 +459,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.set_defaults(func=_report)
 
     p = command("filmstrip", "picture: a neutral test clip and its transfer into every style")
-    p.add_argument("--model", help="a model file, or a model name in $STYLEERD_MODELS or among the shipped ones (default: styleerd-bandai2)")
+    p.add_argument("--model", help=MODEL_HELP)
     p.add_argument("--clip", help="Bandai-Namco-2 clip name (default: the first neutral test clip of --content)")
     p.add_argument("--content", default="walk")
     p.add_argument("--data", help="data folder")

@@ -23,7 +23,7 @@ from styleerd.motion.gltf import write_glb
 from styleerd.motion.kinematics import forward_kinematics
 from styleerd.motion.motion import Motion
 from styleerd.motion.skeleton import CHANNELS, Skeleton
-from styleerd.runtime.offline import TransferOptions, TransferReport, transfer_motion
+from styleerd.runtime.offline import TransferOptions, TransferReport, read_motion, transfer_motion
 
 Y_UP = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, 1.0], [0.0, -1.0, 0.0]])  # Blender's Z-up world -> Y-up
 ROTATIONS = ("Zrotation", "Xrotation", "Yrotation")
@@ -244,8 +244,6 @@ def transfer_fbx(source: Path, output: Path, model: GeneratorWeights, options: T
         arm, frames, file_fps = import_fbx(source)
         motion = read_armature(arm, frames, file_fps)
     else:
-        from styleerd.api import read_motion
-
         motion = read_motion(source)
         _new_scene(bpy)
         arm, frames = armature_from_motion(motion, source.stem), range(1, motion.n_frames + 1)

@@ -163,6 +163,13 @@ def _inferred_labels(stylizer: StreamStylizer, report: Callable[[str], None] | N
 GLTF_INPUTS = (".glb", ".gltf", ".vrm")
 
 
+def read_motion(path: str | Path) -> Motion:
+    """A motion from a BVH, glTF, GLB or VRM file (its first skin's skeleton and animation)."""
+    if Path(path).suffix.lower() in GLTF_INPUTS:
+        return read_gltf(path).motion
+    return bvh.read(path)
+
+
 def _transfer_gltf(source: Path, output: Path, model: GeneratorWeights, fps: float, options: TransferOptions, report) -> TransferReport:
     """A glTF/GLB/VRM character in: its first skin's skeleton and its animation, VRM humanoid
     bones named for the mapping; out as the same file with the animation replaced (.glb,

@@ -487,7 +487,7 @@ class StyleServer:
 
     # ---- HTTP: the viewer page, its files, demo clips, the list of streams ----
 
-    def http(self, connection: ServerConnection, request: Request) -> Response | None:
+    async def http(self, connection: ServerConnection, request: Request) -> Response | None:
         hosts, origins = request.headers.get_all("Host"), request.headers.get_all("Origin")
         if len(hosts) > 1 or len(origins) > 1:
             return _response(HTTPStatus.BAD_REQUEST, b"one Host and at most one Origin header, please", "text/plain")
@@ -506,7 +506,9 @@ class StyleServer:
             return _response(HTTPStatus.REQUEST_URI_TOO_LONG, b"the path is too long", "text/plain")
         try:
             path, _, query = request.path.partition("?")
-            return self._page(path, parse_qs(query))
+            # in a worker thread: reading a 14 MB file or making the browser step's graph and
+            # reference clip (up to a second) must not stall the streams' stepping loop
+            return await asyncio.to_thread(self._page, path, parse_qs(query))
         except (OSError, StyleERDError, ValueError) as e:  # a name the file system refuses, a clip that cannot be read
             return _response(HTTPStatus.NOT_FOUND, f"not found: {e}".encode(errors="replace"), "text/plain")
 
