@@ -58,11 +58,12 @@ def test_exported_graphs_pass_the_full_check_at_opset_15(model, form):
     onnx.checker.check_model(proto, full_check=True)
 
 
-def test_a_graph_of_some_styles_equals_the_reference_on_them(model):
+@pytest.mark.parametrize("form", FORMS)
+def test_a_graph_of_some_styles_equals_the_reference_on_them(model, form):
     import onnxruntime as ort
 
     styles = ("elderly", "youthful")
-    session = ort.InferenceSession(step_graph(model, "lstm", styles).SerializeToString(), providers=["CPUExecutionProvider"])
+    session = ort.InferenceSession(step_graph(model, form, styles).SerializeToString(), providers=["CPUExecutionProvider"])
     reference = make_backend("torch", model, 3)
     c = model.config
     S, H = len(state_layers(model, styles)), c.hidden

@@ -58,44 +58,73 @@ class _Graph:
         return names[0] if outputs == 1 else names
 
 
-def _linear(g: _Graph, x: str, W: np.ndarray, b: np.ndarray, relu: bool) -> str:
-    y = g.op("Gemm", x, g.const(W.astype(np.float32)), g.const(b.astype(np.float32)))
-    return g.op("Relu", y) if relu else y
+def _onnx_gates(a: np.ndarray, H: int, order=TORCH_TO_ONNX_GATES) -> np.ndarray:
+    return np.concatenate([a[k * H : (k + 1) * H] for k in order]).astype(np.float32)
 
 
-def _onnx_gates(a: np.ndarray, H: int) -> np.ndarray:
-    return np.concatenate([a[k * H : (k + 1) * H] for k in TORCH_TO_ONNX_GATES]).astype(np.float32)
+def _lstm_op(g: _Graph, x: str, h: str, c: str, arrays: dict, prefix: str, i: int, H: int) -> tuple[str, str]:
+    """One LSTM layer as one ``LSTM`` op on ``x [1, N, in]`` and its state ``h, c [1, N, H]``
+    -> the new ``h, c`` (with one frame, the op's output Y_h is its output)."""
+    W = g.const(_onnx_gates(arrays[f"{prefix}.weight_ih_l{i}"], H)[None])
+    R = g.const(_onnx_gates(arrays[f"{prefix}.weight_hh_l{i}"], H)[None])
+    B = g.const(np.concatenate([_onnx_gates(arrays[f"{prefix}.bias_ih_l{i}"], H), _onnx_gates(arrays[f"{prefix}.bias_hh_l{i}"], H)])[None])
+    g.count += 1
+    h_new, c_new = f"lstm{g.count}_h", f"lstm{g.count}_c"
+    g.nodes.append(helper.make_node("LSTM", [x, W, R, B, "", h, c], ["", h_new, c_new], hidden_size=H))
+    return h_new, c_new
 
 
-def _lstm_layer(g: _Graph, form: str, x: str, h: str, c: str, arrays: dict, prefix: str, i: int, H: int) -> tuple[str, str]:
-    """One LSTM layer's step on ``x [1, N, in]`` and its state ``h, c [1, N, H]`` -> the new
-    ``h, c`` (h is also the layer's output): one ``LSTM`` op, or its cell written out."""
-    w_ih, w_hh = arrays[f"{prefix}.weight_ih_l{i}"], arrays[f"{prefix}.weight_hh_l{i}"]
-    b_ih, b_hh = arrays[f"{prefix}.bias_ih_l{i}"], arrays[f"{prefix}.bias_hh_l{i}"]
-    if form == "lstm":
-        W, R = g.const(_onnx_gates(w_ih, H)[None]), g.const(_onnx_gates(w_hh, H)[None])
-        B = g.const(np.concatenate([_onnx_gates(b_ih, H), _onnx_gates(b_hh, H)])[None])
-        g.count += 1
-        h_new, c_new = f"lstm{g.count}_h", f"lstm{g.count}_c"
-        g.nodes.append(helper.make_node("LSTM", [x, W, R, B, "", h, c], ["", h_new, c_new], hidden_size=H))  # seq_len 1: Y_h is Y
-        return h_new, c_new
-    gates = g.op("Add", g.op("Add", g.op("MatMul", x, g.const(w_ih.T.astype(np.float32))), g.op("MatMul", h, g.const(w_hh.T.astype(np.float32)))),
-                 g.const((b_ih + b_hh).astype(np.float32)))  # fmt: skip
-    i_, f_, g_, o_ = g.op("Split", gates, outputs=4, axis=2)  # torch's gate order
-    c_new = g.op("Add", g.op("Mul", g.op("Sigmoid", f_), c), g.op("Mul", g.op("Sigmoid", i_), g.op("Tanh", g_)))
-    return g.op("Mul", g.op("Sigmoid", o_), g.op("Tanh", c_new)), c_new
+def _lockstep_cells(g: _Graph, x: str, h: str, c: str, arrays: dict, members: list[tuple[str, int]], H: int) -> tuple[str, str]:
+    """Layer i of several branches at once, written out in plain ops: the branches are a batch
+    axis of the matrix products (``x [1 or B, N, in]``, ``h, c [B, N, H]``, weights [B, in, 4H]),
+    so a graph has one cell's worth of nodes per layer depth however many branches it holds."""
+    order = (0, 1, 3, 2)  # torch's gates (i, f, g, o) as (i, f, o, g): one Sigmoid, one Tanh
+    w_in = np.stack([_onnx_gates(arrays[f"{p}.weight_ih_l{i}"], H, order).T for p, i in members])
+    w_hid = np.stack([_onnx_gates(arrays[f"{p}.weight_hh_l{i}"], H, order).T for p, i in members])
+    b = np.stack([_onnx_gates(arrays[f"{p}.bias_ih_l{i}"] + arrays[f"{p}.bias_hh_l{i}"], H, order)[None] for p, i in members])
+    if members[0][1] == 0:  # the first layer's input (the encoding) is shared by every branch
+        gates = g.op("Add", g.op("MatMul", x, g.const(w_in)), g.op("MatMul", h, g.const(w_hid)))
+    else:
+        gates = g.op("MatMul", g.op("Concat", x, h, axis=2), g.const(np.concatenate([w_in, w_hid], axis=1)))
+    ifo, g_ = g.op("Split", g.op("Add", gates, g.const(b)), _ints(g, 3 * H, H), outputs=2, axis=2)
+    i_, f_, o_ = g.op("Split", g.op("Sigmoid", ifo), outputs=3, axis=2)
+    c_new = g.op("Add", g.op("Mul", f_, c), g.op("Mul", i_, g.op("Tanh", g_)))
+    return g.op("Mul", o_, g.op("Tanh", c_new)), c_new
+
+
+def _fold_into_first_layers(arrays: dict, W: np.ndarray, b: np.ndarray, prefixes: list[str]) -> dict:
+    """``arrays`` with a linear layer ``x @ W + b`` before layer 0 of the stacks ``prefixes``
+    folded into that layer's input weights (one matrix product fewer per frame)."""
+    arrays = dict(arrays)
+    for p in prefixes:
+        w_ih = arrays[f"{p}.weight_ih_l0"].astype(np.float64)
+        arrays[f"{p}.weight_ih_l0"] = (w_ih @ W.T).astype(np.float32)
+        arrays[f"{p}.bias_ih_l0"] = (arrays[f"{p}.bias_ih_l0"] + w_ih @ b).astype(np.float32)
+    return arrays
 
 
 def _ints(g: _Graph, *values: int) -> str:
     return g.const(np.array(values, dtype=np.int64))
 
 
+def _depths(c, branches: list[str]) -> list[list[tuple[str, int]]]:
+    """Per layer depth, the (stack, layer) pairs at that depth: the neutral branch first, then
+    the style branches."""
+    stacks = [("neutral", c.neutral_style, c.neutral_layers)] + [(f"branches.{k}", s, c.style_layers) for k, s in branches]
+    return [[(prefix, name, i) for prefix, name, layers in stacks if i < layers] for i in range(max(c.neutral_layers, c.style_layers))]
+
+
+def _branches(c, styles: tuple[str, ...] | None) -> list[tuple[int, str]]:
+    """(index among the model's branches, style) of the branches a graph of ``styles`` holds."""
+    return [(k, c.styles[s]) for k, s in enumerate(c.branch_styles) if styles is None or c.styles[s] in styles]
+
+
 def state_layers(model: GeneratorWeights, styles: tuple[str, ...] | None = None) -> list[tuple[str, int]]:
-    """The rows of the state tensors ``h, c [S, N, H]``: (branch, layer) for the neutral
-    branch's layers, then each included style branch's (all, or those of ``styles``)."""
+    """The rows of the state tensors ``h, c [S, N, H]``, depth by depth: (branch, layer) for
+    layer 0 of the neutral branch and of each included style branch (all, or those of
+    ``styles``), then layer 1, and so on."""
     c = generator_weights(model).config
-    branches = [c.styles[s] for s in c.branch_styles if styles is None or c.styles[s] in styles]
-    return [(c.neutral_style, i) for i in range(c.neutral_layers)] + [(b, i) for b in branches for i in range(c.style_layers)]
+    return [(name, i) for depth in _depths(c, _branches(c, styles)) for _, name, i in depth]
 
 
 def step_graph(model: GeneratorWeights, form: str = "lstm", styles: tuple[str, ...] | None = None) -> onnx.ModelProto:
@@ -103,11 +132,12 @@ def step_graph(model: GeneratorWeights, form: str = "lstm", styles: tuple[str, .
     style; a graph for the styles a host uses is smaller and faster), checked by
     ``onnx.checker`` (full check).
 
-    Layers work on ``[1, N, .]`` tensors (a sequence of one frame) and every per-layer or
-    per-branch step that ONNX can batch is batched, so the graph has few nodes: one state
-    tensor per h and c (``state_layers``), split into its layers once and joined once; the
+    Per-node cost, not arithmetic, sets a step's time at small batches (onnxruntime: about
+    0.4 us a plain node, 8 us an LSTM op), so the graph has few nodes: one state tensor per h
+    and c, split once and joined once; the learned initial states one batched product; the
     branch outputs weighted and summed in one pass; one ``Where`` per state keeps the rows of
-    branches that do not run."""
+    branches that do not run; and in the plain form, the branches' cells of one depth one
+    batched cell."""
     if form not in FORMS:
         raise ValueError(f"unknown ONNX form {form!r}; valid: {', '.join(FORMS)}")
     model = generator_weights(model)
@@ -115,55 +145,87 @@ def step_graph(model: GeneratorWeights, form: str = "lstm", styles: tuple[str, .
     unknown = set(styles or ()) - set(c.styles[s] for s in c.branch_styles)
     if unknown:
         raise StyleERDError(f"no style branch for {', '.join(sorted(unknown))}; the model's: {', '.join(c.styles[s] for s in c.branch_styles)}")
-    ks = [k for k, s in enumerate(w.branch_styles) if styles is None or c.styles[s] in styles]  # included branches
-    D, nS, nC, H, J = c.feature_dim, len(c.styles), len(c.contents), c.hidden, c.n_joints
-    L0, L1 = len(w.neutral), c.style_layers
-    S = L0 + len(ks) * L1
+    branches = _branches(c, styles)
+    depths = _depths(c, branches)
+    rows = [(prefix, i) for depth in depths for prefix, _, i in depth]
+    D, nS, nC, H, J, S = c.feature_dim, len(c.styles), len(c.contents), c.hidden, c.n_joints, len(rows)
     g = _Graph()
     # a stream's first frame starts from the learned initial states (the neutral one by content):
-    # content [N, nC] @ table [nC, S*H] -> [S, N, H], the branch rows the same for every content
-    first = g.op("Unsqueeze", g.op("Cast", "first_frame", to=TensorProto.BOOL), _ints(g, 0))  # [1, N, 1]
+    # content [N, nC] @ table [S, nC, H] -> [S, N, H], the branch rows the same for every content
+    first = g.op("Cast", "first_frame", to=TensorProto.BOOL)  # [N, 1]
     states = {}
     for name, neutral, branch in (("h", w.neutral_init[0], w.branch_init[0]), ("c", w.neutral_init[1], w.branch_init[1])):
-        table = np.concatenate([neutral.reshape(nC, -1), *(np.broadcast_to(branch[k].reshape(1, -1), (nC, L1 * H)) for k in ks)], axis=1)
-        start = g.op("Transpose", g.op("Reshape", g.op("MatMul", "content", g.const(table.astype(np.float32))), _ints(g, -1, S, H)), perm=[1, 0, 2])
-        states[name] = g.op("Where", first, start, name)
-    # encoder
+        table = np.stack([neutral[:, i] if prefix == "neutral" else np.broadcast_to(branch[int(prefix.split(".")[1]), i], (nC, H)) for prefix, i in rows])
+        states[name] = g.op("Where", first, g.op("MatMul", "content", g.const(table.astype(np.float32))), name)
+    # encoder; its last layer (linear) folded into the first LSTM layers' input weights
+    arrays = _fold_into_first_layers(arrays, *w.encoder[-1], [prefix for prefix, _, i in depths[0]])
     z = g.op("Concat", "features", "style", "content", axis=1)
-    for i, (W, b) in enumerate(w.encoder):
-        z = _linear(g, z, W, b, relu=i < len(w.encoder) - 1)
-    z = g.op("Unsqueeze", z, _ints(g, 0))  # [1, N, H]
-    # the branches, layer by layer
-    rows = {name: g.op("Split", states[name], outputs=S, axis=0) if S > 1 else [states[name]] for name in states}
-    new_h, new_c, last = [], [], []
-    for prefix, layers in [("neutral", L0)] + [(f"branches.{k}", L1) for k in ks]:
-        x = z
-        for i in range(layers):
-            x, c_i = _lstm_layer(g, form, x, rows["h"][len(new_h)], rows["c"][len(new_c)], arrays, prefix, i, H)
-            new_h.append(x)
-            new_c.append(c_i)
-        last.append(x)
+    for W, b in w.encoder[:-1]:
+        z = g.op("Relu", g.op("Gemm", z, g.const(W), g.const(b)))
+    if form == "lstm":
+        z = g.op("Unsqueeze", z, _ints(g, 0))  # [1, N, E]: a sequence of one frame (MatMul broadcasts [N, E])
+    # the branches, depth by depth
+    new = {"h": [], "c": []}
+    if form == "plain":  # one batched cell per depth on that depth's rows [B, N, H]
+        sizes = _ints(g, *(len(d) for d in depths))
+        parts = {name: g.op("Split", states[name], sizes, outputs=len(depths), axis=0) if len(depths) > 1 else [states[name]] for name in states}
+        x, previous = z, None
+        for d, depth in enumerate(depths):
+            members = [(prefix, i) for prefix, _, i in depth]
+            if previous is not None and members != [(p, i + 1) for p, _, i in previous][: len(members)]:
+                raise ValueError("a depth's branches must be the first of the depth before")  # the neutral branch is the deepest or as deep
+            if previous is not None and len(members) < len(previous):
+                x = g.op("Slice", x, _ints(g, 0), _ints(g, len(members)), _ints(g, 0))
+            x, c_new = _lockstep_cells(g, x, parts["h"][d], parts["c"][d], arrays, members, H)
+            new["h"].append(x)
+            new["c"].append(c_new)
+            previous = depth
+            if d == c.style_layers - 1:
+                branch_last = g.op("Slice", x, _ints(g, 1), _ints(g, 1 + len(branches)), _ints(g, 0)) if branches else None
+            if d == c.neutral_layers - 1:
+                neutral_last = g.op("Slice", x, _ints(g, 0), _ints(g, 1), _ints(g, 0)) if len(depth) > 1 else x
+    else:  # one LSTM op per row
+        parts = {name: g.op("Split", states[name], outputs=S, axis=0) if S > 1 else [states[name]] for name in states}
+        last, h_rows, c_rows = {}, {}, {}
+        for prefix in ["neutral"] + [f"branches.{k}" for k, _ in branches]:
+            x = z
+            for i in range(c.neutral_layers if prefix == "neutral" else c.style_layers):
+                r = rows.index((prefix, i))
+                x, c_rows[r] = _lstm_op(g, x, parts["h"][r], parts["c"][r], arrays, prefix, i, H)
+                h_rows[r] = x
+            last[prefix] = x
+        new = {"h": [h_rows[r] for r in range(S)], "c": [c_rows[r] for r in range(S)]}
+        neutral_last = last["neutral"]
+        ends = [last[f"branches.{k}"] for k, _ in branches]
+        branch_last = (g.op("Concat", *ends, axis=0) if len(ends) > 1 else ends[0]) if ends else None
     # out = neutral + sum_k w_k branch_k, the weights read off the target by one product
-    pick = np.zeros((nS, 1 + len(ks)), np.float32)
-    for j, k in enumerate(ks):
-        pick[w.branch_styles[k], 1 + j] = 1.0
-    weights = g.op("Add", g.op("MatMul", "target", g.const(pick)), g.const(np.eye(1, 1 + len(ks), dtype=np.float32)[0]))  # [N, 1+K]
-    weights = g.op("Unsqueeze", g.op("Transpose", weights, perm=[1, 0]), _ints(g, 2))  # [1+K, N, 1]
-    stacked = g.op("Concat", *last, axis=0) if len(last) > 1 else last[0]
-    out = g.op("ReduceSum", g.op("Mul", stacked, weights), _ints(g, 0), keepdims=0)  # [N, H]
+    out = neutral_last
+    if branches:
+        pick = np.zeros((len(branches), nS, 1), np.float32)
+        for j, (_, style) in enumerate(branches):
+            pick[j, c.styles.index(style)] = 1.0
+        weights = g.op("MatMul", "target", g.const(pick))  # [K, N, 1]
+        out = g.op("Add", out, g.op("ReduceSum", g.op("Mul", branch_last, weights), _ints(g, 0), keepdims=1))
+    out = g.op("Squeeze", out, _ints(g, 0))  # [N, H]
     # a branch's rows advance only for streams that give its style a weight; the neutral rows always
-    runs = g.op("Not", g.op("Equal", g.op("Gather", weights, g.const(np.array([0] * L0 + [1 + j for j in range(len(ks)) for _ in range(L1)], np.int64)), axis=0),
-                            g.const(np.zeros(1, np.float32))))  # [S, N, 1]  # fmt: skip
-    for name, parts in (("h", new_h), ("c", new_c)):
-        g.nodes.append(helper.make_node("Where", [runs, g.op("Concat", *parts, axis=0) if S > 1 else parts[0], states[name]], [f"{name}_out"]))
-    # decoder
+    row_pick = np.zeros((S, nS, 1), np.float32)
+    for r, (prefix, _) in enumerate(rows):
+        if prefix != "neutral":
+            row_pick[r, c.styles.index(dict(branches)[int(prefix.split(".")[1])])] = 1.0
+    neutral_rows = np.array([[[float(prefix == "neutral")]] for prefix, _ in rows], np.float32)
+    keep = g.op("Equal", g.op("Add", g.op("MatMul", "target", g.const(row_pick)), g.const(neutral_rows)), g.const(np.zeros(1, np.float32)))  # [S, N, 1]
+    for name in ("h", "c"):
+        parts = new[name]
+        g.nodes.append(helper.make_node("Where", [keep, states[name], g.op("Concat", *parts, axis=0) if len(parts) > 1 else parts[0]], [f"{name}_out"]))
+    # decoder; its last layer as two products, the rotations' and the velocities'
     y = g.op("Concat", out, "target", axis=1)
-    for i, (W, b) in enumerate(w.decoder):
-        y = _linear(g, y, W, b, relu=i < len(w.decoder) - 1)
-    q = g.op("Reshape", g.op("Slice", y, _ints(g, 0), _ints(g, 4 * J), _ints(g, 1)), _ints(g, -1, J, 4))
+    for i, (W, b) in enumerate(w.decoder[:-1]):
+        y = g.op("Relu", g.op("Gemm", y, g.const(W), g.const(b)))
+    W, b = w.decoder[-1]
+    q = g.op("Reshape", g.op("Gemm", y, g.const(W[:, : 4 * J].copy()), g.const(b[: 4 * J].copy())), _ints(g, -1, J, 4))
+    g.nodes.append(helper.make_node("Gemm", [y, g.const(W[:, 4 * J :].copy()), g.const(b[4 * J :].copy())], ["velocities"]))
     norm = g.op("Max", g.op("ReduceL2", q, axes=[2], keepdims=1), g.const(np.array(1e-8, np.float32)))
     g.nodes.append(helper.make_node("Div", [q, norm], ["rotations"]))
-    g.nodes.append(helper.make_node("Slice", [y, _ints(g, 4 * J), _ints(g, 7 * J), _ints(g, 1)], ["velocities"]))
 
     f32 = TensorProto.FLOAT
     inputs = [helper.make_tensor_value_info(name, f32, shape) for name, shape in
@@ -190,7 +252,7 @@ def sidecar(model: GeneratorWeights, proto: onnx.ModelProto, graph_name: str, fo
         "styles": list(c.styles),
         "contents": list(c.contents),
         "neutral_style": c.neutral_style,
-        "branch_styles": [b for i, (b, layer) in enumerate(layers) if layer == 0 and i >= c.neutral_layers],
+        "branch_styles": [b for b, layer in layers if layer == 0 and b != c.neutral_style],
         "state_layers": [list(row) for row in layers],
         "state_shapes": {i.name: [d.dim_param or d.dim_value for d in i.type.tensor_type.shape.dim] for i in proto.graph.input[5:]},
         "feature_layout": "[rotations 4J (w,x,y,z) | positions 3J | velocities 3J | foot contacts 4], see docs/ONNX.md",
