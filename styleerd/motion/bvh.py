@@ -13,6 +13,7 @@ import warnings
 from collections.abc import Iterator
 from dataclasses import dataclass
 
+import numba as nb
 import numpy as np
 
 from styleerd.atomic import atomic_write_text
@@ -348,16 +349,23 @@ def motion_from_channels(skeleton: Skeleton, values: np.ndarray, fps: float) -> 
     """The motion of BVH channel values ``[T, n_channels]`` in the skeleton's layout (the
     angles as given are kept as ``euler_hint``)."""
     T, J = len(values), skeleton.n_joints
-    rotations = np.empty((T, J, 4))
-    positions = np.broadcast_to(skeleton.offsets, (T, J, 3)).copy()
-    hint = np.zeros((T, J, 3))
-    pos_col, pos_joint, pos_axis, rot_col, rot_joint, rot_slot = skeleton.channel_layout
-    positions[:, pos_joint, pos_axis] = values[:, pos_col]
-    hint[:, rot_joint, rot_slot] = values[:, rot_col]
-    for order, joints in skeleton.joints_by_order.items():  # one conversion per Euler order
-        rotations[:, joints] = quat.from_euler(np.radians(hint[:, joints]), order)
+    rotations, positions, hint = np.empty((T, J, 4)), np.empty((T, J, 3)), np.empty((T, J, 3))
+    _from_channels_kernel(np.ascontiguousarray(values, dtype=np.float64), skeleton.offsets, *skeleton.channel_layout, skeleton.euler_axes, rotations, positions, hint)
     return Motion(skeleton, rotations, positions, fps, euler_hint=hint)
 
+
+@nb.njit(cache=True)
+def _from_channels_kernel(values, offsets, pos_col, pos_joint, pos_axis, rot_col, rot_joint, rot_slot, axes, rotations, positions, hint):
+    for t in range(values.shape[0]):
+        positions[t] = offsets  # a joint without position channels holds its rest offset
+        hint[t] = 0.0
+        for i in range(len(pos_col)):
+            positions[t, pos_joint[i], pos_axis[i]] = values[t, pos_col[i]]
+        for i in range(len(rot_col)):
+            hint[t, rot_joint[i], rot_slot[i]] = values[t, rot_col[i]]
+        for j in range(axes.shape[0]):
+            e = np.radians(hint[t, j])
+            rotations[t, j, 0], rotations[t, j, 1], rotations[t, j, 2], rotations[t, j, 3] = quat.euler_scalars_to_quat(e[0], e[1], e[2], axes[j, 0], axes[j, 1], axes[j, 2])
 
 
 def read(path: str | os.PathLike) -> Motion:
@@ -371,20 +379,38 @@ def channel_values(motion: Motion) -> np.ndarray:
     """The BVH channel values ``[T, n_channels]`` of a motion, in its skeleton's layout.
     Euler angles follow ``motion.euler_hint`` where there is one (the source file's branches),
     else they are unrolled over time so the curves have no +-180 degree flips."""
-    sk = motion.skeleton
-    angles = np.zeros(motion.rotations.shape[:2] + (3,))
-    for order, joints in sk.joints_by_order.items():  # one conversion per Euler order
-        e = quat.to_euler(motion.rotations[:, joints], order)
-        if motion.euler_hint is None:
-            e = quat.unroll_euler(e)
-        else:
-            e = quat.nearest_euler(e, np.radians(motion.euler_hint[:, joints]))
-        angles[:, joints] = np.degrees(e)
-    pos_col, pos_joint, pos_axis, rot_col, rot_joint, rot_slot = sk.channel_layout
-    out = np.empty(motion.rotations.shape[:1] + (len(pos_col) + len(rot_col),))
-    out[:, pos_col] = motion.positions[:, pos_joint, pos_axis]
-    out[:, rot_col] = angles[:, rot_joint, rot_slot]
+    sk, T = motion.skeleton, motion.n_frames
+    pos_col, _, _, rot_col, _, _ = sk.channel_layout
+    hint = np.zeros((0, 0, 3)) if motion.euler_hint is None else np.ascontiguousarray(motion.euler_hint, dtype=np.float64)
+    angles, out = np.empty((T, sk.n_joints, 3)), np.empty((T, len(pos_col) + len(rot_col)))
+    _euler_angles_kernel(np.ascontiguousarray(motion.rotations, dtype=np.float64), sk.euler_axes, hint, angles)
+    if motion.euler_hint is None:
+        angles = quat.unroll_euler(angles)
+    _to_channels_kernel(np.ascontiguousarray(motion.positions, dtype=np.float64), angles, *sk.channel_layout, out)
     return out
+
+
+@nb.njit(cache=True)
+def _euler_angles_kernel(rotations, axes, hint, angles):
+    """Euler angles (radians) of every joint in its order; nearest ``hint`` (degrees) where
+    one is given, else the principal triple."""
+    for t in range(rotations.shape[0]):
+        for j in range(rotations.shape[1]):
+            q = rotations[t, j]
+            a0, a1, a2 = quat.quat_scalars_to_euler(q[0], q[1], q[2], q[3], axes[j, 0], axes[j, 1], axes[j, 2])
+            if hint.shape[0]:
+                r = np.radians(hint[t, j])
+                a0, a1, a2 = quat.nearest_euler_scalars(a0, a1, a2, r[0], r[1], r[2])
+            angles[t, j, 0], angles[t, j, 1], angles[t, j, 2] = a0, a1, a2
+
+
+@nb.njit(cache=True)
+def _to_channels_kernel(positions, angles, pos_col, pos_joint, pos_axis, rot_col, rot_joint, rot_slot, out):
+    for t in range(positions.shape[0]):
+        for i in range(len(pos_col)):
+            out[t, pos_col[i]] = positions[t, pos_joint[i], pos_axis[i]]
+        for i in range(len(rot_col)):
+            out[t, rot_col[i]] = np.degrees(angles[t, rot_joint[i], rot_slot[i]])
 
 
 def format_header(skeleton: Skeleton, n_frames: int, fps: float, precision: int = 9) -> str:

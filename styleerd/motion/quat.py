@@ -147,15 +147,20 @@ def mul_vec_scalars(w, x, y, z, vx, vy, vz):
 
 
 @nb.njit(cache=True)
+def euler_scalars_to_quat(e0, e1, e2, a0, a1, a2):
+    """q = q(a0, e0) q(a1, e1) q(a2, e2) for axes a (0, 1, 2: x, y, z), each factor
+    cos(e/2) + sin(e/2) axis: ``from_euler`` of one triple, for compiled loops."""
+    w, x, y, z = 1.0, 0.0, 0.0, 0.0
+    for e, a in ((e0, a0), (e1, a1), (e2, a2)):
+        c, s = np.cos(0.5 * e), np.sin(0.5 * e)
+        w, x, y, z = mul_scalars(w, x, y, z, c, s if a == 0 else 0.0, s if a == 1 else 0.0, s if a == 2 else 0.0)
+    return w, x, y, z
+
+
+@nb.njit(cache=True)
 def _from_euler_kernel(e, axes, out):
-    """q = q(axes[0], e0) q(axes[1], e1) q(axes[2], e2), each factor cos(a/2) + sin(a/2) axis."""
     for n in range(e.shape[0]):
-        w, x, y, z = 1.0, 0.0, 0.0, 0.0
-        for t in range(3):
-            c, s = np.cos(0.5 * e[n, t]), np.sin(0.5 * e[n, t])
-            a = axes[t]
-            w, x, y, z = mul_scalars(w, x, y, z, c, s if a == 0 else 0.0, s if a == 1 else 0.0, s if a == 2 else 0.0)
-        out[n, 0], out[n, 1], out[n, 2], out[n, 3] = w, x, y, z
+        out[n, 0], out[n, 1], out[n, 2], out[n, 3] = euler_scalars_to_quat(e[n, 0], e[n, 1], e[n, 2], axes[0], axes[1], axes[2])
 
 
 def _xform_table() -> np.ndarray:
@@ -213,27 +218,29 @@ def to_euler(q: np.ndarray, order: str) -> np.ndarray:
     Tait-Bryan orders; the middle angle lies in [-pi/2, pi/2], the others in (-pi, pi].
     At gimbal lock the last angle is set to zero."""
     i, j, k = (_AXIS[a] for a in order)
-    s = 1.0 if (j - i) % 3 == 1 else -1.0  # +1 when (i, j, k) is a cyclic permutation of (x, y, z)
     q = np.asarray(q, dtype=np.float64)
     out = np.empty(q.shape[:-1] + (3,))
-    _to_euler_kernel(np.ascontiguousarray(q).reshape(-1, 4), i, j, k, s, out.reshape(-1, 3))
+    _to_euler_kernel(np.ascontiguousarray(q).reshape(-1, 4), i, j, k, out.reshape(-1, 3))
     return out
 
 
 @nb.njit(cache=True)
-def _to_euler_kernel(q, i, j, k, s, out):
-    m = np.empty((3, 3))
+def quat_scalars_to_euler(w, x, y, z, i, j, k):
+    """``to_euler`` of one quaternion about axes (i, j, k), for compiled loops."""
+    s = 1.0 if (j - i) % 3 == 1 else -1.0  # +1 when (i, j, k) is a cyclic permutation of (x, y, z)
+    m = ((1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)),
+         (2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)),
+         (2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)))  # fmt: skip
+    sin_b = min(1.0, max(-1.0, s * m[i][k]))
+    if abs(sin_b) > 1.0 - 1e-10:  # gimbal lock: the last angle is zero
+        return np.arctan2(s * m[k][j], m[j][j]), np.arcsin(sin_b), 0.0
+    return np.arctan2(-s * m[j][k], m[k][k]), np.arcsin(sin_b), np.arctan2(-s * m[i][j], m[i][i])
+
+
+@nb.njit(cache=True)
+def _to_euler_kernel(q, i, j, k, out):
     for n in range(q.shape[0]):
-        w, x, y, z = q[n, 0], q[n, 1], q[n, 2], q[n, 3]
-        m[0, 0], m[0, 1], m[0, 2] = 1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)
-        m[1, 0], m[1, 1], m[1, 2] = 2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)
-        m[2, 0], m[2, 1], m[2, 2] = 2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)
-        sin_b = min(1.0, max(-1.0, s * m[i, k]))
-        out[n, 1] = np.arcsin(sin_b)
-        if abs(sin_b) > 1.0 - 1e-10:  # gimbal lock: the last angle is zero
-            out[n, 0], out[n, 2] = np.arctan2(s * m[k, j], m[j, j]), 0.0
-        else:
-            out[n, 0], out[n, 2] = np.arctan2(-s * m[j, k], m[k, k]), np.arctan2(-s * m[i, j], m[i, i])
+        out[n, 0], out[n, 1], out[n, 2] = quat_scalars_to_euler(q[n, 0], q[n, 1], q[n, 2], q[n, 3], i, j, k)
 
 
 def alternate_euler(e: np.ndarray) -> np.ndarray:
@@ -251,23 +258,25 @@ def nearest_euler(e: np.ndarray, reference: np.ndarray) -> np.ndarray:
 
 
 @nb.njit(cache=True)
-def _nearest_euler_kernel(e, ref, out):
+def nearest_euler_scalars(e0, e1, e2, r0, r1, r2):
+    """``nearest_euler`` of one triple, for compiled loops."""
     two_pi = 2.0 * np.pi
-    c = np.empty(3)
+    best, out = 0.0, (e0, e1, e2)
+    for alt in range(2):  # (a, b, c) and its twin (a + pi, pi - b, c + pi)
+        c0, c1, c2 = (e0, e1, e2) if alt == 0 else (e0 + np.pi, np.pi - e1, e2 + np.pi)
+        c0 += two_pi * np.rint((r0 - c0) / two_pi)
+        c1 += two_pi * np.rint((r1 - c1) / two_pi)
+        c2 += two_pi * np.rint((r2 - c2) / two_pi)
+        d = (c0 - r0) ** 2 + (c1 - r1) ** 2 + (c2 - r2) ** 2
+        if alt == 0 or d < best:  # ties (and NaN) keep the principal triple, as before
+            best, out = d, (c0, c1, c2)
+    return out
+
+
+@nb.njit(cache=True)
+def _nearest_euler_kernel(e, ref, out):
     for n in range(e.shape[0]):
-        best = 0.0
-        for alt in range(2):  # (a, b, c) and its twin (a + pi, pi - b, c + pi)
-            if alt == 0:
-                c[0], c[1], c[2] = e[n, 0], e[n, 1], e[n, 2]
-            else:
-                c[0], c[1], c[2] = e[n, 0] + np.pi, np.pi - e[n, 1], e[n, 2] + np.pi
-            d = 0.0
-            for t in range(3):
-                c[t] += two_pi * np.rint((ref[n, t] - c[t]) / two_pi)
-                d += (c[t] - ref[n, t]) ** 2
-            if alt == 0 or d < best:  # ties (and NaN) keep the principal triple, as before
-                best = d
-                out[n, 0], out[n, 1], out[n, 2] = c[0], c[1], c[2]
+        out[n, 0], out[n, 1], out[n, 2] = nearest_euler_scalars(e[n, 0], e[n, 1], e[n, 2], ref[n, 0], ref[n, 1], ref[n, 2])
 
 
 def unroll_euler(e: np.ndarray) -> np.ndarray:

@@ -24,10 +24,11 @@ from __future__ import annotations
 from dataclasses import dataclass
 from functools import cached_property
 
+import numba as nb
 import numpy as np
 
 from styleerd.motion import quat
-from styleerd.motion.kinematics import forward_kinematics, local_rotations
+from styleerd.motion.kinematics import forward_kinematics, forward_pose
 from styleerd.motion.motion import Motion
 from styleerd.motion.skeleton import Skeleton, find_role
 
@@ -153,6 +154,17 @@ class JointMap:
                 rel = quat.mul(quat.inv(self.target_tpose[p]), self.target_tpose[j]) if p >= 0 else self.target_tpose[j]
                 out.append((j, p, rel))
         return out
+
+    @cached_property
+    def target_only_arrays(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """``target_only`` as arrays: joints, parents, rotations ``[M, 4]``."""
+        only = self.target_only
+        return np.array([j for j, _, _ in only], np.int64), np.array([p for _, p, _ in only], np.int64), np.array([r for _, _, r in only]).reshape(-1, 4)
+
+    @cached_property
+    def unmapped_source(self) -> np.ndarray:
+        """Source joints with no counterpart, parents first (skeletons list parents first)."""
+        return np.array(sorted(set(range(self.source.n_joints)) - set(self.joints[1].tolist())), np.int64)
 
     def source_legs(self) -> list[list[int]]:
         """[[hip, knee, ankle] of the left leg, the same of the right], as source joints."""
@@ -393,16 +405,47 @@ def joint_map(
 def to_target(motion: Motion, jm: JointMap) -> Motion:
     """The source motion on the target skeleton (target rest offsets, scaled root path)."""
     src, tgt = jm.source, jm.target
-    g_rot, g_pos = forward_kinematics(motion.rotations, motion.positions, src.parents)
-    T = motion.n_frames
     t_idx, s_idx = jm.joints
-    out = np.empty((T, tgt.n_joints, 4))
-    out[:, t_idx] = quat.mul(g_rot[:, s_idx], jm.to_target_offsets)
-    for j, p, rel in jm.target_only:  # no counterpart: the target's T-pose relation to its parent
-        out[:, j] = quat.mul(out[:, p], rel) if p >= 0 else rel
-    pos = np.broadcast_to(tgt.offsets, (T, tgt.n_joints, 3)).copy()
-    pos[:, 0] = g_pos[:, s_idx[0]] * jm.scale  # pairs are sorted by target joint; the hips (joint 0) are always mapped
-    return Motion(tgt, local_rotations(out, tgt.parents), pos, motion.fps)
+    rot, pos = np.empty((motion.n_frames, tgt.n_joints, 4)), np.empty((motion.n_frames, tgt.n_joints, 3))
+    _to_target_kernel(np.ascontiguousarray(motion.rotations), np.ascontiguousarray(motion.positions), src.parents, tgt.parents, t_idx, s_idx, jm.to_target_offsets, *jm.target_only_arrays, tgt.offsets, jm.scale, rot, pos)  # fmt: skip
+    return Motion(tgt, rot, pos, motion.fps)
+
+
+@nb.njit(cache=True)
+def _to_target_kernel(rot, pos, s_parents, t_parents, t_idx, s_idx, offsets, only_joint, only_parent, only_rel, t_offsets, scale, out_rot, out_pos):
+    """Per frame: source FK; mapped target joints' globals = source global x offset; the others
+    their T-pose relation to their parent (parents first); then local rotations; rest offsets
+    with the scaled root path (pairs are sorted by target joint; the hips, joint 0, are mapped)."""
+    g_rot, g_pos, glob = np.empty((rot.shape[1], 4)), np.empty((rot.shape[1], 3)), np.empty((out_rot.shape[1], 4))
+    for n in range(rot.shape[0]):
+        forward_pose(rot[n], pos[n], s_parents, g_rot, g_pos)
+        for i in range(len(t_idx)):
+            a, b = g_rot[s_idx[i]], offsets[i]
+            glob[t_idx[i], 0], glob[t_idx[i], 1], glob[t_idx[i], 2], glob[t_idx[i], 3] = quat.mul_scalars(a[0], a[1], a[2], a[3], b[0], b[1], b[2], b[3])
+        for m in range(len(only_joint)):
+            j, p, b = only_joint[m], only_parent[m], only_rel[m]
+            if p < 0:
+                glob[j] = b
+            else:
+                a = glob[p]
+                glob[j, 0], glob[j, 1], glob[j, 2], glob[j, 3] = quat.mul_scalars(a[0], a[1], a[2], a[3], b[0], b[1], b[2], b[3])
+        _local_pose(glob, t_parents, out_rot[n], False)
+        out_pos[n] = t_offsets
+        for k in range(3):
+            out_pos[n, 0, k] = g_pos[s_idx[0], k] * scale
+
+
+@nb.njit(cache=True)
+def _local_pose(glob, parents, out, unit):
+    """Local rotations of one pose's global ones (``unit``: normalised)."""
+    for j in range(glob.shape[0]):
+        p = parents[j]
+        if p < 0:
+            w, x, y, z = glob[j, 0], glob[j, 1], glob[j, 2], glob[j, 3]
+        else:
+            w, x, y, z = quat.mul_scalars(glob[p, 0], -glob[p, 1], -glob[p, 2], -glob[p, 3], glob[j, 0], glob[j, 1], glob[j, 2], glob[j, 3])
+        norm = max(np.sqrt(w * w + x * x + y * y + z * z), 1e-12) if unit else 1.0
+        out[j, 0], out[j, 1], out[j, 2], out[j, 3] = w / norm, x / norm, y / norm, z / norm
 
 
 def to_source(target_motion: Motion, jm: JointMap, source_motion: Motion) -> Motion:
@@ -410,11 +453,26 @@ def to_source(target_motion: Motion, jm: JointMap, source_motion: Motion) -> Mot
     global rotations, every other joint keeps ``source_motion``'s local rotation, and all
     translations (the root path included) are ``source_motion``'s."""
     src, tgt = jm.source, jm.target
-    g_tgt, _ = forward_kinematics(target_motion.rotations, target_motion.positions, tgt.parents)
     t_idx, s_idx = jm.joints
-    g = np.empty((target_motion.n_frames, src.n_joints, 4))
-    g[:, s_idx] = quat.mul(g_tgt[:, t_idx], jm.to_source_offsets)
-    for s in sorted(set(range(src.n_joints)) - set(s_idx.tolist())):  # parents first: their globals are ready
-        p = src.parents[s]
-        g[:, s] = quat.mul(g[:, p], source_motion.rotations[:, s]) if p >= 0 else source_motion.rotations[:, s]
-    return Motion(src, quat.normalize(local_rotations(g, src.parents)), source_motion.positions.copy(), target_motion.fps, source_motion.euler_hint)
+    rot = np.empty((target_motion.n_frames, src.n_joints, 4))
+    _to_source_kernel(np.ascontiguousarray(target_motion.rotations), np.ascontiguousarray(target_motion.positions), tgt.parents, src.parents, t_idx, s_idx,
+                      jm.to_source_offsets, jm.unmapped_source, np.ascontiguousarray(source_motion.rotations), rot)  # fmt: skip
+    return Motion(src, rot, source_motion.positions.copy(), target_motion.fps, source_motion.euler_hint)
+
+
+@nb.njit(cache=True)
+def _to_source_kernel(rot, pos, t_parents, s_parents, t_idx, s_idx, offsets, unmapped, source_rot, out_rot):
+    g_rot, g_pos, glob = np.empty((rot.shape[1], 4)), np.empty((rot.shape[1], 3)), np.empty((out_rot.shape[1], 4))
+    for n in range(rot.shape[0]):
+        forward_pose(rot[n], pos[n], t_parents, g_rot, g_pos)
+        for i in range(len(t_idx)):
+            a, b = g_rot[t_idx[i]], offsets[i]
+            glob[s_idx[i], 0], glob[s_idx[i], 1], glob[s_idx[i], 2], glob[s_idx[i], 3] = quat.mul_scalars(a[0], a[1], a[2], a[3], b[0], b[1], b[2], b[3])
+        for s in unmapped:
+            p, b = s_parents[s], source_rot[n, s]
+            if p < 0:
+                glob[s] = b
+            else:
+                a = glob[p]
+                glob[s, 0], glob[s, 1], glob[s, 2], glob[s, 3] = quat.mul_scalars(a[0], a[1], a[2], a[3], b[0], b[1], b[2], b[3])
+        _local_pose(glob, s_parents, out_rot[n], True)

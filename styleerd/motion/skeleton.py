@@ -61,12 +61,9 @@ class Skeleton:
         return tuple(orders)
 
     @cached_property
-    def joints_by_order(self) -> dict[str, np.ndarray]:
-        """Joint indices grouped by Euler order (one conversion call per group)."""
-        groups: dict[str, list[int]] = {}
-        for j, order in enumerate(self.rotation_orders):
-            groups.setdefault(order, []).append(j)
-        return {order: np.array(joints) for order, joints in groups.items()}
+    def euler_axes(self) -> np.ndarray:
+        """``[J, 3]`` the axes (0, 1, 2: x, y, z) of each joint's Euler order."""
+        return np.array([["xyz".index(a) for a in order] for order in self.rotation_orders], dtype=np.int64).reshape(-1, 3)
 
     @cached_property
     def channel_layout(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
