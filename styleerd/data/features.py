@@ -116,15 +116,16 @@ def stream_features(
     x, traj = np.empty((N, FeatureLayout(J).dim), np.float32), np.empty((N, 7))
     g, facing, ok = np.empty((N, J, 3)), np.empty((N, 3)), np.empty(N, np.bool_)
     _stream_features_kernel(rot, pos, np.ascontiguousarray(previous_global, dtype=np.float64), np.ascontiguousarray(previous_facing, dtype=np.float64), np.ascontiguousarray(started, dtype=np.bool_),
-           skeleton.parents, np.array(roles.left), np.array(roles.right), np.array(roles.feet), float(fps),
-           contact_speed * roles.leg_length, stats.mean, stats.std, stats.reference, float(limit), x, traj, g, np.empty((N, J, 4)), np.empty((N, J, 4)), facing, ok)  # fmt: skip
+           skeleton.parents, roles.joint_arrays, float(fps), contact_speed * roles.leg_length, stats.mean, stats.std, stats.reference, float(limit), x, traj, g, facing, ok)  # fmt: skip
     return x, traj, g, facing, ok
 
 
 # Serial and GIL-free: threads come from StreamStylizer's shards of streams (runtime.stylizer.SHARD_FROM).
 @nb.njit(cache=True, nogil=True)
-def _stream_features_kernel(rot, pos, previous, previous_facing, started, parents, left, right, feet, fps, max_speed, mean, std, reference, limit, x, traj, g, g_rot, unit, facing, ok):
+def _stream_features_kernel(rot, pos, previous, previous_facing, started, parents, roles, fps, max_speed, mean, std, reference, limit, x, traj, g, facing, ok):
     J = rot.shape[1]
+    left, right, feet = roles
+    g_rot, unit = np.empty(rot.shape), np.empty(rot.shape)
     for n in range(rot.shape[0]):
         for j in range(J):
             norm = max(np.sqrt(rot[n, j, 0] ** 2 + rot[n, j, 1] ** 2 + rot[n, j, 2] ** 2 + rot[n, j, 3] ** 2), 1e-12)

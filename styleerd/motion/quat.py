@@ -303,6 +303,23 @@ def slerp(a: np.ndarray, b: np.ndarray, t: np.ndarray) -> np.ndarray:
     return normalize(wa * a + wb * b)
 
 
+@nb.njit(cache=True)
+def between_scalars(x0, y0, z0, x1, y1, z1):
+    """``between`` of two vectors given as scalars, for compiled loops."""
+    n0, n1 = np.sqrt(x0 * x0 + y0 * y0 + z0 * z0), np.sqrt(x1 * x1 + y1 * y1 + z1 * z1)
+    if n0 < 1e-12 or n1 < 1e-12:
+        return 1.0, 0.0, 0.0, 0.0
+    x0, y0, z0, x1, y1, z1 = x0 / n0, y0 / n0, z0 / n0, x1 / n1, y1 / n1, z1 / n1
+    w = 1.0 + x0 * x1 + y0 * y1 + z0 * z1
+    if w < 1e-9:  # opposite: a half turn about an axis orthogonal to v0
+        ox, oy, oz = (1.0, 0.0, 0.0) if abs(x0) < 0.9 else (0.0, 1.0, 0.0)
+        w, x, y, z = 0.0, y0 * oz - z0 * oy, z0 * ox - x0 * oz, x0 * oy - y0 * ox
+    else:
+        x, y, z = y0 * z1 - z0 * y1, z0 * x1 - x0 * z1, x0 * y1 - y0 * x1
+    n = max(np.sqrt(w * w + x * x + y * y + z * z), 1e-12)
+    return w / n, x / n, y / n, z / n
+
+
 def between(v0: np.ndarray, v1: np.ndarray) -> np.ndarray:
     """Shortest rotation taking direction ``v0`` to direction ``v1`` (both ``[..., 3]``); the
     identity where either has no length (no direction to turn from or to)."""

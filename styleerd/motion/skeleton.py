@@ -172,6 +172,11 @@ class BodyRoles:
     feet: tuple[int, ...]  # left foot, left toe, right foot, right toe
     leg_length: float  # hip to foot, rest pose
 
+    @cached_property
+    def joint_arrays(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(left, right, feet) as index arrays, for compiled loops."""
+        return tuple(np.array(j, dtype=np.int64) for j in (self.left, self.right, self.feet))
+
     @classmethod
     def of(cls, skeleton: Skeleton) -> "BodyRoles":
         r = {role: find_role(skeleton, role) for role in ("left_hip", "right_hip", "left_shoulder", "right_shoulder", "left_foot", "right_foot", "left_toe", "right_toe")}

@@ -10,11 +10,12 @@ Frame t uses frames <= t only. Works on any skeleton with named legs (BodyRoles)
 
 from __future__ import annotations
 
+import numba as nb
 import numpy as np
 
 from styleerd.motion import quat
-from styleerd.motion.ik import two_bone_ik
-from styleerd.motion.kinematics import foot_contacts, forward_kinematics, forward_positions
+from styleerd.motion.ik import limb_ik
+from styleerd.motion.kinematics import forward_pose, forward_positions
 from styleerd.motion.motion import Motion
 from styleerd.motion.retarget import body_parts
 from styleerd.motion.skeleton import Skeleton
@@ -60,36 +61,59 @@ class FootLock:
         """Output frame ``rotations [N, J, 4]`` (local) with ``positions [N, J, 3]``, and the
         input frame it came from -> cleaned local rotations; of every stream, or of the
         streams ``rows`` only."""
-        sel = slice(None) if rows is None else np.asarray(rows, dtype=int)
-        g_in = forward_positions(input_rotations, input_positions, self.skeleton.parents)
-        ankles = g_in[:, self.legs[:, 2]]
-        previous = np.where(self.started[sel, None, None], self.previous[sel], ankles)
-        self.previous[sel], self.started[sel] = ankles, True
-        planted = foot_contacts(ankles, previous, (0, 1), self.fps, self.max_speed) > 0  # [N, 2]
-        g_rot, g_pos = forward_kinematics(rotations, positions, self.skeleton.parents)
-        raw = g_pos[:, self.legs[:, 2]]  # [N, 2, 3] output ankles
-        was_planted = self.planted[sel]
-        anchor = np.where((planted & ~was_planted)[..., None], raw, self.anchor[sel])
-        since_release = np.where(planted, 0, np.where(was_planted, 1, np.minimum(self.since_release[sel] + 1, self.release_frames)))
-        self.anchor[sel], self.since_release[sel], self.planted[sel] = anchor, since_release, planted
-        weight = np.where(planted, 1.0, 1.0 - since_release / self.release_frames)  # [N, 2]
-        if not (self.enabled and weight.any()):
-            return rotations
-        target = raw + weight[..., None] * (anchor - raw)
-        left_axis = g_pos[:, self.across[0]] - g_pos[:, self.across[1]]
-        out = rotations.copy()
-        for side in range(2):
-            hip, knee, ankle = self.legs[side]
-            rows = np.nonzero(weight[:, side] > 0)[0]
-            if len(rows) == 0:
-                continue
-            hip_g, knee_g = two_bone_ik(
-                g_pos[rows, hip], g_pos[rows, knee], g_pos[rows, ankle], target[rows, side], g_rot[rows, hip], g_rot[rows, knee], left_axis[rows]
-            )
-            parent = self.skeleton.parents[hip]
-            out[rows, hip] = quat.mul(quat.inv(g_rot[rows, parent]), hip_g)
-            out[rows, knee] = quat.mul(quat.inv(hip_g), knee_g)
+        f64 = lambda a: np.ascontiguousarray(a, dtype=np.float64)  # noqa: E731
+        out = f64(rotations).copy()
+        state = np.arange(self.n)[slice(None) if rows is None else np.asarray(rows, dtype=int)]
+        _foot_lock_kernel(f64(positions), f64(input_rotations), f64(input_positions), state, self.skeleton.parents, self.legs, self.across[0], self.across[1],
+                          float(self.fps), float(self.max_speed), int(self.release_frames), bool(self.enabled),
+                          self.previous, self.anchor, self.since_release, self.planted, self.started, out)  # fmt: skip
         return out
+
+
+@nb.njit(cache=True)
+def _foot_lock_kernel(positions, in_rot, in_pos, state, parents, legs, across_l, across_r, fps, max_speed, release, enabled,
+                      previous, anchor, since_release, planted, started, out):  # fmt: skip
+    """Per stream (row ``state[i]`` of the state arrays): contacts from the input's ankles,
+    anchors and release weights, then IK of each leg with a weight (``out``: local rotations,
+    cleaned in place)."""
+    J = out.shape[1]
+    g_rot, g_pos = np.empty((J, 4)), np.empty((J, 3))
+    hip_g, knee_g, target, left = np.empty(4), np.empty(4), np.empty(3), np.empty(3)
+    weight = np.empty(2)
+    for i in range(len(state)):
+        r = state[i]
+        forward_pose(in_rot[i], in_pos[i], parents, g_rot, g_pos)
+        now = np.empty(2, np.bool_)
+        for side in range(2):
+            ankle = g_pos[legs[side, 2]].copy()
+            before = previous[r, side].copy() if started[r] else ankle
+            now[side] = np.sqrt(np.sum((ankle - before) ** 2)) * fps < max_speed
+            previous[r, side] = ankle
+        started[r] = True
+        forward_pose(out[i], positions[i], parents, g_rot, g_pos)
+        for side in range(2):
+            if now[side] and not planted[r, side]:  # a contact begins: hold the output ankle here
+                anchor[r, side] = g_pos[legs[side, 2]]
+            since = 0 if now[side] else (1 if planted[r, side] else min(since_release[r, side] + 1, release))
+            planted[r, side], since_release[r, side] = now[side], since
+            weight[side] = 1.0 if now[side] else 1.0 - since / release
+        if not enabled:
+            continue
+        left[:] = g_pos[across_l] - g_pos[across_r]
+        for side in range(2):
+            if weight[side] <= 0.0:
+                continue
+            hip, knee, ankle = legs[side, 0], legs[side, 1], legs[side, 2]
+            target[:] = g_pos[ankle] + weight[side] * (anchor[r, side] - g_pos[ankle])
+            limb_ik(g_pos[hip], g_pos[knee], g_pos[ankle], target, g_rot[hip], g_rot[knee], left, 1e-4, hip_g, knee_g)
+            p = parents[hip]
+            if p < 0:
+                out[i, hip] = hip_g
+            else:
+                out[i, hip, 0], out[i, hip, 1], out[i, hip, 2], out[i, hip, 3] = quat.mul_scalars(
+                    g_rot[p, 0], -g_rot[p, 1], -g_rot[p, 2], -g_rot[p, 3], hip_g[0], hip_g[1], hip_g[2], hip_g[3])
+            out[i, knee, 0], out[i, knee, 1], out[i, knee, 2], out[i, knee, 3] = quat.mul_scalars(
+                hip_g[0], -hip_g[1], -hip_g[2], -hip_g[3], knee_g[0], knee_g[1], knee_g[2], knee_g[3])
 
 
 def clean_feet(output: Motion, source: Motion) -> Motion:

@@ -102,8 +102,11 @@ class NumpyBackend:
         """One frame of every stream, or of the streams ``rows`` only (the others keep their
         state): what a server with streams arriving at different times steps. Rows given as a
         slice are stepped in place (views), so disjoint slices may step concurrently."""
-        x, style, content, target = (np.ascontiguousarray(a, np.float32) for a in (x, style, content, target))
-        sel = slice(None) if rows is None else rows
+        f32 = np.ascontiguousarray
+        x, style, content, target = f32(x, np.float32), f32(style, np.float32), f32(content, np.float32), f32(target, np.float32)
+        if rows is None:
+            return self._arithmetic(x, style, content, target, self.h, self.c, self.hb, self.cb, self.first)
+        sel = rows
         h, c, hb, cb, first = self.h[:, sel], self.c[:, sel], self.hb[:, :, sel], self.cb[:, :, sel], self.first[sel]
         out = self._arithmetic(x, style, content, target, h, c, hb, cb, first)
         if not isinstance(sel, slice):  # rows by index gave copies: put them back

@@ -151,12 +151,15 @@ def step_graph(model: GeneratorWeights, form: str = "lstm", styles: tuple[str, .
     D, nS, nC, H, J, S = c.feature_dim, len(c.styles), len(c.contents), c.hidden, c.n_joints, len(rows)
     g = _Graph()
     # a stream's first frame starts from the learned initial states (the neutral one by content):
-    # content [N, nC] @ table [S, nC, H] -> [S, N, H], the branch rows the same for every content
+    # content [N, nC] @ table [nC, 2 S H] -> [2S, N, H] (h rows, then c rows), the branch rows
+    # the same for every content. (2-D products throughout: onnxruntime runs a batched product
+    # as one small GEMM call per batch entry.)
     first = g.op("Cast", "first_frame", to=TensorProto.BOOL)  # [N, 1]
-    states = {}
-    for name, neutral, branch in (("h", w.neutral_init[0], w.branch_init[0]), ("c", w.neutral_init[1], w.branch_init[1])):
-        table = np.stack([neutral[:, i] if prefix == "neutral" else np.broadcast_to(branch[int(prefix.split(".")[1]), i], (nC, H)) for prefix, i in rows])
-        states[name] = g.op("Where", first, g.op("MatMul", "content", g.const(table.astype(np.float32))), name)
+    table = np.stack([neutral[:, i] if prefix == "neutral" else np.broadcast_to(branch[int(prefix.split(".")[1]), i], (nC, H))
+                      for neutral, branch in zip(w.neutral_init, w.branch_init) for prefix, i in rows], axis=1)  # fmt: skip
+    start = g.op("Transpose", g.op("Reshape", g.op("MatMul", "content", g.const(table.reshape(nC, -1).astype(np.float32))), _ints(g, -1, 2 * S, H)), perm=[1, 0, 2])
+    starts = g.op("Split", start, outputs=2, axis=0)
+    states = {name: g.op("Where", first, s0, name) for name, s0 in zip(("h", "c"), starts)}
     # encoder; its last layer (linear) folded into the first LSTM layers' input weights
     arrays = _fold_into_first_layers(arrays, *w.encoder[-1], [prefix for prefix, _, i in depths[0]])
     z = g.op("Concat", "features", "style", "content", axis=1)
@@ -198,22 +201,24 @@ def step_graph(model: GeneratorWeights, form: str = "lstm", styles: tuple[str, .
         neutral_last = last["neutral"]
         ends = [last[f"branches.{k}"] for k, _ in branches]
         branch_last = (g.op("Concat", *ends, axis=0) if len(ends) > 1 else ends[0]) if ends else None
-    # out = neutral + sum_k w_k branch_k, the weights read off the target by one product
+    # the target's weight per branch [K, N, 1] and per state row [S, N, 1], read off by one product
+    pick = np.zeros((nS, len(branches) + S), np.float32)
+    for j, (_, style) in enumerate(branches):
+        pick[c.styles.index(style), j] = 1.0
+    style_of = dict(branches)
+    for r, (prefix, _) in enumerate(rows):
+        if prefix != "neutral":
+            pick[c.styles.index(style_of[int(prefix.split(".")[1])]), len(branches) + r] = 1.0
+    picked = g.op("Unsqueeze", g.op("Transpose", g.op("MatMul", "target", g.const(pick)), perm=[1, 0]), _ints(g, 2))  # [K + S, N, 1]
+    weights, row_weights = g.op("Split", picked, _ints(g, len(branches), S), outputs=2, axis=0) if branches else (None, picked)
+    # out = neutral + sum_k w_k branch_k
     out = neutral_last
     if branches:
-        pick = np.zeros((len(branches), nS, 1), np.float32)
-        for j, (_, style) in enumerate(branches):
-            pick[j, c.styles.index(style)] = 1.0
-        weights = g.op("MatMul", "target", g.const(pick))  # [K, N, 1]
         out = g.op("Add", out, g.op("ReduceSum", g.op("Mul", branch_last, weights), _ints(g, 0), keepdims=1))
     out = g.op("Squeeze", out, _ints(g, 0))  # [N, H]
     # a branch's rows advance only for streams that give its style a weight; the neutral rows always
-    row_pick = np.zeros((S, nS, 1), np.float32)
-    for r, (prefix, _) in enumerate(rows):
-        if prefix != "neutral":
-            row_pick[r, c.styles.index(dict(branches)[int(prefix.split(".")[1])])] = 1.0
     neutral_rows = np.array([[[float(prefix == "neutral")]] for prefix, _ in rows], np.float32)
-    keep = g.op("Equal", g.op("Add", g.op("MatMul", "target", g.const(row_pick)), g.const(neutral_rows)), g.const(np.zeros(1, np.float32)))  # [S, N, 1]
+    keep = g.op("Equal", g.op("Add", row_weights, g.const(neutral_rows)), g.const(np.zeros(1, np.float32)))  # [S, N, 1]
     for name in ("h", "c"):
         parts = new[name]
         g.nodes.append(helper.make_node("Where", [keep, states[name], g.op("Concat", *parts, axis=0) if len(parts) > 1 else parts[0]], [f"{name}_out"]))

@@ -92,11 +92,12 @@ class _Blend:
 
 
 @nb.njit(cache=True, nogil=True)
-def _root_on_heading(rot, heading, out):
+def _root_on_heading(rot, trajectory, out):
     """``out`` = the network's rotations ``[N, J, 4]`` as float64 unit quaternions, the root's
-    turned from the heading frame back to the world (heading * root); one pass, no temporaries."""
+    turned from the heading frame (``trajectory [N, 7]``: root position, heading) back to the
+    world (heading * root); one pass, no temporaries."""
     for n in range(rot.shape[0]):
-        hw, hx, hy, hz = heading[n, 0], heading[n, 1], heading[n, 2], heading[n, 3]
+        hw, hx, hy, hz = trajectory[n, 3], trajectory[n, 4], trajectory[n, 5], trajectory[n, 6]
         for j in range(rot.shape[1]):
             w, x, y, z = float(rot[n, j, 0]), float(rot[n, j, 1]), float(rot[n, j, 2]), float(rot[n, j, 3])
             if j == 0:
@@ -144,7 +145,7 @@ class StreamStylizer:
         self.known_style, self.known_content = np.zeros(n_streams, bool), np.zeros(n_streams, bool)
         self.labeller: NumpyLabeller | None = None
         self.labeller_model = None if labeller is None else labeller_weights(labeller)
-        self.blend = _Blend(np.zeros((n_streams, S)), np.zeros((n_streams, S)), np.full(n_streams, self.blend_frames))
+        self.blend = _Blend(np.zeros((n_streams, S), np.float32), np.zeros((n_streams, S), np.float32), np.full(n_streams, self.blend_frames))
         self.previous = np.zeros((n_streams, self.skeleton.n_joints, 3))  # global joint positions of the last frame
         self.facing = np.zeros((n_streams, 3))  # facing direction of the last frame
         self.started = np.zeros(n_streams, bool)
@@ -187,7 +188,9 @@ class StreamStylizer:
         return [(c.styles[int(s)], c.contents[int(k)]) for s, k in zip(self.labels[0].argmax(-1), self.labels[1].argmax(-1))]
 
     def current_weights(self) -> np.ndarray:
-        a = np.minimum(1.0, self.blend.frame / self.blend_frames)[:, None]
+        if self.blend.frame.min() >= self.blend_frames:  # no blend under way (the usual case)
+            return self.blend.end
+        a = np.minimum(1.0, self.blend.frame / self.blend_frames)[:, None].astype(np.float32)
         return self.blend.start + a * (self.blend.end - self.blend.start)
 
     def set_target(self, target: dict[str, float], streams=None) -> None:
@@ -206,10 +209,10 @@ class StreamStylizer:
         n = self.n if rows is None else len(sel)
         rotations = np.asarray(rotations, dtype=np.float64).reshape(n, self.skeleton.n_joints, 4)
         positions = np.asarray(positions, dtype=np.float64).reshape(n, self.skeleton.n_joints, 3)
-        if not (np.isfinite(rotations).all() and np.isfinite(positions).all()):
-            bad = np.argwhere(~np.isfinite(rotations).all(-1) | ~np.isfinite(positions).all(-1))[0]
-            stream = bad[0] if rows is None else sel[bad[0]]
-            raise StyleERDError(f"frame rejected: stream {stream}, joint {self.skeleton.names[bad[1]]!r} has a NaN or infinite value")
+        bad = np.argwhere(~np.isfinite(rotations).all(-1) | ~np.isfinite(positions).all(-1)) if not math.isfinite(rotations.sum() + positions.sum()) else ()
+        if len(bad):  # (a sum of finite values that overflows is caught below: too large to stylise)
+            stream = bad[0][0] if rows is None else sel[bad[0][0]]
+            raise StyleERDError(f"frame rejected: stream {stream}, joint {self.skeleton.names[bad[0][1]]!r} has a NaN or infinite value")
         # shards of streams as (rows of the state, rows of this call's arrays); with more than one,
         # each takes a core and BLAS gets one thread per call (two callers each asking BLAS for
         # both cores spin against each other)
@@ -221,7 +224,7 @@ class StreamStylizer:
                 if not f[4].all():  # refused: the network would overflow
                     bad = np.arange(self.n)[state][np.nonzero(~f[4])[0][0]]  # normalised features are O(1); 1e6 is input in the wrong units or garbage
                     raise StyleERDError(f"frame rejected: stream {bad}: its values are too large to stylise")
-            weights = self.current_weights().astype(np.float32)
+            weights = self.current_weights()
             out = self._map(lambda shard, f: self._advance(shard[0], f, weights), shards, features)
         return (np.concatenate(out) if split else out[0]), positions
 
@@ -247,7 +250,7 @@ class StreamStylizer:
             content = np.where(self.known_content[sel, None], content, p_content)
         rot, _ = self.backend.step(x, style, content, weights[sel], rows)
         out = np.empty(rot.shape)
-        _root_on_heading(np.ascontiguousarray(rot), np.ascontiguousarray(traj[:, 3:7]), out)
+        _root_on_heading(np.ascontiguousarray(rot), traj, out)
         if self.labeller is not None:
             self.labeller.h[sel] = labeller_state
         self.previous[sel], self.facing[sel], self.started[sel] = g, facing, True

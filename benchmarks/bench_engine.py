@@ -1,0 +1,98 @@
+"""The per-frame path before and after, side by side: each figure measured by the code of two
+commits in alternating rounds on this machine (a shared machine's speed drifts up to 2-4x over
+minutes; alternating puts both under the same conditions, and the median over rounds is kept).
+
+Per commit: the network step at batch 1 (numba backend, and the ONNX graphs in onnxruntime
+through ``OnnxBackend``: every style's branches, and one style's), end to end at batch 1 (raw
+BVH channel values in and out of a 22-joint Mixamo-named skeleton: retargeting both ways,
+features, network, foot cleanup; numba and numpy backends), and 1,000 streams on 2 threads
+(numba) against the float32 matrix-multiply peak measured in the same process.
+
+    python benchmarks/bench_engine.py [--before COMMIT] [--rounds 3]
+
+Writes docs/engine-bench.json and prints a table.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import subprocess
+import sys
+import tempfile
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+BEFORE = "bc2080d"  # the last commit before the compiled per-frame path and the batched ONNX graphs
+FIGURES = ("step_us numba", "step_us onnx", "step_us onnx one style", "step_us onnx-plain", "step_us onnx-plain one style",
+           "end_to_end_us numba", "end_to_end_us numpy", "frames_per_s 1000 streams numba", "fraction_of_peak 1000 streams numba")  # fmt: skip
+
+
+def measure(steps: int) -> dict:
+    """The figures of the styleerd importable here (run in a worker process per commit)."""
+    from styleerd.eval.bench import end_to_end, flops_per_frame, matmul_peak, network_step, set_threads, throughput
+    from styleerd.model.stored import load_generator_weights
+
+    model = load_generator_weights()
+    set_threads(1)
+    out = {"step_us numba": network_step(model, "numba", steps)["p50_us"]}
+    for form in ("onnx", "onnx-plain"):
+        out[f"step_us {form}"] = network_step(model, form, steps)["p50_us"]
+        out[f"step_us {form} one style"] = network_step(model, form, steps, one_style=True)["p50_us"]
+    for backend in ("numba", "numpy"):
+        out[f"end_to_end_us {backend}"] = end_to_end(model, backend, steps)["p50_us"]
+    peak = matmul_peak(2)
+    set_threads(2)
+    fps = throughput(model, "numba", 1000)
+    out["frames_per_s 1000 streams numba"] = round(fps)
+    out["fraction_of_peak 1000 streams numba"] = round(fps * flops_per_frame(model) / peak, 4)
+    out["matmul_peak_gflops"] = round(peak / 1e9, 1)
+    return out
+
+
+def worker(tree: Path, steps: int) -> dict:
+    env = dict(os.environ, PYTHONPATH=str(tree))
+    code = f"import json, sys; sys.path.insert(0, {str(ROOT / 'benchmarks')!r}); from bench_engine import measure; print(json.dumps(measure({steps})))"
+    result = subprocess.run([sys.executable, "-c", code], cwd=tree, env=env, capture_output=True, text=True)
+    if result.returncode:
+        raise SystemExit(f"worker in {tree} failed:\n{result.stderr[-3000:]}")
+    return json.loads(result.stdout.strip().splitlines()[-1])
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--before", default=BEFORE)
+    parser.add_argument("--rounds", type=int, default=3)
+    parser.add_argument("--steps", type=int, default=2000)
+    args = parser.parse_args()
+    with tempfile.TemporaryDirectory() as tmp:
+        before = Path(tmp) / "before"
+        subprocess.run(["git", "-C", str(ROOT), "worktree", "add", "--detach", str(before), args.before], check=True, capture_output=True)
+        try:
+            trees = {f"before ({args.before})": before, "now": ROOT}
+            for tree in trees.values():  # compile the numba caches outside the timed rounds
+                worker(tree, 100)
+            rounds: dict[str, list[dict]] = {name: [] for name in trees}
+            for r in range(args.rounds):
+                for name in list(trees)[:: 1 if r % 2 == 0 else -1]:
+                    rounds[name].append(worker(trees[name], args.steps))
+                    print(f"round {r + 1}, {name}: {rounds[name][-1]}", flush=True)
+        finally:
+            subprocess.run(["git", "-C", str(ROOT), "worktree", "remove", "--force", str(before)], check=False)
+    median = {name: {k: float(np.median([m[k] for m in ms])) for k in ms[0]} for name, ms in rounds.items()}
+    report = {"rounds": args.rounds, "steps": args.steps, "cpu_count": os.cpu_count(), "median": median, "each_round": rounds}
+    out = ROOT / "docs" / "engine-bench.json"
+    out.write_text(json.dumps(report, indent=1) + "\n")
+    b, a = median.values()
+    print(f"\n| figure (median of {args.rounds} alternating rounds) | {' | '.join(median)} | speed-up |\n| --- | --- | --- | --- |")
+    for k in FIGURES:
+        faster = a[k] / b[k] if k.startswith(("frames", "fraction")) else b[k] / a[k]
+        print(f"| {k} | {b[k]:,} | {a[k]:,} | {faster:.2f}x |")
+    print(f"matmul peak (GFLOP/s, 2 threads): {b['matmul_peak_gflops']} / {a['matmul_peak_gflops']}\nwrote {out}")
+
+
+if __name__ == "__main__":
+    main()
