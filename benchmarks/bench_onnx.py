@@ -1,10 +1,14 @@
-"""The ONNX step graphs side by side in one run, in onnxruntime: the plain-op graph as it was
-before the LSTM-op export (taken from git), the plain-op and the LSTM-op graphs now, each with
-every style's branch and with one style's, next to the numpy and numba backends' network step.
+"""The ONNX step graphs side by side in one run, in onnxruntime: the plain-op graph of the
+first export (10171e4, taken from git), the graphs of the commit before this round's changes
+(``--before``, both forms), and the graphs now, each with every style's branch and with one
+style's; next to the numpy and numba backends' network step.
 
-Batch 1 (1 thread): step latency p50 / p99 of ``session.run``. 1,000 streams: frames/s, 1 and 2
-intra-op threads. Every graph gets a style target with one style weighted (the usual case).
-Writes docs/onnx-bench.json.
+Batch 1 (1 thread), in rounds of consecutive calls per graph so every graph meets the same
+machine: step latency
+p50 / p99 through ``session.run`` with numpy inputs (what a Python host pays) and through
+I/O binding with the inputs and outputs bound once (what an engine host pays: bound tensors,
+no per-call conversion). 1,000 streams: frames/s, 1 and 2 intra-op threads. Every graph gets a
+style target with one style weighted (the usual case). Writes docs/onnx-bench.json.
 
     python benchmarks/bench_onnx.py [--before COMMIT]
 """
@@ -31,15 +35,16 @@ from styleerd.model.stored import load_generator_weights  # noqa: E402
 from styleerd.runtime.backends import make_backend  # noqa: E402
 from styleerd.runtime.onnx_export import step_graph  # noqa: E402
 
-BEFORE = "10171e4"  # the last commit whose export was the plain-op graph only (opset 17)
+FIRST = "10171e4"  # the last commit whose export was the plain-op graph only (opset 17)
+BEFORE = "bc2080d"  # the LSTM-op export as it stood before the batched graphs
 
 
-def graph_at(commit: str, model) -> bytes:
-    """The step graph as the code at ``commit`` exported it."""
+def graph_at(commit: str, model, *args) -> bytes:
+    """The step graph as the code at ``commit`` exported it (``args``: form, styles)."""
     source = subprocess.run(["git", "-C", str(ROOT), "show", f"{commit}:styleerd/runtime/onnx_export.py"], capture_output=True, text=True, check=True).stdout
     module = types.ModuleType("onnx_export_before")
     exec(compile(source, f"{commit}:onnx_export.py", "exec"), module.__dict__)
-    return module.step_graph(model).SerializeToString()
+    return module.step_graph(model, *args).SerializeToString()
 
 
 def feeds(session: ort.InferenceSession, model, n: int) -> dict:
@@ -56,14 +61,31 @@ def feeds(session: ort.InferenceSession, model, n: int) -> dict:
     return out
 
 
-def latency(step, n: int = 3000) -> dict:
-    times = []
-    for _ in range(n + 300):
-        t0 = time.perf_counter()
-        step()
-        times.append(time.perf_counter() - t0)
-    us = np.array(times[300:]) * 1e6
-    return {"p50_us": round(float(np.percentile(us, 50)), 1), "p99_us": round(float(np.percentile(us, 99)), 1)}
+def latencies(steps: dict, rounds: int = 5, block: int = 500, warm: int = 200) -> dict:
+    """p50 / p99 (us) of each step: in rounds, each step a block of consecutive calls (its
+    weights warm in cache, as in a host's frame loop) after a warm-up, so drift over the rounds
+    hits all alike."""
+    times: dict = {name: [] for name in steps}
+    for _ in range(rounds):
+        for name, step in steps.items():
+            for _ in range(warm):
+                step()
+            for _ in range(block):
+                t0 = time.perf_counter()
+                step()
+                times[name].append(time.perf_counter() - t0)
+    return {name: {"p50_us": round(float(np.percentile(us, 50)) * 1e6, 1), "p99_us": round(float(np.percentile(us, 99)) * 1e6, 1)} for name, us in times.items()}
+
+
+def bound(session: ort.InferenceSession, feeds: dict):
+    """A step through I/O binding, inputs and outputs bound once."""
+    binding = session.io_binding()
+    for name, value in feeds.items():
+        binding.bind_ortvalue_input(name, ort.OrtValue.ortvalue_from_numpy(value))
+    for o in session.get_outputs():
+        binding.bind_output(o.name)
+    session.run_with_iobinding(binding)
+    return lambda: session.run_with_iobinding(binding)
 
 
 def rate(step, n_streams: int, seconds: float = 2.0) -> float:
@@ -87,40 +109,44 @@ def main() -> None:
     parser.add_argument("--before", default=BEFORE)
     args = parser.parse_args()
     model = load_generator_weights()
-    one = (model.config.styles[model.config.branch_styles[0]],)
-    graphs = {
-        f"plain, before ({args.before}, opset 17)": graph_at(args.before, model),
-        "plain (opset 15)": step_graph(model, "plain").SerializeToString(),
-        "LSTM op (opset 15)": step_graph(model, "lstm").SerializeToString(),
-        f"plain, one style ({one[0]})": step_graph(model, "plain", one).SerializeToString(),
-        f"LSTM op, one style ({one[0]})": step_graph(model, "lstm", one).SerializeToString(),
-    }
-    report = {"graphs": {}, "backends": {}}
+    c = model.config
+    one = (c.styles[c.branch_styles[0]],)
+    graphs = {f"plain, first export ({FIRST}, opset 17)": graph_at(FIRST, model)}
+    for when in (f"before ({args.before})", "now"):
+        for form, label in (("lstm", "LSTM op"), ("plain", "plain")):
+            for styles, which in ((None, "all styles"), (one, f"one style ({one[0]})")):
+                graphs[f"{label}, {which}, {when}"] = graph_at(args.before, model, form, styles) if when != "now" else step_graph(model, form, styles).SerializeToString()
+    report: dict = {"graphs": {}, "backends": {}}
+    steps = {}
     for name, graph in graphs.items():
         s1 = session(graph, 1)
         f1, f1000 = feeds(s1, model, 1), feeds(s1, model, 1000)
         s2 = session(graph, 2)
-        report["graphs"][name] = {"nodes": len(onnx.load_from_string(graph).graph.node), "batch_1": latency(lambda: s1.run(None, f1)),
+        steps[(name, "run")] = lambda s1=s1, f1=f1: s1.run(None, f1)
+        steps[(name, "bound")] = bound(s1, f1)
+        report["graphs"][name] = {"nodes": len(onnx.load_from_string(graph).graph.node),
                                   "frames_per_s_1000_streams_1_thread": rate(lambda: s1.run(None, f1000), 1000),
                                   "frames_per_s_1000_streams_2_threads": rate(lambda: s2.run(None, f1000), 1000)}  # fmt: skip
         print(name, report["graphs"][name], flush=True)
-    c = model.config
-    for name in ("numpy", "numba"):
-        x1, x1000 = (np.zeros((n, c.feature_dim), np.float32) for n in (1, 1000))
-        labels = lambda n: (np.eye(len(c.styles), dtype=np.float32)[[c.neutral_index] * n], np.eye(len(c.contents), dtype=np.float32)[[0] * n],  # noqa: E731
-                            np.eye(len(c.styles), dtype=np.float32)[[c.branch_styles[0]] * n])  # fmt: skip
-        b1, b1000 = make_backend(name, model, 1), make_backend(name, model, 1000)
-        with threadpool_limits(1):
-            r = {"batch_1": latency(lambda: b1.step(x1, *labels(1))), "frames_per_s_1000_streams_1_thread": rate(lambda: b1000.step(x1000, *labels(1000)), 1000)}
-        report["backends"][name] = r
-        print(name, r, flush=True)
+    labels = lambda n: (np.eye(len(c.styles), dtype=np.float32)[[c.neutral_index] * n], np.eye(len(c.contents), dtype=np.float32)[[0] * n],  # noqa: E731
+                        np.eye(len(c.styles), dtype=np.float32)[[c.branch_styles[0]] * n])  # fmt: skip
+    x1, x1000 = (np.zeros((n, c.feature_dim), np.float32) for n in (1, 1000))
+    with threadpool_limits(1):
+        for name in ("numpy", "numba"):
+            b1, b1000 = make_backend(name, model, 1), make_backend(name, model, 1000)
+            steps[(name, "backend")] = lambda b1=b1: b1.step(x1, *labels(1))
+            report["backends"][name] = {"frames_per_s_1000_streams_1_thread": rate(lambda: b1000.step(x1000, *labels(1000)), 1000)}
+        timed = latencies({f"{name} / {how}": step for (name, how), step in steps.items()})
+    for (name, how) in steps:
+        (report["graphs"] if how != "backend" else report["backends"])[name][f"batch_1_{how}"] = timed[f"{name} / {how}"]
     out = ROOT / "docs" / "onnx-bench.json"
     out.write_text(json.dumps(report, indent=1) + "\n")
-    print(f"\n| graph (onnxruntime {ort.__version__}) | nodes | batch 1 p50 / p99 (us, 1 thread) | 1,000 streams, frames/s (1 thread / 2 threads) |\n| --- | --- | --- | --- |")
+    print(f"\n| graph (onnxruntime {ort.__version__}) | nodes | batch 1 p50 / p99 (us, 1 thread): session.run | I/O binding | 1,000 streams, frames/s (1 thread / 2 threads) |\n| --- | --- | --- | --- | --- |")
     for name, r in report["graphs"].items():
-        print(f"| {name} | {r['nodes']} | {r['batch_1']['p50_us']:.0f} / {r['batch_1']['p99_us']:.0f} | {r['frames_per_s_1000_streams_1_thread']:,} / {r['frames_per_s_1000_streams_2_threads']:,} |")
+        print(f"| {name} | {r['nodes']} | {r['batch_1_run']['p50_us']:.0f} / {r['batch_1_run']['p99_us']:.0f} | {r['batch_1_bound']['p50_us']:.0f} / {r['batch_1_bound']['p99_us']:.0f} "
+              f"| {r['frames_per_s_1000_streams_1_thread']:,} / {r['frames_per_s_1000_streams_2_threads']:,} |")  # fmt: skip
     for name, r in report["backends"].items():
-        print(f"| {name} backend (network step) | | {r['batch_1']['p50_us']:.0f} / {r['batch_1']['p99_us']:.0f} | {r['frames_per_s_1000_streams_1_thread']:,} / |")
+        print(f"| {name} backend (network step) | | {r['batch_1_backend']['p50_us']:.0f} / {r['batch_1_backend']['p99_us']:.0f} | | {r['frames_per_s_1000_streams_1_thread']:,} / |")
     print(f"wrote {out}")
 
 

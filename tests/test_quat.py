@@ -107,3 +107,27 @@ def test_between_takes_v0_to_v1_including_opposite():
     q = quat.between(v0, v1)
     got = quat.mul_vec(q, v0 / np.linalg.norm(v0, axis=-1, keepdims=True))
     assert np.allclose(got, v1 / np.linalg.norm(v1, axis=-1, keepdims=True))
+
+
+def test_compiled_scalar_helpers_against_the_array_functions_and_scipy():
+    """The scalar helpers compiled loops use: between against the array function (including
+    opposite and zero vectors), Euler angles both ways and the nearest Euler triple against
+    scipy (including gimbal lock)."""
+    rng = np.random.default_rng(3)
+    v0, v1 = rng.normal(size=(50, 3)), rng.normal(size=(50, 3))
+    v1[0], v0[1], v1[2] = -v0[0], 0.0, 0.0
+    v0[3], v1[3] = [0.95, 0.1, 0.0], [-0.95, -0.1, 0.0]  # opposite, mostly along x
+    for a, b in zip(v0, v1):
+        assert np.allclose(quat.between_scalars(*a, *b), quat.between(a, b), atol=1e-12)
+    q = Rotation.random(50, random_state=4).as_quat()[:, [3, 0, 1, 2]]
+    q[0] = from_scipy(Rotation.from_euler("ZXY", [30, 90, 10], degrees=True))  # gimbal lock
+    for order in quat.ORDERS:
+        axes = ["xyz".index(a) for a in order]
+        for row in q:
+            e = np.array(quat.quat_scalars_to_euler(*row, *axes))
+            assert same_rotation(from_scipy(Rotation.from_euler(order.upper(), e)), row) and abs(e[1]) <= np.pi / 2 + 1e-12
+            assert same_rotation(np.array(quat.euler_scalars_to_quat(*e, *axes)), row)
+            ref = e + rng.normal(0, 3, 3)
+            near = np.array(quat.nearest_euler_scalars(*e, *ref))
+            assert same_rotation(from_scipy(Rotation.from_euler(order.upper(), near)), row, atol=1e-7)
+            assert np.sum((near - ref) ** 2) <= np.sum((e - ref) ** 2) + 1e-12
