@@ -50,7 +50,57 @@ def measure(steps: int) -> dict:
     out["frames_per_s 1000 streams numba"] = round(fps)
     out["fraction_of_peak 1000 streams numba"] = round(fps * flops_per_frame(model) / peak, 4)
     out["matmul_peak_gflops"] = round(peak / 1e9, 1)
+    out.update({f"stage_us {k}": v for k, v in stages(steps).items()})
     return out
+
+
+STAGES = ("check values", "channels to motion", "retarget to the model", "features", "network", "stylizer bookkeeping", "retarget back", "foot cleanup", "motion to channels")
+
+
+def stages(steps: int) -> dict:
+    """Where a frame's microseconds go end to end (numba backend, batch 1): the median of each
+    stage of ``ChannelStylizer.step``, each call timed on its own; the stylizer's step is split
+    into its features, its network step (timed again on a second backend) and the rest."""
+    import time
+
+    from styleerd.eval.bench import set_threads
+    from styleerd.model.stored import load_generator_weights
+    from styleerd.motion import bvh
+    from styleerd.motion.motion import Motion
+    from styleerd.motion.procedural import walk
+    from styleerd.motion.retarget import to_source, to_target
+    from styleerd.runtime.backends import make_backend
+    from styleerd.runtime.channels import ChannelStylizer
+
+    set_threads(1)
+    model = load_generator_weights()
+    source = walk(seconds=steps / 30.0 + 2.0, fps=30.0)
+    values = bvh.channel_values(source)
+    cs = ChannelStylizer(model, source.skeleton, {"elderly": 1.0}, "normal", "walk", fps=30.0, backend="numba")
+    net, st = make_backend("numba", model, 1), cs.stylizer
+    target = st.current_weights().astype(np.float32)
+    times: dict = {k: [] for k in (*STAGES, "stylizer step")}
+
+    def timed(stage, f, *a):
+        t0 = time.perf_counter()
+        out = f(*a)
+        times[stage].append(time.perf_counter() - t0)
+        return out
+
+    for t in range(len(values)):
+        v = values[t : t + 1]
+        timed("check values", bvh.channel_problem, cs.skeleton, v)
+        src = timed("channels to motion", bvh.motion_from_channels, cs.skeleton, v, cs.fps)
+        on_model = timed("retarget to the model", to_target, src, cs.map)
+        rot, pos = timed("stylizer step", st.step, on_model.rotations, on_model.positions)
+        x = timed("features", st._features, on_model.rotations, on_model.positions, slice(None))[0]
+        timed("network", net.step, x, st.given_style, st.given_content, target)
+        out = timed("retarget back", to_source, Motion(cs.map.target, rot, pos, cs.fps), cs.map, src)
+        out.rotations = timed("foot cleanup", cs.lock.step, out.rotations, out.positions, src.rotations, src.positions)
+        timed("motion to channels", bvh.channel_values, out)
+    us = {k: float(np.median(v[50:])) * 1e6 for k, v in times.items()}
+    us["stylizer bookkeeping"] = max(0.0, us.pop("stylizer step") - us["features"] - us["network"])
+    return {k: round(us[k], 1) for k in STAGES}
 
 
 def worker(tree: Path, steps: int) -> dict:
@@ -91,7 +141,11 @@ def main() -> None:
     for k in FIGURES:
         faster = a[k] / b[k] if k.startswith(("frames", "fraction")) else b[k] / a[k]
         print(f"| {k} | {b[k]:,} | {a[k]:,} | {faster:.2f}x |")
-    print(f"matmul peak (GFLOP/s, 2 threads): {b['matmul_peak_gflops']} / {a['matmul_peak_gflops']}\nwrote {out}")
+    print(f"matmul peak (GFLOP/s, 2 threads): {b['matmul_peak_gflops']} / {a['matmul_peak_gflops']}")
+    print(f"\n| end to end, batch 1, numba: stage (us, median of rounds) | {' | '.join(median)} |\n| --- | --- | --- |")
+    for k in STAGES:
+        print(f"| {k} | {b['stage_us ' + k]:.1f} | {a['stage_us ' + k]:.1f} |")
+    print(f"| sum of the stages | {sum(b['stage_us ' + k] for k in STAGES):.1f} | {sum(a['stage_us ' + k] for k in STAGES):.1f} |\nwrote {out}")
 
 
 if __name__ == "__main__":

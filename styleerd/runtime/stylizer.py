@@ -17,7 +17,6 @@ from __future__ import annotations
 
 import math
 from concurrent.futures import ThreadPoolExecutor
-from contextlib import nullcontext
 from dataclasses import dataclass
 from functools import cache
 
@@ -39,6 +38,7 @@ MAX_FEATURE = 1e6
 # 250k; small shards lose to the GIL: 100 streams 160k vs 71k). Threads inside the kernels instead
 # (numba's parallel loops) spun against BLAS's threads on few cores: 1,000 streams 186k -> 100k.
 SHARD_FROM = 600
+_ALL = slice(None)  # every stream (state rows as views)
 
 
 def label_vector(names: tuple[str, ...], weights: dict[str, float], what: str) -> np.ndarray:
@@ -204,36 +204,40 @@ class StreamStylizer:
 
     def step(self, rotations: np.ndarray, positions: np.ndarray, rows=None) -> tuple[np.ndarray, np.ndarray]:
         """One frame of every stream (or of the streams ``rows``) -> the stylised frame. A
-        frame with NaN/inf is rejected with an error and leaves the state unchanged."""
-        sel = slice(None) if rows is None else np.asarray(rows, dtype=int)  # a slice keeps per-stream state as views
+        frame with NaN/inf, or too large to stylise, is rejected with an error and leaves the
+        state unchanged."""
+        sel = _ALL if rows is None else np.asarray(rows, dtype=int)  # a slice keeps per-stream state as views
         n = self.n if rows is None else len(sel)
-        rotations = np.asarray(rotations, dtype=np.float64).reshape(n, self.skeleton.n_joints, 4)
-        positions = np.asarray(positions, dtype=np.float64).reshape(n, self.skeleton.n_joints, 3)
-        bad = np.argwhere(~np.isfinite(rotations).all(-1) | ~np.isfinite(positions).all(-1)) if not math.isfinite(rotations.sum() + positions.sum()) else ()
-        if len(bad):  # (a sum of finite values that overflows is caught below: too large to stylise)
-            stream = bad[0][0] if rows is None else sel[bad[0][0]]
-            raise StyleERDError(f"frame rejected: stream {stream}, joint {self.skeleton.names[bad[0][1]]!r} has a NaN or infinite value")
-        # shards of streams as (rows of the state, rows of this call's arrays); with more than one,
-        # each takes a core and BLAS gets one thread per call (two callers each asking BLAS for
-        # both cores spin against each other)
-        split = rows is None and self.threads > 1 and n >= SHARD_FROM
-        shards = [(s, s) for s in _slices(n, self.threads)] if split else [(sel, slice(None))]
-        with _one_blas_thread() if split else nullcontext():
-            features = self._map(lambda shard: self._features(rotations[shard[1]], positions[shard[1]], shard[0]), shards)
-            for (state, _), f in zip(shards, features):  # every shard is checked before any state changes
-                if not f[4].all():  # refused: the network would overflow
-                    bad = np.arange(self.n)[state][np.nonzero(~f[4])[0][0]]  # normalised features are O(1); 1e6 is input in the wrong units or garbage
-                    raise StyleERDError(f"frame rejected: stream {bad}: its values are too large to stylise")
-            weights = self.current_weights()
-            out = self._map(lambda shard, f: self._advance(shard[0], f, weights), shards, features)
-        return (np.concatenate(out) if split else out[0]), positions
-
-    def _map(self, f, *args: list) -> list:
-        if len(args[0]) == 1:
-            return [f(*(a[0] for a in args))]
+        J = self.skeleton.n_joints
+        rotations = np.asarray(rotations, dtype=np.float64).reshape(n, J, 4)
+        positions = np.asarray(positions, dtype=np.float64).reshape(n, J, 3)
+        if not (rows is None and self.threads > 1 and n >= SHARD_FROM):
+            features = self._features(rotations, positions, sel)
+            self._refuse_unless(features[4], sel, rotations, positions)
+            return self._advance(sel, features, self.current_weights()), positions
+        # shards of streams, one per thread; BLAS gets one thread per call (two callers each
+        # asking BLAS for both cores spin against each other)
         if self._pool is None:
             self._pool = ThreadPoolExecutor(self.threads, thread_name_prefix="styleerd-shard")
-        return list(self._pool.map(f, *args))
+        shards = _slices(n, self.threads)
+        with _one_blas_thread():
+            features = list(self._pool.map(lambda s: self._features(rotations[s], positions[s], s), shards))
+            for s, f in zip(shards, features):  # every shard is checked before any state changes
+                self._refuse_unless(f[4], s, rotations[s], positions[s])
+            weights = self.current_weights()
+            return np.concatenate(list(self._pool.map(lambda s, f: self._advance(s, f, weights), shards, features))), positions
+
+    def _refuse_unless(self, ok: np.ndarray, sel, rotations: np.ndarray, positions: np.ndarray) -> None:
+        """Raise for the first stream of ``sel`` whose frame cannot be stylised (``ok`` False:
+        a NaN or infinite value, or values so large the network would overflow: normalised
+        features are O(1), 1e6 is input in the wrong units or garbage)."""
+        if ok.all():
+            return
+        streams = np.arange(self.n)[sel]
+        bad = np.argwhere(~np.isfinite(rotations).all(-1) | ~np.isfinite(positions).all(-1))
+        if len(bad):
+            raise StyleERDError(f"frame rejected: stream {streams[bad[0][0]]}, joint {self.skeleton.names[bad[0][1]]!r} has a NaN or infinite value")
+        raise StyleERDError(f"frame rejected: stream {streams[np.nonzero(~ok)[0][0]]}: its values are too large to stylise")
 
     def _features(self, rotations: np.ndarray, positions: np.ndarray, sel):
         return stream_features(rotations, positions, self.previous[sel], self.facing[sel], self.started[sel], self.skeleton, self.roles, self.fps, self.stats, MAX_FEATURE)
@@ -241,7 +245,7 @@ class StreamStylizer:
     def _advance(self, sel, features, weights: np.ndarray) -> np.ndarray:
         """The network and the state updates of the streams ``sel`` (slice(None): all)."""
         x, traj, g, facing, _ = features
-        rows = None if isinstance(sel, slice) and sel == slice(None) else sel
+        rows = None if sel is _ALL else sel
         style, content = self.given_style[sel], self.given_content[sel]
         if self.labeller is not None:
             p_style, p_content, labeller_state = self.labeller.step(x, rows)
