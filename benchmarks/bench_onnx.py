@@ -3,8 +3,8 @@ first export (10171e4, taken from git), the graphs of the commit before this rou
 (``--before``, both forms), and the graphs now, each with every style's branch and with one
 style's; next to the numpy and numba backends' network step.
 
-Batch 1 (1 thread), in rounds of consecutive calls per graph so every graph meets the same
-machine: step latency
+Batch 1 (1 thread), each graph called in turn with its counterpart before (two graphs at a
+time, call by call, so both meet the same machine): step latency
 p50 / p99 through ``session.run`` with numpy inputs (what a Python host pays) and through
 I/O binding with the inputs and outputs bound once (what an engine host pays: bound tensors,
 no per-call conversion). 1,000 streams: frames/s, 1 and 2 intra-op threads. Every graph gets a
@@ -61,19 +61,18 @@ def feeds(session: ort.InferenceSession, model, n: int) -> dict:
     return out
 
 
-def latencies(steps: dict, rounds: int = 5, block: int = 500, warm: int = 200) -> dict:
-    """p50 / p99 (us) of each step: in rounds, each step a block of consecutive calls (its
-    weights warm in cache, as in a host's frame loop) after a warm-up, so drift over the rounds
-    hits all alike."""
+def latencies(steps: dict, n: int = 2000, warm: int = 200) -> dict:
+    """p50 / p99 (us) of a few steps called in turn, call by call, so the machine's drift hits
+    them alike (a shared machine's speed wanders 2x within minutes)."""
+    for step in steps.values():
+        for _ in range(warm):
+            step()
     times: dict = {name: [] for name in steps}
-    for _ in range(rounds):
+    for _ in range(n):
         for name, step in steps.items():
-            for _ in range(warm):
-                step()
-            for _ in range(block):
-                t0 = time.perf_counter()
-                step()
-                times[name].append(time.perf_counter() - t0)
+            t0 = time.perf_counter()
+            step()
+            times[name].append(time.perf_counter() - t0)
     return {name: {"p50_us": round(float(np.percentile(us, 50)) * 1e6, 1), "p99_us": round(float(np.percentile(us, 99)) * 1e6, 1)} for name, us in times.items()}
 
 
@@ -136,9 +135,14 @@ def main() -> None:
             b1, b1000 = make_backend(name, model, 1), make_backend(name, model, 1000)
             steps[(name, "backend")] = lambda b1=b1: b1.step(x1, *labels(1))
             report["backends"][name] = {"frames_per_s_1000_streams_1_thread": rate(lambda: b1000.step(x1000, *labels(1000)), 1000)}
-        timed = latencies({f"{name} / {how}": step for (name, how), step in steps.items()})
-    for (name, how) in steps:
-        (report["graphs"] if how != "backend" else report["backends"])[name][f"batch_1_{how}"] = timed[f"{name} / {how}"]
+        timed = {}
+        for how in ("run", "bound"):
+            for kind in ("LSTM op, all styles", f"LSTM op, one style ({one[0]})", "plain, all styles", f"plain, one style ({one[0]})"):
+                timed.update(latencies({k: steps[k] for k in steps if k[1] == how and k[0].startswith(kind)}))
+            timed.update(latencies({k: steps[k] for k in steps if k[1] == how and k[0].startswith("plain, first")}))
+        timed.update(latencies({k: steps[k] for k in steps if k[1] == "backend"}))
+    for (name, how), t in timed.items():
+        (report["graphs"] if how != "backend" else report["backends"])[name][f"batch_1_{how}"] = t
     out = ROOT / "docs" / "onnx-bench.json"
     out.write_text(json.dumps(report, indent=1) + "\n")
     print(f"\n| graph (onnxruntime {ort.__version__}) | nodes | batch 1 p50 / p99 (us, 1 thread): session.run | I/O binding | 1,000 streams, frames/s (1 thread / 2 threads) |\n| --- | --- | --- | --- | --- |")
