@@ -24,7 +24,7 @@ from styleerd.motion.motion import Motion
 from styleerd.motion.skeleton import Skeleton
 from styleerd.runtime.channels import ChannelStylizer
 from styleerd.runtime.offline import TransferOptions, read_motion, transfer_file, transfer_motion
-from styleerd.runtime.stylizer import label_vector, target_weights
+from styleerd.runtime.stylizer import label_vector, part_targets, target_weights
 
 PathLike = str | os.PathLike
 
@@ -89,11 +89,14 @@ class Model:
         joint_map: dict[str, str] | None = None,
         cleanup: bool = True,
         backend: str = "numpy",
+        parts: str | dict | None = None,
     ) -> Stylizer:
         """A live stylizer for frames on ``skeleton`` (a ``Skeleton``, a ``Motion``, or a BVH
         or glTF file whose skeleton to use; default the model's) at ``fps`` (default: the
         file's, else the model's). Labels left None are inferred online; ``joint_map`` names
-        model joints -> your joints where the names do not say; ``cleanup`` pins planted feet."""
+        model joints -> your joints where the names do not say; ``cleanup`` pins planted feet;
+        ``parts`` gives body parts targets of their own (``{"legs": "elderly", "arms": "input"}``
+        or ``"legs=elderly,arms=input"``; ``runtime.stylizer.part_targets``)."""
         if skeleton is None:
             skeleton = self.skeleton
         elif isinstance(skeleton, (str, os.PathLike)):
@@ -102,7 +105,7 @@ class Model:
             fps = fps or skeleton.fps
             skeleton = skeleton.skeleton
         channels = ChannelStylizer(self.weights, skeleton, self.target(style, intensity, mix), input_style, content, fps or self.fps,
-                                   explicit_map=joint_map, cleanup=cleanup, backend=backend)  # fmt: skip
+                                   explicit_map=joint_map, cleanup=cleanup, backend=backend, parts=parts)  # fmt: skip
         return Stylizer(self, channels)
 
     def transfer(
@@ -118,11 +121,12 @@ class Model:
         joint_map: dict[str, str] | None = None,
         cleanup: bool = True,
         backend: str = "numpy",
+        parts: str | dict | None = None,
     ) -> Motion:
         """A whole motion (a ``Motion`` or a BVH/glTF/GLB/VRM file) in the target style, on its
         own skeleton, same frames and fps; also written to ``output`` (.bvh, .glb, .vrm) when
         given (atomically: nothing is written unless the transfer succeeded)."""
-        options = TransferOptions(self.target(style, intensity, mix), input_style, content, joint_map, cleanup, backend)
+        options = TransferOptions(self.target(style, intensity, mix), input_style, content, joint_map, cleanup, backend, parts=part_targets(self.weights, parts) or None)
         if output is not None and not isinstance(source, Motion):
             transfer_file(source, output, self.weights, self.fps, options)
             return read_motion(output)

@@ -89,7 +89,7 @@ def _transfer(args: argparse.Namespace) -> None:
     from styleerd.model.stored import load_generator_weights
     from styleerd.runtime.batch import batch_pairs, transfer_batch, transfer_one
     from styleerd.runtime.offline import TransferOptions
-    from styleerd.runtime.stylizer import target_weights
+    from styleerd.runtime.stylizer import part_targets, target_weights
 
     model = load_generator_weights(args.model)
     c = model.config
@@ -98,7 +98,8 @@ def _transfer(args: argparse.Namespace) -> None:
             raise StyleERDError(f"{what} {value!r} is not one of: {', '.join(names)}")
     target = target_weights(model, args.style, args.intensity, _parse_mix(args.mix) if args.mix else None)
     explicit = _read_joint_map(args.joint_map) if args.joint_map else None
-    options = TransferOptions(target, args.input_style, args.content, explicit, not args.no_cleanup, args.backend, args.mesh)
+    parts = part_targets(model, args.parts)  # checked once here, not once per file
+    options = TransferOptions(target, args.input_style, args.content, explicit, not args.no_cleanup, args.backend, args.mesh, parts or None)
     out = Path(args.output)
     into_folder = len(args.input) > 1 or Path(args.input[0]).is_dir() or out.is_dir() or args.output.endswith(os.sep)
     if not into_folder:
@@ -389,6 +390,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--style", help=f"target style; the shipped model's: {', '.join(shipped_styles())} ('styleerd styles --model M' for another)")
     p.add_argument("--intensity", type=float, default=1.0, help="0 = neutral, 1 = full style, up to 2")
     p.add_argument("--mix", help="a mixture instead of --style, e.g. elderly=0.5,feminine=0.5 (scaled by --intensity)")
+    p.add_argument("--parts", help="body parts with targets of their own, the others following --style/--mix: PART=STYLE[:INTENSITY] or PART=input (its own motion), "
+                   "parts legs, torso, head, arms; e.g. legs=elderly,torso=exhausted:0.5,arms=input")
     p.add_argument("--input-style", help="the input's style (default: inferred online from the frames)")
     p.add_argument("--content", help="the input's content, e.g. walk (default: inferred online)")
     p.add_argument("--backend", default="numpy", choices=["torch", "numpy", "numba", "onnx", "onnx-plain"], help="network step backend (default numpy; torch is the reference; numba is the fastest)")

@@ -112,6 +112,27 @@ def body_parts(skeleton: Skeleton) -> dict[str, int]:
     return parts
 
 
+BODY_PARTS = ("legs", "torso", "head", "arms")
+
+
+def part_joints(skeleton: Skeleton) -> dict[str, np.ndarray]:
+    """Joints per body part (``BODY_PARTS``): legs from the hip joints down, arms from the
+    collars (or shoulders) out, head from the neck (or head) up, torso the rest (root, spine,
+    chest). Every joint is in exactly one part."""
+    parts = body_parts(skeleton)
+    start = {"legs": ["left_hip", "right_hip"], "arms": [next(p for p in (f"{s}_collar", f"{s}_shoulder") if p in parts) for s in ("left", "right")],
+             "head": ["neck" if "neck" in parts else "head"]}  # fmt: skip
+    owner = np.full(skeleton.n_joints, -1)
+    for j in range(skeleton.n_joints):  # parents come first: a joint is in its part, or in its parent's
+        for k, part in enumerate(BODY_PARTS):
+            if any(parts[role] == j for role in start.get(part, ())):
+                owner[j] = k
+        if owner[j] < 0:
+            p = skeleton.parents[j]
+            owner[j] = owner[p] if p >= 0 else BODY_PARTS.index("torso")
+    return {part: np.nonzero(owner == k)[0] for k, part in enumerate(BODY_PARTS)}
+
+
 @dataclass(frozen=True)
 class JointMap:
     """How a source skeleton maps onto a target skeleton."""

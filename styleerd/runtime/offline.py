@@ -50,7 +50,8 @@ def map_skeleton(skeleton: Skeleton, model: GeneratorWeights, explicit: dict[str
 class TransferOptions:
     """What a transfer does: the target weights, the input's labels (None: inferred online),
     the joint map (model joint -> input joint) completing the automatic one, foot cleanup, the
-    step backend, and a simple skinned body on .glb outputs."""
+    step backend, a simple skinned body on .glb outputs, and body parts with targets of their
+    own."""
 
     target: dict[str, float]
     input_style: str | None = None
@@ -59,6 +60,7 @@ class TransferOptions:
     cleanup: bool = True
     backend: str = "numpy"
     mesh: bool = False
+    parts: str | dict | None = None  # body parts with their own target (``stylizer.part_targets``)
 
 
 @dataclass
@@ -84,7 +86,7 @@ def _stylised_stream(
     jm = map_skeleton(header.skeleton, model, o.explicit_map, str(header.path), first_pose)
     if report:
         report(f"joint mapping (model <- input):\n{jm.describe()}")
-    stylizer = StreamStylizer(model, o.input_style, o.content, o.target, fps=fps, backend=o.backend)
+    stylizer = StreamStylizer(model, o.input_style, o.content, o.target, fps=fps, backend=o.backend, parts=o.parts)
     lock = FootLock(header.skeleton, 1, header.fps, legs=jm.source_legs()) if o.cleanup else None
     return _checked(_stylised_rows(header, itertools.chain([first], chunks), jm, stylizer, lock, fps), header.path), stylizer
 

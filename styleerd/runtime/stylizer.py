@@ -27,6 +27,7 @@ from styleerd.data.features import stream_features
 from styleerd.errors import StyleERDError
 from styleerd.model.stored import GeneratorWeights, LabellerWeights, generator_weights, labeller_weights, load_labeller_weights, toward_neutral
 from styleerd.motion import quat
+from styleerd.motion.retarget import BODY_PARTS, part_joints
 from styleerd.motion.skeleton import BodyRoles
 from styleerd.runtime.backends import make_backend
 from styleerd.runtime.numpy_step import NumpyLabeller
@@ -72,6 +73,38 @@ def target_weights(model: GeneratorWeights, style: str | None = None, intensity:
         return weights
     out = {k: v * intensity for k, v in weights.items() if k != neutral}
     out[neutral] = weights.get(neutral, 0.0) * intensity + max(0.0, 1.0 - intensity)
+    return out
+
+
+def part_targets(model: GeneratorWeights, parts: str | dict | None) -> dict[str, dict[str, float] | None]:
+    """Per body part (``BODY_PARTS``), its own target: ``"legs=elderly,torso=exhausted:0.5,arms=input"``
+    (a style, a style at an intensity, or ``input``: the input's own motion) or the same as a
+    dict (values: a style name, target weights, or None / "input"). Parts left out follow the
+    stylizer's target."""
+    if not parts:
+        return {}
+    if isinstance(parts, str):
+        items = [item.partition("=")[::2] for item in parts.split(",") if item.strip()]
+        if any(not value for _, value in items):
+            raise StyleERDError(f"--parts: give part=style, part=style:intensity or part=input, e.g. legs=elderly,arms=input; got {parts!r}")
+        parts = {k.strip(): v.strip() for k, v in items}
+    out: dict[str, dict[str, float] | None] = {}
+    for part, value in parts.items():
+        if part not in BODY_PARTS:
+            raise StyleERDError(f"unknown body part {part!r}; valid: {', '.join(BODY_PARTS)}")
+        if value is None or value == "input":
+            out[part] = None
+        elif isinstance(value, dict):
+            out[part] = dict(value)
+        else:
+            style, _, intensity = str(value).partition(":")
+            try:
+                level = float(intensity) if intensity else 1.0
+            except ValueError:
+                raise StyleERDError(f"body part {part}: intensity {intensity!r} is not a number") from None
+            out[part] = target_weights(model, style, level)
+        if out[part] is not None:
+            label_vector(model.config.styles, out[part], "style")  # names checked here, once
     return out
 
 
@@ -125,9 +158,26 @@ class StreamStylizer:
         labeller: LabellerWeights | None = None,
         backend: str = "numpy",
         threads: int = 1,
+        parts: str | dict | None = None,
     ):
         self.model = model = generator_weights(model)  # a torch StyleERD is read as its arrays
-        self.backend = make_backend(backend, model, n_streams)
+        # body parts with their own target (``part_targets``): one more network pass per
+        # distinct target, each with its own recurrent state (rows p*N .. p*N + N - 1 of the
+        # backend); per joint, the pass whose output it takes (0: the stylizer's target; -1:
+        # the input's own rotation)
+        self.part_passes: list[np.ndarray] = []
+        self.joint_pass = np.zeros(model.config.n_joints, dtype=int)
+        for part, part_target in part_targets(model, parts).items():
+            if part_target is None:
+                self.joint_pass[part_joints(model.skeleton)[part]] = -1
+                continue
+            w = label_vector(model.config.styles, part_target, "style").astype(np.float32)
+            known = [k for k, v in enumerate(self.part_passes) if np.array_equal(v, w)]
+            if not known:
+                self.part_passes.append(w)
+            self.joint_pass[part_joints(model.skeleton)[part]] = 1 + (known[0] if known else len(self.part_passes) - 1)
+        self.input_joints = np.nonzero(self.joint_pass < 0)[0]
+        self.backend = make_backend(backend, model, n_streams * (1 + len(self.part_passes)))
         # steps of many streams split into this many shards on a thread pool (numpy and numba:
         # their kernels and BLAS calls release the GIL; torch and onnx have their own threads)
         self.threads = max(1, threads) if backend in ("numpy", "numba") else 1
@@ -177,7 +227,7 @@ class StreamStylizer:
         """Forget the past of some (default all) streams: their next frame is a first frame
         (learned initial states)."""
         rows = slice(None) if streams is None else np.asarray(streams, dtype=int)
-        self.backend.reset(rows)
+        self.backend.reset(rows if streams is None else np.concatenate([rows + p * self.n for p in range(1 + len(self.part_passes))]))
         self.started[rows] = False
         if self.labeller is not None:
             self.labeller.reset(rows)
@@ -214,7 +264,7 @@ class StreamStylizer:
         if not (rows is None and self.threads > 1 and n >= SHARD_FROM):
             features = self._features(rotations, positions, sel)
             self._refuse_unless(features[4], sel, rotations, positions)
-            return self._advance(sel, features, self.current_weights()), positions
+            return self._advance(sel, features, self.current_weights(), rotations), positions
         # shards of streams, one per thread; BLAS gets one thread per call (two callers each
         # asking BLAS for both cores spin against each other)
         if self._pool is None:
@@ -225,7 +275,7 @@ class StreamStylizer:
             for s, f in zip(shards, features):  # every shard is checked before any state changes
                 self._refuse_unless(f[4], s, rotations[s], positions[s])
             weights = self.current_weights()
-            return np.concatenate(list(self._pool.map(lambda s, f: self._advance(s, f, weights), shards, features))), positions
+            return np.concatenate(list(self._pool.map(lambda s, f: self._advance(s, f, weights, rotations[s]), shards, features))), positions
 
     def _refuse_unless(self, ok: np.ndarray, sel, rotations: np.ndarray, positions: np.ndarray) -> None:
         """Raise for the first stream of ``sel`` whose frame cannot be stylised (``ok`` False:
@@ -242,8 +292,27 @@ class StreamStylizer:
     def _features(self, rotations: np.ndarray, positions: np.ndarray, sel):
         return stream_features(rotations, positions, self.previous[sel], self.facing[sel], self.started[sel], self.skeleton, self.roles, self.fps, self.stats, MAX_FEATURE)
 
-    def _advance(self, sel, features, weights: np.ndarray) -> np.ndarray:
-        """The network and the state updates of the streams ``sel`` (slice(None): all)."""
+    def _pass_rows(self, sel, p: int):
+        """The backend's rows of pass ``p`` for the streams ``sel``."""
+        if isinstance(sel, slice):
+            start, stop, _ = sel.indices(self.n)
+            return slice(p * self.n + start, p * self.n + stop)
+        return sel + p * self.n
+
+    def _network(self, sel, x, style, content, weights: np.ndarray) -> np.ndarray:
+        """The network's rotations for the streams ``sel``: one pass, or with body parts of
+        their own target, each joint from its part's pass."""
+        if not self.part_passes:
+            return self.backend.step(x, style, content, weights, None if sel is _ALL else sel)[0]
+        rot = self.backend.step(x, style, content, weights, self._pass_rows(sel, 0))[0].copy()
+        for p, w in enumerate(self.part_passes, 1):
+            joints = self.joint_pass == p
+            rot[:, joints] = self.backend.step(x, style, content, np.broadcast_to(w, weights.shape), self._pass_rows(sel, p))[0][:, joints]
+        return rot
+
+    def _advance(self, sel, features, weights: np.ndarray, rotations: np.ndarray) -> np.ndarray:
+        """The network and the state updates of the streams ``sel`` (``_ALL``: all), whose
+        input frame is ``rotations``."""
         x, traj, g, facing, _ = features
         rows = None if sel is _ALL else sel
         style, content = self.given_style[sel], self.given_content[sel]
@@ -252,9 +321,11 @@ class StreamStylizer:
             p_style = toward_neutral(p_style, self.neutral)
             style = np.where(self.known_style[sel, None], style, p_style)
             content = np.where(self.known_content[sel, None], content, p_content)
-        rot, _ = self.backend.step(x, style, content, weights[sel], rows)
+        rot = self._network(sel, x, style, content, weights[sel])
         out = np.empty(rot.shape)
         _root_on_heading(np.ascontiguousarray(rot), traj, out)
+        if len(self.input_joints):  # parts that keep the input's own motion
+            out[:, self.input_joints] = quat.normalize(rotations[:, self.input_joints])
         if self.labeller is not None:
             self.labeller.h[sel] = labeller_state
         self.previous[sel], self.facing[sel], self.started[sel] = g, facing, True
