@@ -105,6 +105,32 @@ def test_stream_answers_every_frame_in_order_equal_to_local_streaming(server, cl
     assert np.abs(np.stack(payloads) - expected).max() < 1e-2  # degrees: float32 on the wire
 
 
+def test_body_parts_in_the_hello_beside_a_stream_without(server, clip):
+    """A stream with body parts of their own targets gets what a local ChannelStylizer with
+    those parts gives, while a stream of the same skeleton without parts goes on beside it."""
+    url, _ = server
+    m, values = clip
+    parts = {"legs": "exhausted", "arms": "input"}
+    ws, ready = open_stream(url, m, input_style="normal", content="walk", parts=parts)
+    plain, _ = open_stream(url, m, input_style="normal", content="walk")
+    assert ready["parts"] == {"legs": {"exhausted": 1.0}, "arms": None}
+    got, plain_got = [], []
+    for i in range(30):
+        ws.send(frame(i, values[i]))
+        plain.send(frame(i, values[i]))
+        got += replies(ws, 1)[1]
+        plain_got += replies(plain, 1)[1]
+    ws.close()
+    plain.close()
+    model = load_generator()[0]
+    local = ChannelStylizer(model, m.skeleton, {"elderly": 1.0}, "normal", "walk", fps=30.0, parts=parts)
+    whole = ChannelStylizer(model, m.skeleton, {"elderly": 1.0}, "normal", "walk", fps=30.0)
+    expected = np.stack([local.step(values[i].astype(np.float64))[0] for i in range(30)])
+    assert np.abs(np.stack(got) - expected).max() < 1e-2
+    assert np.abs(np.stack(plain_got) - np.stack([whole.step(values[i].astype(np.float64))[0] for i in range(30)])).max() < 1e-2
+    assert np.abs(expected - np.stack(plain_got)).max() > 1.0  # the parts change the output: the test can fail
+
+
 def test_json_frames_positions_and_style_change_midway(server, clip):
     url, _ = server
     m, values = clip
@@ -204,7 +230,10 @@ def test_hello_problems_and_a_full_server(server, clip):
                             ({**hello(m, 30.0, "zombie", 1.0, None, None)}, 1008, "unknown style 'zombie'"),
                             ({**hello(m, 5.0, "elderly", 1.0, None, None)}, 1008, "'fps' must be a number in [10, 480]"),
                             ({"type": "hello", "skeleton": "HIERARCHY\nROOT Hips\n{\n OFFSET 0 0\n}\n", "fps": 30, "style": "elderly"}, 1008, "handshake skeleton:5: joint 'Hips' OFFSET"),
-                            ({"type": "hello", "preset": "model", "fps": 30, "style": "elderly", "input_style": "sleepy"}, 1008, "unknown input_style")]:  # fmt: skip
+                            ({"type": "hello", "preset": "model", "fps": 30, "style": "elderly", "input_style": "sleepy"}, 1008, "unknown input_style"),
+                            ({"type": "hello", "preset": "model", "fps": 30, "style": "elderly", "parts": {"wings": "elderly"}}, 1008, "unknown body part 'wings'"),
+                            ({"type": "hello", "preset": "model", "fps": 30, "style": "elderly", "parts": {"legs": {"elderly": "lots"}}}, 1008, "mixture weights must be"),
+                            ({"type": "hello", "preset": "model", "fps": 30, "style": "elderly", "parts": [1, 2]}, 1008, "parts: give")]:  # fmt: skip
         ws = connect(url, open_timeout=20, legacy=True)
         ws.send(json.dumps(msg))
         got, texts = closed_with(ws)

@@ -64,6 +64,21 @@ def test_page_draws_and_a_style_change_changes_the_output(page, tmp_path):
     assert shot.stat().st_size > 10000
 
 
+def test_body_parts_restart_the_stream_with_targets_of_their_own(page):
+    """Choosing a target for a body part restarts the clip's stream with that part (the server
+    says which parts it took) and the drawn output changes; back to none, the stream is plain."""
+    base = drawn_after_restart(page, "exhausted")
+    page.select_option("#part-legs", "elderly")
+    page.wait_for_function("window.viewer.ready && window.viewer.parts && window.viewer.parts.legs && window.viewer.parts.legs.elderly === 1", timeout=30000)
+    page.wait_for_function("window.viewer.drawn.has(40)", timeout=30000)
+    parts = np.array(page.evaluate("window.viewer.drawn.get(40)"))
+    height = np.ptp(base.reshape(-1, 3)[:, 1])
+    assert np.linalg.norm((parts - base).reshape(-1, 3), axis=-1).max() > 0.02 * height
+    page.select_option("#part-legs", "")
+    page.wait_for_function("window.viewer.ready && window.viewer.parts && Object.keys(window.viewer.parts).length === 0", timeout=30000)
+    assert page.locator("#error").inner_text() == "" and not page.errors
+
+
 def test_an_uploaded_bvh_plays(page, tmp_path):
     from styleerd.motion import bvh
     from styleerd.motion.procedural import walk

@@ -83,6 +83,8 @@ def part_targets(model: GeneratorWeights, parts: str | dict | None) -> dict[str,
     stylizer's target."""
     if not parts:
         return {}
+    if not isinstance(parts, (str, dict)):
+        raise StyleERDError(f"parts: give 'part=style,...' or an object of part -> style, got {parts!r}"[:300])
     if isinstance(parts, str):
         items = [item.partition("=")[::2] for item in parts.split(",") if item.strip()]
         if any(not value for _, value in items):
@@ -91,11 +93,13 @@ def part_targets(model: GeneratorWeights, parts: str | dict | None) -> dict[str,
     out: dict[str, dict[str, float] | None] = {}
     for part, value in parts.items():
         if part not in BODY_PARTS:
-            raise StyleERDError(f"unknown body part {part!r}; valid: {', '.join(BODY_PARTS)}")
+            raise StyleERDError(f"unknown body part {part!r}; valid: {', '.join(BODY_PARTS)}"[:300])
         if value is None or value == "input":
             out[part] = None
-        elif isinstance(value, dict):
-            out[part] = dict(value)
+        elif isinstance(value, dict):  # a mixture: weights checked and normalised
+            out[part] = target_weights(model, None, 1.0, value)
+        elif not isinstance(value, str):
+            raise StyleERDError(f"body part {part}: give a style name, style:intensity, input or a mixture, got {value!r}"[:300])
         else:
             style, _, intensity = str(value).partition(":")
             try:

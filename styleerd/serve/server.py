@@ -49,7 +49,7 @@ from styleerd.motion import bvh, quat
 from styleerd.motion.kinematics import bone_fronts, forward_kinematics
 from styleerd.motion.skeleton import Skeleton
 from styleerd.runtime.channels import ChannelStylizer
-from styleerd.runtime.stylizer import label_vector, target_weights
+from styleerd.runtime.stylizer import label_vector, part_targets, target_weights
 from styleerd.runtime.onnx_export import sidecar, step_graph
 from styleerd.serve.clips import DemoClips, reference_clip
 
@@ -120,17 +120,17 @@ class Watcher:
 
 
 class Pool:
-    """The streams of one skeleton, frame rate and cleanup setting: a slot each in one
-    ChannelStylizer, stepped together."""
+    """The streams of one skeleton, frame rate, cleanup setting and body-part targets: a slot
+    each in one ChannelStylizer, stepped together."""
 
-    def __init__(self, model: GeneratorWeights, skeleton: Skeleton, fps: float, cleanup: bool, capacity: int, backend: str, key: tuple):
+    def __init__(self, model: GeneratorWeights, skeleton: Skeleton, fps: float, cleanup: bool, capacity: int, backend: str, key: tuple, parts: dict | None = None):
         neutral = model.config.neutral_style
-        self.stylizer = ChannelStylizer(model, skeleton, {neutral: 1.0}, neutral, model.config.contents[0], fps, capacity, cleanup=cleanup, backend=backend)
-        self.skeleton = skeleton
+        self.stylizer = ChannelStylizer(model, skeleton, {neutral: 1.0}, neutral, model.config.contents[0], fps, capacity, cleanup=cleanup, backend=backend, parts=parts)
+        self.skeleton, self.parts = skeleton, parts or {}
         self.fronts = bone_fronts(skeleton)  # rest fronts of the bones, for viewers that show their roll
         self.free = list(range(capacity - 1, -1, -1))
         self.streams: dict[int, Stream] = {}
-        self.key = key  # (skeleton header, fps, cleanup): streams that share all three share the pool
+        self.key = key  # (skeleton header, fps, cleanup, parts): streams that share all four share the pool
 
 
 def _skeleton_from_text(text: str, fps: float, max_joints: int) -> Skeleton:
@@ -216,8 +216,12 @@ class StyleServer:
         if fmt not in ("binary", "json"):
             raise ClientError(POLICY, f"'format' must be 'binary' or 'json', got {fmt!r}")
         cleanup = bool(msg.get("cleanup", True))
+        try:  # body parts with targets of their own: fixed for the stream (its pool's)
+            parts = part_targets(self.model, msg.get("parts"))
+        except StyleERDError as e:
+            raise ClientError(POLICY, str(e)) from None
         async with self.setup:  # the worker thread shares the interpreter with the stepping: one at a time
-            pool = await asyncio.to_thread(self._pool, msg.get("skeleton") if msg.get("preset") != "model" else None, fps, cleanup)
+            pool = await asyncio.to_thread(self._pool, msg.get("skeleton") if msg.get("preset") != "model" else None, fps, cleanup, parts)
         if len(self.streams) >= self.config.max_streams:  # others came in while this one was set up
             raise ClientError(TRY_LATER, f"the server is full ({self.config.max_streams} streams); try again later")
         pool = self.pools.setdefault(pool.key, pool)  # registered here, on the event loop
@@ -237,16 +241,16 @@ class StyleServer:
         log.info("stream %d %r opened: %d joints, %g fps, target %s", stream.id, stream.name, pool.skeleton.n_joints, fps, target)
         return stream
 
-    def _pool(self, text: str | None, fps: float, cleanup: bool) -> Pool:
+    def _pool(self, text: str | None, fps: float, cleanup: bool, parts: dict) -> Pool:
         """The pool of a hello's skeleton: the existing one, or a new one (not yet registered).
         Runs in a worker thread: reads ``self.pools``, never changes it."""
         try:
             skeleton = self.model.skeleton if text is None else _skeleton_from_text(text, fps, self.config.max_joints)
-            key = (bvh.format_header(skeleton, 0, fps), fps, cleanup)
+            key = (bvh.format_header(skeleton, 0, fps), fps, cleanup, json.dumps(parts, sort_keys=True))
             existing = self.pools.get(key)
             if existing is not None:
                 return existing
-            return Pool(self.model, skeleton, fps, cleanup, self.config.max_streams, self.config.backend, key)
+            return Pool(self.model, skeleton, fps, cleanup, self.config.max_streams, self.config.backend, key, parts)
         except StyleERDError as e:
             raise ClientError(POLICY, str(e)) from None
 
@@ -268,7 +272,7 @@ class StyleServer:
         return {"type": "ready", "stream": stream.name, "id": stream.id, **private, "channels": stream.pool.stylizer.n_channels,
                 "fps": stream.pool.stylizer.fps, "joints": list(sk.names), "parents": [int(p) for p in sk.parents],
                 "styles": list(c.styles), "contents": list(c.contents), "neutral": c.neutral_style,
-                "target": self._weights(stream), "mapping": stream.pool.stylizer.map.describe(), "queue": self.config.queue}  # fmt: skip
+                "target": self._weights(stream), "parts": stream.pool.parts, "mapping": stream.pool.stylizer.map.describe(), "queue": self.config.queue}  # fmt: skip
 
     def _weights(self, stream: Stream) -> dict[str, float]:
         w = stream.pool.stylizer.stylizer.blend.end[stream.row]

@@ -169,6 +169,15 @@ function targetMessage() {
   return { style: a, intensity };
 }
 
+const partSelects = () => Array.from(document.querySelectorAll("#parts select"));
+
+function partsMessage() {
+  // body parts with their own target: fixed for a stream, so a change restarts the clip's stream
+  const parts = {};
+  for (const el of partSelects()) if (el.value) parts[el.dataset.part] = el.value;
+  return Object.keys(parts).length ? { parts } : {};
+}
+
 function setStatus(text) { ui.status.textContent = text; }
 function fail(text) { ui.error.textContent = text; }
 
@@ -215,11 +224,12 @@ function playClip(c) {
   figures = null; follow = null;
   frameIndex = 0;
   ui.scrub.max = clip.frames.length - 1;
-  const hello = { type: "hello", skeleton: clip.header, fps: clip.fps, format: "binary", positions: true, fronts: true, name: "viewer", private: true, ...targetMessage() };
+  const hello = { type: "hello", skeleton: clip.header, fps: clip.fps, format: "binary", positions: true, fronts: true, name: "viewer", private: true, ...targetMessage(), ...partsMessage() };
+  viewer.drawn.clear();
   connect(hello, (msg) => {
     if (msg.type !== "ready") return;
     joints = msg.joints.length; channels = msg.channels;
-    viewer.parents = msg.parents; viewer.ready = true; viewer.target = msg.target;
+    viewer.parents = msg.parents; viewer.ready = true; viewer.target = msg.target; viewer.parts = msg.parts;
     showTarget();
     timer = setInterval(tick, 1000 / clip.fps);
   });
@@ -290,6 +300,11 @@ async function main() {
   for (const s of styles.styles) {
     ui.styleA.add(new Option(s, s, false, s === "elderly"));
     ui.styleB.add(new Option(s, s));
+  }
+  for (const el of partSelects()) {
+    el.add(new Option(`${el.dataset.part}: input`, "input"));
+    for (const s of styles.styles) el.add(new Option(`${el.dataset.part}: ${s}`, s));
+    el.onchange = () => { if (viewer.mode === "clip" && clip) playClip(clip); };
   }
   const names = await (await fetch("/clips")).json();
   for (const n of names) ui.clip.add(new Option(n, n));
