@@ -198,9 +198,10 @@ def pack(w: StepWeights) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray
     for W, b in w.encoder:
         matrix(W, b)
     for layers in [w.neutral, *w.branches]:
-        for w_in, w_hid, b in layers:
-            matrix(w_in, b)
-            matrix(w_hid, None)
+        for w_cat, b in layers:
+            inputs = len(w_cat) - w.hidden
+            matrix(w_cat[:inputs], b)
+            matrix(w_cat[inputs:], None)
     for W, b in w.decoder:
         matrix(W, b)
     inits = np.array([put(a) for a in (*w.neutral_init, *w.branch_init)], np.int64)

