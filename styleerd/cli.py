@@ -276,7 +276,7 @@ def _load_test(args: argparse.Namespace) -> None:
 def _vmc(args: argparse.Namespace) -> None:
     from styleerd.serve.vmc import run_bridge
 
-    run_bridge(args.listen, args.send, args.style, args.intensity, _parse_mix(args.mix) if args.mix else None, args.host, args.fps)
+    run_bridge(args.listen, args.send, args.style, args.intensity, _parse_mix(args.mix) if args.mix else None, args.host, args.fps, args.parts)
 
 
 def _demo(args: argparse.Namespace) -> None:
@@ -514,6 +514,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--intensity", type=float, default=1.0)
     p.add_argument("--mix")
     p.add_argument("--fps", type=_positive, default=30.0, help="the sender's frame rate (velocities are per second)")
+    p.add_argument("--parts", help="body parts with targets of their own, as for transfer: e.g. arms=input (tracked hands keep their own motion)")
     p.set_defaults(func=_vmc)
 
     p = command("demo", "the main job on a bundled input: every style, BVH files + an HTML page to watch them")

@@ -12,6 +12,7 @@ from pythonosc.osc_message_builder import OscMessageBuilder
 from pythonosc.osc_packet import OscPacket
 from scipy.spatial.transform import Rotation
 
+from styleerd.errors import StyleERDError
 from styleerd.model.checkpoint import load_generator
 from styleerd.motion import quat
 from styleerd.motion.kinematics import forward_kinematics
@@ -114,6 +115,20 @@ def test_bridge_stylises_every_frame_keeps_positions_and_passes_other_messages(m
     assert np.isfinite(q).all() and np.allclose(np.linalg.norm(q, axis=-1), 1.0, atol=1e-4)
     change = np.degrees(quat.angle_between(unity_rotation(q), m.rotations))  # styled, not copied
     assert change[:, names.index("LeftUpperArm")].mean() > 2.0
+
+
+def test_bridge_with_tracked_arms_keeps_them_and_stylises_the_rest(model):
+    """``--parts arms=input``: a VTuber's tracked arms come back as they went in."""
+    m, names, frames = _unity_frames(bundled=True)
+    bridge = VMCBridge(model, {"elderly": 1.0}, report=lambda _: None, parts="arms=input")
+    got, _ = _decode([out for datagrams in frames for d in datagrams for out in bridge.feed(d)])
+    q = unity_rotation(np.stack([np.stack([f[n][1] for n in names]) for f in got]))
+    change = np.degrees(quat.angle_between(q, m.rotations))
+    arms = [names.index(n) for n in ("LeftUpperArm", "LeftLowerArm", "RightUpperArm", "RightLowerArm")]
+    assert change[:, arms].max() < 0.1, change[:, arms].max()
+    assert change[:, names.index("LeftUpperLeg")].mean() > 2.0  # the legs are stylised
+    with pytest.raises(StyleERDError, match="unknown body part 'hands'"):
+        VMCBridge(model, {"elderly": 1.0}, parts="hands=input")
 
 
 def test_bridge_rejects_bad_frames_and_datagrams(model):

@@ -34,7 +34,7 @@ from styleerd.motion import quat
 from styleerd.motion.motion import Motion
 from styleerd.motion.skeleton import POSITION_CHANNELS, Skeleton
 from styleerd.runtime.channels import ChannelStylizer
-from styleerd.runtime.stylizer import target_weights
+from styleerd.runtime.stylizer import part_targets, target_weights
 
 ROOT, BONE = "/VMC/Ext/Root/Pos", "/VMC/Ext/Bone/Pos"
 
@@ -104,8 +104,9 @@ def humanoid_skeleton(bones: dict[str, np.ndarray]) -> Skeleton:
 class VMCBridge:
     """Datagrams in, datagrams out (no sockets here: ``run_bridge`` owns them)."""
 
-    def __init__(self, model: GeneratorWeights, target: dict[str, float], fps: float = 30.0, cleanup: bool = True, report=print):
+    def __init__(self, model: GeneratorWeights, target: dict[str, float], fps: float = 30.0, cleanup: bool = True, report=print, parts: str | dict | None = None):
         self.model, self.target, self.fps, self.cleanup, self.report = model, target, fps, cleanup, report
+        self.parts = part_targets(model, parts)  # body parts with targets of their own (checked now, not at the first frame)
         self.stylizer: ChannelStylizer | None = None
         self.skeleton: Skeleton | None = None
         self.root: list | None = None  # the last Root/Pos arguments
@@ -148,7 +149,7 @@ class VMCBridge:
     def _start(self) -> list[bytes]:
         """The first frame fixes the bone set and the skeleton."""
         self.skeleton = humanoid_skeleton({b: unity_position(p) for b, (p, _) in self.bones.items()})
-        self.stylizer = ChannelStylizer(self.model, self.skeleton, self.target, fps=self.fps, cleanup=self.cleanup)
+        self.stylizer = ChannelStylizer(self.model, self.skeleton, self.target, fps=self.fps, cleanup=self.cleanup, parts=self.parts)
         self.report(f"VMC: {len(self.skeleton.names)} bones; joint mapping (model <- avatar):\n{self.stylizer.map.describe()}")
         return self._frame()
 
@@ -181,11 +182,12 @@ def _message(address: str, params: list):
     return builder.build()
 
 
-def run_bridge(listen: int, send: int, style: str | None, intensity: float, mix: dict[str, float] | None, host: str = "127.0.0.1", fps: float = 30.0) -> None:
+def run_bridge(listen: int, send: int, style: str | None, intensity: float, mix: dict[str, float] | None, host: str = "127.0.0.1", fps: float = 30.0,
+               parts: str | None = None) -> None:  # fmt: skip
     """``styleerd vmc``: receive on ``host:listen``, send the stylised stream to ``host:send``."""
     model = load_generator_weights()
     target = target_weights(model, style, intensity, mix)
-    bridge = VMCBridge(model, target, fps, report=lambda text: print(text, flush=True))
+    bridge = VMCBridge(model, target, fps, report=lambda text: print(text, flush=True), parts=parts)
     rx = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
     rx.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 1 << 22)  # room for frames that arrive while the first is set up
     try:
