@@ -441,19 +441,28 @@ def _to_target_kernel(rot, pos, s_parents, t_parents, t_idx, s_idx, offsets, onl
     for n in range(rot.shape[0]):
         forward_pose(rot[n], pos[n], s_parents, g_rot, g_pos)
         for i in range(len(t_idx)):
-            a, b = g_rot[s_idx[i]], offsets[i]
-            glob[t_idx[i], 0], glob[t_idx[i], 1], glob[t_idx[i], 2], glob[t_idx[i], 3] = quat.mul_scalars(a[0], a[1], a[2], a[3], b[0], b[1], b[2], b[3])
+            _mul_into(glob, t_idx[i], g_rot[s_idx[i]], offsets[i])
         for m in range(len(only_joint)):
-            j, p, b = only_joint[m], only_parent[m], only_rel[m]
-            if p < 0:
-                glob[j] = b
-            else:
-                a = glob[p]
-                glob[j, 0], glob[j, 1], glob[j, 2], glob[j, 3] = quat.mul_scalars(a[0], a[1], a[2], a[3], b[0], b[1], b[2], b[3])
+            _below_parent(glob, only_joint[m], only_parent[m], only_rel[m])
         _local_pose(glob, t_parents, out_rot[n], False)
         out_pos[n] = t_offsets
         for k in range(3):
             out_pos[n, 0, k] = g_pos[s_idx[0], k] * scale
+
+
+@nb.njit(cache=True)
+def _mul_into(glob, j, a, b):
+    """``glob[j] = a b`` (quaternions ``[4]``)."""
+    glob[j, 0], glob[j, 1], glob[j, 2], glob[j, 3] = quat.mul_scalars(a[0], a[1], a[2], a[3], b[0], b[1], b[2], b[3])
+
+
+@nb.njit(cache=True)
+def _below_parent(glob, j, p, local):
+    """Joint j's global rotation from its parent p's (already set) and its ``local`` one."""
+    if p < 0:
+        glob[j] = local
+    else:
+        _mul_into(glob, j, glob[p], local)
 
 
 @nb.njit(cache=True)
@@ -487,13 +496,7 @@ def _to_source_kernel(rot, pos, t_parents, s_parents, t_idx, s_idx, offsets, unm
     for n in range(rot.shape[0]):
         forward_pose(rot[n], pos[n], t_parents, g_rot, g_pos)
         for i in range(len(t_idx)):
-            a, b = g_rot[t_idx[i]], offsets[i]
-            glob[s_idx[i], 0], glob[s_idx[i], 1], glob[s_idx[i], 2], glob[s_idx[i], 3] = quat.mul_scalars(a[0], a[1], a[2], a[3], b[0], b[1], b[2], b[3])
+            _mul_into(glob, s_idx[i], g_rot[t_idx[i]], offsets[i])
         for s in unmapped:
-            p, b = s_parents[s], source_rot[n, s]
-            if p < 0:
-                glob[s] = b
-            else:
-                a = glob[p]
-                glob[s, 0], glob[s, 1], glob[s, 2], glob[s, 3] = quat.mul_scalars(a[0], a[1], a[2], a[3], b[0], b[1], b[2], b[3])
+            _below_parent(glob, s, s_parents[s], source_rot[n, s])
         _local_pose(glob, s_parents, out_rot[n], True)

@@ -79,11 +79,10 @@ def _foot_lock_kernel(positions, in_rot, in_pos, state, parents, legs, across_l,
     J = out.shape[1]
     g_rot, g_pos = np.empty((J, 4)), np.empty((J, 3))
     hip_g, knee_g, target, left = np.empty(4), np.empty(4), np.empty(3), np.empty(3)
-    weight = np.empty(2)
+    weight, now = np.empty(2), np.empty(2, np.bool_)
     for i in range(len(state)):
         r = state[i]
         forward_pose(in_rot[i], in_pos[i], parents, g_rot, g_pos)
-        now = np.empty(2, np.bool_)
         for side in range(2):
             ankle = g_pos[legs[side, 2]].copy()
             before = previous[r, side].copy() if started[r] else ankle

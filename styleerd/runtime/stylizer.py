@@ -171,15 +171,16 @@ class StreamStylizer:
         # the input's own rotation)
         self.part_passes: list[np.ndarray] = []
         self.joint_pass = np.zeros(model.config.n_joints, dtype=int)
+        joints = part_joints(model.skeleton)
         for part, part_target in part_targets(model, parts).items():
             if part_target is None:
-                self.joint_pass[part_joints(model.skeleton)[part]] = -1
+                self.joint_pass[joints[part]] = -1
                 continue
             w = label_vector(model.config.styles, part_target, "style").astype(np.float32)
             known = [k for k, v in enumerate(self.part_passes) if np.array_equal(v, w)]
             if not known:
                 self.part_passes.append(w)
-            self.joint_pass[part_joints(model.skeleton)[part]] = 1 + (known[0] if known else len(self.part_passes) - 1)
+            self.joint_pass[joints[part]] = 1 + (known[0] if known else len(self.part_passes) - 1)
         self.input_joints = np.nonzero(self.joint_pass < 0)[0]
         self.backend = make_backend(backend, model, n_streams * (1 + len(self.part_passes)))
         # steps of many streams split into this many shards on a thread pool (numpy and numba:
