@@ -20,10 +20,11 @@ from styleerd.errors import StyleERDError
 from styleerd.model.stored import GeneratorWeights, load_generator_weights
 from styleerd.models import LICENCE
 from styleerd.motion import bvh
+from styleerd.motion.gltf import read_motion
 from styleerd.motion.motion import Motion
 from styleerd.motion.skeleton import Skeleton
 from styleerd.runtime.channels import ChannelStylizer
-from styleerd.runtime.offline import TransferOptions, read_motion, transfer_file, transfer_motion
+from styleerd.runtime.offline import TransferOptions, transfer_file, transfer_motion
 from styleerd.runtime.stylizer import label_vector, part_targets, target_weights
 
 PathLike = str | os.PathLike

@@ -44,7 +44,7 @@ def _items(names: tuple[str, ...], infer: bool = False) -> list[tuple[str, str, 
 
 # enum items must stay referenced while Blender shows them
 _STYLES = _items(_model().config.styles)
-_INPUT_STYLES = _items(_model().config.styles, infer=True)
+_INPUT_STYLES = _items(_model().config.input_styles, infer=True)
 _CONTENTS = _items(_model().config.contents, infer=True)
 
 

@@ -93,7 +93,7 @@ def _transfer(args: argparse.Namespace) -> None:
 
     model = load_generator_weights(args.model)
     c = model.config
-    for value, names, what in ((args.input_style, c.styles, "--input-style"), (args.content, c.contents, "--content")):
+    for value, names, what in ((args.input_style, c.input_styles, "--input-style"), (args.content, c.contents, "--content")):
         if value is not None and value not in names:
             raise StyleERDError(f"{what} {value!r} is not one of: {', '.join(names)}")
     target = target_weights(model, args.style, args.intensity, _parse_mix(args.mix) if args.mix else None)
@@ -148,14 +148,42 @@ def _export_onnx(args: argparse.Namespace) -> None:
     print(f"wrote {args.output} and {Path(args.output).with_suffix('.json')} (inputs, outputs and features: docs/ONNX.md)")
 
 
+def _add_style(args: argparse.Namespace) -> None:
+    from styleerd.train.add_style import AddStyleConfig, add_style
+
+    out = Path(args.output)
+    out = out.with_suffix("") if out.suffix in (".safetensors", ".json") else out
+    check_output(out.with_suffix(".safetensors"), *args.clips)
+    config = AddStyleConfig(steps=args.steps, max_minutes=args.minutes)
+    explicit = _read_joint_map(args.joint_map) if args.joint_map else None
+    added = add_style(args.model, args.name, args.clips, out, args.content, args.like, config, args.data, explicit)
+    print(f"added {added['name']} from {len(added['clips'])} clips ({added['frames']} frames, starting like {added['started_like']}): "
+          f"{added['steps']} steps, {added['minutes']:.1f} min; wrote {out}.safetensors")
+
+
 def _styles(args: argparse.Namespace) -> None:
+    from styleerd.models import DEFAULT_MODEL, MODELS_DIR
+
+    if args.model:
+        return _model_styles(args.model)
+    shipped = sorted((p.with_suffix("") for p in MODELS_DIR.glob("*.json") if json.loads(p.read_text()).get("kind") == "styleerd-generator"), key=lambda p: (p.name != DEFAULT_MODEL, p.name))
+    for i, stem in enumerate(shipped):  # the default model first
+        if i:
+            print()
+        _model_styles(str(stem))
+
+
+def _model_styles(name: str | None) -> None:
     from styleerd.model.stored import load_generator_weights, model_stem
     from styleerd.models import LICENCE
 
-    model = load_generator_weights(args.model)
+    model = load_generator_weights(name)
     meta = model.meta
-    print(f"model:    {model_stem(args.model).with_suffix('.safetensors')}")
-    print(f"styles:   {', '.join(model.config.styles)} (neutral: {model.config.neutral_style})")
+    print(f"model:    {model_stem(name).with_suffix('.safetensors')}")
+    c = model.config
+    print(f"styles:   {', '.join(c.styles)} (neutral: {c.neutral_style})")
+    for added in meta.get("added_styles", []):
+        print(f"added:    {added['name']} (a target only), from {len(added['clips'])} clips ({added['frames']} frames) in {added['minutes']:.1f} min")
     print(f"contents: {', '.join(model.config.contents)}")
     print(f"skeleton: {model.skeleton.n_joints} joints, trained at {meta['data']['fps']:g} fps on {meta['data']['dataset']}")
     print(f"licence:  {meta.get('licence', LICENCE)}")
@@ -252,7 +280,7 @@ def _serve(args: argparse.Namespace) -> None:
 
     config = ServeConfig(host=args.host, port=args.port, max_streams=args.max_streams, max_message=args.max_message, queue=args.queue,
                          backend=args.backend, data=args.data, max_joints=args.max_joints, origins=tuple(args.allow_origin),
-                         hosts=tuple(args.allow_host))  # fmt: skip
+                         hosts=tuple(args.allow_host), model=args.model)  # fmt: skip
     serve_forever(config, args.workers)
 
 
@@ -276,7 +304,7 @@ def _load_test(args: argparse.Namespace) -> None:
 def _vmc(args: argparse.Namespace) -> None:
     from styleerd.serve.vmc import run_bridge
 
-    run_bridge(args.listen, args.send, args.style, args.intensity, _parse_mix(args.mix) if args.mix else None, args.host, args.fps, args.parts)
+    run_bridge(args.listen, args.send, args.style, args.intensity, _parse_mix(args.mix) if args.mix else None, args.host, args.fps, args.parts, args.model)
 
 
 def _demo(args: argparse.Namespace) -> None:
@@ -328,7 +356,7 @@ MODEL_HELP = "a model file, or a model name in $STYLEERD_MODELS or among the shi
 GROUPS = {
     "use": ("transfer", "styles", "info", "resample", "export-onnx", "demo"),
     "live": ("serve", "stream-bvh", "vmc", "load-test"),
-    "train (styleerd[train])": ("data", "train", "train-labeller", "train-recognisers", "train-fmd"),
+    "train (styleerd[train])": ("data", "train", "add-style", "train-labeller", "train-recognisers", "train-fmd"),
     "evaluate (styleerd[train])": ("evaluate", "eval", "eval-runtime", "bench", "report", "filmstrip"),
 }
 
@@ -378,6 +406,19 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--export", help="also write the best generator to this model path (no suffix)")
     p.set_defaults(func=_train)
 
+    p = command("add-style", "a new style from 1 to 20 clips of it, on any skeleton: trains one more branch, every old style unchanged")
+    p.add_argument("name", help="the new style's name (lower case, e.g. sneaky)")
+    p.add_argument("clips", nargs="+", help="BVH or glTF/VRM clips of the style (any humanoid skeleton and frame rate, retargeted as transfer does)")
+    p.add_argument("-o", "--output", required=True, help="the new model file (e.g. models/mine): the old model plus the new style")
+    p.add_argument("--model", help=MODEL_HELP)
+    p.add_argument("--content", nargs="+", help="the clips' content, e.g. walk (one for all, or one per clip; default: inferred online)")
+    p.add_argument("--like", help="start the new branch from this style's (default: the style the labeller finds closest)")
+    p.add_argument("--steps", type=_whole(1), default=1200, help="training steps (default 1200)")
+    p.add_argument("--minutes", type=_positive, default=8.0, help="stop after this many minutes of training (default 8)")
+    p.add_argument("--joint-map", help="JSON object {model joint: clip joint} completing the automatic mapping")
+    p.add_argument("--data", help="data folder (the neutral clips of the model's dataset are the content to stylise)")
+    p.set_defaults(func=_add_style)
+
     for name, (text, default, _) in HELPER_MODELS.items():
         p = command(name, text)
         p.add_argument("--config", help="YAML TrainConfig (dataset, seed, threads, window, classifier_* fields)")
@@ -411,7 +452,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--plain", action="store_true", help="the LSTM cells written out as MatMul/Sigmoid/Tanh (for runtimes without the LSTM op)")
     p.set_defaults(func=_export_onnx)
 
-    p = command("styles", "styles and contents of the model")
+    p = command("styles", "styles and contents of each shipped model (or of --model)")
     p.add_argument("--model", help=MODEL_HELP)
     p.set_defaults(func=_styles)
 
@@ -478,6 +519,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--max-message", type=_whole(1024), default=1 << 20, help="largest message in bytes (larger: closed with 1009)")
     p.add_argument("--queue", type=_whole(1), default=64, help="per stream: frames waiting, and stylised frames unsent")
     p.add_argument("--backend", default="numpy", choices=["numpy", "numba", "onnx"])
+    p.add_argument("--model", help=MODEL_HELP)
     p.add_argument("--data", help="data folder for the viewer's real demo clips (optional)")
     p.add_argument("--max-joints", type=_whole(1), default=512, help="joints of a stream's skeleton (default 512)")
     p.add_argument("--allow-origin", action="append", default=[], metavar="ORIGIN",
@@ -515,6 +557,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--mix")
     p.add_argument("--fps", type=_positive, default=30.0, help="the sender's frame rate (velocities are per second)")
     p.add_argument("--parts", help="body parts with targets of their own, as for transfer: e.g. arms=input (tracked hands keep their own motion)")
+    p.add_argument("--model", help=MODEL_HELP)
     p.set_defaults(func=_vmc)
 
     p = command("demo", "the main job on a bundled input: every style, BVH files + an HTML page to watch them")

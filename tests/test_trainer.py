@@ -134,3 +134,28 @@ def test_recognisers_read_positions_and_velocities_and_report_the_ceiling(shared
     y = x.clone()
     y[..., layout.rotations] = 0  # rotations are not read
     assert torch.equal(style(x), style(y))
+
+
+def test_both_bandai_sets_as_one_train_style_by_style(shared_data, tmp_path):
+    """bandai-namco-1+2: Bandai-1's styles that Bandai-2 has under another name are renamed,
+    its kept-back clips are the test split, and a run with balanced styles trains."""
+    import numpy as np
+
+    from styleerd.data.cache import prepare
+    from styleerd.data.datasets import bandai1_kept_back
+    from styleerd.model.checkpoint import load_generator
+    from styleerd.train.trainer import train
+
+    fs = prepare("bandai-namco-1+2", shared_data, progress=False)
+    styles = set(fs.styles.tolist())
+    assert {"elderly", "exhausted", "masculine", "happy", "chimpira", "youthful"} <= styles and not {"old", "tired", "masculinity"} & styles
+    assert len(styles) == 16  # Bandai-1's 15 (three renamed) and Bandai-2's youthful
+    one = np.char.startswith(fs.names.astype(str), "dataset-1_")
+    held = np.array([bandai1_kept_back(n, c) for n, c in zip(fs.names, fs.contents)])
+    assert (fs.splits[one & held] == "test").all() and (fs.splits[one & ~held] == "train").all()
+    assert ((fs.styles == "happy") & one & held).sum() == 5 and ((fs.styles == "happy") & one & ~held).sum() == 6
+    assert set(fs.splits[~one]) == {"train", "val", "test"}  # Bandai-2 keeps its split by take
+    out = tmp_path / "b12"
+    train(TrainConfig(**{**TINY, "max_train_clips": 0}, dataset="bandai-namco-1+2", balance_styles=True, epochs=1, stride=200), out, progress=False, export=tmp_path / "m")
+    model, _ = load_generator(tmp_path / "m")
+    assert model.config.styles == tuple(sorted(styles)) and "bow" in model.config.contents

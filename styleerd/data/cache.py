@@ -19,7 +19,7 @@ import numpy as np
 from tqdm import tqdm
 
 from styleerd.atomic import atomic_write
-from styleerd.data.datasets import DATASETS, Clip, cache_dir, data_root, find_clips, load_motion
+from styleerd.data.datasets import COMBINED, DATASETS, Clip, bandai1_kept_back, cache_dir, data_root, find_clips, load_motion
 from styleerd.data.features import FeatureStats, motion_features
 from styleerd.data.windows import split_takes
 from styleerd.errors import StyleERDError
@@ -65,6 +65,8 @@ class FeatureSet:
 
 
 def _fingerprint(root: Path, dataset: str) -> list:
+    if dataset in COMBINED:
+        return [f for part in COMBINED[dataset] for f in _fingerprint(root, part)]
     paths = [root / f"{dataset}.tar.xz"] if dataset.startswith("bandai") else sorted((root / dataset).iterdir())
     out = []
     for p in paths:
@@ -113,6 +115,8 @@ def build(root: Path, dataset: str, params: FeatureParams, cache: Path, workers:
             raise StyleERDError(f"{clip.path}: skeleton differs from the rest of {dataset}")
     lengths = np.array([len(r[0]) for r in results])
     split = split_takes({c.name: (c.dataset, c.style, c.content) for c in clips})
+    if dataset in COMBINED:  # Bandai-1's few takes: a fixed set held out (datasets.bandai1_kept_back)
+        split.update({c.name: "test" if bandai1_kept_back(c.name, c.content) else "train" for c in clips if c.dataset == "bandai-namco-1"})
     return FeatureSet(
         dataset=dataset,
         skeleton=skeleton,

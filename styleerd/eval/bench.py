@@ -64,7 +64,7 @@ def network_step(model: StyleERD, backend: str, steps: int, one_style: bool = Fa
     else:
         b = make_backend(backend, model, 1)
     x = np.random.default_rng(0).normal(0, 1, (steps + 50, 1, c.feature_dim)).astype(np.float32)
-    style = np.eye(len(c.styles), dtype=np.float32)[[c.neutral_index]]
+    style = np.eye(len(c.input_styles), dtype=np.float32)[[c.neutral_index]]
     content = np.eye(len(c.contents), dtype=np.float32)[[0]]
     target = np.eye(len(c.styles), dtype=np.float32)[[(c.neutral_index + 1) % len(c.styles)]]
     times = []
@@ -122,7 +122,7 @@ def throughput(model: StyleERD, backend: str, n_streams: int, seconds: float = 1
 def flops_per_frame(model: StyleERD) -> int:
     """Multiply-adds x 2 of one frame with one style branch running (the usual case)."""
     c = model.config
-    D, nS, nC, H, J = c.feature_dim, len(c.styles), len(c.contents), c.hidden, c.n_joints
+    D, nS, nC, H, J = c.feature_dim, len(c.input_styles), len(c.contents), c.hidden, c.n_joints
     sizes = [D + nS + nC, *c.encoder]
     macs = sum(a * b for a, b in zip(sizes, sizes[1:]))
     macs += (c.neutral_layers + c.style_layers) * (2 * H * 4 * H)

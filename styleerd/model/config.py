@@ -19,10 +19,24 @@ class GeneratorConfig:
     style_layers: int = 4
     decoder: tuple[int, ...] = (58, 86, 128)
     learned_init: bool = True  # False: the "zero initial states" ablation
+    # styles added after training (``styleerd add-style``), the last of ``styles``: targets
+    # only (the encoder and the labeller read input labels over ``input_styles``)
+    added_styles: tuple[str, ...] = ()
+
+    def __post_init__(self):
+        if self.added_styles and tuple(self.styles[-len(self.added_styles) :]) != tuple(self.added_styles):
+            raise ValueError(f"added styles {list(self.added_styles)} must be the last of the styles {list(self.styles)}")
+        if self.neutral_style not in self.input_styles:
+            raise ValueError(f"the neutral style {self.neutral_style!r} is not among the input styles {list(self.input_styles)}")
 
     @property
     def feature_dim(self) -> int:
         return FeatureLayout(self.n_joints).dim
+
+    @property
+    def input_styles(self) -> tuple[str, ...]:
+        """The styles an input may be labelled with: those the model was trained on."""
+        return tuple(self.styles[: len(self.styles) - len(self.added_styles)])
 
     @property
     def neutral_index(self) -> int:
@@ -30,7 +44,7 @@ class GeneratorConfig:
 
     @property
     def branch_styles(self) -> list[int]:
-        """The styles with a residual branch: every style but the neutral one."""
+        """The styles with a residual branch: every style but the neutral one (added styles last)."""
         return [s for s in range(len(self.styles)) if s != self.neutral_index]
 
     def to_dict(self) -> dict:
@@ -39,6 +53,7 @@ class GeneratorConfig:
     @classmethod
     def from_dict(cls, d: dict) -> "GeneratorConfig":
         d = dict(d)
-        for key in ("styles", "contents", "encoder", "decoder"):
-            d[key] = tuple(d[key])
+        for key in ("styles", "contents", "encoder", "decoder", "added_styles"):
+            if key in d:
+                d[key] = tuple(d[key])
         return cls(**d)

@@ -50,7 +50,7 @@ class StyleERD(nn.Module):
     def __init__(self, config: GeneratorConfig, skeleton: Skeleton, stats: FeatureStats):
         super().__init__()
         self.config = c = config
-        J, D, nS, nC, H = c.n_joints, c.feature_dim, len(c.styles), len(c.contents), c.hidden
+        J, D, nS, nC, H = c.n_joints, c.feature_dim, len(c.input_styles), len(c.contents), c.hidden
         if c.encoder[-1] != H:
             raise ValueError(f"encoder must end in the hidden size {H}, got {c.encoder}")
         self.layout = FeatureLayout(J)
@@ -64,6 +64,9 @@ class StyleERD(nn.Module):
         self.branch_h0 = init(torch.zeros(len(self.branch_styles), c.style_layers, H))
         self.branch_c0 = init(torch.zeros(len(self.branch_styles), c.style_layers, H))
         self.decoder = mlp([H + nS, *c.decoder, 7 * J])
+        if c.added_styles:  # the added styles' target weights enter the decoder's first layer apart,
+            # so the trained styles' outputs stay bit-identical (a wider product sums in another order)
+            self.decoder_added = nn.Parameter(torch.zeros(len(c.added_styles), self.decoder[0].out_features))
         self.skeleton = skeleton
         self.parents = [int(p) for p in skeleton.parents]
         self.register_buffer("offsets", torch.tensor(skeleton.offsets, dtype=torch.float32))
@@ -98,14 +101,14 @@ class StyleERD(nn.Module):
         target: torch.Tensor,
         state: RecurrentState | None = None,
     ) -> tuple[torch.Tensor, torch.Tensor, RecurrentState]:
-        """``x [B, T, D]`` normalised features; ``style [B, nS]``, ``content [B, nC]`` the
-        input's labels; ``target [B, nS]`` the target weights. Returns unit quaternions
-        ``[B, T, J, 4]``, normalised velocities ``[B, T, 3J]`` and the new state."""
+        """``x [B, T, D]`` normalised features; ``style [B, nI]`` (over ``input_styles``),
+        ``content [B, nC]`` the input's labels; ``target [B, nS]`` the target weights (over
+        ``styles``). Returns unit quaternions ``[B, T, J, 4]``, normalised velocities
+        ``[B, T, 3J]`` and the new state."""
         B, T, _ = x.shape
         if state is None:
             state = self.initial_state(content)
-        labels = torch.cat([style, content], -1).unsqueeze(1).expand(B, T, -1)
-        z = self.encoder(torch.cat([x, labels], -1))
+        z = self.encode(x, style, content)
         out, neutral_state = self.neutral(z, state.neutral)
         branches = dict(state.branches)
         for k, s in enumerate(self.branch_styles):
@@ -122,10 +125,26 @@ class StyleERD(nn.Module):
                 out = out.index_add(0, rows, w[rows, None, None] * y)
                 h, c = h.index_copy(1, rows, hr), c.index_copy(1, rows, cr)
             branches[k] = (h, c)
-        y = self.decoder(torch.cat([out, target.unsqueeze(1).expand(B, T, -1)], -1))
+        rotations, velocities = self.decode(out, target)
+        return rotations, velocities, RecurrentState(neutral_state, branches)
+
+    def encode(self, x: torch.Tensor, style: torch.Tensor, content: torch.Tensor) -> torch.Tensor:
+        """The latent ``z [B, T, H]`` of features ``x [B, T, D]`` with the input's labels."""
+        labels = torch.cat([style, content], -1).unsqueeze(1).expand(*x.shape[:2], -1)
+        return self.encoder(torch.cat([x, labels], -1))
+
+    def decode(self, out: torch.Tensor, target: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """Unit quaternions ``[B, T, J, 4]`` and normalised velocities ``[B, T, 3J]`` of the
+        branches' sum ``out [B, T, H]`` under target weights ``[B, nS]``."""
+        B, T, _ = out.shape
+        nI = len(self.config.input_styles)
+        target = target.unsqueeze(1).expand(B, T, -1)
+        y = self.decoder[0](torch.cat([out, target[..., :nI]], -1))
+        if self.config.added_styles:
+            y = y + target[..., nI:] @ self.decoder_added
+        y = self.decoder[1:](y)
         J = self.config.n_joints
-        rotations = torch_quat.normalize(y[..., : 4 * J].reshape(B, T, J, 4))
-        return rotations, y[..., 4 * J :], RecurrentState(neutral_state, branches)
+        return torch_quat.normalize(y[..., : 4 * J].reshape(B, T, J, 4)), y[..., 4 * J :]
 
     def step(
         self, x: torch.Tensor, style: torch.Tensor, content: torch.Tensor, target: torch.Tensor, state: RecurrentState | None

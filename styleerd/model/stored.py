@@ -111,13 +111,15 @@ def _generator(arrays: dict[str, np.ndarray], meta: dict) -> GeneratorWeights:
     config = GeneratorConfig.from_dict(meta["config"])
     skeleton, stats = Skeleton.from_dict(meta["skeleton"]), FeatureStats.from_dict(meta["stats"])
     weights = {k[len("generator.") :]: v for k, v in arrays.items() if k.startswith("generator.")}
-    H, nS, nC, J = config.hidden, len(config.styles), len(config.contents), config.n_joints
+    H, nI, nC, J = config.hidden, len(config.input_styles), len(config.contents), config.n_joints
     expected = {  # the shapes the runtime relies on: a file that disagrees is refused here, not mid-stream
-        "encoder.0.weight": (config.encoder[0], config.feature_dim + nS + nC),
+        "encoder.0.weight": (config.encoder[0], config.feature_dim + nI + nC),
         "neutral_h0": (nC, config.neutral_layers, H),
         "branch_h0": (len(config.branch_styles), config.style_layers, H),
         f"decoder.{2 * len(config.decoder)}.weight": (7 * J, config.decoder[-1]),
     }
+    if config.added_styles:
+        expected["decoder_added"] = (len(config.added_styles), config.decoder[0])
     for key, shape in expected.items():
         if weights[key].shape != shape:
             raise ValueError(f"{key} has shape {weights[key].shape}, the configuration says {shape}")
@@ -145,6 +147,20 @@ def labeller_weights(labeller) -> LabellerWeights:
     if isinstance(labeller, LabellerWeights):
         return labeller
     return LabellerWeights(labeller.config(), {k: v.detach().float().cpu().numpy() for k, v in labeller.state_dict().items()})
+
+
+def labeller_stem(config: GeneratorConfig) -> Path:
+    """The labeller of a model's labels: the first in ``model_folders()`` whose styles are the
+    model's input styles and whose contents are its contents (the shipped one otherwise)."""
+    for folder in model_folders():
+        for sidecar in sorted(folder.glob("*.json")):
+            try:
+                meta = json.loads(sidecar.read_text())
+            except (OSError, ValueError):
+                continue
+            if isinstance(meta, dict) and meta.get("kind") == "styleerd-labeller" and meta.get("styles") == list(config.input_styles) and meta.get("contents") == list(config.contents):
+                return sidecar.with_suffix("")
+    return model_stem(LABELLER, LABELLER)
 
 
 def load_labeller_weights(name: str | Path | None = None) -> LabellerWeights:

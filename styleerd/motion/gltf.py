@@ -22,7 +22,7 @@ import pygltflib as gl
 
 from styleerd.atomic import atomic_write
 from styleerd.errors import StyleERDError
-from styleerd.motion import quat
+from styleerd.motion import bvh, quat
 from styleerd.motion.kinematics import bone_fronts, forward_kinematics
 from styleerd.motion.motion import Motion
 from styleerd.motion.skeleton import POSITION_CHANNELS, Skeleton, find_role
@@ -396,3 +396,13 @@ def write_gltf_animation(path: str | Path, source: GltfMotion, motion: Motion) -
     doc.buffers = [gl.Buffer(byteLength=len(blob))]
     doc.set_binary_blob(bytes(blob))
     atomic_write(Path(path), lambda tmp: doc.save_binary(str(tmp)))
+
+
+GLTF_INPUTS = (".glb", ".gltf", ".vrm")
+
+
+def read_motion(path: str | Path) -> Motion:
+    """A motion from a BVH, glTF, GLB or VRM file (its first skin's skeleton and animation)."""
+    if Path(path).suffix.lower() in GLTF_INPUTS:
+        return read_gltf(path).motion
+    return bvh.read(path)

@@ -17,7 +17,8 @@ from tqdm import tqdm
 
 from styleerd.errors import StyleERDError
 from styleerd.model.stored import GeneratorWeights, load_generator_weights
-from styleerd.runtime.offline import GLTF_INPUTS, TransferOptions, TransferReport, transfer_file
+from styleerd.motion.gltf import GLTF_INPUTS
+from styleerd.runtime.offline import TransferOptions, TransferReport, transfer_file
 
 MOTION_FILES = (".bvh", *GLTF_INPUTS, ".fbx")
 OUTPUTS = (".bvh", ".glb", ".vrm", ".fbx")

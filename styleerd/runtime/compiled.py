@@ -156,14 +156,17 @@ def small_step(x, style, content, target, P, table, sizes, inits, branch_styles,
             hb[b, :, rows[r]] = hk[:, r]
             cb[b, :, rows[r]] = ck[:, r]
             out[rows[r]] += target[rows[r], s] * hk[L1 - 1, r]
-    y = np.empty((N, H + target.shape[1]), np.float32)
+    nI = sizes[5]
+    y = np.empty((N, H + nI), np.float32)
     y[:, :H] = out
-    y[:, H:] = target
+    y[:, H:] = target[:, :nI]
     first_dec = n_enc + 2 * L0 + 2 * L1 * K
     for i in range(n_dec):
         e = table[first_dec + i]
         o = np.empty((N, e[2]), np.float32)
         _dense(P, e, y, o, False)
+        if i == 0 and nI < target.shape[1]:  # the added styles' target rows, apart (see StyleERD.decode)
+            _dense(P, table[first_dec + n_dec], np.ascontiguousarray(target[:, nI:]), o, True)
         if i < n_dec - 1:
             _relu(o)
         y = o
@@ -183,7 +186,8 @@ def pack(w: StepWeights) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray
     """The step's parameters as one float32 array and a table of its matrices (offset, rows,
     columns, bias offset or -1): the encoder's layers, each LSTM layer's input (with the
     summed biases) and hidden weights, neutral branch first, then the decoder's layers; the
-    sizes (encoder layers, L0, L1, decoder layers, J) and the initial states' offsets."""
+    sizes (encoder layers, L0, L1, decoder layers, J, input styles) and the initial states'
+    offsets. The added styles' decoder rows, if any, are the last matrix."""
     parts, table, at = [], [], 0
 
     def put(a: np.ndarray) -> int:
@@ -204,8 +208,10 @@ def pack(w: StepWeights) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray
             matrix(w_cat[inputs:], None)
     for W, b in w.decoder:
         matrix(W, b)
+    if w.decoder_added is not None:
+        matrix(w.decoder_added, None)
     inits = np.array([put(a) for a in (*w.neutral_init, *w.branch_init)], np.int64)
-    sizes = np.array([len(w.encoder), len(w.neutral), len(w.branches[0]) if w.branches else 0, len(w.decoder), w.n_joints], np.int64)
+    sizes = np.array([len(w.encoder), len(w.neutral), len(w.branches[0]) if w.branches else 0, len(w.decoder), w.n_joints, w.input_styles], np.int64)
     return np.concatenate(parts), np.array(table, np.int64), sizes, inits
 
 

@@ -19,11 +19,11 @@ from styleerd.atomic import atomic_write, check_output
 from styleerd.errors import StyleERDError
 from styleerd.model.stored import GeneratorWeights
 from styleerd.motion import bvh, quat
-from styleerd.motion.gltf import write_glb
+from styleerd.motion.gltf import read_motion, write_glb
 from styleerd.motion.kinematics import forward_kinematics
 from styleerd.motion.motion import Motion
 from styleerd.motion.skeleton import CHANNELS, Skeleton
-from styleerd.runtime.offline import TransferOptions, TransferReport, read_motion, transfer_motion
+from styleerd.runtime.offline import TransferOptions, TransferReport, transfer_motion
 
 Y_UP = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, 1.0], [0.0, -1.0, 0.0]])  # Blender's Z-up world -> Y-up
 ROTATIONS = ("Zrotation", "Xrotation", "Yrotation")

@@ -25,6 +25,8 @@ class StepWeights:
     branch_init: tuple[np.ndarray, np.ndarray]  # h0, c0: [K, L1, H]
     n_joints: int
     hidden: int
+    input_styles: int  # the style labels the encoder reads; targets cover these and the added styles
+    decoder_added: np.ndarray | None = None  # [added styles, decoder[0] outputs]: their target rows, apart
 
 
 def step_weights(model) -> StepWeights:
@@ -52,6 +54,8 @@ def step_weights(model) -> StepWeights:
         branch_init=(sd["branch_h0"], sd["branch_c0"]),
         n_joints=c.n_joints,
         hidden=c.hidden,
+        input_styles=len(c.input_styles),
+        decoder_added=sd.get("decoder_added"),
     )
 
 
@@ -142,15 +146,19 @@ def _numpy_step(w: StepWeights, x, style, content, target, h, c, hb, cb, first, 
             hk, ck = hb[k][:, rows], cb[k][:, rows]
             out[rows] += target[rows, s, None] * _lstm_stack(w.branches[k], z[rows], hk, ck, cell)
             hb[k][:, rows], cb[k][:, rows] = hk, ck
-    return _rotations(_dense_layers(np.concatenate([out, target], -1), w.decoder), w.n_joints)
+    nI = w.input_styles
+    return _rotations(_dense_layers(np.concatenate([out, target[:, :nI]], -1), w.decoder, (target[:, nI:], w.decoder_added)), w.n_joints)
 
 
-def _dense_layers(y: np.ndarray, layers: list[tuple[np.ndarray, np.ndarray]]) -> np.ndarray:
+def _dense_layers(y: np.ndarray, layers: list[tuple[np.ndarray, np.ndarray]], added: tuple[np.ndarray, np.ndarray | None] = (None, None)) -> np.ndarray:
     """Linear layers with ReLU between them, in place after each product (one temporary
-    array per layer, not three)."""
+    array per layer, not three). ``added``: inputs and weights summed into the first layer
+    apart (the added styles' target weights)."""
     for i, (W, b) in enumerate(layers):
         y = y @ W
         y += b
+        if i == 0 and added[1] is not None:
+            y += added[0] @ added[1]
         if i < len(layers) - 1:
             np.maximum(y, 0.0, out=y)
     return y

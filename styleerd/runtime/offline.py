@@ -13,7 +13,7 @@ from styleerd.errors import StyleERDError
 from styleerd.model.stored import GeneratorWeights
 from styleerd.atomic import atomic_write, check_output
 from styleerd.motion import bvh, quat
-from styleerd.motion.gltf import read_gltf, write_glb, write_gltf_animation
+from styleerd.motion.gltf import GLTF_INPUTS, read_gltf, write_glb, write_gltf_animation
 from styleerd.motion.motion import Motion
 from styleerd.motion.retarget import JointMap, body_parts, joint_map, to_source, to_target
 from styleerd.motion.skeleton import Skeleton
@@ -160,16 +160,6 @@ def _inferred_labels(stylizer: StreamStylizer, report: Callable[[str], None] | N
     if report:
         report(f"input labels at the last frame: style {labels[0]}, content {labels[1]} (inferred online where not given)")
     return labels
-
-
-GLTF_INPUTS = (".glb", ".gltf", ".vrm")
-
-
-def read_motion(path: str | Path) -> Motion:
-    """A motion from a BVH, glTF, GLB or VRM file (its first skin's skeleton and animation)."""
-    if Path(path).suffix.lower() in GLTF_INPUTS:
-        return read_gltf(path).motion
-    return bvh.read(path)
 
 
 def _transfer_gltf(source: Path, output: Path, model: GeneratorWeights, fps: float, options: TransferOptions, report) -> TransferReport:

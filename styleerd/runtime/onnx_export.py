@@ -148,7 +148,7 @@ def step_graph(model: GeneratorWeights, form: str = "lstm", styles: tuple[str, .
     branches = _branches(c, styles)
     depths = _depths(c, branches)
     rows = [(prefix, i) for depth in depths for prefix, _, i in depth]
-    D, nS, nC, H, J, S = c.feature_dim, len(c.styles), len(c.contents), c.hidden, c.n_joints, len(rows)
+    D, nI, nS, nC, H, J, S = c.feature_dim, len(c.input_styles), len(c.styles), len(c.contents), c.hidden, c.n_joints, len(rows)
     g = _Graph()
     # a stream's first frame starts from the learned initial states (the neutral one by content):
     # content [N, nC] @ table [nC, 2 S H] -> [2S, N, H] (h rows, then c rows), the branch rows
@@ -222,9 +222,12 @@ def step_graph(model: GeneratorWeights, form: str = "lstm", styles: tuple[str, .
     for name in ("h", "c"):
         parts = new[name]
         g.nodes.append(helper.make_node("Where", [keep, states[name], g.op("Concat", *parts, axis=0) if len(parts) > 1 else parts[0]], [f"{name}_out"]))
-    # decoder; its last layer as two products, the rotations' and the velocities'
+    # decoder (added styles' target rows below the trained ones'); its last layer as two
+    # products, the rotations' and the velocities'
     y = g.op("Concat", out, "target", axis=1)
     for i, (W, b) in enumerate(w.decoder[:-1]):
+        if i == 0 and w.decoder_added is not None:
+            W = np.concatenate([W, w.decoder_added])
         y = g.op("Relu", g.op("Gemm", y, g.const(W), g.const(b)))
     W, b = w.decoder[-1]
     q = g.op("Reshape", g.op("Gemm", y, g.const(W[:, : 4 * J].copy()), g.const(b[: 4 * J].copy())), _ints(g, -1, J, 4))
@@ -234,7 +237,7 @@ def step_graph(model: GeneratorWeights, form: str = "lstm", styles: tuple[str, .
 
     f32 = TensorProto.FLOAT
     inputs = [helper.make_tensor_value_info(name, f32, shape) for name, shape in
-              (("features", ["N", D]), ("style", ["N", nS]), ("content", ["N", nC]), ("target", ["N", nS]), ("first_frame", ["N", 1]), ("h", [S, "N", H]), ("c", [S, "N", H]))]  # fmt: skip
+              (("features", ["N", D]), ("style", ["N", nI]), ("content", ["N", nC]), ("target", ["N", nS]), ("first_frame", ["N", 1]), ("h", [S, "N", H]), ("c", [S, "N", H]))]  # fmt: skip
     outputs = [helper.make_tensor_value_info(name, f32, shape) for name, shape in
                (("rotations", ["N", J, 4]), ("velocities", ["N", 3 * J]), ("h_out", [S, "N", H]), ("c_out", [S, "N", H]))]  # fmt: skip
     graph = helper.make_graph(g.nodes, f"styleerd_step_{form}", inputs, outputs, g.initializers)
@@ -254,7 +257,8 @@ def sidecar(model: GeneratorWeights, proto: onnx.ModelProto, graph_name: str, fo
         "graph": graph_name,
         "opset": OPSET,
         "form": form,
-        "styles": list(c.styles),
+        "styles": list(c.styles),  # the target's order
+        "input_styles": list(c.input_styles),  # the style input's order (the styles trained on)
         "contents": list(c.contents),
         "neutral_style": c.neutral_style,
         "branch_styles": [b for b, layer in layers if layer == 0 and b != c.neutral_style],

@@ -25,7 +25,7 @@ import numpy as np
 
 from styleerd.data.features import stream_features
 from styleerd.errors import StyleERDError
-from styleerd.model.stored import GeneratorWeights, LabellerWeights, generator_weights, labeller_weights, load_labeller_weights, toward_neutral
+from styleerd.model.stored import GeneratorWeights, LabellerWeights, generator_weights, labeller_stem, labeller_weights, load_labeller_weights, toward_neutral
 from styleerd.motion import quat
 from styleerd.motion.retarget import BODY_PARTS, part_joints
 from styleerd.motion.skeleton import BodyRoles
@@ -194,9 +194,9 @@ class StreamStylizer:
         self.n = n_streams
         self.blend_frames = max(1, blend_frames)
         c = model.config
-        S, C = len(c.styles), len(c.contents)
+        S, I, C = len(c.styles), len(c.input_styles), len(c.contents)
         self.neutral = c.styles.index(c.neutral_style)
-        self.given_style, self.given_content = np.zeros((n_streams, S), np.float32), np.zeros((n_streams, C), np.float32)
+        self.given_style, self.given_content = np.zeros((n_streams, I), np.float32), np.zeros((n_streams, C), np.float32)
         self.known_style, self.known_content = np.zeros(n_streams, bool), np.zeros(n_streams, bool)
         self.labeller: NumpyLabeller | None = None
         self.labeller_model = None if labeller is None else labeller_weights(labeller)
@@ -204,7 +204,7 @@ class StreamStylizer:
         self.previous = np.zeros((n_streams, self.skeleton.n_joints, 3))  # global joint positions of the last frame
         self.facing = np.zeros((n_streams, 3))  # facing direction of the last frame
         self.started = np.zeros(n_streams, bool)
-        self.labels = (np.zeros((n_streams, S), np.float32), np.zeros((n_streams, C), np.float32))  # used last frame
+        self.labels = (np.zeros((n_streams, I), np.float32), np.zeros((n_streams, C), np.float32))  # used last frame
         self.configure(np.arange(n_streams), input_style, content, target)
 
     def configure(self, streams, input_style, content, target) -> None:
@@ -213,18 +213,20 @@ class StreamStylizer:
         rows = np.asarray(streams, dtype=int).reshape(-1)
         c = self.model.config
         for labels, names, what, given, known in (
-            (input_style, c.styles, "style", self.given_style, self.known_style),
+            (input_style, c.input_styles, "input style", self.given_style, self.known_style),
             (content, c.contents, "content", self.given_content, self.known_content),
         ):
             for r, label in zip(rows, _per_stream(labels, len(rows))):
+                if label in c.added_styles and what == "input style":
+                    raise StyleERDError(f"style {label!r} was added to this model as a target only; an input's style is one of: {', '.join(c.input_styles)} (or left to be inferred)")
                 known[r] = label is not None
                 given[r] = 0.0 if label is None else label_vector(names, {label: 1.0}, what)
         w = np.stack([label_vector(c.styles, t, "style") for t in _per_stream(target, len(rows))])
         self.blend.start[rows] = self.blend.end[rows] = w
         self.blend.frame[rows] = self.blend_frames
         if self.labeller is None and not (self.known_style[rows].all() and self.known_content[rows].all()):
-            labeller = self.labeller_model or load_labeller_weights()
-            if (labeller.config["n_styles"], labeller.config["n_contents"], labeller.config["in_dim"]) != (len(c.styles), len(c.contents), c.feature_dim):
+            labeller = self.labeller_model or load_labeller_weights(labeller_stem(c))
+            if (labeller.config["n_styles"], labeller.config["n_contents"], labeller.config["in_dim"]) != (len(c.input_styles), len(c.contents), c.feature_dim):
                 raise StyleERDError("the labeller does not fit this model's labels: give --input-style and --content")
             self.labeller = NumpyLabeller(labeller, self.n)
 
@@ -240,7 +242,7 @@ class StreamStylizer:
     def inferred_labels(self) -> list[tuple[str, str]]:
         """Per stream, the (style, content) its last frame was stylised as (given or inferred)."""
         c = self.model.config
-        return [(c.styles[int(s)], c.contents[int(k)]) for s, k in zip(self.labels[0].argmax(-1), self.labels[1].argmax(-1))]
+        return [(c.input_styles[int(s)], c.contents[int(k)]) for s, k in zip(self.labels[0].argmax(-1), self.labels[1].argmax(-1))]
 
     def current_weights(self) -> np.ndarray:
         if self.blend.frame.min() >= self.blend_frames:  # no blend under way (the usual case)

@@ -77,6 +77,7 @@ class ServeConfig:
     max_joints: int = 512  # joints of a hello's skeleton (a humanoid has 20 to 100)
     origins: tuple[str, ...] = ()  # browser origins allowed besides the server's own ("*": any)
     hosts: tuple[str, ...] = ()  # host names answered besides the bound address and, on loopback, localhost
+    model: str | None = None  # a model file or name (default: the shipped model)
 
 
 class ClientError(Exception):
@@ -170,7 +171,7 @@ def _number(msg: dict, key: str, default: float, low: float, high: float) -> flo
 class StyleServer:
     def __init__(self, config: ServeConfig, model: GeneratorWeights | None = None):
         self.config = config
-        self.model = model or load_generator_weights()
+        self.model = model or load_generator_weights(config.model)
         self.clips = DemoClips(self.model, config.data)
         self._engine: dict[str, bytes] | None = None  # the in-browser step's graph and JSON, made on first request
         self._references: dict[str, bytes] = {}
@@ -206,7 +207,7 @@ class StyleServer:
         if msg.get("preset") != "model" and not isinstance(msg.get("skeleton"), str):
             raise ClientError(POLICY, "the hello needs 'skeleton' (a BVH HIERARCHY text) or 'preset': 'model'")
         labels = {}
-        for key, names in (("input_style", self.model.config.styles), ("content", self.model.config.contents)):
+        for key, names in (("input_style", self.model.config.input_styles), ("content", self.model.config.contents)):
             value = msg.get(key)
             if value is not None and value not in names:
                 raise ClientError(POLICY, f"unknown {key} {value!r}; valid: {', '.join(names)}")
@@ -271,7 +272,7 @@ class StyleServer:
         private = {"token": stream.token} if stream.private else {}
         return {"type": "ready", "stream": stream.name, "id": stream.id, **private, "channels": stream.pool.stylizer.n_channels,
                 "fps": stream.pool.stylizer.fps, "joints": list(sk.names), "parents": [int(p) for p in sk.parents],
-                "styles": list(c.styles), "contents": list(c.contents), "neutral": c.neutral_style,
+                "styles": list(c.styles), "input_styles": list(c.input_styles), "contents": list(c.contents), "neutral": c.neutral_style,
                 "target": self._weights(stream), "parts": stream.pool.parts, "mapping": stream.pool.stylizer.map.describe(), "queue": self.config.queue}  # fmt: skip
 
     def _weights(self, stream: Stream) -> dict[str, float]:
@@ -560,7 +561,7 @@ class StyleServer:
                 return _response(HTTPStatus.OK, body, "application/octet-stream" if path.endswith(".onnx") else "application/json")
         elif path == "/styles":
             c = self.model.config
-            body = {"styles": list(c.styles), "contents": list(c.contents), "neutral": c.neutral_style}
+            body = {"styles": list(c.styles), "input_styles": list(c.input_styles), "contents": list(c.contents), "neutral": c.neutral_style}
             return _response(HTTPStatus.OK, json.dumps(body).encode(), "application/json")
         return _response(HTTPStatus.NOT_FOUND, f"not found: {path}".encode(), "text/plain")
 

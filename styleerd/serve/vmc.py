@@ -183,9 +183,9 @@ def _message(address: str, params: list):
 
 
 def run_bridge(listen: int, send: int, style: str | None, intensity: float, mix: dict[str, float] | None, host: str = "127.0.0.1", fps: float = 30.0,
-               parts: str | None = None) -> None:  # fmt: skip
+               parts: str | None = None, model_name: str | None = None) -> None:  # fmt: skip
     """``styleerd vmc``: receive on ``host:listen``, send the stylised stream to ``host:send``."""
-    model = load_generator_weights()
+    model = load_generator_weights(model_name)
     target = target_weights(model, style, intensity, mix)
     bridge = VMCBridge(model, target, fps, report=lambda text: print(text, flush=True), parts=parts)
     rx = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)

@@ -18,6 +18,7 @@ class TrainConfig:
     window: int = 24
     stride: int = 20  # between training windows (24 - 4 frames of overlap, as in the paper)
     max_train_clips: int = 0  # 0 = all; small values make tiny test runs
+    balance_styles: bool = False  # styled windows drawn style by style (styles with few clips get their share)
     seed: int = 0
     threads: int = 2
     # generator

@@ -191,7 +191,7 @@ def train(config: TrainConfig, out: Path, data_dir: str | None = None, progress:
     epoch0, elapsed, best = 0, 0.0, None
     if state_stem.with_suffix(".safetensors").is_file():
         tensors, meta = ckpt.load_tensors(state_stem)
-        if _resumable(meta["config"]) != _resumable(config.to_dict()):
+        if _resumable(TrainConfig.from_dict(meta["config"]).to_dict()) != _resumable(config.to_dict()):  # fields added since default
             raise StyleERDError(f"{out} holds a run with another config; use a new --out or delete it")
         _load_state(tensors, G, D, opt_g, opt_d)
         epoch0, elapsed, best = meta["epoch"], meta["elapsed_s"], meta.get("best")
@@ -206,6 +206,7 @@ def train(config: TrainConfig, out: Path, data_dir: str | None = None, progress:
     half = B // 2
     steps = len(s.train.starts) // (B * world)
     others = np.array([t for t in range(n_styles) if t != neutral])
+    by_style = [rows for rows in (np.nonzero(s.train.style == t)[0] for t in others) if len(rows)]
     metrics_path = out / "metrics.csv"
     g_params = [p for p in G.parameters() if p.requires_grad]
 
@@ -220,7 +221,11 @@ def train(config: TrainConfig, out: Path, data_dir: str | None = None, progress:
         sums: dict[str, float] = {}
         bar = tqdm(range(steps), desc=f"epoch {epoch + 1}/{config.epochs}", disable=not progress, leave=False)
         for step in bar:
-            rows = np.concatenate([rng.choice(neutral_rows, half), rng.choice(styled_rows, B - half)])
+            if config.balance_styles:
+                styled = np.array([rng.choice(by_style[k]) for k in rng.integers(0, len(by_style), B - half)])
+            else:
+                styled = rng.choice(styled_rows, B - half)
+            rows = np.concatenate([rng.choice(neutral_rows, half), styled])
             target = np.where(s.train.style[rows] == neutral, rng.choice(others, B), neutral)
             x = s.data.gather(s.train.starts[rows])
             style, content = s.data.onehot_style(s.train.style[rows]), s.data.onehot_content(s.train.content[rows])

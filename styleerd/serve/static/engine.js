@@ -49,7 +49,7 @@ export class StyleHost {
   }
 
   setLabels(inputStyle, content, target) {
-    this.style = this.oneHot(this.side.styles, { [inputStyle]: 1 });
+    this.style = this.oneHot(this.side.input_styles || this.side.styles, { [inputStyle]: 1 });
     this.content = this.oneHot(this.side.contents, { [content]: 1 });
     this.target = this.oneHot(this.side.styles, target);
   }
