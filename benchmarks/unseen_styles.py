@@ -97,13 +97,34 @@ def judged(model, x, style_in, content, target, trajectory, recogniser, content_
     else:
         rot, vel, _ = model(x, style_in, content, target)
         ch = model.motion_channels(rot, vel)
+    channels = {"": ch, "_played": played(model, rot, trajectory, 30.0)}
+    return scores(rot, channels, model.config.contents, recogniser, content_rec, fmd, reference, real_feats, style_index, content_labels)
+
+
+def scores(rot, channels: dict, contents, recogniser, content_rec, fmd, reference, real_feats, style_index, content_labels) -> dict:
     out = {"fmd": round(frechet_distance(_features(fmd, rot, reference), real_feats), 3)}
-    for suffix, channels in (("", ch), ("_played", played(model, rot, trajectory, 30.0))):
-        read = content_rec(channels).argmax(-1).numpy()
-        out[f"sra{suffix}"] = round(float((recogniser(channels).argmax(-1).numpy() == style_index).mean()), 4)
+    for suffix, ch in channels.items():
+        read = content_rec(ch).argmax(-1).numpy()
+        out[f"sra{suffix}"] = round(float((recogniser(ch).argmax(-1).numpy() == style_index).mean()), 4)
         out[f"cra{suffix}"] = round(float((read == content_labels).mean()), 4)
-        out[f"content_read_as{suffix}"] = {model.config.contents[k]: int(n) for k, n in zip(*np.unique(read, return_counts=True))}
+        out[f"content_read_as{suffix}"] = {contents[k]: int(n) for k, n in zip(*np.unique(read, return_counts=True))}
     return out
+
+
+@torch.no_grad()
+def judged_from_start(model, base, style, x, content_labels, trajectory, recogniser, content_rec, fmd, reference, real_feats, style_index) -> dict:
+    """The same figures for a model trained with ``style`` from the start (its own labels and
+    normalisation; read as played, in the judges' normalisation)."""
+    c, n = model.config, len(x)
+    x2 = torch.from_numpy(model.stats().normalize(base.stats().denormalize(x.double().numpy())).astype(np.float32))
+    style_in = torch.zeros(n, len(c.input_styles))
+    style_in[:, c.input_styles.index(c.neutral_style)] = 1.0
+    content = torch.zeros(n, len(c.contents))
+    content[torch.arange(n), torch.as_tensor([c.contents.index(base.config.contents[k]) for k in content_labels])] = 1.0
+    target = torch.zeros(n, len(c.styles))
+    target[:, c.styles.index(style)] = 1.0
+    rot, _, _ = model(x2, style_in, content, target)
+    return scores(rot, {"_played": played(base, rot, trajectory, 30.0)}, base.config.contents, recogniser, content_rec, fmd, reference, real_feats, style_index, content_labels)
 
 
 def main() -> None:
@@ -114,6 +135,7 @@ def main() -> None:
     ap.add_argument("--threads", type=int, default=2)
     ap.add_argument("--runs", default="runs/unseen-styles")
     ap.add_argument("--out", default="docs/unseen-styles.json")
+    ap.add_argument("--from-start", default="styleerd/models/styleerd-bandai12", help="a model trained with the styles from the start (configs/bandai12.yaml), judged beside")
     ap.add_argument("--filmstrip", default="docs/added-styles.png", help="picture of one walk in added styles ('' for none)")
     ap.add_argument("--filmstrip-styles", nargs=3, default=["happy", "sad", "angry"])
     args = ap.parse_args()
@@ -139,6 +161,11 @@ def main() -> None:
     fmd, _ = ckpt.load_fmd()
     reference = torch.as_tensor(base.stats().reference, dtype=torch.float32)
 
+    def moving_feats(ws: WindowSet, k: int) -> np.ndarray:
+        """FMD features of the locomotion windows of Bandai-1 style ``k`` in ``ws``."""
+        rows = (ws.style == k) & np.isin(ws.content, [data.contents.index(c) for c in LOCOMOTION])
+        return _features(fmd, window_rotations(data, ws.starts[rows]), reference)
+
     # the content: neutral Bandai-2 test windows of walk and run
     s = setup(replace(config, stride=config.window), args.data, progress=False)
     test = windows(s.fs, s.data, "test", 4)
@@ -157,8 +184,7 @@ def main() -> None:
         target = torch.zeros(len(x), len(base.config.styles))
         target[:, base.config.styles.index(ours)] = 1.0
         k = data.styles.index(theirs)
-        real = held_ws.starts[(held_ws.style == k) & np.isin(held_ws.content, [data.contents.index(c) for c in LOCOMOTION])]
-        real_feats = _features(fmd, window_rotations(data, real), reference)
+        real_feats = moving_feats(held_ws, k)
         report["trained_styles"][f"{ours} (Bandai-1: {theirs})"] = judged(base, x, style_in, content, target, trajectory, recogniser, content_rec, fmd, reference, real_feats, k, content_labels)
 
     paths = {c.name: c.path for c in find_clips(data_root(args.data), "bandai-namco-1")}
@@ -176,10 +202,7 @@ def main() -> None:
         target = torch.zeros(len(x), len(G2.config.styles))
         target[:, -1] = 1.0
         k = data.styles.index(style)
-        moving = [data.contents.index(c) for c in LOCOMOTION]
-        real = held_ws.starts[(held_ws.style == k) & np.isin(held_ws.content, moving)]
-        real_feats = _features(fmd, window_rotations(data, real), reference)
-        adapt_feats = _features(fmd, window_rotations(data, adapt_ws.starts[(adapt_ws.style == k) & np.isin(adapt_ws.content, moving)]), reference)
+        real_feats, adapt_feats = moving_feats(held_ws, k), moving_feats(adapt_ws, k)
         judge = (recogniser, content_rec, fmd, reference, real_feats, k, content_labels)
         report["styles"][style] = {
             "adaptation_clips": [Path(c).stem for c in clips],
@@ -193,6 +216,14 @@ def main() -> None:
             "fmd_real_adaptation_vs_kept_back": round(frechet_distance(adapt_feats, real_feats), 3),
         }
         print(style, json.dumps(report["styles"][style]), flush=True)
+        atomic_write_text(out_path, json.dumps(report, indent=1) + "\n")
+    if Path(args.from_start).with_suffix(".safetensors").is_file():
+        model, _ = ckpt.load_generator(args.from_start)
+        for style, row in report["styles"].items():
+            k = data.styles.index(style)
+            row["from_start"] = judged_from_start(model, base, style, x, content_labels, trajectory, recogniser, content_rec, fmd, reference, moving_feats(held_ws, k), k)
+            print(style, "from the start:", json.dumps(row["from_start"]), flush=True)
+        report["from_start_model"] = {"model": args.from_start, "training_minutes": ckpt.load_generator(args.from_start)[1]["training"].get("wall_minutes")}
         atomic_write_text(out_path, json.dumps(report, indent=1) + "\n")
     if args.filmstrip:
         picture(s, runs, args.filmstrip_styles, args.filmstrip)

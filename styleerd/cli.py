@@ -192,8 +192,14 @@ def _model_styles(name: str | None) -> None:
 def _evaluate(args: argparse.Namespace) -> None:
     from styleerd.train.trainer import evaluate
 
+    if args.json:
+        check_output(args.json)
     report = evaluate(Path(args.model) if args.model else None, args.data, args.split, recognisers=Path(args.recognisers) if args.recognisers else None)
     print(json.dumps(report, indent=1))
+    if args.json:
+        from styleerd.atomic import atomic_write_text
+
+        atomic_write_text(Path(args.json), json.dumps(report, indent=1) + "\n")
 
 
 def _eval_runtime(args: argparse.Namespace) -> None:
@@ -461,6 +467,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--split", default="test", choices=["train", "val", "test"])
     p.add_argument("--recognisers", help="recognisers path without suffix (default: the shipped ones)")
     p.add_argument("--data", help="data folder")
+    p.add_argument("--json", help="also write the figures to this JSON file")
     p.set_defaults(func=_evaluate)
 
     p = command("eval-runtime", "label inference accuracy, foot skate before/after cleanup, pop at a style switch (test split)")

@@ -37,6 +37,10 @@ def test_shipped_model_meets_the_recognition_targets_on_the_test_split(shared_da
     print(r)
     assert r["windows"] > 1000
     assert r["sra_of_ceiling"] >= SRA_TARGET and r["cra_of_ceiling"] >= CRA_TARGET
+    per = r["per_target"]  # the per-style breakdown adds up to the whole
+    n = sum(v["transfers"] for v in per.values())
+    assert set(per) == set(ckpt.load_generator()[0].config.styles)
+    assert abs(sum(v["sra"] * v["transfers"] for v in per.values()) / n - r["sra"]) < 1e-3
 
 
 @pytest.mark.slow

@@ -181,14 +181,14 @@ def add_style(
         raise StyleERDError(f"style name {name!r}: use 1 to 32 lower-case letters, digits, - or _, starting with a letter")
     if name in c.styles:
         raise StyleERDError(f"the model already has a style {name!r}; its styles: {', '.join(c.styles)}")
+    if like is not None and (like not in c.styles or like == c.neutral_style):
+        raise StyleERDError(f"--like {like!r} must be one of the model's styles other than {c.neutral_style}: {', '.join(s for s in c.styles if s != c.neutral_style)}")
     train_config = TrainConfig.from_dict(meta["training"]["config"], where="the model's training config")
     new = style_clips(clips, G, train_config.window, config.stride, contents, explicit_map)
     if like is None:  # start from the trained style the labeller finds closest (not the neutral one)
         p = new.style.mean(0).clone()
         p[c.neutral_index] = -1.0
         like = c.input_styles[int(p.argmax())]
-    elif like not in c.styles or like == c.neutral_style:
-        raise StyleERDError(f"--like {like!r} must be one of the model's styles other than {c.neutral_style}: {', '.join(s for s in c.styles if s != c.neutral_style)}")
 
     # neutral training windows of the model's dataset: the content to stylise
     s = setup(replace(train_config, stride=config.content_stride), data_dir, progress)
@@ -207,12 +207,12 @@ def add_style(
     G2.requires_grad_(False)
     K = len(G2.branch_styles) - 1
     branch = G2.branches[K]
+    # the stacked initial states and added decoder rows learn as whole tensors, but only the new
+    # style's entries get a gradient (the others are not used, or weighted 0): Adam's moments
+    # and updates of the old entries stay exactly 0, so they keep their values bit for bit
     trainable = [*branch.parameters(), G2.branch_h0, G2.branch_c0, G2.decoder_added]
     for p in trainable:
         p.requires_grad_(True)
-    # only the new style's entries of the stacked tensors learn
-    keep_old = {id(G2.branch_h0): slice(0, K), id(G2.branch_c0): slice(0, K), id(G2.decoder_added): slice(0, len(c.added_styles))}
-    old_values = {id(p): p.detach()[sl].clone() for p in trainable if id(p) in keep_old for sl in [keep_old[id(p)]]}
     J, L = c.n_joints, G2.layout
     D = Discriminator(6 * J, 1, len(c.contents), train_config.window)
     opt_g = torch.optim.Adam(trainable, lr=config.lr_g, betas=(0.5, 0.999))
@@ -248,10 +248,6 @@ def add_style(
         opt_g.zero_grad(set_to_none=True)
         loss_g.backward()
         opt_g.step()
-        with torch.no_grad():  # the old styles' entries stay exactly as they were
-            for p in trainable:
-                if id(p) in keep_old:
-                    p[keep_old[id(p)]] = old_values[id(p)]
         real_pos = real_s[..., L.positions.start :]
         loss_d = losses.critic(D(real_pos, ones, new.content[rs]), D(fake.detach()[..., L.positions.start :], ones, content_c[rc]))
         if config.r1_every and step % config.r1_every == 0:

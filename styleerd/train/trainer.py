@@ -37,7 +37,7 @@ from styleerd.train import losses
 from styleerd.train.batches import TrainingData, WindowSet, training_data, windows
 from styleerd.train.classifiers import accuracy, train_classifier
 from styleerd.train.config import TrainConfig
-from styleerd.train.validation import validate
+from styleerd.train.validation import transfers, validate
 
 
 @dataclass
@@ -379,6 +379,12 @@ def evaluate(model_stem: Path | None = None, data_dir: str | None = None, split:
         raise StyleERDError("evaluation recognisers for this dataset are missing: run `styleerd train-recognisers`")
     result = validate(model, s.data, ws, style_rec, content_rec)
     ceiling = {"style": accuracy(style_rec, s.data, ws, "style"), "content": accuracy(content_rec, s.data, ws, "content")}
+    hits: dict[int, np.ndarray] = {}  # per target style: [style hits, content hits, transfers]
+    with torch.no_grad():
+        for r, t, _, _, ch in transfers(model, s.data, ws):
+            ok_s, ok_c = style_rec(ch).argmax(-1).numpy() == t, content_rec(ch).argmax(-1).numpy() == ws.content[r]
+            for k in np.unique(t):
+                hits.setdefault(int(k), np.zeros(3))[:] += (ok_s[t == k].sum(), ok_c[t == k].sum(), (t == k).sum())
     return {
         "split": split,
         "windows": len(ws.starts),
@@ -391,4 +397,5 @@ def evaluate(model_stem: Path | None = None, data_dir: str | None = None, split:
         "rec_deg": round(result["rec_deg"], 3),
         "rec_cm": round(result["rec_cm"], 3),
         "training_minutes": meta["training"].get("wall_minutes"),
+        "per_target": {s.data.styles[k]: {"sra": round(h[0] / h[2], 4), "cra": round(h[1] / h[2], 4), "transfers": int(h[2])} for k, h in sorted(hits.items())},
     }
