@@ -226,21 +226,20 @@ def main() -> None:
         report["from_start_model"] = {"model": args.from_start, "training_minutes": ckpt.load_generator(args.from_start)[1]["training"].get("wall_minutes")}
         atomic_write_text(out_path, json.dumps(report, indent=1) + "\n")
     if args.filmstrip:
-        picture(s, runs, args.filmstrip_styles, args.filmstrip)
+        picture(args.data, runs, args.filmstrip_styles, args.filmstrip)
 
 
-def picture(s, runs: Path, styles: list[str], path: str) -> None:
-    """One neutral Bandai-2 test walk and its transfers into added styles (each from its model)."""
-    from styleerd.data.datasets import Clip, load_motion
+def picture(data_dir: str | None, runs: Path, styles: list[str], path: str) -> None:
+    """The README's neutral test walk and its transfers into added styles (each from its model)."""
+    from styleerd.data.datasets import load_motion
     from styleerd.eval.plots import filmstrip
+    from styleerd.eval.report import neutral_test_walk
     from styleerd.model.stored import load_generator_weights
     from styleerd.motion.resample import resample
     from styleerd.runtime.offline import stylise_motion
 
-    fs = s.fs
-    c = next(c for c in fs.clips("test") if fs.styles[c] == "normal" and fs.contents[c] == "walk")
-    clip = next(k for k in find_clips(data_root(None if fs.meta.get("data") is None else fs.meta["data"]), "bandai-namco-2") if k.name == fs.names[c])
-    motion = resample(load_motion(Clip(clip.dataset, clip.name, clip.path, clip.style, clip.content)), 30.0)
+    clip = neutral_test_walk(data_dir, "normal")
+    motion = resample(load_motion(clip), 30.0)
     rows = [(f"input: {clip.name} (normal, walk; Bandai-Namco-2 test split)", motion)]
     for style in styles:
         model = load_generator_weights(runs / style)

@@ -140,7 +140,9 @@ def test_models_are_found_by_path_by_name_in_styleerd_models_and_shipped(tmp_pat
         done = subprocess.run([sys.executable, "-m", "styleerd.cli", "styles", "--model", name], capture_output=True, text=True, timeout=60, env=env)
         assert done.returncode == 0 and f"model:    {mine / 'my-model.safetensors'}" in done.stdout, done.stderr
     shipped = subprocess.run([sys.executable, "-m", "styleerd.cli", "styles"], capture_output=True, text=True, timeout=60, env=env)
-    assert f"model:    {MODELS_DIR / 'styleerd-bandai2.safetensors'}" in shipped.stdout
+    assert f"model:    {MODELS_DIR / 'styleerd-bandai2.safetensors'}" in shipped.stdout.splitlines()[0]  # the default first
+    for generator in MODELS_DIR.glob("styleerd-*.safetensors"):  # then every other shipped model
+        assert f"model:    {generator}" in shipped.stdout
     missing = subprocess.run([sys.executable, "-m", "styleerd.cli", "styles", "--model", "nope"], capture_output=True, text=True, timeout=60, env=env)
     assert missing.returncode == 2 and "cannot load model nope.safetensors" in missing.stderr
 
@@ -150,7 +152,7 @@ def test_the_docs_name_only_styles_the_model_has():
 
     styles = set(load_generator_weights().config.styles)
     for doc in ("README.md", "docs/PROTOCOL.md"):
-        text = ROOT.joinpath(doc).read_text()
+        text = "\n".join(line for line in ROOT.joinpath(doc).read_text().splitlines() if "--model" not in line)  # another model's styles
         named = set(re.findall(r'"style": "([a-z-]+)"', text)) | set(re.findall(r"--style ([a-z-]+)", text))
         named |= set(re.findall(r'\.(?:stylizer|transfer|set_style)\([^)]*?"([a-z-]+)"', text)) - {"walk.bvh"}
         named |= {name for pair in re.findall(r"--mix ([a-z=0-9.,-]+)", text) for name in re.findall(r"([a-z-]+)=", pair)}
@@ -158,3 +160,21 @@ def test_the_docs_name_only_styles_the_model_has():
     for style in styles:
         assert ROOT.joinpath("docs/styles", f"{style}.png").is_file() and f"docs/styles/{style}.png" in ROOT.joinpath("README.md").read_text()
     assert "numba" in ROOT.joinpath("README.md").read_text().split("[--backend ", 1)[1].split("]", 1)[0]
+
+
+def test_a_model_finds_the_labeller_of_its_labels(tmp_path, monkeypatch):
+    """Each model's labels are inferred by the labeller trained on the same labels (a model
+    added styles to keeps its base's labeller: added styles are targets only)."""
+    from dataclasses import replace
+
+    from styleerd.models import MODELS_DIR
+    from styleerd.model.stored import labeller_stem, load_generator_weights
+
+    config = load_generator_weights().config
+    assert labeller_stem(config) == MODELS_DIR / "labeller-bandai2"
+    assert labeller_stem(replace(config, styles=(*config.styles, "sneaky"), added_styles=("sneaky",))) == MODELS_DIR / "labeller-bandai2"
+    other = replace(config, styles=("calm", "normal"), added_styles=())
+    meta = json.loads((MODELS_DIR / "labeller-bandai2.json").read_text())
+    (tmp_path / "labeller-calm.json").write_text(json.dumps({**meta, "styles": ["calm", "normal"]}))
+    monkeypatch.setenv("STYLEERD_MODELS", str(tmp_path))
+    assert labeller_stem(other) == tmp_path / "labeller-calm"

@@ -20,7 +20,8 @@ from styleerd.motion.resample import resample
 from styleerd.runtime.offline import stylise_motion
 
 
-def _neutral_walk(data_dir: str | None, neutral: str) -> Clip:
+def neutral_test_walk(data_dir: str | None, neutral: str) -> Clip:
+    """The first neutral Bandai-Namco-2 walk of the test split (the clip the pictures show)."""
     clips = find_clips(data_root(data_dir), "bandai-namco-2")
     split = split_takes({c.name: (c.dataset, c.style, c.content) for c in clips})
     return next(c for c in clips if split[c.name] == "test" and c.style == neutral and c.content == "walk")
@@ -29,7 +30,7 @@ def _neutral_walk(data_dir: str | None, neutral: str) -> Clip:
 def pictures(docs: Path, data_dir: str | None) -> dict[str, str]:
     model, _ = load_generator()
     c = model.config
-    clip = _neutral_walk(data_dir, c.neutral_style)
+    clip = neutral_test_walk(data_dir, c.neutral_style)
     motion = resample(load_motion(clip), 30.0)
     out = {}
     style_filmstrip(model, clip, docs / "filmstrip-bandai2.png", cards=docs / "styles")
