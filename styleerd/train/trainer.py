@@ -77,8 +77,9 @@ def make_generator(config: TrainConfig, s: Setup) -> StyleERD:
 
 
 def _resumable(config: dict) -> dict:
-    """What must match to resume a run: everything but how long it may go on."""
-    return {k: v for k, v in config.items() if k not in ("epochs", "max_minutes")}
+    """What must match to resume a run: everything but how long it may go on and on how many
+    threads (a run may go on faster once the machine is free)."""
+    return {k: v for k, v in config.items() if k not in ("epochs", "max_minutes", "threads")}
 
 
 def _check_in_sync(model: torch.nn.Module) -> None:
