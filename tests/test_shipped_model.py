@@ -55,3 +55,23 @@ def test_shipped_labeller_labels_test_streams_as_its_record_says(shared_data):
     print(acc)
     assert {str(k): v for k, v in acc.items()} == meta["test"]  # the recorded figures are reproducible
     assert acc[1]["style"] >= 0.85 and acc[30]["style"] >= 0.97 and acc[30]["content"] >= 0.9
+
+
+def test_the_16_style_model_transfers_into_its_bandai1_styles_with_labels_inferred(tmp_path):
+    """styleerd-bandai12 (configs/bandai12.yaml): its labels are inferred by its own labeller
+    (found by its labels), and it works from the command line like the default model."""
+    import subprocess
+    import sys
+
+    from styleerd.model.stored import labeller_stem, load_generator_weights
+    from styleerd.motion import bvh, procedural
+
+    w = load_generator_weights("styleerd-bandai12")
+    assert len(w.config.styles) == 16 and {"happy", "chimpira", "elderly", "youthful"} <= set(w.config.styles)
+    assert labeller_stem(w.config).name == "labeller-bandai12"
+    bvh.write(tmp_path / "walk.bvh", procedural.walk(seconds=2.0, fps=30.0))
+    for argv in (["transfer", "walk.bvh", "--style", "happy", "-o", "out.bvh"], ["export-onnx", "--styles", "happy,sad", "-o", "step.onnx"]):
+        done = subprocess.run([sys.executable, "-m", "styleerd.cli", *argv, "--model", "styleerd-bandai12"], cwd=tmp_path, capture_output=True, text=True, timeout=300)
+        assert done.returncode == 0, done.stderr
+    assert bvh.read(tmp_path / "out.bvh").n_frames == 60
+    assert json.loads((tmp_path / "step.json").read_text())["branch_styles"] == ["happy", "sad"]
