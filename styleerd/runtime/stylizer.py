@@ -212,13 +212,14 @@ class StreamStylizer:
         one value for all of them, or a list with one per stream."""
         rows = np.asarray(streams, dtype=int).reshape(-1)
         c = self.model.config
+        added = set(_per_stream(input_style, len(rows))) & set(c.added_styles)  # checked before any state changes
+        if added:
+            raise StyleERDError(f"style {added.pop()!r} was added to this model as a target only; an input's style is one of: {', '.join(c.input_styles)} (or left to be inferred)")
         for labels, names, what, given, known in (
             (input_style, c.input_styles, "input style", self.given_style, self.known_style),
             (content, c.contents, "content", self.given_content, self.known_content),
         ):
             for r, label in zip(rows, _per_stream(labels, len(rows))):
-                if label in c.added_styles and what == "input style":
-                    raise StyleERDError(f"style {label!r} was added to this model as a target only; an input's style is one of: {', '.join(c.input_styles)} (or left to be inferred)")
                 known[r] = label is not None
                 given[r] = 0.0 if label is None else label_vector(names, {label: 1.0}, what)
         w = np.stack([label_vector(c.styles, t, "style") for t in _per_stream(target, len(rows))])

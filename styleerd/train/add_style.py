@@ -28,6 +28,7 @@ from tqdm import tqdm
 
 from styleerd.data.datasets import cache_dir
 from styleerd.data.features import motion_features
+from styleerd.data.windows import gather_windows
 from styleerd.errors import StyleERDError
 from styleerd.model import checkpoint as ckpt
 from styleerd.model.discriminator import Discriminator
@@ -120,7 +121,7 @@ def style_clips(paths: list[str | Path], model, window: int, stride: int, conten
         if contents is not None:
             p_c = np.eye(len(c.contents), dtype=np.float32)[c.contents.index(contents[i])]
         starts = np.arange(0, len(x) - window + 1, stride)
-        xs.append(np.stack([x[s : s + window] for s in starts]))
+        xs.append(gather_windows(x, starts, window))
         styles.append(np.repeat(p_s[None], len(starts), 0))
         cont.append(np.repeat(p_c[None], len(starts), 0))
         total += len(x)
