@@ -217,6 +217,36 @@ def _eval_quality(args: argparse.Namespace) -> None:
     print(json.dumps(evaluate_model(load_generator(args.model)[0], args.data), indent=1))
 
 
+def _eval_streamed(args: argparse.Namespace) -> None:
+    from styleerd.eval.metrics import runtime_transfers
+    from styleerd.eval.recipes import neutralisation
+    from styleerd.model import checkpoint as ckpt
+
+    if args.json:
+        check_output(args.json)
+    model, _ = ckpt.load_generator(args.model)
+    style_rec, content_rec, _ = ckpt.load_recognisers()
+    report = runtime_transfers(model, ckpt.load_labeller()[0], style_rec, content_rec, args.data)
+    report["summary"] = neutralisation(report, model.config.neutral_style)
+    print(json.dumps(report, indent=1))
+    if args.json:
+        from styleerd.atomic import atomic_write_text
+
+        atomic_write_text(Path(args.json), json.dumps(report, indent=1) + "\n")
+
+
+def _eval_recipes(args: argparse.Namespace) -> None:
+    from styleerd.atomic import atomic_write_text
+    from styleerd.eval.recipes import markdown, recipe_table, tradeoff_plot
+
+    out = check_output(args.out)
+    rows = recipe_table(args.data, args.only or None)
+    atomic_write_text(out.with_suffix(".json"), json.dumps(rows, indent=1) + "\n")
+    atomic_write_text(out.with_suffix(".md"), markdown(rows))
+    tradeoff_plot(rows, out.with_suffix(".png"))
+    print(markdown(rows))
+
+
 def _eval_rotations(args: argparse.Namespace) -> None:
     from styleerd.eval.rotations import markdown, rotation_report, write
     from styleerd.model.checkpoint import load_generator
@@ -230,15 +260,16 @@ def _eval_rotations(args: argparse.Namespace) -> None:
 
 def _eval_ablations(args: argparse.Namespace) -> None:
     from styleerd.atomic import atomic_write_text
-    from styleerd.eval.ablations import ablation_table, markdown, train_ablations
+    from styleerd.eval.ablations import ablation_table, markdown, shipped_budget, train_ablations
 
     if not args.no_train:
-        train_ablations(Path(args.runs), args.epochs, args.data, args.threads)
+        train_ablations(Path(args.runs), args.data, args.threads)
     rows = ablation_table(args.data)
     out = Path(args.out)
+    epochs = shipped_budget()[1]
     atomic_write_text(out.with_suffix(".json"), json.dumps(rows, indent=1) + "\n")
-    atomic_write_text(out.with_suffix(".md"), markdown(rows, args.epochs))
-    print(markdown(rows, args.epochs))
+    atomic_write_text(out.with_suffix(".md"), markdown(rows, epochs))
+    print(markdown(rows, epochs))
 
 
 def _bench(args: argparse.Namespace) -> None:
@@ -480,14 +511,23 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--model", help=MODEL_HELP)
     p.add_argument("--data", help="data folder")
     p.set_defaults(func=_eval_quality)
+    p = ev.add_parser("streamed", help="whole test clips streamed as `transfer` runs them: styled -> neutral, neutral -> each style, labels given and inferred, judged as played")
+    p.add_argument("--model", help=MODEL_HELP)
+    p.add_argument("--json", help="also write the figures to this JSON file")
+    p.add_argument("--data", help="data folder")
+    p.set_defaults(func=_eval_streamed)
+    p = ev.add_parser("recipes", help="every kept model (shipped, models/recipes, ablations) side by side: FMD vs CRA per style, back to neutral; JSON, table, trade-off plot")
+    p.add_argument("--out", default="docs/recipes.md", help="Markdown table (a .json and the .png plot beside it)")
+    p.add_argument("--only", nargs="*", help="evaluate only these names (as listed in the table)")
+    p.add_argument("--data", help="data folder")
+    p.set_defaults(func=_eval_recipes)
     p = ev.add_parser("rotations", help="joint rotations on other skeletons, swing and twist: round trip at intensity 0, and the change a style makes")
     p.add_argument("--model", help=MODEL_HELP)
     p.add_argument("--style", default="elderly", help="the style whose change is measured (default elderly)")
     p.add_argument("--out", default="docs/rotations.md", help="Markdown table (a .json beside it); empty: print only")
     p.add_argument("--data", help="data folder")
     p.set_defaults(func=_eval_rotations)
-    p = ev.add_parser("ablations", help="train what is missing (resumable) and tabulate the paper's ablations")
-    p.add_argument("--epochs", type=_whole(1), default=14, help="training budget of every model (default 14, about 9 min each)")
+    p = ev.add_parser("ablations", help="train what is missing at the shipped run's budget (resumable) and tabulate the paper's ablations")
     p.add_argument("--threads", type=_whole(1), default=1)
     p.add_argument("--runs", default="runs/ablations", help="run folders (checkpoints)")
     p.add_argument("--no-train", action="store_true", help="only evaluate the models in models/ablations/")

@@ -37,6 +37,42 @@ def test_shipped_fmd_extractor_and_the_quality_figures(shared_data):
     print(q)
     assert 1.0 < q["fmd_over_floor"] < 10 and q["sra"] > 0.9 and 0 < q["cra"] <= 1
     assert q["sra_first_10"] <= q["sra_rest"] and q["jitter_ratio"] > 0
+    # per target style: CRA next to the content recogniser on the same inputs; spreads
+    styles = set(q["fmd_per_style"])
+    assert styles == set(q["cra_per_style"]) == set(q["content_ceiling_per_style"]) == set(q["sra_per_style"]) == set(ckpt.load_generator()[0].config.styles)
+    assert all(0.5 < v <= 1 for v in q["content_ceiling_per_style"].values())
+    assert 0 < q["spread"]["sra"] < 0.05 and 0 < q["spread"]["cra"] < 0.05 and 0 < q["spread"]["fmd"] < q["fmd"]
+
+
+def test_bootstrap_spread_is_the_standard_error_of_a_mean():
+    from styleerd.eval.metrics import bootstrap_spread
+
+    x = np.random.default_rng(1).normal(0, 2.0, 400)
+    sd = bootstrap_spread(len(x), lambda i: x[i].mean(), resamples=2000)
+    assert abs(sd - x.std() / np.sqrt(len(x))) < 0.1 * x.std() / np.sqrt(len(x))
+
+
+@pytest.mark.slow
+def test_streamed_transfers_back_to_neutral_and_into_styles(shared_data):
+    """Whole test clips streamed as `transfer` runs them, read as they play: every styled
+    source taken back to neutral, neutral into every style, labels given and inferred."""
+    from styleerd.eval.metrics import runtime_transfers
+    from styleerd.eval.recipes import neutralisation
+
+    model = load_generator()[0]
+    style_rec, content_rec, _ = ckpt.load_recognisers()
+    r = runtime_transfers(model, load_labeller()[0], style_rec, content_rec, str(shared_data))
+    c = model.config
+    assert set(r["transfers"]) == set(c.styles)
+    assert set(r["transfers"][c.neutral_style]) == set(c.styles) - {c.neutral_style}
+    n = neutralisation(r, c.neutral_style)
+    print(n)
+    for source, v in n["to_neutral"].items():
+        assert v["given"] > 0.6 and v["inferred"] > 0.6, source
+    assert n["into_styles_mean"]["given"] > 0.9
+    # the labeller reads each source's style at the clip's end
+    read = r["labeller_reads_input_as_at_end"]
+    assert sum(v.get(k, 0) for k, v in read.items()) / sum(sum(v.values()) for v in read.values()) > 0.9
 
 
 @pytest.mark.slow

@@ -52,6 +52,27 @@ def test_step_equals_forward_with_mixed_targets(setup):
     assert torch.allclose(rot.norm(dim=-1), torch.ones(()), atol=1e-5)
 
 
+def test_forward_targets_equals_forward_on_the_repeated_batch(setup):
+    """Training's reconstruction and transfer share the encoder and neutral branch: outputs
+    and gradients equal those of one forward over the batch given twice."""
+    _, _, model, x = setup
+    s, c, _ = labels(model, [0, 1, 2, 3], [0, 1, 1, 0], None)
+    targets = torch.cat([s, torch.tensor([[0, 1.0, 0, 0], [0, 0, 1, 0], [0, 0.4, 0.6, 0], [0, 1, 0, 0]])])
+    grads = []
+    for shared in (False, True):
+        model.zero_grad()
+        if shared:
+            rot, vel = model.forward_targets(x, s, c, targets)
+        else:
+            rot, vel, _ = model(torch.cat([x, x]), torch.cat([s, s]), torch.cat([c, c]), targets)
+        (rot.square().sum() + vel.sum()).backward()
+        grads.append((rot.detach(), vel.detach(), [p.grad.clone() for p in model.parameters() if p.grad is not None]))
+    (r1, v1, g1), (r2, v2, g2) = grads
+    assert torch.allclose(r1, r2, atol=1e-5) and torch.allclose(v1, v2, atol=1e-5)
+    assert len(g1) == len(g2) and all(torch.allclose(a, b, atol=1e-4, rtol=1e-4) for a, b in zip(g1, g2))
+    model.zero_grad()
+
+
 def test_output_is_causal(setup):
     _, _, model, x = setup
     s, c, _ = labels(model, [0, 1, 2, 3], [0, 1, 1, 0], None)

@@ -5,7 +5,7 @@ import json
 
 import pytest
 
-from styleerd.eval.ablations import ABLATIONS, model_stem
+from styleerd.eval.ablations import ABLATIONS, trained
 
 pytestmark = pytest.mark.slow
 
@@ -15,7 +15,7 @@ def test_report_regenerates_results_with_the_commands_figures(shared_data, tmp_p
     from styleerd.eval.report import write_report
     from styleerd.model.checkpoint import load_generator
 
-    assert all(model_stem(name).with_suffix(".safetensors").is_file() for name in ABLATIONS)
+    assert all(trained(name) for name in ABLATIONS)
     path = write_report(tmp_path, str(shared_data), bench_steps=100, bench_streams=(1, 16), progress=lambda *_: None)
     text = path.read_text()
     q = evaluate_model(load_generator()[0], str(shared_data))

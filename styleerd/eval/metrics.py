@@ -6,7 +6,9 @@ Quality of a generator's transfers (``evaluate_model``):
   of each target style; pooled (real windows drawn in the transfers' style proportions) and
   per style. The floor is the FMD between two disjoint halves (by clip) of the real test
   windows, so every FMD reads as a multiple of it.
-- SRA / CRA: transfers recognised as the target style / the input's content.
+- SRA / CRA: transfers recognised as the target style / the input's content; per target
+  style too, CRA beside the content recogniser's accuracy on the transfers' inputs (its
+  ceiling). Spreads: standard deviations over bootstrap resamples of the transfers.
 - Responsiveness: each test clip streamed from its first frame; SRA and FMD of its first 10
   output frames versus the 24-frame windows after them.
 - Jitter: mean jerk (third difference of joint positions) of transfers over that of the real
@@ -17,6 +19,10 @@ foot skate before and after cleanup, and the size of the pop when the target sty
 mid-stream. Its streams are the test clips of at least ``frames`` frames, cut to that length
 and run as one batch through StreamStylizer (the per-frame path users run), each into its
 transfer target (neutral -> one of the other styles in turn, styled -> neutral).
+
+Transfers as users run them (``runtime_transfers``): whole test clips streamed frame by frame,
+styled ones back to neutral and neutral ones into every style, labels given and inferred,
+judged as the output plays.
 """
 
 from __future__ import annotations
@@ -25,12 +31,15 @@ import numpy as np
 import torch
 from tqdm import tqdm
 
+from styleerd.data.cache import prepare
 from styleerd.data.datasets import data_root, find_clips, load_motion
+from styleerd.data.features import features_to_motion, motion_features
 from styleerd.data.windows import split_takes
 from styleerd.model import torch_quat
 from styleerd.model.fmd import MotionAutoencoder
 from styleerd.model.generator import StyleERD
 from styleerd.motion import bvh
+from styleerd.motion.motion import Motion
 from styleerd.motion.kinematics import foot_contacts, forward_positions
 from styleerd.motion.skeleton import BodyRoles
 from styleerd.runtime.cleanup import FootLock
@@ -72,38 +81,60 @@ def _proportional(real: dict[int, np.ndarray], targets: np.ndarray) -> np.ndarra
     return np.stack(rows)
 
 
+def bootstrap_spread(n: int, statistic, resamples: int = 200, seed: int = 0) -> float:
+    """Standard deviation of ``statistic(rows)`` over ``resamples`` draws of ``n`` rows with
+    replacement (the spread of a figure over resamples of the test windows)."""
+    rng = np.random.default_rng(seed)
+    return float(np.std([statistic(rng.integers(0, n, n)) for _ in range(resamples)]))
+
+
 @torch.no_grad()
-def transfer_quality(model: StyleERD, s: Setup, test: WindowSet, style_rec, content_rec, fmd: MotionAutoencoder, batch: int = 256) -> dict:
+def transfer_quality(model: StyleERD, s: Setup, test: WindowSet, style_rec, content_rec, fmd: MotionAutoencoder, batch: int = 256, resamples: int = 200) -> dict:
     model.eval()
     data = s.data
     reference = torch.as_tensor(data.stats.reference, dtype=torch.float32)
-    feats, hit_s, hit_c, jerk_fake, all_targets = [], 0, 0, [], []
+    feats, ok_s, ok_c, ok_in, jerk_fake, all_targets = [], [], [], [], [], []
     for r, t, rot, _, ch in transfers(model, data, test, batch):
-        hit_s += int((style_rec(ch).argmax(-1).numpy() == t).sum())
-        hit_c += int((content_rec(ch).argmax(-1).numpy() == test.content[r]).sum())
+        ok_s.append(style_rec(ch).argmax(-1).numpy() == t)
+        ok_c.append(content_rec(ch).argmax(-1).numpy() == test.content[r])
+        ok_in.append(content_rec(data.gather(test.starts[r])).argmax(-1).numpy() == test.content[r])  # the input itself
         feats.append(_features(fmd, rot, reference))
         jerk_fake.append(_jerk(torch_quat.root_relative_positions(rot, model.offsets, model.parents)))
         all_targets.append(t)
-    targets = np.concatenate(all_targets)
+    targets, ok_s, ok_c, ok_in = (np.concatenate(a) for a in (all_targets, ok_s, ok_c, ok_in))
     fake = np.concatenate(feats)
     real_all = np.concatenate([_features(fmd, window_rotations(data, test.starts[i : i + batch]), reference) for i in range(0, len(test.starts), batch)])
     real = {k: real_all[test.style == k] for k in range(len(data.styles))}
-    per_style = {data.styles[k]: round(frechet_distance(fake[targets == k], real[k]), 3) for k in np.unique(targets)}
+    styles = np.unique(targets)
+    per_style = {data.styles[k]: round(frechet_distance(fake[targets == k], real[k]), 3) for k in styles}
     # floor: two halves of the real windows, split by clip
     half = np.isin(test.clip, np.unique(test.clip)[::2])
-    floor_style = {data.styles[k]: round(frechet_distance(real_all[half & (test.style == k)], real_all[~half & (test.style == k)]), 3) for k in np.unique(targets)}
-    pooled = frechet_distance(fake, _proportional(real, targets))
+    floor_style = {data.styles[k]: round(frechet_distance(real_all[half & (test.style == k)], real_all[~half & (test.style == k)]), 3) for k in styles}
+    pooled_real = _proportional(real, targets)
+    pooled = frechet_distance(fake, pooled_real)
     floor = frechet_distance(real_all[half], real_all[~half])
     real_pos = torch.cat([_real_positions(model, data, test.starts[i : i + batch]) for i in range(0, len(test.starts), batch)])
+    # spreads over bootstrap resamples of the transfers (FMD: fake and real rows drawn together)
+    spread = {
+        "sra": bootstrap_spread(len(ok_s), lambda i: ok_s[i].mean(), resamples),
+        "cra": bootstrap_spread(len(ok_c), lambda i: ok_c[i].mean(), resamples),
+        "fmd": bootstrap_spread(len(fake), lambda i: frechet_distance(fake[i], pooled_real[i]), resamples),
+    }
     return {
         "transfers": len(targets),
-        "sra": round(hit_s / len(targets), 4),
-        "cra": round(hit_c / len(targets), 4),
+        "sra": round(float(ok_s.mean()), 4),
+        "cra": round(float(ok_c.mean()), 4),
+        "content_ceiling": round(float(ok_in.mean()), 4),  # the content recogniser on the transfers' inputs
         "fmd": round(pooled, 3),
         "fmd_floor": round(floor, 3),
         "fmd_over_floor": round(pooled / floor, 2),
+        "spread": {k: round(v, 4) for k, v in spread.items()},
         "fmd_per_style": per_style,
         "fmd_floor_per_style": floor_style,
+        "cra_per_style": {data.styles[k]: round(float(ok_c[targets == k].mean()), 4) for k in styles},
+        # per target, the content recogniser's accuracy on the transfers' inputs: its ceiling there
+        "content_ceiling_per_style": {data.styles[k]: round(float(ok_in[targets == k].mean()), 4) for k in styles},
+        "sra_per_style": {data.styles[k]: round(float(ok_s[targets == k].mean()), 4) for k in styles},
         "jitter_ratio": round(float(np.concatenate(jerk_fake).mean() / _jerk(real_pos).mean()), 3),
     }
 
@@ -289,3 +320,60 @@ def runtime_report(model: StyleERD, labeller, data_dir: str | None = None, frame
     switch["normal_p99_cm"] = round(float(np.percentile(steady, 99)), 3)
     report["style_switch"] = switch
     return report
+
+
+# ---------------------------------------------------------------- transfers as users run them
+
+
+def _played_channels(model: StyleERD, rotations: np.ndarray, positions: np.ndarray, fps: float) -> torch.Tensor:
+    """Normalised [rotations | positions | velocities] of output frames as they play (output
+    joint rotations on the input's root path), ``[T, 10J]``."""
+    feats, _ = motion_features(Motion(model.skeleton, rotations, positions, fps))
+    return torch.from_numpy(model.stats().normalize(feats)[:, : 10 * model.config.n_joints].astype(np.float32))
+
+
+@torch.no_grad()
+def runtime_transfers(model: StyleERD, labeller, style_rec, content_rec, data_dir: str | None = None, dataset: str = "bandai-namco-2",
+                      window: int = 24, stride: int = 12, split: str = "test") -> dict:  # fmt: skip
+    """Every ``split`` clip streamed frame by frame through ``StreamStylizer`` (what
+    ``transfer`` runs): styled clips back to neutral, neutral clips into every other style;
+    each with its labels given and with its labels inferred online by ``labeller``. The
+    output as it plays is cut into ``window``-frame windows every ``stride`` frames and read
+    by the recognisers. Returns, per source style and target style, {"given": {sra, cra},
+    "inferred": {sra, cra}, "windows": n}; also the labeller's style read at each clip's end."""
+    fs, c = prepare(dataset, data_dir, progress=False), model.config
+    neutral = c.neutral_style
+    hits: dict[tuple[str, str], np.ndarray] = {}  # (source, target) -> [given s, given c, inferred s, inferred c, windows]
+    read_as: dict[str, dict[str, int]] = {}
+    for clip in tqdm(fs.clips(split), desc=f"{split} clips streamed", leave=False):
+        sl = fs.frames(clip)
+        if sl.stop - sl.start < window:
+            continue
+        motion = features_to_motion(fs.features[sl], fs.trajectory[sl], fs.skeleton, fs.params.fps)
+        style, content = str(fs.styles[clip]), str(fs.contents[clip])
+        targets = [t for t in c.input_styles if t != neutral] if style == neutral else [neutral]
+        n = len(targets)
+        st = StreamStylizer(model, [style] * n + [None] * n, [content] * n + [None] * n, [{t: 1.0} for t in targets * 2], n_streams=2 * n, labeller=labeller)
+        rot = np.empty((2 * n, motion.n_frames, c.n_joints, 4))
+        for t in range(motion.n_frames):
+            rot[:, t], _ = st.step(np.broadcast_to(motion.rotations[t], rot[:, t].shape), np.broadcast_to(motion.positions[t], (2 * n, c.n_joints, 3)))
+        label = st.inferred_labels()[n][0]
+        read_as.setdefault(style, {})[label] = read_as.setdefault(style, {}).get(label, 0) + 1
+        starts = np.arange(0, motion.n_frames - window + 1, stride)
+        for k in range(2 * n):
+            ch = _played_channels(model, rot[k], motion.positions, fs.params.fps)
+            w = torch.stack([ch[a : a + window] for a in starts])
+            target = targets[k % n]
+            ok_s = int((style_rec(w).argmax(-1).numpy() == c.styles.index(target)).sum())
+            ok_c = int((content_rec(w).argmax(-1).numpy() == c.contents.index(content)).sum())
+            h = hits.setdefault((style, target), np.zeros(5, int))
+            h[[0, 1] if k < n else [2, 3]] += (ok_s, ok_c)
+            h[4] += len(starts) if k < n else 0
+    out = {}
+    for (source, target), h in sorted(hits.items()):
+        out.setdefault(source, {})[target] = {
+            "given": {"sra": round(h[0] / h[4], 4), "cra": round(h[1] / h[4], 4)},
+            "inferred": {"sra": round(h[2] / h[4], 4), "cra": round(h[3] / h[4], 4)},
+            "windows": int(h[4]),
+        }
+    return {"transfers": out, "labeller_reads_input_as_at_end": read_as}

@@ -10,7 +10,7 @@ from pathlib import Path
 from styleerd.atomic import atomic_write_text
 from styleerd.data.datasets import Clip, data_root, find_clips, load_motion
 from styleerd.data.windows import split_takes
-from styleerd.eval.ablations import ABLATIONS, ablation_table, markdown, model_stem
+from styleerd.eval.ablations import ablation_table, markdown, model_stem, shipped_budget
 from styleerd.eval.bench import STREAMS, plot, run_bench, table
 from styleerd.eval.metrics import evaluate_model, runtime_report
 from styleerd.eval.plots import filmstrip, style_filmstrip
@@ -59,7 +59,7 @@ def write_report(docs: Path = Path("docs"), data_dir: str | None = None, bench_s
     quality = evaluate_model(model, data_dir)
     progress("ablations ...")
     ablations = ablation_table(data_dir)
-    epochs = ablation_epochs()
+    epochs = shipped_budget()[1]
     atomic_write_text(docs / "ablations.json", json.dumps(ablations, indent=1) + "\n")
     atomic_write_text(docs / "ablations.md", markdown(ablations, epochs))
     progress("runtime figures ...")
@@ -233,9 +233,3 @@ RightUpLeg 174 degrees on the xia neutral walk and 173 on the demo walk. The xia
 are contents the model never saw: those are the model's limits, not the mapping's.
 
 {markdown_rotations(report)}"""
-
-
-def ablation_epochs() -> int:
-    """The epoch budget the ablation models were trained with (from their training config)."""
-    _, meta = load_generator(model_stem(next(iter(ABLATIONS))))
-    return int(meta["training"]["config"]["epochs"])

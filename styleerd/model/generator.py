@@ -105,12 +105,29 @@ class StyleERD(nn.Module):
         ``content [B, nC]`` the input's labels; ``target [B, nS]`` the target weights (over
         ``styles``). Returns unit quaternions ``[B, T, J, 4]``, normalised velocities
         ``[B, T, 3J]`` and the new state."""
-        B, T, _ = x.shape
         if state is None:
             state = self.initial_state(content)
         z = self.encode(x, style, content)
         out, neutral_state = self.neutral(z, state.neutral)
-        branches = dict(state.branches)
+        out, branches = self._add_branches(z, out, target, dict(state.branches))
+        rotations, velocities = self.decode(out, target)
+        return rotations, velocities, RecurrentState(neutral_state, branches)
+
+    def forward_targets(self, x: torch.Tensor, style: torch.Tensor, content: torch.Tensor, targets: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """``forward`` from fresh states of ``x [B, T, D]`` under K target weightings at once,
+        ``targets [K*B, nS]`` (rows k*B .. k*B + B - 1: the k-th): the encoder and the neutral
+        branch, which do not depend on the target, run once (training's reconstruction and
+        transfer of one batch). Returns rotations and velocities of the K*B rows."""
+        k = targets.shape[0] // x.shape[0]
+        z = self.encode(x, style, content)
+        out, _ = self.neutral(z, self.initial_state(content).neutral)
+        out, _ = self._add_branches(z.repeat(k, 1, 1), out.repeat(k, 1, 1), targets, {})
+        return self.decode(out, targets)
+
+    def _add_branches(self, z: torch.Tensor, out: torch.Tensor, target: torch.Tensor, branches: dict[int, State]) -> tuple[torch.Tensor, dict[int, State]]:
+        """``out`` plus each style branch's output on ``z`` weighted by ``target``; a branch
+        runs only on the rows that weight it."""
+        B = z.shape[0]
         for k, s in enumerate(self.branch_styles):
             w = target[:, s]
             rows = torch.nonzero(w != 0).squeeze(1)
@@ -125,8 +142,7 @@ class StyleERD(nn.Module):
                 out = out.index_add(0, rows, w[rows, None, None] * y)
                 h, c = h.index_copy(1, rows, hr), c.index_copy(1, rows, cr)
             branches[k] = (h, c)
-        rotations, velocities = self.decode(out, target)
-        return rotations, velocities, RecurrentState(neutral_state, branches)
+        return out, branches
 
     def encode(self, x: torch.Tensor, style: torch.Tensor, content: torch.Tensor) -> torch.Tensor:
         """The latent ``z [B, T, H]`` of features ``x [B, T, D]`` with the input's labels."""

@@ -211,6 +211,7 @@ def train(config: TrainConfig, out: Path, data_dir: str | None = None, progress:
     metrics_path = out / "metrics.csv"
     g_params = [p for p in G.parameters() if p.requires_grad]
 
+    done = epoch0  # epochs finished
     for epoch in range(epoch0, config.epochs):
         if config.max_minutes and elapsed >= config.max_minutes * 60:
             break
@@ -233,8 +234,8 @@ def train(config: TrainConfig, out: Path, data_dir: str | None = None, progress:
             tgt = s.data.onehot_style(target)
             real = x[..., : 10 * J]
 
-            # ---- generator: reconstruction (own style) and transfer, in one batch of 2B
-            rot, vel, _ = G(torch.cat([x, x]), torch.cat([style, style]), torch.cat([content, content]), torch.cat([style, tgt]))
+            # ---- generator: reconstruction (own style) and transfer of one batch, its encoding shared
+            rot, vel = G.forward_targets(x, style, content, torch.cat([style, tgt]))
             ch = G.motion_channels(rot, vel)
             rot_in = G.raw_rotations(x)
             loss_rec = losses.reconstruction_loss(rot[:B], rot_in, ch[:B], real, L)
@@ -301,10 +302,12 @@ def train(config: TrainConfig, out: Path, data_dir: str | None = None, progress:
                 print(" ".join(f"{k}={v}" for k, v in row.items()), flush=True)
         _check_in_sync(G)
         _check_in_sync(D)
+        done = epoch + 1
 
     if _is_main() and export is not None and (out / "best.json").is_file():
         tensors, meta = ckpt.load_tensors(out / "best")
         meta["training"]["wall_minutes"] = round(elapsed / 60, 2)
+        meta["training"]["epochs_trained"] = done  # the run's budget (its ablations train as many)
         ckpt.save_tensors(export, tensors, meta)
     return best or {}
 

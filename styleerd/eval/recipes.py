@@ -1,0 +1,146 @@
+"""Training recipes side by side (issue 16): every kept model judged by the same recognisers,
+labeller and FMD extractor on the test split; realism (FMD over its floor) against content
+kept (CRA over its ceiling) per target style, and transfers back to neutral per source style
+as users run them (labels given and inferred). Writes a JSON, a Markdown table and the
+trade-off plot."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+from tqdm import tqdm
+
+from styleerd.eval.ablations import ABLATIONS, model_stem
+from styleerd.model import checkpoint as ckpt
+
+RECIPES_DIR = Path(__file__).resolve().parents[2] / "models" / "recipes"  # research models: in a checkout, not in the package
+FMD_LIMIT, CRA_LIMIT = 3.0, 0.95  # issue 16: every target style's FMD <= 3 x its floor with CRA >= 95 % of the ceiling
+
+
+def recipe_models() -> dict[str, Path | None]:
+    """Name -> model stem (None: the shipped model): the shipped model, the recipes kept
+    under models/recipes/ and the ablations."""
+    models: dict[str, Path | None] = {"shipped": None}
+    models.update({p.stem: p.with_suffix("") for p in sorted(RECIPES_DIR.glob("*.safetensors"))})
+    models.update({f"ablation: {name}": model_stem(name) for name in ABLATIONS if model_stem(name).with_suffix(".safetensors").is_file()})
+    return models
+
+
+def per_style(quality: dict) -> dict[str, dict[str, float]]:
+    """Per target style: FMD / floor and CRA / ceiling."""
+    return {
+        k: {
+            "fmd_over_floor": round(quality["fmd_per_style"][k] / quality["fmd_floor_per_style"][k], 2),
+            "cra_of_ceiling": round(quality["cra_per_style"][k] / quality["content_ceiling_per_style"][k], 4),
+        }
+        for k in quality["fmd_per_style"]
+    }
+
+
+def neutralisation(streamed: dict, neutral: str) -> dict:
+    """Per source style, the share of windows of its transfer back to ``neutral`` read as
+    ``neutral`` (labels given / inferred), beside the transfers into styles."""
+    t = streamed["transfers"]
+    back = {s: {"given": v[neutral]["given"]["sra"], "inferred": v[neutral]["inferred"]["sra"]} for s, v in t.items() if s != neutral}
+    into = t[neutral]
+
+    def mean(rows, how):
+        return round(float(np.mean([r[how]["sra"] for r in rows])), 4)
+
+    return {
+        "to_neutral": back,
+        "to_neutral_mean": {how: round(float(np.mean([v[how] for v in back.values()])), 4) for how in ("given", "inferred")},
+        "into_styles_mean": {how: mean(into.values(), how) for how in ("given", "inferred")},
+        "into_styles": {s: {how: v[how]["sra"] for how in ("given", "inferred")} for s, v in into.items()},
+    }
+
+
+def recipe_table(data_dir: str | None = None, names: list[str] | None = None) -> dict:
+    from styleerd.eval.metrics import evaluate_model, runtime_transfers
+
+    style_rec, content_rec, _ = ckpt.load_recognisers()
+    labeller, _ = ckpt.load_labeller()
+    rows = {}
+    for name, stem in tqdm([(n, s) for n, s in recipe_models().items() if names is None or n in names], desc="recipes"):
+        model, meta = ckpt.load_generator(stem)
+        q = evaluate_model(model, data_dir)
+        training = meta["training"]
+        rows[name] = {
+            "model": "shipped" if stem is None else str(stem.relative_to(RECIPES_DIR.parents[1])),
+            "config": training["config"]["name"],
+            "minutes": training.get("wall_minutes") or training["best"].get("minutes"),
+            "steps": training["best"].get("steps"),
+            "quality": q,
+            "per_style": per_style(q),
+            "neutralisation": neutralisation(runtime_transfers(model, labeller, style_rec, content_rec, data_dir), model.config.neutral_style),
+        }
+    return rows
+
+
+def tradeoff_plot(rows: dict, path: Path) -> None:
+    """Left: every recipe's pooled FMD / floor against CRA / ceiling. Right: the same per
+    target style for the recipes kept under models/recipes and the shipped model; the issue's
+    limits dashed."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, (a, b) = plt.subplots(1, 2, figsize=(13, 5.5))
+    for name, r in rows.items():
+        q = r["quality"]
+        x, y = q["fmd_over_floor"], q["cra"] / q["content_ceiling"]
+        a.errorbar(x, y, xerr=q["spread"]["fmd"] / q["fmd_floor"], yerr=q["spread"]["cra"] / q["content_ceiling"], fmt="o", capsize=3)
+        a.annotate(name, (x, y), textcoords="offset points", xytext=(5, 4), fontsize=8)
+    a.set(xlabel="FMD / floor (lower is more real)", ylabel="CRA / ceiling (content kept)", title="Recipes (bars: bootstrap spread)")
+    markers = iter("osD^v<>")
+    for name, r in rows.items():
+        if name.startswith("ablation"):
+            continue
+        ps = r["per_style"]
+        m = next(markers)
+        b.scatter([v["fmd_over_floor"] for v in ps.values()], [v["cra_of_ceiling"] for v in ps.values()], marker=m, label=name)
+        for style, v in ps.items():
+            b.annotate(style, (v["fmd_over_floor"], v["cra_of_ceiling"]), textcoords="offset points", xytext=(4, 3), fontsize=7)
+    for ax in (a, b):
+        ax.axvline(FMD_LIMIT, ls="--", c="grey")
+        ax.axhline(CRA_LIMIT, ls="--", c="grey")
+        ax.set_xscale("log")
+        ax.grid(alpha=0.3)
+    b.set(xlabel="FMD / floor per target style", ylabel="CRA / ceiling per target style", title="Per target style (limits dashed)")
+    b.legend(fontsize=8)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+def markdown(rows: dict) -> str:
+    lines = [
+        "| model | config | minutes | steps | FMD / floor | CRA / ceiling | SRA | worst style FMD / floor | worst style CRA / ceiling | back to neutral, given / inferred | into styles, given / inferred |",
+        "|" + " --- |" * 11,
+    ]
+    for name, r in rows.items():
+        q, ps, n = r["quality"], r["per_style"], r["neutralisation"]
+        worst_f = max(ps, key=lambda k: ps[k]["fmd_over_floor"])
+        worst_c = min(ps, key=lambda k: ps[k]["cra_of_ceiling"])
+        lines.append(
+            f"| {name} | {r['config']} | {r['minutes']} | {r['steps']} "
+            f"| {q['fmd_over_floor']:.2f} (± {q['spread']['fmd'] / q['fmd_floor']:.2f}) | {100 * q['cra'] / q['content_ceiling']:.1f} % (± {100 * q['spread']['cra'] / q['content_ceiling']:.1f}) "
+            f"| {100 * q['sra']:.1f} % | {worst_f} {ps[worst_f]['fmd_over_floor']:.2f} | {worst_c} {100 * ps[worst_c]['cra_of_ceiling']:.1f} % "
+            f"| {100 * n['to_neutral_mean']['given']:.1f} / {100 * n['to_neutral_mean']['inferred']:.1f} % | {100 * n['into_styles_mean']['given']:.1f} / {100 * n['into_styles_mean']['inferred']:.1f} % |"
+        )
+    lines.append("")
+    for name, r in rows.items():
+        if name.startswith("ablation"):
+            continue
+        ps, n = r["per_style"], r["neutralisation"]
+        lines += [f"**{name}** per target style (FMD / floor, CRA / ceiling) and back to neutral per source style (given / inferred):", ""]
+        lines.append("| | " + " | ".join(ps) + " |")
+        lines.append("|" + " --- |" * (len(ps) + 1))
+        lines.append("| FMD / floor | " + " | ".join(f"{v['fmd_over_floor']:.2f}" for v in ps.values()) + " |")
+        lines.append("| CRA / ceiling | " + " | ".join(f"{100 * v['cra_of_ceiling']:.1f} %" for v in ps.values()) + " |")
+        lines.append("| back to neutral | " + " | ".join(f"{100 * n['to_neutral'][k]['given']:.1f} / {100 * n['to_neutral'][k]['inferred']:.1f} %" if k in n["to_neutral"] else "" for k in ps) + " |")
+        lines.append("| into the style | " + " | ".join(f"{100 * n['into_styles'][k]['given']:.1f} / {100 * n['into_styles'][k]['inferred']:.1f} %" if k in n["into_styles"] else "" for k in ps) + " |")
+        lines.append("")
+    return "\n".join(lines) + "\n"

@@ -1,0 +1,58 @@
+"""The recipe table and trade-off plot (issue 16) and the ablation table with spreads, from
+figures of the shape `evaluate_model` and `runtime_transfers` return."""
+
+import numpy as np
+
+from styleerd.eval.ablations import ABLATIONS, markdown as ablation_markdown
+from styleerd.eval.recipes import markdown, neutralisation, per_style, tradeoff_plot
+
+STYLES = ("active", "elderly", "normal")
+
+
+def quality(scale: float) -> dict:
+    return {
+        "transfers": 300, "sra": 0.98, "cra": 0.9 * scale, "content_ceiling": 0.95, "fmd": 0.05, "fmd_floor": 0.02, "fmd_over_floor": 2.5,
+        "spread": {"sra": 0.004, "cra": 0.01, "fmd": 0.003},
+        "fmd_per_style": {s: 0.05 * (k + 1) for k, s in enumerate(STYLES)}, "fmd_floor_per_style": {s: 0.02 for s in STYLES},
+        "cra_per_style": {s: 0.9 * scale for s in STYLES}, "content_ceiling_per_style": {s: 0.95 for s in STYLES},
+        "sra_per_style": {s: 0.98 for s in STYLES}, "rec_deg": 7.0, "jitter_ratio": 2.0, "sra_first_10": 0.9, "fmd_first_10": 0.05,
+    }  # fmt: skip
+
+
+def streamed() -> dict:
+    def cell(given, inferred):
+        return {"given": {"sra": given, "cra": 0.9}, "inferred": {"sra": inferred, "cra": 0.9}, "windows": 10}
+
+    return {"transfers": {"active": {"normal": cell(0.9, 0.8)}, "elderly": {"normal": cell(0.7, 0.6)}, "normal": {"active": cell(1.0, 1.0), "elderly": cell(0.9, 0.9)}}}
+
+
+def test_per_style_ratios_and_neutralisation_summary():
+    ps = per_style(quality(1.0))
+    assert ps["elderly"] == {"fmd_over_floor": 5.0, "cra_of_ceiling": round(0.9 / 0.95, 4)}
+    n = neutralisation(streamed(), "normal")
+    assert n["to_neutral"] == {"active": {"given": 0.9, "inferred": 0.8}, "elderly": {"given": 0.7, "inferred": 0.6}}
+    assert n["to_neutral_mean"] == {"given": 0.8, "inferred": 0.7} and n["into_styles_mean"] == {"given": 0.95, "inferred": 0.95}
+
+
+def test_recipe_table_and_tradeoff_plot(tmp_path):
+    rows = {
+        name: {"model": name, "config": name, "minutes": 40.0, "steps": 1000, "quality": quality(s), "per_style": per_style(quality(s)), "neutralisation": neutralisation(streamed(), "normal")}
+        for name, s in (("shipped", 1.0), ("older", 0.95), ("ablation: rec only", 0.9))
+    }  # fmt: skip
+    text = markdown(rows)
+    assert "| shipped | shipped | 40.0 | 1000 | 2.50 (± 0.15) | 94.7 % (± 1.1) |" in text
+    assert "| back to neutral | 90.0 / 80.0 % | 70.0 / 60.0 % |  |" in text
+    assert "**ablation: rec only** per target style" not in text  # ablations: one row each, no per-style table
+    tradeoff_plot(rows, tmp_path / "t.png")
+    from PIL import Image
+
+    img = np.asarray(Image.open(tmp_path / "t.png").convert("L"))
+    assert img.shape[1] > 1000 and (img < 128).mean() > 0.01  # drawn: axes, points, labels
+
+
+def test_ablation_table_with_spreads_orders_only_models_at_the_budget():
+    rows = {name: {"epochs": 40 if k < 3 else 14, **quality(1.0), "fmd": 0.05 + 0.01 * k} for k, name in enumerate(ABLATIONS)}
+    text = ablation_markdown(rows, 40)
+    assert "| full | 40 | 0.050 ± 0.003 |" in text
+    assert "Ordering by FMD here (models at the full budget): full < rec only < rec + adv." in text
+    assert "Ordering in the paper (the same models): full < rec + adv < rec only." in text
