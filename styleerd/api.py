@@ -123,11 +123,13 @@ class Model:
         cleanup: bool = True,
         backend: str = "numpy",
         parts: str | dict | None = None,
+        root_speed: bool = False,
     ) -> Motion:
         """A whole motion (a ``Motion`` or a BVH/glTF/GLB/VRM file) in the target style, on its
         own skeleton, same frames and fps; also written to ``output`` (.bvh, .glb, .vrm) when
-        given (atomically: nothing is written unless the transfer succeeded)."""
-        options = TransferOptions(self.target(style, intensity, mix), input_style, content, joint_map, cleanup, backend, parts=part_targets(self.weights, parts) or None)
+        given (atomically: nothing is written unless the transfer succeeded). ``root_speed``:
+        the root's ground speed in the target style too (else the input's root path)."""
+        options = TransferOptions(self.target(style, intensity, mix), input_style, content, joint_map, cleanup, backend, parts=part_targets(self.weights, parts) or None, root_speed=root_speed)
         if output is not None and not isinstance(source, Motion):
             transfer_file(source, output, self.weights, self.fps, options)
             return read_motion(output)

@@ -99,7 +99,7 @@ def _transfer(args: argparse.Namespace) -> None:
     target = target_weights(model, args.style, args.intensity, _parse_mix(args.mix) if args.mix else None)
     explicit = _read_joint_map(args.joint_map) if args.joint_map else None
     parts = part_targets(model, args.parts)  # checked once here, not once per file
-    options = TransferOptions(target, args.input_style, args.content, explicit, not args.no_cleanup, args.backend, args.mesh, parts or None)
+    options = TransferOptions(target, args.input_style, args.content, explicit, not args.no_cleanup, args.backend, args.mesh, parts or None, args.root_speed)
     out = Path(args.output)
     into_folder = len(args.input) > 1 or Path(args.input[0]).is_dir() or out.is_dir() or args.output.endswith(os.sep)
     if not into_folder:
@@ -474,6 +474,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--content", help="the input's content, e.g. walk (default: inferred online)")
     p.add_argument("--backend", default="numpy", choices=["torch", "numpy", "numba", "onnx", "onnx-plain"], help="network step backend (default numpy; torch is the reference; numba is the fastest)")
     p.add_argument("--no-cleanup", action="store_true", help="leave the feet as the network outputs them (default: pin planted feet)")
+    p.add_argument("--root-speed", action="store_true", help="the root's ground speed in the target style too (from the network; default: the input's root path as it is)")
     p.add_argument("--joint-map", help="JSON object {model joint: input joint} completing or overriding the automatic mapping")
     p.add_argument("--model", help=MODEL_HELP)
     p.add_argument("-o", "--output", required=True, help="OUT.bvh (the input's skeleton and channel layout), OUT.glb, OUT.fbx, or from a glTF input OUT.glb/.vrm (the input file, animation replaced); a folder for several inputs")

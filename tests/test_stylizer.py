@@ -173,3 +173,48 @@ def test_labels_not_given_are_inferred_causally_and_given_labels_win(model):
     with pytest.raises(StyleERDError, match="labeller does not fit"):
         StreamStylizer(model, None, None, {"old": 1.0}, labeller=OnlineLabeller(5, 3, 2))
 
+
+
+def test_root_speed_scales_each_ground_step_by_the_networks_speed_online(model):
+    """``root_speed``: each frame's ground step of the input root is scaled by the network's
+    root speed over the input's (smoothed, clamped), height kept; checked against the torch
+    generator's velocity output on the whole clip's features. Off, the root is the input's."""
+    m = walking_motion(60)
+    f, _ = motion_features(m)
+    stats = model.stats()
+    x = torch.tensor(stats.normalize(f), dtype=torch.float32)[None]
+    eye_s, eye_c = torch.eye(len(STYLES)), torch.eye(len(CONTENTS))
+    with torch.no_grad():
+        _, vel, _ = model(x, eye_s[[1]], eye_c[[0]], eye_s[[2]])
+    root = model.layout.velocities.start
+    net = vel[0, :, :3].double().numpy() * stats.std[root : root + 3] + stats.mean[root : root + 3]
+    given = f[:, root : root + 3]
+    ratio, offset, expected = 1.0, np.zeros(3), []
+    leg = StreamStylizer(model, "normal", "walk", {"old": 1.0}).roles.leg_length
+    for t in range(60):
+        s_in, s_net = np.hypot(given[t, 0], given[t, 2]), np.hypot(net[t, 0], net[t, 2])
+        ratio = 0.7 * ratio + 0.3 * (np.clip(s_net / s_in, 0.4, 2.5) if s_in > 0.05 * leg else 1.0)
+        if t:
+            step = m.positions[t, 0] - m.positions[t - 1, 0]
+            offset += (ratio - 1) * np.array([step[0], 0.0, step[2]])
+        expected.append(m.positions[t, 0] + offset)
+    on, off = StreamStylizer(model, "normal", "walk", {"old": 1.0}, root_speed=True), StreamStylizer(model, "normal", "walk", {"old": 1.0})
+    for t in range(60):
+        r_on, p_on = on.step(m.rotations[t], m.positions[t])
+        r_off, p_off = off.step(m.rotations[t], m.positions[t])
+        assert np.array_equal(r_on, r_off) and np.array_equal(p_off[0], m.positions[t])  # poses unchanged; off: the input's root
+        assert np.allclose(p_on[0, 0], expected[t], atol=1e-4), t
+        assert p_on[0, 0, 1] == m.positions[t, 0, 1] and np.array_equal(p_on[0, 1:], m.positions[t, 1:])
+    assert np.abs(np.array(expected) - m.positions[:, 0]).max() > 0.1  # the random network's speed is not the input's
+
+
+def test_root_speed_is_causal(model):
+    m = walking_motion(40)
+    m2 = Motion(m.skeleton, m.rotations.copy(), m.positions.copy(), m.fps)
+    m2.positions[25:, 0] += np.array([30.0, 0.0, 50.0])  # a future jump of the root
+    m2.rotations[25:, 3] = quat.mul(m2.rotations[25:, 3], quat.from_angle_axis(np.array([0.8]), np.array([1.0, 0, 0])))
+    a, b = StreamStylizer(model, "normal", "walk", {"old": 1.0}, root_speed=True), StreamStylizer(model, "normal", "walk", {"old": 1.0}, root_speed=True)
+    for t in range(25):
+        ra, pa = a.step(m.rotations[t], m.positions[t])
+        rb, pb = b.step(m2.rotations[t], m2.positions[t])
+        assert np.array_equal(ra, rb) and np.array_equal(pa, pb)

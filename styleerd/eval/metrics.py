@@ -326,21 +326,22 @@ def runtime_report(model: StyleERD, labeller, data_dir: str | None = None, frame
 
 
 def _played_channels(model: StyleERD, rotations: np.ndarray, positions: np.ndarray, fps: float) -> torch.Tensor:
-    """Normalised [rotations | positions | velocities] of output frames as they play (output
-    joint rotations on the input's root path), ``[T, 10J]``."""
+    """Normalised [rotations | positions | velocities] of output frames as they play (the
+    stylizer's output rotations and root path), ``[T, 10J]``."""
     feats, _ = motion_features(Motion(model.skeleton, rotations, positions, fps))
     return torch.from_numpy(model.stats().normalize(feats)[:, : 10 * model.config.n_joints].astype(np.float32))
 
 
 @torch.no_grad()
 def runtime_transfers(model: StyleERD, labeller, style_rec, content_rec, data_dir: str | None = None, dataset: str = "bandai-namco-2",
-                      window: int = 24, stride: int = 12, split: str = "test") -> dict:  # fmt: skip
+                      window: int = 24, stride: int = 12, split: str = "test", root_speed: bool = False) -> dict:  # fmt: skip
     """Every ``split`` clip streamed frame by frame through ``StreamStylizer`` (what
     ``transfer`` runs): styled clips back to neutral, neutral clips into every other style;
     each with its labels given and with its labels inferred online by ``labeller``. The
     output as it plays is cut into ``window``-frame windows every ``stride`` frames and read
     by the recognisers. Returns, per source style and target style, {"given": {sra, cra},
-    "inferred": {sra, cra}, "windows": n}; also the labeller's style read at each clip's end."""
+    "inferred": {sra, cra}, "windows": n}; also the labeller's style read at each clip's end.
+    ``root_speed``: the stylizer's option (the root's ground speed from the network)."""
     fs, c = prepare(dataset, data_dir, progress=False), model.config
     neutral = c.neutral_style
     hits: dict[tuple[str, str], np.ndarray] = {}  # (source, target) -> [given s, given c, inferred s, inferred c, windows]
@@ -353,15 +354,16 @@ def runtime_transfers(model: StyleERD, labeller, style_rec, content_rec, data_di
         style, content = str(fs.styles[clip]), str(fs.contents[clip])
         targets = [t for t in c.input_styles if t != neutral] if style == neutral else [neutral]
         n = len(targets)
-        st = StreamStylizer(model, [style] * n + [None] * n, [content] * n + [None] * n, [{t: 1.0} for t in targets * 2], n_streams=2 * n, labeller=labeller)
+        st = StreamStylizer(model, [style] * n + [None] * n, [content] * n + [None] * n, [{t: 1.0} for t in targets * 2], n_streams=2 * n, labeller=labeller, root_speed=root_speed)
         rot = np.empty((2 * n, motion.n_frames, c.n_joints, 4))
+        pos = np.empty((2 * n, motion.n_frames, c.n_joints, 3))
         for t in range(motion.n_frames):
-            rot[:, t], _ = st.step(np.broadcast_to(motion.rotations[t], rot[:, t].shape), np.broadcast_to(motion.positions[t], (2 * n, c.n_joints, 3)))
+            rot[:, t], pos[:, t] = st.step(np.broadcast_to(motion.rotations[t], rot[:, t].shape), np.broadcast_to(motion.positions[t], pos[:, t].shape))
         label = st.inferred_labels()[n][0]
         read_as.setdefault(style, {})[label] = read_as.setdefault(style, {}).get(label, 0) + 1
         starts = np.arange(0, motion.n_frames - window + 1, stride)
         for k in range(2 * n):
-            ch = _played_channels(model, rot[k], motion.positions, fs.params.fps)
+            ch = _played_channels(model, rot[k], pos[k], fs.params.fps)
             w = torch.stack([ch[a : a + window] for a in starts])
             target = targets[k % n]
             ok_s = int((style_rec(w).argmax(-1).numpy() == c.styles.index(target)).sum())

@@ -61,6 +61,7 @@ class TransferOptions:
     backend: str = "numpy"
     mesh: bool = False
     parts: str | dict | None = None  # body parts with their own target (``stylizer.part_targets``)
+    root_speed: bool = False  # the root's ground speed from the network (``StreamStylizer``), not the input's
 
 
 @dataclass
@@ -86,7 +87,7 @@ def _stylised_stream(
     jm = map_skeleton(header.skeleton, model, o.explicit_map, str(header.path), first_pose)
     if report:
         report(f"joint mapping (model <- input):\n{jm.describe()}")
-    stylizer = StreamStylizer(model, o.input_style, o.content, o.target, fps=fps, backend=o.backend, parts=o.parts)
+    stylizer = StreamStylizer(model, o.input_style, o.content, o.target, fps=fps, backend=o.backend, parts=o.parts, root_speed=o.root_speed)
     lock = FootLock(header.skeleton, 1, header.fps, legs=jm.source_legs()) if o.cleanup else None
     return _checked(_stylised_rows(header, itertools.chain([first], chunks), jm, stylizer, lock, fps), header.path), stylizer
 
@@ -235,13 +236,16 @@ def _stylised_rows(header: bvh.Header, chunks: Iterator[np.ndarray], jm: JointMa
             src[i] = (on_model.rotations[r], on_model.positions[r], motion[r : r + 1])
             while j < J and (model_input(j)[0] + (0 if same or T == 1 else 1)) <= i:
                 rot, pos = mix(src, *model_input(j))
-                styled, _ = stylizer.step(rot[None], pos[None])
-                out[j] = (styled[0], pos)
+                styled, styled_pos = stylizer.step(rot[None], pos[None])
+                out[j] = (styled[0], pos, styled_pos[0, 0] - pos[0])  # and the root's move by its stylised speed (model units)
                 j += 1
             while k < T and (model_output(k)[0] + (0 if same or J == 1 else 1)) < j and k <= i:
-                rot, pos = mix(out, *model_output(k))
+                i0, w = model_output(k)
+                rot, pos = mix(out, i0, w)
                 frame = src[k][2]
                 back = to_source(Motion(jm.target, rot[None], pos[None], fs), jm, frame)
+                if stylizer.root_speed:
+                    back.positions[0, 0] += (out[i0][2] if w == 0.0 else (1 - w) * out[i0][2] + w * out[i0 + 1][2]) / jm.scale
                 if lock is not None:
                     back.rotations = lock.step(back.rotations, back.positions, frame.rotations, frame.positions)
                 rows.append(bvh.channel_values(back)[0])

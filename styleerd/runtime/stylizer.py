@@ -23,7 +23,7 @@ from functools import cache
 import numba as nb
 import numpy as np
 
-from styleerd.data.features import stream_features
+from styleerd.data.features import FeatureLayout, stream_features
 from styleerd.errors import StyleERDError
 from styleerd.model.stored import GeneratorWeights, LabellerWeights, generator_weights, labeller_stem, labeller_weights, load_labeller_weights, toward_neutral
 from styleerd.motion import quat
@@ -163,6 +163,7 @@ class StreamStylizer:
         backend: str = "numpy",
         threads: int = 1,
         parts: str | dict | None = None,
+        root_speed: bool = False,
     ):
         self.model = model = generator_weights(model)  # a torch StyleERD is read as its arrays
         # body parts with their own target (``part_targets``): one more network pass per
@@ -205,6 +206,11 @@ class StreamStylizer:
         self.facing = np.zeros((n_streams, 3))  # facing direction of the last frame
         self.started = np.zeros(n_streams, bool)
         self.labels = (np.zeros((n_streams, I), np.float32), np.zeros((n_streams, C), np.float32))  # used last frame
+        # root speed from the network (``root_speed``): the input's path, each frame's ground
+        # step scaled by the network's root speed over the input's; the offset it makes
+        self.root_speed = root_speed
+        self.root_offset = np.zeros((n_streams, 3))
+        self.speed_ratio = np.ones(n_streams)
         self.configure(np.arange(n_streams), input_style, content, target)
 
     def configure(self, streams, input_style, content, target) -> None:
@@ -237,6 +243,7 @@ class StreamStylizer:
         rows = slice(None) if streams is None else np.asarray(streams, dtype=int)
         self.backend.reset(rows if streams is None else np.concatenate([rows + p * self.n for p in range(1 + len(self.part_passes))]))
         self.started[rows] = False
+        self.root_offset[rows], self.speed_ratio[rows] = 0.0, 1.0
         if self.labeller is not None:
             self.labeller.reset(rows)
 
@@ -272,7 +279,7 @@ class StreamStylizer:
         if not (rows is None and self.threads > 1 and n >= SHARD_FROM):
             features = self._features(rotations, positions, sel)
             self._refuse_unless(features[4], sel, rotations, positions)
-            return self._advance(sel, features, self.current_weights(), rotations), positions
+            return self._advance(sel, features, self.current_weights(), rotations, positions)
         # shards of streams, one per thread; BLAS gets one thread per call (two callers each
         # asking BLAS for both cores spin against each other)
         if self._pool is None:
@@ -283,7 +290,8 @@ class StreamStylizer:
             for s, f in zip(shards, features):  # every shard is checked before any state changes
                 self._refuse_unless(f[4], s, rotations[s], positions[s])
             weights = self.current_weights()
-            return np.concatenate(list(self._pool.map(lambda s, f: self._advance(s, f, weights, rotations[s]), shards, features))), positions
+            done = list(self._pool.map(lambda s, f: self._advance(s, f, weights, rotations[s], positions[s]), shards, features))
+            return np.concatenate([r for r, _ in done]), np.concatenate([p for _, p in done])
 
     def _refuse_unless(self, ok: np.ndarray, sel, rotations: np.ndarray, positions: np.ndarray) -> None:
         """Raise for the first stream of ``sel`` whose frame cannot be stylised (``ok`` False:
@@ -307,20 +315,43 @@ class StreamStylizer:
             return slice(p * self.n + start, p * self.n + stop)
         return sel + p * self.n
 
-    def _network(self, sel, x, style, content, weights: np.ndarray) -> np.ndarray:
-        """The network's rotations for the streams ``sel``: one pass, or with body parts of
-        their own target, each joint from its part's pass."""
+    def _network(self, sel, x, style, content, weights: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The network's rotations and (normalised) velocities for the streams ``sel``: one
+        pass, or with body parts of their own target, each joint's rotation from its part's
+        pass (velocities from the stylizer's target)."""
         if not self.part_passes:
-            return self.backend.step(x, style, content, weights, None if sel is _ALL else sel)[0]
-        rot = self.backend.step(x, style, content, weights, self._pass_rows(sel, 0))[0].copy()
+            return self.backend.step(x, style, content, weights, None if sel is _ALL else sel)
+        rot, vel = self.backend.step(x, style, content, weights, self._pass_rows(sel, 0))
+        rot = rot.copy()
         for p, w in enumerate(self.part_passes, 1):
             joints = self.joint_pass == p
             rot[:, joints] = self.backend.step(x, style, content, np.broadcast_to(w, weights.shape), self._pass_rows(sel, p))[0][:, joints]
-        return rot
+        return rot, vel
 
-    def _advance(self, sel, features, weights: np.ndarray, rotations: np.ndarray) -> np.ndarray:
+    def _stylised_root(self, sel, x: np.ndarray, velocities: np.ndarray, positions: np.ndarray) -> np.ndarray:
+        """``positions`` with the root moved by the offset the root speed makes: each frame's
+        ground step of the input root is scaled by the network's root speed over the
+        input's (both in the features' units per second, heading frame), smoothed over a few
+        frames and kept within [1/2.5, 2.5]; standing still (under 5 % of a leg length per
+        second) keeps the input's step."""
+        root = FeatureLayout(self.skeleton.n_joints).velocities.start  # the velocities' first joint is the root
+        mean, std = self.stats.mean[root : root + 3], self.stats.std[root : root + 3]
+        net = velocities[:, :3] * std + mean
+        given = x[:, root : root + 3] * std + mean
+        s_net, s_in = np.hypot(net[:, 0], net[:, 2]), np.hypot(given[:, 0], given[:, 2])
+        moving = s_in > 0.05 * self.roles.leg_length
+        ratio = np.where(moving, np.clip(s_net / np.maximum(s_in, 1e-9), 0.4, 2.5), 1.0)
+        self.speed_ratio[sel] = 0.7 * self.speed_ratio[sel] + 0.3 * ratio
+        step = np.where(self.started[sel, None], positions[:, 0] - self.previous[sel, 0], 0.0)
+        step[:, 1] = 0.0  # height stays the input's
+        self.root_offset[sel] += (self.speed_ratio[sel, None] - 1.0) * step
+        out = positions.copy()
+        out[:, 0] += self.root_offset[sel]
+        return out
+
+    def _advance(self, sel, features, weights: np.ndarray, rotations: np.ndarray, positions: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """The network and the state updates of the streams ``sel`` (``_ALL``: all), whose
-        input frame is ``rotations``."""
+        input frame is ``rotations``, ``positions``; returns the output frame."""
         x, traj, g, facing, _ = features
         rows = None if sel is _ALL else sel
         style, content = self.given_style[sel], self.given_content[sel]
@@ -329,7 +360,9 @@ class StreamStylizer:
             p_style = toward_neutral(p_style, self.neutral)
             style = np.where(self.known_style[sel, None], style, p_style)
             content = np.where(self.known_content[sel, None], content, p_content)
-        rot = self._network(sel, x, style, content, weights[sel])
+        rot, vel = self._network(sel, x, style, content, weights[sel])
+        if self.root_speed:
+            positions = self._stylised_root(sel, x, vel, positions)
         out = np.empty(rot.shape)
         _root_on_heading(np.ascontiguousarray(rot), traj, out)
         if len(self.input_joints):  # parts that keep the input's own motion
@@ -339,7 +372,7 @@ class StreamStylizer:
         self.previous[sel], self.facing[sel], self.started[sel] = g, facing, True
         self.labels[0][sel], self.labels[1][sel] = style, content
         self.blend.frame[sel] += 1
-        return out
+        return out, positions
 
 
 @cache
