@@ -14,11 +14,14 @@ part, the step and epoch time of each recipe and their ratio.
 from __future__ import annotations
 
 import argparse
+import json
 import time
+from pathlib import Path
 
 import numpy as np
 import torch
 
+from styleerd.atomic import atomic_write_text
 from styleerd.model.classifiers import WindowClassifier
 from styleerd.model.discriminator import Discriminator
 from styleerd.train import losses
@@ -35,6 +38,7 @@ def main() -> None:
     ap.add_argument("--threads", type=int, default=2)
     ap.add_argument("--before", default="configs/bandai2-content.yaml")
     ap.add_argument("--after", default="configs/bandai2-fast.yaml")
+    ap.add_argument("--json", help="also write the figures to this JSON file")
     args = ap.parse_args()
     torch.set_num_threads(args.threads)
     recipes = {"before": TrainConfig.from_yaml(args.before, batch_size=args.batch), "after": TrainConfig.from_yaml(args.after, batch_size=args.batch)}
@@ -97,15 +101,19 @@ def main() -> None:
             step(name, config)
     steps = len(s.train.starts) // B
     print(f"batch {B}, {args.threads} threads, median of {args.steps} steps, recipes alternating step by step")
-    total = {}
+    total, report = {}, {"batch": B, "threads": args.threads, "steps": args.steps, "steps_per_epoch": steps}
     for name, times in parts.items():
         med = {k: float(np.median(v[3:])) * 1000 for k, v in times.items()}
         total[name] = sum(v for k, v in med.items() if k != R1) + med[R1] / 4
+        report[name] = {"config": getattr(args, name), "parts_ms": {k: round(v, 2) for k, v in med.items()}, "step_ms": round(total[name], 2)}
         print(f"{name}: {getattr(args, name)}")
         for k, v in med.items():
             print(f"  {k:38s} {v:7.2f} ms")
         print(f"  {'step (R1 amortised)':38s} {total[name]:7.2f} ms -> {steps} steps/epoch, {steps * total[name] / 1000:.1f} s/epoch")
     print(f"after / before step time: {total['after'] / total['before']:.3f} ({total['before'] / total['after']:.2f}x the steps per minute)")
+    if args.json:
+        report["speedup"] = round(total["before"] / total["after"], 3)
+        atomic_write_text(Path(args.json), json.dumps(report, indent=1) + "\n")
 
 
 if __name__ == "__main__":

@@ -226,7 +226,7 @@ def _eval_streamed(args: argparse.Namespace) -> None:
         check_output(args.json)
     model, _ = ckpt.load_generator(args.model)
     style_rec, content_rec, _ = ckpt.load_recognisers()
-    report = runtime_transfers(model, ckpt.load_labeller()[0], style_rec, content_rec, args.data)
+    report = runtime_transfers(model, ckpt.load_labeller()[0], style_rec, content_rec, args.data, root_speed=args.root_speed)
     report["summary"] = neutralisation(report, model.config.neutral_style)
     print(json.dumps(report, indent=1))
     if args.json:
@@ -514,6 +514,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.set_defaults(func=_eval_quality)
     p = ev.add_parser("streamed", help="whole test clips streamed as `transfer` runs them: styled -> neutral, neutral -> each style, labels given and inferred, judged as played")
     p.add_argument("--model", help=MODEL_HELP)
+    p.add_argument("--root-speed", action="store_true", help="stream with the root's speed stylised (transfer --root-speed)")
     p.add_argument("--json", help="also write the figures to this JSON file")
     p.add_argument("--data", help="data folder")
     p.set_defaults(func=_eval_streamed)

@@ -36,12 +36,12 @@ def test_per_style_ratios_and_neutralisation_summary():
 
 def test_recipe_table_and_tradeoff_plot(tmp_path):
     rows = {
-        name: {"model": name, "config": name, "minutes": 40.0, "steps": 1000, "quality": quality(s), "per_style": per_style(quality(s)), "neutralisation": neutralisation(streamed(), "normal")}
+        name: {"model": name, "config": name, "minutes": 40.0, "steps": 1000, "quality": quality(s), "per_style": per_style(quality(s)), "neutralisation": neutralisation(streamed(), "normal"), "neutralisation_root_speed": neutralisation(streamed(), "normal")}
         for name, s in (("shipped", 1.0), ("older", 0.95), ("ablation: rec only", 0.9))
     }  # fmt: skip
     text = markdown(rows)
     assert "| shipped | shipped | 40.0 | 1000 | 2.50 (± 0.15) | 94.7 % (± 1.1) |" in text
-    assert "| back to neutral | 90.0 / 80.0 % | 70.0 / 60.0 % |  |" in text
+    assert "| back to neutral | 90.0 / 80.0 % | 70.0 / 60.0 % |  |" in text and "| into the style, --root-speed | 100.0 / 100.0 % | 90.0 / 90.0 % |  |" in text
     assert "**ablation: rec only** per target style" not in text  # ablations: one row each, no per-style table
     tradeoff_plot(rows, tmp_path / "t.png")
     from PIL import Image
@@ -56,3 +56,20 @@ def test_ablation_table_with_spreads_orders_only_models_at_the_budget():
     assert "| full | 40 | 0.050 ± 0.003 |" in text
     assert "Ordering by FMD here (models at the full budget): full < rec only < rec + adv." in text
     assert "Ordering in the paper (the same models): full < rec + adv < rec only." in text
+    assert "- full 0.050 ± 0.003 vs rec only 0.060 ± 0.003: holds." in text and "- full 0.050 ± 0.003 vs rec + adv 0.070 ± 0.003: holds." in text
+
+
+def test_results_section_from_the_recipe_table_and_the_step_timing(tmp_path):
+    import json
+
+    from styleerd.eval.report import recipes_section
+
+    assert recipes_section(tmp_path) == ""  # nothing measured yet: no section
+    (tmp_path / "recipes.md").write_text("| model | x |\n| --- | --- |\n| shipped | 1 |\n")
+    step = {"batch": 32, "threads": 2, "steps": 40, "steps_per_epoch": 406, "speedup": 1.67,
+            "before": {"config": "a.yaml", "parts_ms": {"generator forward (B + B)": 30.0, "cycle pass + loss": 40.0}, "step_ms": 300.0},
+            "after": {"config": "b.yaml", "parts_ms": {"generator forward (B + B)": 25.0}, "step_ms": 180.0}}  # fmt: skip
+    (tmp_path / "train-step.json").write_text(json.dumps(step))
+    text = recipes_section(tmp_path)
+    assert "| shipped | 1 |" in text and "(recipes.png)" in text
+    assert "| cycle pass + loss | 40.0 | 0.0 |" in text and "| step (R1 amortised) | 300.0 | 180.0 |" in text and "1.67 x the steps per minute" in text

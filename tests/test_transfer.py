@@ -261,3 +261,41 @@ def test_slots_stepped_apart_equal_independent_streams(model, backend):
         for i, r in enumerate(rows):
             assert np.abs(out[i] - singles[r].step(values[frame[r]])[0]).max() < 1e-3, (step, r)  # degrees
             frame[r] = (frame[r] + 1) % len(values)
+
+
+@pytest.mark.parametrize("fps", [30.0, 60.0])
+def test_root_speed_gives_an_elderly_walk_the_normal_pace_with_feet_planted(shared_data, model, tmp_path, fps):
+    """`transfer --root-speed`: a real elderly test walk taken to normal covers ground at a
+    normal walker's pace (elderly performers walk at about 0.7 of it), on the input's heading
+    and height, with planted feet kept planted by the cleanup; at the model's rate and at 60 fps."""
+    from styleerd.data.windows import split_takes
+    from styleerd.eval.metrics import foot_skate
+    from styleerd.motion.kinematics import foot_contacts
+    from styleerd.motion.skeleton import BodyRoles
+
+    clips = find_clips(shared_data, "bandai-namco-2")
+    split = split_takes({c.name: (c.dataset, c.style, c.content) for c in clips})
+    clip = next(c for c in clips if split[c.name] == "test" and c.style == "elderly" and c.content == "walk")
+    src = resample(bvh.read(clip.path), fps)
+    bvh.write(tmp_path / "in.bvh", src)
+    done = subprocess.run([sys.executable, "-m", "styleerd.cli", "transfer", tmp_path / "in.bvh", "--style", "normal", "--root-speed", "-o", tmp_path / "out.bvh"], capture_output=True, text=True, timeout=300)
+    assert done.returncode == 0, done.stderr
+    out = bvh.read(tmp_path / "out.bvh")
+    assert out.n_frames == src.n_frames and out.skeleton == src.skeleton
+    g_in, g_out = world(src), world(out)
+    hips = 1  # joint 0 is the reference node above the hips
+    step_in, step_out = np.diff(g_in[:, hips][:, [0, 2]], axis=0), np.diff(g_out[:, hips][:, [0, 2]], axis=0)
+    ratio = np.linalg.norm(step_out, axis=-1).sum() / np.linalg.norm(step_in, axis=-1).sum()
+    print(f"{fps} fps: ground covered {ratio:.3f} x the input's")
+    assert 1.2 < ratio < 2.0
+    moving = np.linalg.norm(step_in, axis=-1) > 1e-3
+    cos = (step_in * step_out).sum(-1)[moving] / (np.linalg.norm(step_in, axis=-1) * np.linalg.norm(step_out, axis=-1))[moving]
+    assert cos.mean() > 0.99  # the input's heading
+    assert np.allclose(g_out[:, hips, 1], g_in[:, hips, 1], atol=1e-3)  # and height
+    roles = BodyRoles.of(src.skeleton)
+    ankles = (roles.feet[0], roles.feet[2])
+    previous = np.concatenate([g_in[:1], g_in[:-1]])
+    planted = foot_contacts(g_in, previous, ankles, fps, 0.25 * roles.leg_length) > 0
+    skate_in, skate_out = foot_skate(g_in[None], ankles, planted[None]), foot_skate(g_out[None], ankles, planted[None])
+    print(f"foot skate on planted frames: input {skate_in:.3f}, output {skate_out:.3f} (units per frame)")
+    assert skate_out <= 2 * skate_in + 0.05

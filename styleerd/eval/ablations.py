@@ -125,6 +125,16 @@ def markdown(rows: dict, epochs: int) -> str:
         f"Ordering by FMD here (models at the full budget): {' < '.join(order)}.",
         f"Ordering in the paper (the same models): {' < '.join(paper_order)}.",
     ]
+    if "full" in at_budget:
+        lines += ["", "The paper's claim that the full model is the most realistic, ablation by ablation (FMD, ± one spread):"]
+        f = rows["full"]
+        for name in at_budget:
+            if name == "full":
+                continue
+            r = rows[name]
+            gap, spread_sum = r["fmd"] - f["fmd"], r["spread"]["fmd"] + f["spread"]["fmd"]
+            verdict = "holds" if gap > spread_sum else "does not hold" if gap < -spread_sum else "within the spread (undecided)"
+            lines.append(f"- full {f['fmd']:.3f} ± {f['spread']['fmd']:.3f} vs {name} {r['fmd']:.3f} ± {r['spread']['fmd']:.3f}: {verdict}.")
     if missing:
         lines.append(f"Not trained yet (`styleerd eval ablations` resumes them): {', '.join(missing)}.")
     return "\n".join(lines) + "\n"

@@ -241,19 +241,25 @@ def _streams(model: StyleERD, data_dir: str | None, frames: int):
     return rot, pos, styles, contents, targets
 
 
-def _run(model: StyleERD, rot, pos, styles, contents, targets, switch: dict | None = None, blend_frames: int = 8, cleanup: bool = False):
-    """Stream every clip at once; returns output local rotations [N, T, J, 4]."""
+def _run(model: StyleERD, rot, pos, styles, contents, targets, switch: dict | None = None, blend_frames: int = 8, cleanup: bool = False, root_speed: bool = False):
+    """Stream every clip at once; returns output local rotations [N, T, J, 4] and positions
+    [N, T, J, 3] (the input's, or with ``root_speed`` the root moved)."""
     N, T = rot.shape[:2]
-    st = StreamStylizer(model, styles, contents, [{t: 1.0} for t in targets], n_streams=N, blend_frames=blend_frames)
+    st = StreamStylizer(model, styles, contents, [{t: 1.0} for t in targets], n_streams=N, blend_frames=blend_frames, root_speed=root_speed)
     lock = FootLock(model.skeleton, N) if cleanup else None
-    out = np.empty_like(rot)
+    out, out_pos = np.empty_like(rot), np.empty_like(pos)
     for t in range(T):
         if switch and t == switch["frame"]:
             for k, target in enumerate(switch["targets"]):
                 st.set_target({target: 1.0}, [k])
-        r, _ = st.step(rot[:, t], pos[:, t])
-        out[:, t] = lock.step(r, pos[:, t], rot[:, t], pos[:, t]) if lock else r
-    return out
+        r, out_pos[:, t] = st.step(rot[:, t], pos[:, t])
+        out[:, t] = lock.step(r, out_pos[:, t], rot[:, t], pos[:, t]) if lock else r
+    return out, out_pos
+
+
+def _ground_speed(positions: np.ndarray) -> float:
+    """Mean horizontal root speed (units per frame) of positions ``[N, T, J, 3]``."""
+    return float(np.linalg.norm(np.diff(positions[:, :, 0][..., [0, 2]], axis=1), axis=-1).mean())
 
 
 def other_performer_labels(model: StyleERD, labeller, data_dir: str | None = None, after: tuple[int, ...] = (1, 10, 30)) -> dict[str, dict]:
@@ -287,20 +293,26 @@ def runtime_report(model: StyleERD, labeller, data_dir: str | None = None, frame
     roles = BodyRoles.of(sk)
     ankles = (roles.feet[0], roles.feet[2])
 
-    def world(r):
-        return forward_positions(r, pos, sk.parents)
+    def world(r, p=pos):
+        return forward_positions(r, p, sk.parents)
 
     g_in = world(rot)
     previous = np.concatenate([g_in[:, :1], g_in[:, :-1]], 1)
     planted = foot_contacts(g_in, previous, ankles, 30.0, 0.25 * roles.leg_length) > 0
-    raw = _run(model, rot, pos, styles, contents, targets)
-    cleaned = _run(model, rot, pos, styles, contents, targets, cleanup=True)
+    raw, _ = _run(model, rot, pos, styles, contents, targets)
+    cleaned, _ = _run(model, rot, pos, styles, contents, targets, cleanup=True)
+    raw_speed, p_speed = _run(model, rot, pos, styles, contents, targets, root_speed=True)
+    cleaned_speed, _ = _run(model, rot, pos, styles, contents, targets, cleanup=True, root_speed=True)
     report["foot_skate_cm_per_frame"] = {
         "streams": len(rot),
         "frames": frames,
         "input": round(foot_skate(g_in, ankles, planted), 4),
         "raw_output": round(foot_skate(world(raw), ankles, planted), 4),
         "cleaned_output": round(foot_skate(world(cleaned), ankles, planted), 4),
+        # with the root's speed stylised (``root_speed``): the feet follow the moved root
+        "raw_output_root_speed": round(foot_skate(world(raw_speed, p_speed), ankles, planted), 4),
+        "cleaned_output_root_speed": round(foot_skate(world(cleaned_speed, p_speed), ankles, planted), 4),
+        "root_speed_over_input": round(float(_ground_speed(p_speed) / _ground_speed(pos)), 3),
     }
     # switch every stream to another style halfway, blended and not; compare the largest joint
     # move per frame around the switch with the same frames of the stream that does not switch
@@ -315,7 +327,7 @@ def runtime_report(model: StyleERD, labeller, data_dir: str | None = None, frame
     steady = largest_move(world(raw))
     switch = {"frame": half, "blend_frames": blend_frames, "no_switch_cm": round(float(steady[:, window].max(1).mean()), 3)}
     for name, n in (("blended_cm", blend_frames), ("unblended_cm", 1)):
-        moved = largest_move(world(_run(model, rot, pos, styles, contents, targets, {"frame": half, "targets": new}, n)))
+        moved = largest_move(world(_run(model, rot, pos, styles, contents, targets, {"frame": half, "targets": new}, n)[0]))
         switch[name] = round(float(moved[:, window].max(1).mean()), 3)
     switch["normal_p99_cm"] = round(float(np.percentile(steady, 99)), 3)
     report["style_switch"] = switch

@@ -73,8 +73,9 @@ def recipe_table(data_dir: str | None = None, names: list[str] | None = None) ->
             "steps": training["best"].get("steps"),
             "quality": q,
             "per_style": per_style(q),
-            "neutralisation": neutralisation(runtime_transfers(model, labeller, style_rec, content_rec, data_dir), model.config.neutral_style),
-        }
+            **{key: neutralisation(runtime_transfers(model, labeller, style_rec, content_rec, data_dir, root_speed=speed), model.config.neutral_style)
+               for key, speed in (("neutralisation", False), ("neutralisation_root_speed", True))},
+        }  # fmt: skip
     return rows
 
 
@@ -117,30 +118,34 @@ def tradeoff_plot(rows: dict, path: Path) -> None:
 
 def markdown(rows: dict) -> str:
     lines = [
-        "| model | config | minutes | steps | FMD / floor | CRA / ceiling | SRA | worst style FMD / floor | worst style CRA / ceiling | back to neutral, given / inferred | into styles, given / inferred |",
-        "|" + " --- |" * 11,
+        "| model | config | minutes | steps | FMD / floor | CRA / ceiling | SRA | worst style FMD / floor | worst style CRA / ceiling "
+        "| back to neutral, given / inferred | into styles, given / inferred | the same with --root-speed |",
+        "|" + " --- |" * 12,
     ]
     for name, r in rows.items():
-        q, ps, n = r["quality"], r["per_style"], r["neutralisation"]
+        q, ps, n, ns = r["quality"], r["per_style"], r["neutralisation"], r["neutralisation_root_speed"]
         worst_f = max(ps, key=lambda k: ps[k]["fmd_over_floor"])
         worst_c = min(ps, key=lambda k: ps[k]["cra_of_ceiling"])
         lines.append(
             f"| {name} | {r['config']} | {r['minutes']} | {r['steps']} "
             f"| {q['fmd_over_floor']:.2f} (± {q['spread']['fmd'] / q['fmd_floor']:.2f}) | {100 * q['cra'] / q['content_ceiling']:.1f} % (± {100 * q['spread']['cra'] / q['content_ceiling']:.1f}) "
             f"| {100 * q['sra']:.1f} % | {worst_f} {ps[worst_f]['fmd_over_floor']:.2f} | {worst_c} {100 * ps[worst_c]['cra_of_ceiling']:.1f} % "
-            f"| {100 * n['to_neutral_mean']['given']:.1f} / {100 * n['to_neutral_mean']['inferred']:.1f} % | {100 * n['into_styles_mean']['given']:.1f} / {100 * n['into_styles_mean']['inferred']:.1f} % |"
+            f"| {100 * n['to_neutral_mean']['given']:.1f} / {100 * n['to_neutral_mean']['inferred']:.1f} % | {100 * n['into_styles_mean']['given']:.1f} / {100 * n['into_styles_mean']['inferred']:.1f} % "
+            f"| {100 * ns['to_neutral_mean']['given']:.1f} / {100 * ns['to_neutral_mean']['inferred']:.1f} %; {100 * ns['into_styles_mean']['given']:.1f} / {100 * ns['into_styles_mean']['inferred']:.1f} % |"
         )
     lines.append("")
     for name, r in rows.items():
         if name.startswith("ablation"):
             continue
-        ps, n = r["per_style"], r["neutralisation"]
-        lines += [f"**{name}** per target style (FMD / floor, CRA / ceiling) and back to neutral per source style (given / inferred):", ""]
+        ps = r["per_style"]
+        lines += [f"**{name}** per target style (FMD / floor, CRA / ceiling) and, labels given / inferred, back to neutral per source style and into each style:", ""]
         lines.append("| | " + " | ".join(ps) + " |")
         lines.append("|" + " --- |" * (len(ps) + 1))
         lines.append("| FMD / floor | " + " | ".join(f"{v['fmd_over_floor']:.2f}" for v in ps.values()) + " |")
         lines.append("| CRA / ceiling | " + " | ".join(f"{100 * v['cra_of_ceiling']:.1f} %" for v in ps.values()) + " |")
-        lines.append("| back to neutral | " + " | ".join(f"{100 * n['to_neutral'][k]['given']:.1f} / {100 * n['to_neutral'][k]['inferred']:.1f} %" if k in n["to_neutral"] else "" for k in ps) + " |")
-        lines.append("| into the style | " + " | ".join(f"{100 * n['into_styles'][k]['given']:.1f} / {100 * n['into_styles'][k]['inferred']:.1f} %" if k in n["into_styles"] else "" for k in ps) + " |")
+        for key, how in (("neutralisation", ""), ("neutralisation_root_speed", ", --root-speed")):
+            n = r[key]
+            for what, rows in ((f"back to neutral{how}", n["to_neutral"]), (f"into the style{how}", n["into_styles"])):
+                lines.append(f"| {what} | " + " | ".join(f"{100 * rows[k]['given']:.1f} / {100 * rows[k]['inferred']:.1f} %" if k in rows else "" for k in ps) + " |")
         lines.append("")
     return "\n".join(lines) + "\n"

@@ -102,6 +102,7 @@ split; every figure is printed by its own command as well (named in each section
 
 {online_section(runtime)}
 {rotations_section(rotations)}
+{recipes_section(docs)}
 {added_styles_section(docs)}
 ## Pictures
 
@@ -143,6 +144,48 @@ it never saw.
 | --- | --- |
 {xia}
 """
+
+
+def recipes_section(docs: Path) -> str:
+    """Issue 16's section: the recipes side by side (``styleerd eval recipes``: docs/recipes.*)
+    and the training step of two recipes timed side by side (``benchmarks/bench_train_step.py
+    --json docs/train-step.json``), where they exist."""
+    recipes, speed = docs / "recipes.md", docs / "train-step.json"
+    if not recipes.is_file():
+        return ""
+    text = """## Recipes side by side: realism per style, content, back to neutral (`styleerd eval recipes`)
+
+Every kept model (the shipped one, the recipes under `models/recipes/`, the ablations), judged
+by the same recognisers, labeller and FMD extractor on the test split. FMD / floor per target
+style: the transfers into the style against its real test windows, over the FMD of two halves
+of those real windows; CRA / ceiling per target style: content read on the transfers over
+content read on their inputs. Back to neutral / into styles: every test clip streamed frame by
+frame as `transfer` runs it (labels given / inferred online), the output cut into 24-frame
+windows as it plays and read by the style recogniser; with `--root-speed` the root moves at the
+network's pace. ± one standard deviation over 200 bootstrap resamples of the transfers.
+
+"""
+    text += recipes.read_text() + "\n![FMD against CRA, per recipe and per style](recipes.png)\n\n"
+    if speed.is_file():
+        r = json.loads(speed.read_text())
+        parts = list(r["before"]["parts_ms"]) + [k for k in r["after"]["parts_ms"] if k not in r["before"]["parts_ms"]]
+        rows = "\n".join(f"| {k} | {r['before']['parts_ms'].get(k, 0):.1f} | {r['after']['parts_ms'].get(k, 0):.1f} |" for k in parts)
+        text += f"""### A training step, two recipes side by side (`benchmarks/bench_train_step.py`)
+
+Steps of `{r['before']['config']}` and `{r['after']['config']}` alternate in one run (batch {r['batch']},
+{r['threads']} threads, median of {r['steps']} steps), so both see the same machine. Before: the batch's
+reconstruction and transfer run as one batch of 2B through the whole generator, and the cycle pass.
+After: their encoder and neutral branch run once (`StyleERD.forward_targets`), no cycle pass.
+
+| part (ms) | before | after |
+| --- | --- | --- |
+{rows}
+| step (R1 amortised) | {r['before']['step_ms']:.1f} | {r['after']['step_ms']:.1f} |
+
+{r['speedup']:.2f} x the steps per minute.
+
+"""
+    return text
 
 
 def added_styles_section(docs: Path) -> str:
