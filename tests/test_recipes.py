@@ -37,10 +37,12 @@ def test_per_style_ratios_and_neutralisation_summary():
 def test_recipe_table_and_tradeoff_plot(tmp_path):
     rows = {
         name: {"model": name, "config": name, "minutes": 40.0, "steps": 1000, "quality": quality(s), "per_style": per_style(quality(s)), "neutralisation": neutralisation(streamed(), "normal"), "neutralisation_root_speed": neutralisation(streamed(), "normal")}
-        for name, s in (("shipped", 1.0), ("older", 0.95), ("ablation: rec only", 0.9))
+        for name, s in (("shipped", 1.0), ("older", 0.95))
     }  # fmt: skip
+    rows["ablation: rec only"] = {"model": "a", "config": "a", "minutes": 40.0, "steps": 1000, "quality": quality(0.9), "per_style": per_style(quality(0.9))}
     text = markdown(rows)
-    assert "| shipped | shipped | 40.0 | 1000 | 2.50 (± 0.15) | 94.7 % (± 1.1) |" in text
+    assert "| shipped | shipped | 40.0 | 1000 | 2.50 (± 0.15) | 94.7 % (± 1.1) |" in text and "| 80.0 / 70.0 % | 95.0 / 95.0 % | 80.0 / 70.0 %; 95.0 / 95.0 % |" in text
+    assert "| ablation: rec only | a |" in text and text.split("| ablation: rec only |")[1].split("\n")[0].endswith("|  - | - | -  |")
     assert "| back to neutral | 90.0 / 80.0 % | 70.0 / 60.0 % |  |" in text and "| into the style, --root-speed | 100.0 / 100.0 % | 90.0 / 90.0 % |  |" in text
     assert "**ablation: rec only** per target style" not in text  # ablations: one row each, no per-style table
     tradeoff_plot(rows, tmp_path / "t.png")
