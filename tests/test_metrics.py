@@ -76,3 +76,19 @@ def test_streamed_transfers_back_to_neutral_and_into_styles(shared_data, tmp_pat
     # the labeller reads each source's style by the clip's end
     read = r["labeller_reads_input_as_at_end"]
     assert sum(v.get(k, 0) for k, v in read.items()) / sum(sum(v.values()) for v in read.values()) > 0.9
+
+
+@pytest.mark.slow
+def test_cleanup_removes_skate_and_blending_removes_the_pop(shared_data):
+    r = runtime_report(load_generator()[0], load_labeller()[0], str(shared_data))
+    print(r)
+    skate = r["foot_skate_cm_per_frame"]
+    assert skate["streams"] > 100
+    assert skate["cleaned_output"] < 0.2 * skate["raw_output"] and skate["cleaned_output"] <= 2 * skate["input"]
+    # the root's speed stylised (transfer --root-speed): the root moves at another pace, the
+    # cleanup still pins the planted feet where the moved body puts them
+    assert skate["root_speed_change"] > 0.1 and skate["root_speed_ratio_range"][0] < 0.9 < 1.1 < skate["root_speed_ratio_range"][1]
+    assert skate["cleaned_output_root_speed"] < 0.2 * skate["raw_output_root_speed"] and skate["cleaned_output_root_speed"] <= 2 * skate["input"]
+    sw = r["style_switch"]
+    assert sw["blended_cm"] < sw["unblended_cm"] and sw["blended_cm"] < sw["normal_p99_cm"]
+    assert r["labels"][30]["style"] >= 0.97

@@ -90,6 +90,12 @@ def test_cycle_and_content_losses_train_and_are_logged(shared_data, tmp_path):
         row = next(csv.DictReader(f))
     assert 0.0 < float(row["loss_cyc"]) < 100.0  # transfer and back, compared with the input
     assert 0.0 < float(row["loss_cls"]) < 10.0  # cross-entropy over the contents of the tiny set
+    # the lazy cycle (every 3rd step, weighted by 3) logs the mean over the steps that ran it
+    lazy = tmp_path / "lazy"
+    train(TrainConfig(**TINY, epochs=1, w_cyc=1.0, w_cls=0.5, cyc_every=3), lazy, progress=False)
+    with open(lazy / "metrics.csv", newline="") as f:
+        lazy_row = next(csv.DictReader(f))
+    assert 0.5 < float(lazy_row["loss_cyc"]) / float(row["loss_cyc"]) < 2.0
 
 
 def test_content_loss_ranks_the_true_content_first():

@@ -257,9 +257,9 @@ def _run(model: StyleERD, rot, pos, styles, contents, targets, switch: dict | No
     return out, out_pos
 
 
-def _ground_speed(positions: np.ndarray) -> float:
-    """Mean horizontal root speed (units per frame) of positions ``[N, T, J, 3]``."""
-    return float(np.linalg.norm(np.diff(positions[:, :, 0][..., [0, 2]], axis=1), axis=-1).mean())
+def _ground_speed(positions: np.ndarray) -> np.ndarray:
+    """Per stream, the mean horizontal root speed (units per frame) of positions ``[N, T, J, 3]``."""
+    return np.linalg.norm(np.diff(positions[:, :, 0][..., [0, 2]], axis=1), axis=-1).mean(1)
 
 
 def other_performer_labels(model: StyleERD, labeller, data_dir: str | None = None, after: tuple[int, ...] = (1, 10, 30)) -> dict[str, dict]:
@@ -302,6 +302,8 @@ def runtime_report(model: StyleERD, labeller, data_dir: str | None = None, frame
     raw, _ = _run(model, rot, pos, styles, contents, targets)
     cleaned, _ = _run(model, rot, pos, styles, contents, targets, cleanup=True)
     raw_speed, p_speed = _run(model, rot, pos, styles, contents, targets, root_speed=True)
+    moving = _ground_speed(pos) > 0.05 * roles.leg_length / 30.0
+    ratio = _ground_speed(p_speed)[moving] / _ground_speed(pos)[moving]
     cleaned_speed, _ = _run(model, rot, pos, styles, contents, targets, cleanup=True, root_speed=True)
     report["foot_skate_cm_per_frame"] = {
         "streams": len(rot),
@@ -312,7 +314,9 @@ def runtime_report(model: StyleERD, labeller, data_dir: str | None = None, frame
         # with the root's speed stylised (``root_speed``): the feet follow the moved root
         "raw_output_root_speed": round(foot_skate(world(raw_speed, p_speed), ankles, planted), 4),
         "cleaned_output_root_speed": round(foot_skate(world(cleaned_speed, p_speed), ankles, planted), 4),
-        "root_speed_over_input": round(float(_ground_speed(p_speed) / _ground_speed(pos)), 3),
+        # per stream, the ground its root covers over the input's (moving streams)
+        "root_speed_change": round(float(np.abs(np.log(ratio)).mean()), 3),  # mean |log ratio|
+        "root_speed_ratio_range": [round(float(ratio.min()), 3), round(float(ratio.max()), 3)],
     }
     # switch every stream to another style halfway, blended and not; compare the largest joint
     # move per frame around the switch with the same frames of the stream that does not switch

@@ -131,6 +131,7 @@ def online_section(runtime: dict) -> str:
 | the same, the labeller's own top label | {100 * raw[1]['style']:.1f} % / {100 * raw[10]['style']:.1f} % / {100 * raw[30]['style']:.1f} % |
 | the same (content) | {100 * labels[1]['content']:.1f} % / {100 * labels[10]['content']:.1f} % / {100 * labels[30]['content']:.1f} % |
 | foot skate while planted, cm/frame: input / raw output / cleaned output | {skate['input']:.3f} / {skate['raw_output']:.3f} / {skate['cleaned_output']:.3f} ({skate['streams']} streams x {skate['frames']} frames) |
+| the same with `--root-speed` (root pace over the input's per stream: {skate['root_speed_ratio_range'][0]:.2f} to {skate['root_speed_ratio_range'][1]:.2f}) | - / {skate['raw_output_root_speed']:.3f} / {skate['cleaned_output_root_speed']:.3f} |
 | largest joint move per frame around a style switch: no switch / blended over {switch['blend_frames']} frames / unblended (cm) | {switch['no_switch_cm']:.2f} / {switch['blended_cm']:.2f} / {switch['unblended_cm']:.2f} (p99 of normal motion {switch['normal_p99_cm']:.2f}) |
 
 The input style the encoder is told for each xia-sample clip (another performer, another

@@ -37,6 +37,7 @@ class TrainConfig:
     w_per: float = 0.1
     w_gp: float = 128.0
     w_cyc: float = 0.0  # cycle reconstruction (transfer and back), beyond the paper; 0 = off
+    cyc_every: int = 1  # lazy cycle: on every k-th step only, weighted by k (it is a third generator pass)
     w_cls: float = 0.0  # content cross-entropy of the perceptual classifier on transfers, beyond the paper; 0 = off
     r1_every: int = 4  # lazy R1: every k critic steps, weighted by k
     # optimisation

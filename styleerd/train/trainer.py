@@ -221,6 +221,7 @@ def train(config: TrainConfig, out: Path, data_dir: str | None = None, progress:
         G.train()
         D.train()
         sums: dict[str, float] = {}
+        counts: dict[str, int] = {}
         bar = tqdm(range(steps), desc=f"epoch {epoch + 1}/{config.epochs}", disable=not progress, leave=False)
         for step in bar:
             if config.balance_styles:
@@ -254,13 +255,13 @@ def train(config: TrainConfig, out: Path, data_dir: str | None = None, progress:
                 loss_cls = losses.content_classification(per_classifier, fake, torch.from_numpy(s.train.content[rows]).long())
                 loss_g = loss_g + config.w_cls * loss_cls
                 logs["cls"] = loss_cls.item()
-            if config.w_cyc:
+            if config.w_cyc and step % config.cyc_every == 0:
                 # the transfer taken back to the input's style must give the input again:
                 # whatever the style branch adds has to leave the content recoverable
                 back = torch.cat([fake, x[..., L.contacts]], -1)
                 rot_c, vel_c, _ = G(back, tgt, content, style)
                 loss_cyc = losses.reconstruction_loss(rot_c, rot_in, G.motion_channels(rot_c, vel_c), real, L)
-                loss_g = loss_g + config.w_cyc * loss_cyc
+                loss_g = loss_g + config.w_cyc * config.cyc_every * loss_cyc
                 logs["cyc"] = loss_cyc.item()
             opt_g.zero_grad(set_to_none=True)
             loss_g.backward()
@@ -281,14 +282,15 @@ def train(config: TrainConfig, out: Path, data_dir: str | None = None, progress:
                 loss_d.backward()
                 _average_gradients(list(D.parameters()))
                 opt_d.step()
-            for k, v in logs.items():
+            for k, v in logs.items():  # the mean of each loss over the steps that computed it
                 sums[k] = sums.get(k, 0.0) + v
+                counts[k] = counts.get(k, 0) + 1
             bar.set_postfix({k: f"{v:.3f}" for k, v in logs.items()})
         elapsed += time.perf_counter() - t0
 
         # ---- end of epoch: validate, log, checkpoint (main process only)
         row = {"epoch": epoch + 1, "steps": (epoch + 1) * steps, "minutes": round(elapsed / 60, 3)}
-        row.update({f"loss_{k}": round(v / max(1, steps), 5) for k, v in sums.items()})
+        row.update({f"loss_{k}": round(v / counts[k], 5) for k, v in sums.items()})
         if (epoch + 1) % config.val_every == 0 or epoch + 1 == config.epochs:
             row.update({k: round(v, 4) for k, v in validate(G, s.data, s.val, style_rec, content_rec).items()})
         if _is_main():
