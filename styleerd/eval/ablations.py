@@ -94,14 +94,14 @@ def ablation_table(data_dir: str | None = None) -> dict:
     for name in tqdm([n for n in ABLATIONS if trained(n)], desc="evaluating"):
         model, meta = ckpt.load_generator(model_stem(name))
         training = meta["training"]
-        rows[name] = {"epochs": int(training.get("epochs_trained", training["config"]["epochs"])), "best_epoch": training["best"]["epoch"], **evaluate_model(model, data_dir)}
+        rows[name] = {"recipe": training["config"]["name"], "epochs": int(training.get("epochs_trained", training["config"]["epochs"])), "best_epoch": training["best"]["epoch"], **evaluate_model(model, data_dir)}
     return rows
 
 
 def markdown(rows: dict, epochs: int) -> str:
     spread = {"fmd": "fmd", "fmd_over_floor": "fmd", "sra": "sra", "cra": "cra"}
-    head = "| model | epochs | " + " | ".join(c for c, _ in COLUMNS) + " | paper FMD (Xia) |"
-    lines = [head, "|" + " --- |" * (len(COLUMNS) + 3)]
+    head = "| model | trained as | epochs | " + " | ".join(c for c, _ in COLUMNS) + " | paper FMD (Xia) |"
+    lines = [head, "|" + " --- |" * (len(COLUMNS) + 4)]
 
     def cell(r: dict, k: str) -> str:
         if k not in spread:
@@ -110,7 +110,7 @@ def markdown(rows: dict, epochs: int) -> str:
         return f"{r[k]:.3f} ± {sd:.3f}"
 
     for name, r in rows.items():
-        lines.append(f"| {name} | {r['epochs']} | " + " | ".join(cell(r, k) for _, k in COLUMNS) + f" | {PAPER_FMD[name]:.2f} |")
+        lines.append(f"| {name} | {r.get('recipe', '')} | {r['epochs']} | " + " | ".join(cell(r, k) for _, k in COLUMNS) + f" | {PAPER_FMD[name]:.2f} |")
     missing = [n for n in ABLATIONS if n not in rows]
     at_budget = [n for n, r in rows.items() if r["epochs"] == epochs]
     order = sorted(at_budget, key=lambda n: rows[n]["fmd"])
@@ -135,6 +135,9 @@ def markdown(rows: dict, epochs: int) -> str:
             gap, spread_sum = r["fmd"] - f["fmd"], r["spread"]["fmd"] + f["spread"]["fmd"]
             verdict = "holds" if gap > spread_sum else "does not hold" if gap < -spread_sum else "within the spread (undecided)"
             lines.append(f"- full {f['fmd']:.3f} ± {f['spread']['fmd']:.3f} vs {name} {r['fmd']:.3f} ± {r['spread']['fmd']:.3f}: {verdict}.")
+    short = [n for n in rows if n not in at_budget]
+    if short:
+        lines.append(f"Not yet at the full budget (earlier models, kept until theirs are trained; `styleerd eval ablations` trains them): {', '.join(short)}.")
     if missing:
         lines.append(f"Not trained yet (`styleerd eval ablations` resumes them): {', '.join(missing)}.")
     return "\n".join(lines) + "\n"

@@ -11,7 +11,7 @@ from pathlib import Path
 import numpy as np
 from tqdm import tqdm
 
-from styleerd.eval.ablations import ABLATIONS, model_stem
+from styleerd.eval.ablations import ABLATIONS, model_stem, trained
 from styleerd.model import checkpoint as ckpt
 
 RECIPES_DIR = Path(__file__).resolve().parents[2] / "models" / "recipes"  # research models: in a checkout, not in the package
@@ -23,7 +23,7 @@ def recipe_models() -> dict[str, Path | None]:
     under models/recipes/ and the ablations."""
     models: dict[str, Path | None] = {"shipped": None}
     models.update({p.stem: p.with_suffix("") for p in sorted(RECIPES_DIR.glob("*.safetensors"))})
-    models.update({f"ablation: {name}": model_stem(name) for name in ABLATIONS if model_stem(name).with_suffix(".safetensors").is_file()})
+    models.update({f"ablation: {name}": model_stem(name) for name in ABLATIONS if name != "full" and trained(name)})  # full: the shipped model
     return models
 
 
