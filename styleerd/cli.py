@@ -218,7 +218,7 @@ def _eval_quality(args: argparse.Namespace) -> None:
 
 
 def _eval_streamed(args: argparse.Namespace) -> None:
-    from styleerd.eval.metrics import runtime_transfers
+    from styleerd.eval.metrics import root_speeds, runtime_transfers
     from styleerd.eval.recipes import neutralisation
     from styleerd.model import checkpoint as ckpt
 
@@ -228,6 +228,7 @@ def _eval_streamed(args: argparse.Namespace) -> None:
     style_rec, content_rec, _ = ckpt.load_recognisers()
     report = runtime_transfers(model, ckpt.load_labeller()[0], style_rec, content_rec, args.data, root_speed=args.root_speed)
     report["summary"] = neutralisation(report, model.config.neutral_style)
+    report["root_speed_by_content_and_style"] = root_speeds(data_dir=args.data)  # the pace of each style in the training clips
     print(json.dumps(report, indent=1))
     if args.json:
         from styleerd.atomic import atomic_write_text

@@ -74,6 +74,8 @@ def test_streamed_transfers_back_to_neutral_and_into_styles(shared_data, tmp_pat
         assert v["given"] > 0.6 and v["inferred"] > 0.6, source
     assert n["into_styles_mean"]["given"] > 0.9
     # the labeller reads each source's style by the clip's end
+    pace = r["root_speed_by_content_and_style"]  # elderly performers walk and run slower than normal ones
+    assert pace["walk"]["elderly"] < 0.8 * pace["walk"]["normal"] and pace["run"]["elderly"] < 0.6 * pace["run"]["normal"]
     read = r["labeller_reads_input_as_at_end"]
     assert sum(v.get(k, 0) for k, v in read.items()) / sum(sum(v.values()) for v in read.values()) > 0.9
 

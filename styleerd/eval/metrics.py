@@ -341,6 +341,20 @@ def runtime_report(model: StyleERD, labeller, data_dir: str | None = None, frame
 # ---------------------------------------------------------------- transfers as users run them
 
 
+def root_speeds(dataset: str = "bandai-namco-2", data_dir: str | None = None, split: str = "train") -> dict[str, dict[str, float]]:
+    """Per content and style, the mean ground speed of the root over the ``split`` clips
+    (data units per second): the pace each style moves at."""
+    fs = prepare(dataset, data_dir, progress=False)
+    speeds: dict[tuple[str, str], list[float]] = {}
+    for c in fs.clips(split):
+        path = fs.trajectory[fs.frames(c)][:, [0, 2]]
+        speeds.setdefault((str(fs.contents[c]), str(fs.styles[c])), []).append(float(np.linalg.norm(np.diff(path, axis=0), axis=-1).mean() * fs.params.fps))
+    out: dict[str, dict[str, float]] = {}
+    for (content, style), v in sorted(speeds.items()):
+        out.setdefault(content, {})[style] = round(float(np.mean(v)), 1)
+    return out
+
+
 def _played_channels(model: StyleERD, rotations: np.ndarray, positions: np.ndarray, fps: float) -> torch.Tensor:
     """Normalised [rotations | positions | velocities] of output frames as they play (the
     stylizer's output rotations and root path), ``[T, 10J]``."""
