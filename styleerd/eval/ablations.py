@@ -6,7 +6,8 @@ extractor; every figure with its spread over bootstrap resamples of the test win
 
 "per" here is the content classifier's supervision: the perceptual loss and, in the shipped
 recipe, the content cross-entropy of the same frozen classifier; an ablation without it drops
-both."""
+both. The shipped recipe's cycle loss (transfer and back must give the input) is a
+reconstruction loss and stays in every row, "rec only" included."""
 
 from __future__ import annotations
 
