@@ -34,7 +34,7 @@ from tqdm import tqdm
 from styleerd.data.cache import prepare
 from styleerd.data.datasets import data_root, find_clips, load_motion
 from styleerd.data.features import features_to_motion, motion_features
-from styleerd.data.windows import split_takes
+from styleerd.data.windows import gather_windows, split_takes
 from styleerd.model import torch_quat
 from styleerd.model.fmd import MotionAutoencoder
 from styleerd.model.generator import StyleERD
@@ -93,11 +93,13 @@ def transfer_quality(model: StyleERD, s: Setup, test: WindowSet, style_rec, cont
     model.eval()
     data = s.data
     reference = torch.as_tensor(data.stats.reference, dtype=torch.float32)
+    # the content recogniser on each real window once (a neutral window is the input of several transfers)
+    read_in = np.concatenate([content_rec(data.gather(test.starts[i : i + batch])).argmax(-1).numpy() for i in range(0, len(test.starts), batch)])
     feats, ok_s, ok_c, ok_in, jerk_fake, all_targets = [], [], [], [], [], []
     for r, t, rot, _, ch in transfers(model, data, test, batch):
         ok_s.append(style_rec(ch).argmax(-1).numpy() == t)
         ok_c.append(content_rec(ch).argmax(-1).numpy() == test.content[r])
-        ok_in.append(content_rec(data.gather(test.starts[r])).argmax(-1).numpy() == test.content[r])  # the input itself
+        ok_in.append(read_in[r] == test.content[r])  # the input itself
         feats.append(_features(fmd, rot, reference))
         jerk_fake.append(_jerk(torch_quat.root_relative_positions(rot, model.offsets, model.parents)))
         all_targets.append(t)
@@ -302,8 +304,9 @@ def runtime_report(model: StyleERD, labeller, data_dir: str | None = None, frame
     raw, _ = _run(model, rot, pos, styles, contents, targets)
     cleaned, _ = _run(model, rot, pos, styles, contents, targets, cleanup=True)
     raw_speed, p_speed = _run(model, rot, pos, styles, contents, targets, root_speed=True)
-    moving = _ground_speed(pos) > 0.05 * roles.leg_length / 30.0
-    ratio = _ground_speed(p_speed)[moving] / _ground_speed(pos)[moving]
+    pace = _ground_speed(pos)
+    moving = pace > 0.05 * roles.leg_length / 30.0
+    ratio = _ground_speed(p_speed)[moving] / pace[moving]
     cleaned_speed, _ = _run(model, rot, pos, styles, contents, targets, cleanup=True, root_speed=True)
     report["foot_skate_cm_per_frame"] = {
         "streams": len(rot),
@@ -355,11 +358,11 @@ def root_speeds(dataset: str = "bandai-namco-2", data_dir: str | None = None, sp
     return out
 
 
-def _played_channels(model: StyleERD, rotations: np.ndarray, positions: np.ndarray, fps: float) -> torch.Tensor:
+def _played_channels(model: StyleERD, rotations: np.ndarray, positions: np.ndarray, fps: float) -> np.ndarray:
     """Normalised [rotations | positions | velocities] of output frames as they play (the
-    stylizer's output rotations and root path), ``[T, 10J]``."""
+    stylizer's output rotations and root path), ``[T, 10J]`` float32."""
     feats, _ = motion_features(Motion(model.skeleton, rotations, positions, fps))
-    return torch.from_numpy(model.stats().normalize(feats)[:, : 10 * model.config.n_joints].astype(np.float32))
+    return model.stats().normalize(feats)[:, : 10 * model.config.n_joints].astype(np.float32)
 
 
 @torch.no_grad()
@@ -390,11 +393,12 @@ def runtime_transfers(model: StyleERD, labeller, style_rec, content_rec, data_di
         for t in range(motion.n_frames):
             rot[:, t], pos[:, t] = st.step(np.broadcast_to(motion.rotations[t], rot[:, t].shape), np.broadcast_to(motion.positions[t], pos[:, t].shape))
         label = st.inferred_labels()[n][0]
-        read_as.setdefault(style, {})[label] = read_as.setdefault(style, {}).get(label, 0) + 1
+        seen = read_as.setdefault(style, {})
+        seen[label] = seen.get(label, 0) + 1
         starts = np.arange(0, motion.n_frames - window + 1, stride)
         for k in range(2 * n):
             ch = _played_channels(model, rot[k], pos[k], fs.params.fps)
-            w = torch.stack([ch[a : a + window] for a in starts])
+            w = torch.from_numpy(gather_windows(ch, starts, window))
             target = targets[k % n]
             ok_s = int((style_rec(w).argmax(-1).numpy() == c.styles.index(target)).sum())
             ok_c = int((content_rec(w).argmax(-1).numpy() == c.contents.index(content)).sum())

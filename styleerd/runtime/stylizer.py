@@ -209,6 +209,8 @@ class StreamStylizer:
         # root speed from the network (``root_speed``): the input's path, each frame's ground
         # step scaled by the network's root speed over the input's; the offset it makes
         self.root_speed = root_speed
+        root = FeatureLayout(self.skeleton.n_joints).velocities.start  # the velocities' first joint is the root
+        self.root_velocity_stats = self.stats.mean[root : root + 3], self.stats.std[root : root + 3], root
         self.root_offset = np.zeros((n_streams, 3))
         self.speed_ratio = np.ones(n_streams)
         self.configure(np.arange(n_streams), input_style, content, target)
@@ -334,8 +336,7 @@ class StreamStylizer:
         input's (both in the features' units per second, heading frame), smoothed over a few
         frames and kept within [1/2.5, 2.5]; standing still (under 5 % of a leg length per
         second) keeps the input's step."""
-        root = FeatureLayout(self.skeleton.n_joints).velocities.start  # the velocities' first joint is the root
-        mean, std = self.stats.mean[root : root + 3], self.stats.std[root : root + 3]
+        mean, std, root = self.root_velocity_stats
         net = velocities[:, :3] * std + mean
         given = x[:, root : root + 3] * std + mean
         s_net, s_in = np.hypot(net[:, 0], net[:, 2]), np.hypot(given[:, 0], given[:, 2])
