@@ -165,3 +165,21 @@ def test_both_bandai_sets_as_one_train_style_by_style(shared_data, tmp_path):
     train(TrainConfig(**{**TINY, "max_train_clips": 0}, dataset="bandai-namco-1+2", balance_styles=True, epochs=1, stride=200), out, progress=False, export=tmp_path / "m")
     model, _ = load_generator(tmp_path / "m")
     assert model.config.styles == tuple(sorted(styles)) and "bow" in model.config.contents
+
+
+def test_fine_tune_from_a_saved_generator_with_a_critic_that_sees_rotations(shared_data, tmp_path):
+    from styleerd.train.trainer import train
+
+    train(TrainConfig(**TINY, epochs=1), tmp_path / "a", progress=False, export=tmp_path / "start")
+    start, _ = ckpt.load_generator(tmp_path / "start")
+    # lr_g 0: the fine-tuned generator must be exactly the one it started from
+    train(TrainConfig(**{**TINY, "lr_g": 0.0}, epochs=1, init_from=str(tmp_path / "start"), critic_rotations=True), tmp_path / "b", progress=False)
+    tensors, _ = ckpt.load_tensors(tmp_path / "b" / "checkpoint")
+    tuned = ckpt.unprefixed("generator", tensors)
+    assert all(torch.equal(v, tuned[k]) for k, v in start.state_dict().items())
+    J = start.config.n_joints
+    assert tensors["discriminator.trunk.0.1.weight"].shape[1] == 10 * J  # rotations, positions, velocities
+    plain, _ = ckpt.load_tensors(tmp_path / "a" / "checkpoint")
+    assert plain["discriminator.trunk.0.1.weight"].shape[1] == 6 * J  # the paper's critic: positions, velocities
+    with pytest.raises(StyleERDError, match="init_from .* config differs"):
+        train(TrainConfig(**{**TINY, "neutral_layers": 3}, epochs=1, init_from=str(tmp_path / "start")), tmp_path / "c", progress=False)

@@ -32,6 +32,7 @@ class TrainConfig:
     use_adv: bool = True
     use_per: bool = True
     attention: bool = True
+    critic_rotations: bool = False  # the critic also sees joint rotations (their twist is invisible in positions), beyond the paper
     w_rec: float = 1.0
     w_adv: float = 1.0
     w_per: float = 0.1
@@ -41,6 +42,7 @@ class TrainConfig:
     w_cls: float = 0.0  # content cross-entropy of the perceptual classifier on transfers, beyond the paper; 0 = off
     r1_every: int = 4  # lazy R1: every k critic steps, weighted by k
     # optimisation
+    init_from: str = ""  # fine-tune: a saved generator (stem or shipped name) whose weights start the run
     batch_size: int = 32
     lr_g: float = 1e-4
     lr_d: float = 5e-5

@@ -179,7 +179,8 @@ def train(config: TrainConfig, out: Path, data_dir: str | None = None, progress:
     G = make_generator(config, s)
     J = G.config.n_joints
     L = G.layout
-    D = Discriminator(6 * J, len(s.data.styles), len(s.data.contents), config.window, attention=config.attention)
+    critic_in = slice(0 if config.critic_rotations else L.positions.start, L.velocities.stop)
+    D = Discriminator(critic_in.stop - critic_in.start, len(s.data.styles), len(s.data.contents), config.window, attention=config.attention)
     opt_g = torch.optim.Adam([p for p in G.parameters() if p.requires_grad], lr=config.lr_g, betas=(0.5, 0.999))
     opt_d = torch.optim.Adam(D.parameters(), lr=config.lr_d, betas=(0.5, 0.999))
     per_classifier = _perceptual_classifier(config, s, out, progress) if config.use_per or config.w_cls else None
@@ -198,6 +199,8 @@ def train(config: TrainConfig, out: Path, data_dir: str | None = None, progress:
         epoch0, elapsed, best = meta["epoch"], meta["elapsed_s"], meta.get("best")
         if progress:
             print(f"resuming {out} after epoch {epoch0} ({elapsed / 60:.1f} min trained)")
+    elif config.init_from:
+        _start_from(G, config.init_from)
 
     neutral = G.config.neutral_index
     n_styles = len(s.data.styles)
@@ -244,7 +247,7 @@ def train(config: TrainConfig, out: Path, data_dir: str | None = None, progress:
             fake = ch[B:]
             logs = {"rec": loss_rec.item()}
             if config.use_adv:
-                loss_adv = losses.generator_adversarial(D(fake[..., L.positions.start :], tgt, content))
+                loss_adv = losses.generator_adversarial(D(fake[..., critic_in], tgt, content))
                 loss_g = loss_g + config.w_adv * loss_adv
                 logs["adv"] = loss_adv.item()
             if config.use_per:
@@ -270,12 +273,12 @@ def train(config: TrainConfig, out: Path, data_dir: str | None = None, progress:
 
             # ---- critic
             if config.use_adv:
-                d_real = D(real[..., L.positions.start :], style, content)
-                d_fake = D(fake.detach()[..., L.positions.start :], tgt, content)
+                d_real = D(real[..., critic_in], style, content)
+                d_fake = D(fake.detach()[..., critic_in], tgt, content)
                 loss_d = losses.critic(d_real, d_fake)
                 logs["critic"] = loss_d.item()
                 if config.r1_every and step % config.r1_every == 0:
-                    r1 = losses.r1_penalty(D, real[..., L.positions.start :], style, content)
+                    r1 = losses.r1_penalty(D, real[..., critic_in], style, content)
                     loss_d = loss_d + config.w_gp * config.r1_every * r1
                     logs["r1"] = r1.item()
                 opt_d.zero_grad(set_to_none=True)
@@ -312,6 +315,14 @@ def train(config: TrainConfig, out: Path, data_dir: str | None = None, progress:
         meta["training"]["epochs_trained"] = done  # the run's budget (its ablations train as many)
         ckpt.save_tensors(export, tensors, meta)
     return best or {}
+
+
+def _start_from(G: StyleERD, stem: str) -> None:
+    """Fine-tuning: the generator starts from a saved one of the same architecture and data."""
+    start, _ = ckpt.load_generator(stem)
+    if start.config.to_dict() != G.config.to_dict():
+        raise StyleERDError(f"init_from {stem}: its generator config differs from this run's")
+    G.load_state_dict(start.state_dict())
 
 
 def _score(row: dict) -> float | None:
