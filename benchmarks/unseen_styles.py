@@ -34,11 +34,10 @@ import torch
 from styleerd.atomic import atomic_write_text
 from styleerd.data.cache import prepare
 from styleerd.data.datasets import data_root, find_clips
-from styleerd.data.features import FeatureLayout, motion_features
+from styleerd.data.features import FeatureLayout
 from styleerd.motion import quat
-from styleerd.motion.motion import Motion
 from styleerd.data.windows import window_starts
-from styleerd.eval.metrics import _features, frechet_distance
+from styleerd.eval.metrics import _features, frechet_distance, played_channels
 from styleerd.model import checkpoint as ckpt
 from styleerd.train.add_style import AddStyleConfig, add_style
 from styleerd.train.batches import TrainingData, WindowSet, windows
@@ -76,16 +75,14 @@ def played(model, rot: torch.Tensor, trajectory: np.ndarray, fps: float) -> torc
     """Normalised motion channels of windows as they play: the output poses on the input's
     root path (the runtime's rule), velocities by differences of the played joint positions,
     not the network's velocity output."""
-    sk, stats, J = model.skeleton, model.stats(), model.config.n_joints
     out = []
     for q, traj in zip(rot.double().numpy(), trajectory):
         q = q.copy()
         q[:, 0] = quat.mul(traj[:, 3:7], q[:, 0])
-        pos = np.broadcast_to(sk.offsets, (len(q), J, 3)).copy()
+        pos = np.broadcast_to(model.skeleton.offsets, (len(q), model.config.n_joints, 3)).copy()
         pos[:, 0] = traj[:, :3]
-        feats, _ = motion_features(Motion(sk, q, pos, fps))
-        out.append(stats.normalize(feats)[:, : 10 * J])
-    return torch.from_numpy(np.stack(out).astype(np.float32))
+        out.append(played_channels(model, q, pos, fps))
+    return torch.from_numpy(np.stack(out))
 
 
 @torch.no_grad()

@@ -358,7 +358,7 @@ def root_speeds(dataset: str = "bandai-namco-2", data_dir: str | None = None, sp
     return out
 
 
-def _played_channels(model: StyleERD, rotations: np.ndarray, positions: np.ndarray, fps: float) -> np.ndarray:
+def played_channels(model: StyleERD, rotations: np.ndarray, positions: np.ndarray, fps: float) -> np.ndarray:
     """Normalised [rotations | positions | velocities] of output frames as they play (the
     stylizer's output rotations and root path), ``[T, 10J]`` float32."""
     feats, _ = motion_features(Motion(model.skeleton, rotations, positions, fps))
@@ -397,7 +397,7 @@ def runtime_transfers(model: StyleERD, labeller, style_rec, content_rec, data_di
         seen[label] = seen.get(label, 0) + 1
         starts = np.arange(0, motion.n_frames - window + 1, stride)
         for k in range(2 * n):
-            ch = _played_channels(model, rot[k], pos[k], fs.params.fps)
+            ch = played_channels(model, rot[k], pos[k], fs.params.fps)
             w = torch.from_numpy(gather_windows(ch, starts, window))
             target = targets[k % n]
             ok_s = int((style_rec(w).argmax(-1).numpy() == c.styles.index(target)).sum())
