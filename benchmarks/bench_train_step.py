@@ -3,12 +3,10 @@
     python benchmarks/bench_train_step.py [--steps 40] [--batch 32] [--threads 2]
         [--before configs/bandai2-content.yaml] [--after configs/bandai2-fast.yaml]
 
-Times each part of a step (the trainer's losses, weights from each config) on real
-Bandai-Namco-2 windows. Steps of the two recipes alternate, so both see the same machine
-(its speed drifts by 2x between sessions); "before" also runs the reconstruction and the
-transfer as one batch of 2B through the whole generator, as the trainer did until issue 16,
-"after" shares their encoding (``StyleERD.forward_targets``). Prints the median of every
-part, the step and epoch time of each recipe and their ratio.
+Runs the trainer's own step (``train.trainer.train_step``) of each recipe on real
+Bandai-Namco-2 windows and times each of its parts. Steps of the two recipes alternate, so both
+see the same machine (its speed drifts by 2x between sessions). Prints the mean time per step of
+every part, the step and epoch time of each recipe and their ratio.
 """
 
 from __future__ import annotations
@@ -23,13 +21,8 @@ import torch
 
 from styleerd.atomic import atomic_write_text
 from styleerd.model.classifiers import WindowClassifier
-from styleerd.model.discriminator import Discriminator
-from styleerd.train import losses
 from styleerd.train.config import TrainConfig
-from styleerd.train.trainer import make_generator, setup
-
-R1 = "R1 penalty (every 4th step)"
-
+from styleerd.train.trainer import make_critic, make_generator, setup, train_step
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
@@ -43,79 +36,42 @@ def main() -> None:
     torch.set_num_threads(args.threads)
     recipes = {"before": TrainConfig.from_yaml(args.before, batch_size=args.batch), "after": TrainConfig.from_yaml(args.after, batch_size=args.batch)}
     s = setup(recipes["after"], None, progress=False)
-    torch.manual_seed(0)
-    G = make_generator(recipes["after"], s)
-    J, L, B = G.config.n_joints, G.layout, args.batch
-    D = Discriminator(6 * J, len(s.data.styles), len(s.data.contents), recipes["after"].window)
-    C = WindowClassifier(10 * J, len(s.data.contents), instance_norm=True).requires_grad_(False)
-    opt_g, opt_d = torch.optim.Adam(G.parameters()), torch.optim.Adam(D.parameters())
+    B = args.batch
     rng = np.random.default_rng(0)
-    parts: dict[str, dict[str, list[float]]] = {name: {} for name in recipes}
-
-    def step(name: str, config: TrainConfig, i: int) -> None:
-        times = parts[name]
-
-        def tick(part: str, t0: float) -> float:
-            t = time.perf_counter()
-            times.setdefault(part, []).append(t - t0)
-            return t
-
-        rows = rng.choice(len(s.train.starts), B)
-        t = time.perf_counter()
-        x = s.data.gather(s.train.starts[rows])
-        st, ct = s.data.onehot_style(s.train.style[rows]), s.data.onehot_content(s.train.content[rows])
-        tgt = s.data.onehot_style(rng.integers(0, len(s.data.styles), B))
-        t = tick("batch gather", t)
-        if name == "before":
-            rot, vel, _ = G(torch.cat([x, x]), torch.cat([st, st]), torch.cat([ct, ct]), torch.cat([st, tgt]))
-        else:
-            rot, vel = G.forward_targets(x, st, ct, torch.cat([st, tgt]))
-        t = tick("generator forward (B + B)", t)
-        ch = G.motion_channels(rot, vel)
-        t = tick("forward kinematics + channels", t)
-        real = x[..., : 10 * J]
-        loss = losses.reconstruction_loss(rot[:B], G.raw_rotations(x), ch[:B], real, L)
-        loss = loss + config.w_adv * losses.generator_adversarial(D(ch[B:, :, L.positions.start :], tgt, ct))
-        loss = loss + config.w_per * losses.perceptual(C, real, ch[B:])
-        loss = loss + config.w_cls * losses.content_classification(C, ch[B:], torch.from_numpy(s.train.content[rows]).long())
-        t = tick("generator losses (rec, adv, per, cls)", t)
-        cycle = config.w_cyc and i % config.cyc_every == 0
-        if cycle:
-            rot_c, vel_c, _ = G(torch.cat([ch[B:], x[..., L.contacts]], -1), tgt, ct, st)
-            loss = loss + config.w_cyc * config.cyc_every * losses.reconstruction_loss(rot_c, G.raw_rotations(x), G.motion_channels(rot_c, vel_c), real, L)
-            t = tick("cycle pass + loss", t)
-        opt_g.zero_grad()
-        loss.backward()
-        opt_g.step()
-        t = tick("generator backward + Adam, with the cycle" if cycle and config.cyc_every > 1 else "generator backward + Adam", t)
-        real = real[..., L.positions.start :]
-        loss_d = losses.critic(D(real, st, ct), D(ch[B:, :, L.positions.start :].detach(), tgt, ct))
-        opt_d.zero_grad()
-        loss_d.backward()
-        opt_d.step()
-        t = tick("critic step", t)
-        losses.r1_penalty(D, real, st, ct).backward()
-        tick(R1, t)
+    parts: dict[str, dict[str, float]] = {name: {} for name in recipes}
+    runs = {}
+    for name, config in recipes.items():  # each recipe its own generator, critic and optimisers
+        torch.manual_seed(0)
+        G, D = make_generator(config, s), make_critic(config, s)
+        C = WindowClassifier(10 * G.config.n_joints, len(s.data.contents), instance_norm=True).requires_grad_(False)
+        opts = torch.optim.Adam(G.parameters(), lr=config.lr_g), torch.optim.Adam(D.parameters(), lr=config.lr_d)
+        runs[name] = (G, D, *opts, C, config)
 
     for i in range(args.steps + 3):
-        for name, config in recipes.items():
-            step(name, config, i)
+        for name, run in runs.items():
+            times, clock = parts[name], [time.perf_counter()]
+
+            def tick(part: str) -> None:
+                t = time.perf_counter()
+                if i >= 3:  # after three warm-up steps
+                    times[part] = times.get(part, 0.0) + t - clock[0]
+                clock[0] = t
+
+            rows = rng.choice(len(s.train.starts), B)
+            train_step(*run, s, rows, rng.integers(0, len(s.data.styles), B), i, tick)
     steps = len(s.train.starts) // B
-    print(f"batch {B}, {args.threads} threads, median of {args.steps} steps, recipes alternating step by step")
+    print(f"batch {B}, {args.threads} threads, mean of {args.steps} steps, recipes alternating step by step")
     total, report = {}, {"batch": B, "threads": args.threads, "steps": args.steps, "steps_per_epoch": steps}
     for name, times in parts.items():
-        med = {k: float(np.median(v[3:] or v)) * 1000 for k, v in times.items()}
-        # parts on every k-th step only count 1/k: R1 (every 4th), a lazy cycle pass and its backward
-        every = {R1: 4, "cycle pass + loss": recipes[name].cyc_every, "generator backward + Adam, with the cycle": recipes[name].cyc_every}
-        lazy = recipes[name].cyc_every > 1
-        total[name] = sum(v / every.get(k, 1) for k, v in med.items())
-        if lazy:  # a step with the cycle replaces a plain backward
-            total[name] -= med["generator backward + Adam"] / recipes[name].cyc_every
+        # each part's time per step, averaged over all steps: a part run on some steps only
+        # (R1 on every 4th, a lazy cycle) counts with its share
+        med = {k: v / args.steps * 1000 for k, v in times.items()}
+        total[name] = sum(med.values())
         report[name] = {"config": getattr(args, name), "parts_ms": {k: round(v, 2) for k, v in med.items()}, "step_ms": round(total[name], 2)}
         print(f"{name}: {getattr(args, name)}")
         for k, v in med.items():
             print(f"  {k:38s} {v:7.2f} ms")
-        print(f"  {'step (R1 amortised)':38s} {total[name]:7.2f} ms -> {steps} steps/epoch, {steps * total[name] / 1000:.1f} s/epoch")
+        print(f"  {'step':38s} {total[name]:7.2f} ms -> {steps} steps/epoch, {steps * total[name] / 1000:.1f} s/epoch")
     print(f"after / before step time: {total['after'] / total['before']:.3f} ({total['before'] / total['after']:.2f}x the steps per minute)")
     if args.json:
         report["speedup"] = round(total["before"] / total["after"], 3)

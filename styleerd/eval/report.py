@@ -173,15 +173,16 @@ network's pace. ± one standard deviation over 200 bootstrap resamples of the tr
         rows = "\n".join(f"| {k} | {r['before']['parts_ms'].get(k, 0):.1f} | {r['after']['parts_ms'].get(k, 0):.1f} |" for k in parts)
         text += f"""### A training step, two recipes side by side (`benchmarks/bench_train_step.py`)
 
-Steps of `{r['before']['config']}` and `{r['after']['config']}` alternate in one run (batch {r['batch']},
-{r['threads']} threads, median of {r['steps']} steps), so both see the same machine. Before: the batch's
-reconstruction and transfer run as one batch of 2B through the whole generator, and the cycle pass.
-After: their encoder and neutral branch run once (`StyleERD.forward_targets`), no cycle pass.
+The trainer's own step (`train.trainer.train_step`) of `{r['before']['config']}` and of
+`{r['after']['config']}`, alternating in one run (batch {r['batch']}, {r['threads']} threads, {r['steps']} steps each), so
+both see the same machine; each part's time per step, averaged over the steps (R1 runs on every
+4th step, the cycle pass on every `cyc_every`-th). In both, the batch's reconstruction and
+transfer share one pass of the encoder and the neutral branch (`StyleERD.forward_targets`).
 
 | part (ms) | before | after |
 | --- | --- | --- |
 {rows}
-| step (R1 amortised) | {r['before']['step_ms']:.1f} | {r['after']['step_ms']:.1f} |
+| step | {r['before']['step_ms']:.1f} | {r['after']['step_ms']:.1f} |
 
 {r['speedup']:.2f} x the steps per minute.
 

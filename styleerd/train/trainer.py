@@ -163,6 +163,86 @@ def _load_state(tensors: dict, G: StyleERD, D: Discriminator, opt_g: torch.optim
         opt.load_state_dict(sd)
 
 
+def critic_channels(config: TrainConfig, layout: FeatureLayout) -> slice:
+    """The motion channels the critic reads: joint positions and velocities (the paper), and
+    with ``critic_rotations`` the joint rotations too."""
+    return slice(0 if config.critic_rotations else layout.positions.start, layout.velocities.stop)
+
+
+def make_critic(config: TrainConfig, s: Setup) -> Discriminator:
+    seen = critic_channels(config, FeatureLayout(s.fs.skeleton.n_joints))
+    return Discriminator(seen.stop - seen.start, len(s.data.styles), len(s.data.contents), config.window, attention=config.attention)
+
+
+def train_step(G: StyleERD, D: Discriminator, opt_g: torch.optim.Optimizer, opt_d: torch.optim.Optimizer, per_classifier: WindowClassifier | None,
+               config: TrainConfig, s: Setup, rows: np.ndarray, target: np.ndarray, step: int, tick=lambda part: None) -> dict[str, float]:  # fmt: skip
+    """One optimisation step of the generator, then of the critic, on the training windows
+    ``rows`` sent to the styles ``target``; returns the losses it computed. ``tick(part)`` is
+    called as each part of the step ends (benchmarks/bench_train_step.py times them)."""
+    B, J, L = len(rows), G.config.n_joints, G.layout
+    seen = critic_channels(config, L)
+    x = s.data.gather(s.train.starts[rows])
+    style, content = s.data.onehot_style(s.train.style[rows]), s.data.onehot_content(s.train.content[rows])
+    tgt = s.data.onehot_style(target)
+    real = x[..., : 10 * J]
+    tick("batch gather")
+
+    # ---- generator: reconstruction (own style) and transfer of one batch, its encoding shared
+    rot, vel = G.forward_targets(x, style, content, torch.cat([style, tgt]))
+    tick("generator forward (B + B)")
+    ch = G.motion_channels(rot, vel)
+    rot_in = G.raw_rotations(x)
+    tick("forward kinematics + channels")
+    loss_rec = losses.reconstruction_loss(rot[:B], rot_in, ch[:B], real, L)
+    loss_g = config.w_rec * loss_rec
+    fake = ch[B:]
+    logs = {"rec": loss_rec.item()}
+    if config.use_adv:
+        loss_adv = losses.generator_adversarial(D(fake[..., seen], tgt, content))
+        loss_g = loss_g + config.w_adv * loss_adv
+        logs["adv"] = loss_adv.item()
+    if config.use_per:
+        loss_per = losses.perceptual(per_classifier, real, fake)
+        loss_g = loss_g + config.w_per * loss_per
+        logs["per"] = loss_per.item()
+    if config.w_cls:
+        loss_cls = losses.content_classification(per_classifier, fake, torch.from_numpy(s.train.content[rows]).long())
+        loss_g = loss_g + config.w_cls * loss_cls
+        logs["cls"] = loss_cls.item()
+    tick("generator losses")
+    if config.w_cyc and step % config.cyc_every == 0:
+        # the transfer taken back to the input's style must give the input again:
+        # whatever the style branch adds has to leave the content recoverable
+        back = torch.cat([fake, x[..., L.contacts]], -1)
+        rot_c, vel_c, _ = G(back, tgt, content, style)
+        loss_cyc = losses.reconstruction_loss(rot_c, rot_in, G.motion_channels(rot_c, vel_c), real, L)
+        loss_g = loss_g + config.w_cyc * config.cyc_every * loss_cyc
+        logs["cyc"] = loss_cyc.item()
+        tick("cycle pass + loss")
+    opt_g.zero_grad(set_to_none=True)
+    loss_g.backward()
+    _average_gradients([p for p in G.parameters() if p.requires_grad])
+    opt_g.step()
+    tick("generator backward + Adam")
+
+    # ---- critic
+    if config.use_adv:
+        d_real = D(real[..., seen], style, content)
+        d_fake = D(fake.detach()[..., seen], tgt, content)
+        loss_d = losses.critic(d_real, d_fake)
+        logs["critic"] = loss_d.item()
+        if config.r1_every and step % config.r1_every == 0:
+            r1 = losses.r1_penalty(D, real[..., seen], style, content)
+            loss_d = loss_d + config.w_gp * config.r1_every * r1
+            logs["r1"] = r1.item()
+        opt_d.zero_grad(set_to_none=True)
+        loss_d.backward()
+        _average_gradients(list(D.parameters()))
+        opt_d.step()
+        tick("critic step (+ R1 on its steps)")
+    return logs
+
+
 def train(config: TrainConfig, out: Path, data_dir: str | None = None, progress: bool = True, export: Path | None = None) -> dict:
     """Train (or resume) in ``out``; returns the best validation metrics. With ``export``,
     the best generator is also written there as a self-contained model."""
@@ -177,10 +257,7 @@ def train(config: TrainConfig, out: Path, data_dir: str | None = None, progress:
     s = setup(config, data_dir, progress)
     torch.manual_seed(config.seed)
     G = make_generator(config, s)
-    J = G.config.n_joints
-    L = G.layout
-    critic_in = slice(0 if config.critic_rotations else L.positions.start, L.velocities.stop)
-    D = Discriminator(critic_in.stop - critic_in.start, len(s.data.styles), len(s.data.contents), config.window, attention=config.attention)
+    D = make_critic(config, s)
     opt_g = torch.optim.Adam([p for p in G.parameters() if p.requires_grad], lr=config.lr_g, betas=(0.5, 0.999))
     opt_d = torch.optim.Adam(D.parameters(), lr=config.lr_d, betas=(0.5, 0.999))
     per_classifier = _perceptual_classifier(config, s, out, progress) if config.use_per or config.w_cls else None
@@ -212,7 +289,6 @@ def train(config: TrainConfig, out: Path, data_dir: str | None = None, progress:
     others = np.array([t for t in range(n_styles) if t != neutral])
     by_style = [rows for rows in (np.nonzero(s.train.style == t)[0] for t in others) if len(rows)]
     metrics_path = out / "metrics.csv"
-    g_params = [p for p in G.parameters() if p.requires_grad]
 
     done = epoch0  # epochs finished
     for epoch in range(epoch0, config.epochs):
@@ -233,58 +309,7 @@ def train(config: TrainConfig, out: Path, data_dir: str | None = None, progress:
                 styled = rng.choice(styled_rows, B - half)
             rows = np.concatenate([rng.choice(neutral_rows, half), styled])
             target = np.where(s.train.style[rows] == neutral, rng.choice(others, B), neutral)
-            x = s.data.gather(s.train.starts[rows])
-            style, content = s.data.onehot_style(s.train.style[rows]), s.data.onehot_content(s.train.content[rows])
-            tgt = s.data.onehot_style(target)
-            real = x[..., : 10 * J]
-
-            # ---- generator: reconstruction (own style) and transfer of one batch, its encoding shared
-            rot, vel = G.forward_targets(x, style, content, torch.cat([style, tgt]))
-            ch = G.motion_channels(rot, vel)
-            rot_in = G.raw_rotations(x)
-            loss_rec = losses.reconstruction_loss(rot[:B], rot_in, ch[:B], real, L)
-            loss_g = config.w_rec * loss_rec
-            fake = ch[B:]
-            logs = {"rec": loss_rec.item()}
-            if config.use_adv:
-                loss_adv = losses.generator_adversarial(D(fake[..., critic_in], tgt, content))
-                loss_g = loss_g + config.w_adv * loss_adv
-                logs["adv"] = loss_adv.item()
-            if config.use_per:
-                loss_per = losses.perceptual(per_classifier, real, fake)
-                loss_g = loss_g + config.w_per * loss_per
-                logs["per"] = loss_per.item()
-            if config.w_cls:
-                loss_cls = losses.content_classification(per_classifier, fake, torch.from_numpy(s.train.content[rows]).long())
-                loss_g = loss_g + config.w_cls * loss_cls
-                logs["cls"] = loss_cls.item()
-            if config.w_cyc and step % config.cyc_every == 0:
-                # the transfer taken back to the input's style must give the input again:
-                # whatever the style branch adds has to leave the content recoverable
-                back = torch.cat([fake, x[..., L.contacts]], -1)
-                rot_c, vel_c, _ = G(back, tgt, content, style)
-                loss_cyc = losses.reconstruction_loss(rot_c, rot_in, G.motion_channels(rot_c, vel_c), real, L)
-                loss_g = loss_g + config.w_cyc * config.cyc_every * loss_cyc
-                logs["cyc"] = loss_cyc.item()
-            opt_g.zero_grad(set_to_none=True)
-            loss_g.backward()
-            _average_gradients(g_params)
-            opt_g.step()
-
-            # ---- critic
-            if config.use_adv:
-                d_real = D(real[..., critic_in], style, content)
-                d_fake = D(fake.detach()[..., critic_in], tgt, content)
-                loss_d = losses.critic(d_real, d_fake)
-                logs["critic"] = loss_d.item()
-                if config.r1_every and step % config.r1_every == 0:
-                    r1 = losses.r1_penalty(D, real[..., critic_in], style, content)
-                    loss_d = loss_d + config.w_gp * config.r1_every * r1
-                    logs["r1"] = r1.item()
-                opt_d.zero_grad(set_to_none=True)
-                loss_d.backward()
-                _average_gradients(list(D.parameters()))
-                opt_d.step()
+            logs = train_step(G, D, opt_g, opt_d, per_classifier, config, s, rows, target, step)
             for k, v in logs.items():  # the mean of each loss over the steps that computed it
                 sums[k] = sums.get(k, 0.0) + v
                 counts[k] = counts.get(k, 0) + 1
