@@ -75,3 +75,31 @@ def test_results_section_from_the_recipe_table_and_the_step_timing(tmp_path):
     text = recipes_section(tmp_path)
     assert "| shipped | 1 |" in text and "(recipes.png)" in text
     assert "| cycle pass + loss | 40.0 | 0.0 |" in text and "| step | 300.0 | 180.0 |" in text and "1.67 x the steps per minute" in text
+
+
+def test_parallel_ablation_trainers_take_different_ablations(tmp_path, monkeypatch):
+    import fcntl
+
+    from styleerd.eval import ablations
+
+    from styleerd.train.config import TrainConfig
+
+    trained = []
+
+    def fake_train(config, out, data_dir, export):
+        trained.append(out.name)
+        out.mkdir(parents=True, exist_ok=True)
+        for suffix in (".safetensors", ".json"):  # a run with the perceptual loss leaves its classifier
+            (out / "content_classifier").with_suffix(suffix).write_text("")
+
+    monkeypatch.setattr(ablations, "ablation_config", lambda name, threads=1: TrainConfig(**ABLATIONS[name]))
+    monkeypatch.setattr(ablations, "train", fake_train)
+    monkeypatch.setattr(ablations, "ABLATIONS_DIR", tmp_path / "models")
+    with open(tmp_path / "rec-only.lock", "w") as held:  # another process is training "rec only"
+        fcntl.flock(held, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        stems = ablations.train_ablations(tmp_path)
+    assert "rec-only" not in trained and "rec only" not in stems
+    assert trained == ["rec-adv", "rec-per", "no-attention", "zero-initial-states"]
+    trained.clear()
+    ablations.train_ablations(tmp_path)  # the lock released: it is taken up again
+    assert trained[0] == "rec-only"

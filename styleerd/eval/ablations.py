@@ -11,6 +11,7 @@ reconstruction loss and stays in every row, "rec only" included."""
 
 from __future__ import annotations
 
+import fcntl
 import shutil
 from pathlib import Path
 
@@ -60,22 +61,29 @@ def trained(name: str) -> bool:
 
 def train_ablations(root: Path, data_dir: str | None = None, threads: int = 1) -> dict[str, Path]:
     """Train (or resume, or skip when finished) every ablation in run folders under ``root``
-    and export each best model to ``model_stem(name)``."""
+    and export each best model to ``model_stem(name)``. Several processes may run this at once
+    (one per core): each takes the ablations no other process holds (a lock file per run)."""
     stems = {}
+    root.mkdir(parents=True, exist_ok=True)
     for name in tqdm([n for n in ABLATIONS if n != "full"], desc="ablations"):
-        out = root / slug(name)
-        stem = model_stem(name)
-        config = ablation_config(name, threads)
-        shared = root / "content_classifier"
-        if config.use_per and shared.with_suffix(".safetensors").is_file() and not (out / "content_classifier.safetensors").is_file():
-            out.mkdir(parents=True, exist_ok=True)  # the perceptual classifier is the same for every run: train it once
-            for suffix in (".safetensors", ".json"):
-                shutil.copy(shared.with_suffix(suffix), (out / "content_classifier").with_suffix(suffix))
-        train(config, out, data_dir, export=stem)
-        if config.use_per and not shared.with_suffix(".safetensors").is_file():
-            for suffix in (".safetensors", ".json"):
-                shutil.copy((out / "content_classifier").with_suffix(suffix), shared.with_suffix(suffix))
-        stems[name] = stem
+        with open(root / f"{slug(name)}.lock", "w") as lock:
+            try:
+                fcntl.flock(lock, fcntl.LOCK_EX | fcntl.LOCK_NB)
+            except BlockingIOError:
+                tqdm.write(f"{name}: trained by another process, skipped")
+                continue
+            out, stem = root / slug(name), model_stem(name)
+            config = ablation_config(name, threads)
+            shared = root / "content_classifier"
+            if config.use_per and shared.with_suffix(".safetensors").is_file() and not (out / "content_classifier.safetensors").is_file():
+                out.mkdir(parents=True, exist_ok=True)  # the perceptual classifier is the same for every run: train it once
+                for suffix in (".safetensors", ".json"):
+                    shutil.copy(shared.with_suffix(suffix), (out / "content_classifier").with_suffix(suffix))
+            train(config, out, data_dir, export=stem)
+            if config.use_per and not shared.with_suffix(".safetensors").is_file():
+                for suffix in (".safetensors", ".json"):
+                    shutil.copy((out / "content_classifier").with_suffix(suffix), shared.with_suffix(suffix))
+            stems[name] = stem
     return stems
 
 
