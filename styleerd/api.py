@@ -91,13 +91,15 @@ class Model:
         cleanup: bool = True,
         backend: str = "numpy",
         parts: str | dict | None = None,
+        root_speed: bool = False,
     ) -> Stylizer:
         """A live stylizer for frames on ``skeleton`` (a ``Skeleton``, a ``Motion``, or a BVH
         or glTF file whose skeleton to use; default the model's) at ``fps`` (default: the
         file's, else the model's). Labels left None are inferred online; ``joint_map`` names
         model joints -> your joints where the names do not say; ``cleanup`` pins planted feet;
         ``parts`` gives body parts targets of their own (``{"legs": "elderly", "arms": "input"}``
-        or ``"legs=elderly,arms=input"``; ``runtime.stylizer.part_targets``)."""
+        or ``"legs=elderly,arms=input"``; ``runtime.stylizer.part_targets``); ``root_speed``
+        moves the root at the target style's pace (default: the input's root path)."""
         if skeleton is None:
             skeleton = self.skeleton
         elif isinstance(skeleton, (str, os.PathLike)):
@@ -106,7 +108,7 @@ class Model:
             fps = fps or skeleton.fps
             skeleton = skeleton.skeleton
         channels = ChannelStylizer(self.weights, skeleton, self.target(style, intensity, mix), input_style, content, fps or self.fps,
-                                   explicit_map=joint_map, cleanup=cleanup, backend=backend, parts=parts)  # fmt: skip
+                                   explicit_map=joint_map, cleanup=cleanup, backend=backend, parts=parts, root_speed=root_speed)  # fmt: skip
         return Stylizer(self, channels)
 
     def transfer(

@@ -330,7 +330,7 @@ def _stream_bvh(args: argparse.Namespace) -> None:
         raise StyleERDError("give --style or --mix")
     if args.output:
         check_output(args.output, args.input)
-    print(stream_bvh(args.input, args.to, args.style, args.intensity, mix, args.output, args.input_style, args.content, not args.fast))
+    print(stream_bvh(args.input, args.to, args.style, args.intensity, mix, args.output, args.input_style, args.content, not args.fast, args.root_speed))
 
 
 def _load_test(args: argparse.Namespace) -> None:
@@ -587,6 +587,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--input-style")
     p.add_argument("--content")
     p.add_argument("--fast", action="store_true", help="send as fast as replies come, not in real time")
+    p.add_argument("--root-speed", action="store_true", help="the root's ground speed in the target style too (the hello's root_speed)")
     p.add_argument("-o", "--output", help="write the stylised stream as BVH")
     p.set_defaults(func=_stream_bvh)
 

@@ -332,7 +332,7 @@ def test_fuzzed_hellos_open_a_stream_or_are_refused_clearly(style_server):
     from styleerd.serve.server import ClientError
 
     server, loop = style_server
-    keys = st.sampled_from(["fps", "style", "intensity", "mix", "parts", "input_style", "content", "format", "cleanup", "name", "private", "positions", "preset", "skeleton"])
+    keys = st.sampled_from(["fps", "style", "intensity", "mix", "parts", "input_style", "content", "format", "cleanup", "root_speed", "name", "private", "positions", "preset", "skeleton"])
     good = json.loads(_hello())
 
     @settings(max_examples=300, deadline=None, suppress_health_check=list(HealthCheck), derandomize=True)

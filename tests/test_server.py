@@ -131,6 +131,36 @@ def test_body_parts_in_the_hello_beside_a_stream_without(server, clip):
     assert np.abs(expected - np.stack(plain_got)).max() > 1.0  # the parts change the output: the test can fail
 
 
+def test_root_speed_in_the_hello_moves_the_root_at_the_styles_pace(server, clip):
+    """A stream with ``root_speed`` gets a local ChannelStylizer(root_speed=True)'s frames: the
+    rotations of a stream without it, and a root path on the input's heading at another pace."""
+    url, _ = server
+    m, values = clip
+    # without foot cleanup, whose pinning of the feet would make the poses differ too
+    ws, ready = open_stream(url, m, input_style="normal", content="walk", root_speed=True, cleanup=False)
+    plain, plain_ready = open_stream(url, m, input_style="normal", content="walk", cleanup=False)
+    assert ready["root_speed"] is True and plain_ready["root_speed"] is False
+    got, plain_got = [], []
+    for i in range(60):
+        ws.send(frame(i, values[i]))
+        plain.send(frame(i, values[i]))
+        got += replies(ws, 1)[1]
+        plain_got += replies(plain, 1)[1]
+    ws.close()
+    plain.close()
+    local = ChannelStylizer(load_generator()[0], m.skeleton, {"elderly": 1.0}, "normal", "walk", fps=30.0, cleanup=False, root_speed=True)
+    expected = np.stack([local.step(values[i].astype(np.float64))[0] for i in range(60)])
+    got, plain_got = np.stack(got), np.stack(plain_got)
+    assert np.abs(got - expected).max() < 1e-2
+    names = [c for chans in m.skeleton.channels for c in chans]
+    root = [names.index(f"{axis}position") for axis in "XYZ"]  # the root's translation channels (its joint comes first)
+    assert np.abs(np.delete(got, root, 1) - np.delete(plain_got, root, 1)).max() < 1e-2  # the same poses
+    step, plain_step = np.diff(got[:, root], axis=0), np.diff(plain_got[:, root], axis=0)
+    assert np.abs(step[:, 1] - plain_step[:, 1]).max() < 1e-3  # the input's height
+    ratio = np.linalg.norm(step[:, [0, 2]], axis=-1).sum() / np.linalg.norm(plain_step[:, [0, 2]], axis=-1).sum()
+    assert not 0.97 < ratio < 1.03, ratio  # an elderly pace is not the input's
+
+
 def test_json_frames_positions_and_style_change_midway(server, clip):
     url, _ = server
     m, values = clip
@@ -233,7 +263,8 @@ def test_hello_problems_and_a_full_server(server, clip):
                             ({"type": "hello", "preset": "model", "fps": 30, "style": "elderly", "input_style": "sleepy"}, 1008, "unknown input_style"),
                             ({"type": "hello", "preset": "model", "fps": 30, "style": "elderly", "parts": {"wings": "elderly"}}, 1008, "unknown body part 'wings'"),
                             ({"type": "hello", "preset": "model", "fps": 30, "style": "elderly", "parts": {"legs": {"elderly": "lots"}}}, 1008, "mixture weights must be"),
-                            ({"type": "hello", "preset": "model", "fps": 30, "style": "elderly", "parts": [1, 2]}, 1008, "parts: give")]:  # fmt: skip
+                            ({"type": "hello", "preset": "model", "fps": 30, "style": "elderly", "parts": [1, 2]}, 1008, "parts: give"),
+                            ({"type": "hello", "preset": "model", "fps": 30, "style": "elderly", "root_speed": "yes"}, 1008, "'root_speed' must be true or false")]:  # fmt: skip
         ws = connect(url, open_timeout=20, legacy=True)
         ws.send(json.dumps(msg))
         got, texts = closed_with(ws)
@@ -366,6 +397,12 @@ def test_stream_bvh_writes_the_stylised_stream(server, tmp_path):
     out = bvh.read(tmp_path / "out.bvh")
     assert out.n_frames == source.n_frames and out.skeleton.names == source.skeleton.names
     assert np.allclose(out.positions[:, 0], source.positions[:, 0], atol=1e-3)  # root trajectory kept
+    r = subprocess.run([sys.executable, "-m", "styleerd.cli", "stream-bvh", str(tmp_path / "in.bvh"), "--to", url, "--style", "elderly",
+                        "--input-style", "normal", "--content", "walk", "--root-speed", "-o", str(tmp_path / "paced.bvh")], capture_output=True, text=True)  # fmt: skip
+    assert r.returncode == 0, r.stdout + r.stderr
+    paced = bvh.read(tmp_path / "paced.bvh").positions[:, 0]
+    ground = np.linalg.norm(np.diff(paced[:, [0, 2]], axis=0), axis=-1).sum() / np.linalg.norm(np.diff(source.positions[:, 0, [0, 2]], axis=0), axis=-1).sum()
+    assert ground < 0.97 and np.allclose(paced[:, 1], source.positions[:, 0, 1], atol=1e-3)  # an elderly pace, the input's height
     r = subprocess.run([sys.executable, "-m", "styleerd.cli", "stream-bvh", str(tmp_path / "in.bvh"), "--to", "ws://127.0.0.1:9/", "--style", "elderly"],
                        capture_output=True, text=True)  # fmt: skip
     assert r.returncode == 2 and "cannot connect" in r.stderr and "Traceback" not in r.stderr

@@ -299,3 +299,10 @@ def test_root_speed_gives_an_elderly_walk_the_normal_pace_with_feet_planted(shar
     skate_in, skate_out = foot_skate(g_in[None], ankles, planted[None]), foot_skate(g_out[None], ankles, planted[None])
     print(f"foot skate on planted frames: input {skate_in:.3f}, output {skate_out:.3f} (units per frame)")
     assert skate_out <= 2 * skate_in + 0.05
+    if fps == 30:  # the model's rate: a live stream of the file (the server's path) gives the file's frames
+        from styleerd.runtime.channels import ChannelStylizer
+
+        live = ChannelStylizer(model[0], src.skeleton, {"normal": 1.0}, fps=fps, root_speed=True)
+        values = bvh.channel_values(src)
+        streamed = np.stack([live.step(values[t])[0] for t in range(len(values))])
+        assert np.abs(streamed - bvh.channel_values(out)).max() < 1e-3

@@ -33,12 +33,13 @@ class ChannelStylizer:
         labeller: LabellerWeights | None = None,
         first_pose: np.ndarray | None = None,
         parts: str | dict | None = None,
+        root_speed: bool = False,
     ):
         self.map = map_skeleton(skeleton, model, explicit_map, first_pose=first_pose)
         self.model, self.explicit_map = model, explicit_map
         self.skeleton, self.fps, self.n = skeleton, fps, n_streams
         self.n_channels = sum(len(c) for c in skeleton.channels)
-        self.stylizer = StreamStylizer(model, input_style, content, target, n_streams, fps, labeller=labeller, backend=backend, parts=parts)
+        self.stylizer = StreamStylizer(model, input_style, content, target, n_streams, fps, labeller=labeller, backend=backend, parts=parts, root_speed=root_speed)
         self.lock = FootLock(skeleton, n_streams, fps, legs=self.map.source_legs()) if cleanup else None
 
     def configure(self, streams, input_style: str | None, content: str | None, target: dict[str, float]) -> None:
@@ -70,6 +71,8 @@ class ChannelStylizer:
         on_model = to_target(source, self.map)
         rot, pos = self.stylizer.step(on_model.rotations, on_model.positions, rows)
         out = to_source(Motion(self.map.target, rot, pos, self.fps), self.map, source)
+        if self.stylizer.root_speed:  # the root moved at the style's pace (model units, back to the user's)
+            out.positions[:, 0] += (pos[:, 0] - on_model.positions[:, 0]) / self.map.scale
         if self.lock:
             out.rotations = self.lock.step(out.rotations, out.positions, source.rotations, source.positions, rows)
         return out

@@ -132,13 +132,15 @@ async def play(url: str, motion: Motion, hello_msg: dict, seconds: float | None 
 
 
 def stream_bvh(path: str, url: str, style: str | None, intensity: float, mix: dict[str, float] | None, output: str | None = None,
-               input_style: str | None = None, content: str | None = None, realtime: bool = True) -> str:  # fmt: skip
+               input_style: str | None = None, content: str | None = None, realtime: bool = True, root_speed: bool = False) -> str:  # fmt: skip
     """``styleerd stream-bvh``: play a BVH file to the server in real time; optionally write
     the stylised stream as a BVH. Returns a summary."""
     motion = bvh.read(path)
     if motion.n_frames == 0:
         raise StyleERDError(f"{path}: the motion has no frames")
     msg = hello(motion, motion.fps, style, intensity, mix, Path(path).stem, input_style, content)
+    if root_speed:
+        msg["root_speed"] = True
     result = asyncio.run(play(url, motion, msg, keep=output is not None, realtime=realtime))
     if result.error:
         raise StyleERDError(f"the server closed the stream: {result.error}")
