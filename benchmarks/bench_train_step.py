@@ -27,16 +27,16 @@ from styleerd.train.trainer import make_critic, make_generator, setup, train_ste
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--steps", type=int, default=40)
-    ap.add_argument("--batch", type=int, default=32)
+    ap.add_argument("--batch", type=int, help="the batch size of both recipes (default: each config's own)")
     ap.add_argument("--threads", type=int, default=2)
     ap.add_argument("--before", default="configs/bandai2-content.yaml")
     ap.add_argument("--after", default="configs/bandai2-fast.yaml")
     ap.add_argument("--json", help="also write the figures to this JSON file")
     args = ap.parse_args()
     torch.set_num_threads(args.threads)
-    recipes = {"before": TrainConfig.from_yaml(args.before, batch_size=args.batch), "after": TrainConfig.from_yaml(args.after, batch_size=args.batch)}
+    batch = {"batch_size": args.batch} if args.batch else {}
+    recipes = {name: TrainConfig.from_yaml(getattr(args, name), **batch) for name in ("before", "after")}
     s = setup(recipes["after"], None, progress=False)
-    B = args.batch
     rng = np.random.default_rng(0)
     parts: dict[str, dict[str, float]] = {name: {} for name in recipes}
     runs = {}
@@ -57,26 +57,28 @@ def main() -> None:
                     times[part] = times.get(part, 0.0) + t - clock[0]
                 clock[0] = t
 
+            B = run[-1].batch_size
             rows = rng.choice(len(s.train.starts), B)
             train_step(*run, s, rows, rng.integers(0, len(s.data.styles), B), i, tick)
-    steps = len(s.train.starts) // B
-    print(f"batch {B}, {args.threads} threads, mean of {args.steps} steps, recipes alternating step by step")
-    total, report = {}, {"batch": B, "threads": args.threads, "steps": args.steps, "steps_per_epoch": steps}
+    print(f"{args.threads} threads, mean of {args.steps} steps, recipes alternating step by step")
+    epoch, report = {}, {"threads": args.threads, "steps": args.steps}
     for name, times in parts.items():
         # each part's time per step, averaged over all steps: a part run on some steps only
         # (R1 on every 4th, a lazy cycle) counts with its share
-        med = {k: v / args.steps * 1000 for k, v in times.items()}
-        total[name] = sum(med.values())
-        report[name] = {"config": getattr(args, name), "parts_ms": {k: round(v, 2) for k, v in med.items()}, "step_ms": round(total[name], 2)}
-        print(f"{name}: {getattr(args, name)}")
-        for k, v in med.items():
+        mean = {k: v / args.steps * 1000 for k, v in times.items()}
+        step, B = sum(mean.values()), recipes[name].batch_size
+        steps = len(s.train.starts) // B
+        epoch[name] = steps * step / 1000
+        report[name] = {"config": getattr(args, name), "batch": B, "parts_ms": {k: round(v, 2) for k, v in mean.items()}, "step_ms": round(step, 2),
+                        "steps_per_epoch": steps, "epoch_s": round(epoch[name], 1)}  # fmt: skip
+        print(f"{name}: {getattr(args, name)} (batch {B})")
+        for k, v in mean.items():
             print(f"  {k:38s} {v:7.2f} ms")
-        print(f"  {'step':38s} {total[name]:7.2f} ms -> {steps} steps/epoch, {steps * total[name] / 1000:.1f} s/epoch")
-    print(f"after / before step time: {total['after'] / total['before']:.3f} ({total['before'] / total['after']:.2f}x the steps per minute)")
+        print(f"  {'step':38s} {step:7.2f} ms -> {steps} steps/epoch, {epoch[name]:.1f} s/epoch")
+    report["speedup"] = round(epoch["before"] / epoch["after"], 3)
+    print(f"after / before epoch time: {epoch['after'] / epoch['before']:.3f} ({report['speedup']:.2f}x the training windows per minute)")
     if args.json:
-        report["speedup"] = round(total["before"] / total["after"], 3)
         atomic_write_text(Path(args.json), json.dumps(report, indent=1) + "\n")
-
 
 if __name__ == "__main__":
     main()

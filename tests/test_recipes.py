@@ -68,13 +68,13 @@ def test_results_section_from_the_recipe_table_and_the_step_timing(tmp_path):
 
     assert recipes_section(tmp_path) == ""  # nothing measured yet: no section
     (tmp_path / "recipes.md").write_text("| model | x |\n| --- | --- |\n| shipped | 1 |\n")
-    step = {"batch": 32, "threads": 2, "steps": 40, "steps_per_epoch": 406, "speedup": 1.67,
-            "before": {"config": "a.yaml", "parts_ms": {"generator forward (B + B)": 30.0, "cycle pass + loss": 40.0}, "step_ms": 300.0},
-            "after": {"config": "b.yaml", "parts_ms": {"generator forward (B + B)": 25.0}, "step_ms": 180.0}}  # fmt: skip
+    step = {"threads": 2, "steps": 40, "speedup": 1.67,
+            "before": {"config": "a.yaml", "batch": 32, "parts_ms": {"generator forward (B + B)": 30.0, "cycle pass + loss": 40.0}, "step_ms": 300.0, "epoch_s": 120.0},
+            "after": {"config": "b.yaml", "batch": 32, "parts_ms": {"generator forward (B + B)": 25.0}, "step_ms": 180.0, "epoch_s": 72.0}}  # fmt: skip
     (tmp_path / "train-step.json").write_text(json.dumps(step))
     text = recipes_section(tmp_path)
     assert "| shipped | 1 |" in text and "(recipes.png)" in text
-    assert "| cycle pass + loss | 40.0 | 0.0 |" in text and "| step | 300.0 | 180.0 |" in text and "1.67 x the steps per minute" in text
+    assert "| cycle pass + loss | 40.0 | 0.0 |" in text and "| step | 300.0 | 180.0 |" in text and "1.67 x the training windows per minute" in text
 
 
 def test_parallel_ablation_trainers_take_different_ablations(tmp_path, monkeypatch):

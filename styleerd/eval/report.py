@@ -174,7 +174,7 @@ network's pace. ± one standard deviation over 200 bootstrap resamples of the tr
         text += f"""### A training step, two recipes side by side (`benchmarks/bench_train_step.py`)
 
 The trainer's own step (`train.trainer.train_step`) of `{r['before']['config']}` and of
-`{r['after']['config']}`, alternating in one run (batch {r['batch']}, {r['threads']} threads, {r['steps']} steps each), so
+`{r['after']['config']}`, alternating in one run (batch {r['before']['batch']} and {r['after']['batch']}, {r['threads']} threads, {r['steps']} steps each), so
 both see the same machine; each part's time per step, averaged over the steps (R1 runs on every
 4th step, the cycle pass on every `cyc_every`-th). In both, the batch's reconstruction and
 transfer share one pass of the encoder and the neutral branch (`StyleERD.forward_targets`).
@@ -183,8 +183,9 @@ transfer share one pass of the encoder and the neutral branch (`StyleERD.forward
 | --- | --- | --- |
 {rows}
 | step | {r['before']['step_ms']:.1f} | {r['after']['step_ms']:.1f} |
+| epoch (s) | {r['before']['epoch_s']:.1f} | {r['after']['epoch_s']:.1f} |
 
-{r['speedup']:.2f} x the steps per minute.
+{r['speedup']:.2f} x the training windows per minute.
 
 """
     return text
