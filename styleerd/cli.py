@@ -238,10 +238,14 @@ def _eval_streamed(args: argparse.Namespace) -> None:
 
 def _eval_recipes(args: argparse.Namespace) -> None:
     from styleerd.atomic import atomic_write_text
-    from styleerd.eval.recipes import markdown, recipe_table, tradeoff_plot
+    from styleerd.eval.recipes import markdown, recipe_models, recipe_table, tradeoff_plot
 
     out = check_output(args.out)
     rows = recipe_table(args.data, args.only or None)
+    kept = out.with_suffix(".json")
+    if args.only and kept.is_file():  # the other rows as they were measured
+        rows = {**{k: v for k, v in json.loads(kept.read_text()).items() if k in recipe_models()}, **rows}
+        rows = {k: rows[k] for k in recipe_models() if k in rows}
     atomic_write_text(out.with_suffix(".json"), json.dumps(rows, indent=1) + "\n")
     atomic_write_text(out.with_suffix(".md"), markdown(rows))
     tradeoff_plot(rows, out.with_suffix(".png"))
@@ -521,7 +525,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.set_defaults(func=_eval_streamed)
     p = ev.add_parser("recipes", help="every kept model (shipped, models/recipes, ablations) side by side: FMD vs CRA per style, back to neutral; JSON, table, trade-off plot")
     p.add_argument("--out", default="docs/recipes.md", help="Markdown table (a .json and the .png plot beside it)")
-    p.add_argument("--only", nargs="*", help="evaluate only these names (as listed in the table)")
+    p.add_argument("--only", nargs="*", help="evaluate only these names (as listed in the table); the other rows are kept from the existing JSON")
     p.add_argument("--data", help="data folder")
     p.set_defaults(func=_eval_recipes)
     p = ev.add_parser("rotations", help="joint rotations on other skeletons, swing and twist: round trip at intensity 0, and the change a style makes")

@@ -73,6 +73,10 @@ def test_streamed_transfers_back_to_neutral_and_into_styles(shared_data, tmp_pat
     for source, v in n["to_neutral"].items():
         assert v["given"] > 0.6 and v["inferred"] > 0.6, source
     assert n["into_styles_mean"]["given"] > 0.9
+    for source, targets in r["transfers"].items():  # the misses, counted by what they were read as
+        for target, v in targets.items():
+            assert target not in v["missed_read_as"]
+            assert sum(v["missed_read_as"].values()) == round((1 - v["given"]["sra"]) * v["windows"])
     # the labeller reads each source's style by the clip's end
     pace = r["root_speed_by_content_and_style"]  # elderly performers walk and run slower than normal ones
     assert pace["walk"]["elderly"] < 0.8 * pace["walk"]["normal"] and pace["run"]["elderly"] < 0.6 * pace["run"]["normal"]

@@ -103,3 +103,24 @@ def test_parallel_ablation_trainers_take_different_ablations(tmp_path, monkeypat
     trained.clear()
     ablations.train_ablations(tmp_path)  # the lock released: it is taken up again
     assert trained[0] == "rec-only"
+
+
+def test_eval_recipes_only_remeasures_the_named_rows_and_keeps_the_others(tmp_path, monkeypatch):
+    import json
+
+    from styleerd import cli
+    from styleerd.eval import recipes
+
+    def row(name, s):
+        return {"model": name, "config": name, "minutes": 40.0, "steps": 1000, "quality": quality(s), "per_style": per_style(quality(s)),
+                "neutralisation": neutralisation(streamed(), "normal"), "neutralisation_root_speed": neutralisation(streamed(), "normal")}  # fmt: skip
+
+    monkeypatch.setattr(recipes, "recipe_models", lambda: {"shipped": None, "older": tmp_path / "older", "other": tmp_path / "other"})
+    monkeypatch.setattr(recipes, "recipe_table", lambda data, names: {n: row(n, 0.97) for n in names})
+    out = tmp_path / "recipes.md"
+    out.with_suffix(".json").write_text(json.dumps({"older": row("older", 0.9), "shipped": row("shipped", 0.9), "gone": row("gone", 0.9)}))
+    assert cli.main(["eval", "recipes", "--only", "shipped", "--out", str(out)]) in (0, None)
+    rows = json.loads(out.with_suffix(".json").read_text())
+    assert list(rows) == ["shipped", "older"]  # in the models' order; a model no longer kept is dropped
+    assert rows["shipped"]["quality"]["cra"] == quality(0.97)["cra"] and rows["older"]["quality"]["cra"] == quality(0.9)["cra"]
+    assert out.with_suffix(".png").is_file() and "| older |" in out.read_text()

@@ -75,3 +75,18 @@ def test_the_16_style_model_transfers_into_its_bandai1_styles_with_labels_inferr
         assert done.returncode == 0, done.stderr
     assert bvh.read(tmp_path / "out.bvh").n_frames == 60
     assert json.loads((tmp_path / "step.json").read_text())["branch_styles"] == ["happy", "sad"]
+
+
+@pytest.mark.slow
+def test_shipped_model_is_realistic_in_every_style_with_the_content_kept(shared_data):
+    """Issue 16: every target style's FMD within 3 x its floor (two halves of the style's real
+    test windows) and its CRA at least 95 % of the content recogniser's ceiling, both at once."""
+    from styleerd.eval.metrics import evaluate_model
+    from styleerd.eval.recipes import CRA_LIMIT, FMD_LIMIT, per_style
+
+    q = evaluate_model(ckpt.load_generator()[0], str(shared_data))
+    ratios = per_style(q)
+    print(ratios)
+    assert set(ratios) == set(ckpt.load_generator()[0].config.styles)
+    for style, r in ratios.items():
+        assert r["fmd_over_floor"] <= FMD_LIMIT and r["cra_of_ceiling"] >= CRA_LIMIT, (style, r)

@@ -173,10 +173,19 @@ def test_fine_tune_from_a_saved_generator_with_a_critic_that_sees_rotations(shar
     train(TrainConfig(**TINY, epochs=1), tmp_path / "a", progress=False, export=tmp_path / "start")
     start, _ = ckpt.load_generator(tmp_path / "start")
     # lr_g 0: the fine-tuned generator must be exactly the one it started from
-    train(TrainConfig(**{**TINY, "lr_g": 0.0}, epochs=1, init_from=str(tmp_path / "start"), critic_rotations=True), tmp_path / "b", progress=False)
+    tuning = TrainConfig(**{**TINY, "lr_g": 0.0}, epochs=1, init_from=str(tmp_path / "start"), critic_rotations=True, keep="last")
+    train(tuning, tmp_path / "b", progress=False, export=tmp_path / "tuned")
     tensors, _ = ckpt.load_tensors(tmp_path / "b" / "checkpoint")
     tuned = ckpt.unprefixed("generator", tensors)
     assert all(torch.equal(v, tuned[k]) for k, v in start.state_dict().items())
+    exported, meta = ckpt.load_generator(tmp_path / "tuned")  # keep "last": the final epoch, with where it started
+    assert all(torch.equal(v, exported.state_dict()[k]) for k, v in start.state_dict().items())
+    assert "last epoch" in meta["training"]["kept"] and meta["training"]["started_from"]["model"] == str(tmp_path / "start")
+    assert meta["training"]["started_from"]["training"]["epochs_trained"] == 1
+    # where a run started and what it exports may change on resuming (the checkpoint holds the weights)
+    train(TrainConfig(**{**tuning.to_dict(), "epochs": 2, "keep": "best", "init_from": ""}), tmp_path / "b", progress=False)
+    with pytest.raises(StyleERDError, match="keep must be"):
+        train(TrainConfig(**{**TINY, "keep": "newest"}, epochs=1), tmp_path / "d", progress=False)
     J = start.config.n_joints
     assert tensors["discriminator.trunk.0.1.weight"].shape[1] == 10 * J  # rotations, positions, velocities
     plain, _ = ckpt.load_tensors(tmp_path / "a" / "checkpoint")

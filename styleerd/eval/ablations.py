@@ -29,16 +29,26 @@ ABLATIONS = {
     "no attention": {"attention": False},
     "zero initial states": {"learned_init": False},
 }
-ABLATIONS_DIR = Path(__file__).resolve().parents[2] / "models" / "ablations"  # research runs: in a checkout, not in the package
+CHECKOUT = Path(__file__).resolve().parents[2]
+ABLATIONS_DIR = CHECKOUT / "models" / "ablations"  # research runs: in a checkout, not in the package
 
 
 def slug(name: str) -> str:
     return name.replace(" + ", "-").replace(" ", "-")
 
 
-def shipped_budget() -> tuple[TrainConfig, int]:
-    """The shipped model's training config and the number of epochs its run trained."""
+def full_model() -> Path | None:
+    """The full model of the paper's table: the shipped model (None), or, when the shipped
+    model is a fine-tuning stage beyond the paper (its ``started_from``), the model trained from
+    scratch that the stage started from (a path in the checkout, where it was trained)."""
     _, meta = ckpt.load_generator()
+    base = meta["training"].get("started_from")
+    return None if base is None else CHECKOUT / base["model"]
+
+
+def shipped_budget() -> tuple[TrainConfig, int]:
+    """The full model's training config and the number of epochs its run trained."""
+    _, meta = ckpt.load_generator(full_model())
     training = meta["training"]
     return TrainConfig.from_dict(training["config"]), int(training.get("epochs_trained", training["best"]["epoch"]))
 
@@ -50,8 +60,8 @@ def ablation_config(name: str, threads: int = 1) -> TrainConfig:
 
 def model_stem(name: str) -> Path | None:
     """Where an ablation's model is kept (in git, so tables regenerate without retraining);
-    None for the full model, which is the shipped model."""
-    return None if name == "full" else ABLATIONS_DIR / slug(name)
+    for the full model, ``full_model()``."""
+    return full_model() if name == "full" else ABLATIONS_DIR / slug(name)
 
 
 def trained(name: str) -> bool:
@@ -126,7 +136,7 @@ def markdown(rows: dict, epochs: int) -> str:
     paper_order = sorted((n for n in PAPER_FMD if n in at_budget), key=PAPER_FMD.get)
     lines += [
         "",
-        f"The full budget: the shipped recipe and data, seed 0, {epochs} epochs (the shipped run's); each model's best",
+        f"The full budget: the full model's recipe and data, seed 0, {epochs} epochs (its run's); each model's best",
         "epoch by validation SRA + CRA; all judged on the test split by the shipped recognisers and FMD extractor;",
         "± one standard deviation over 200 bootstrap resamples of the test transfers.",
         f"FMD floor (two halves of the real test windows): {next(iter(rows.values()))['fmd_floor']:.3f}." if rows else "",

@@ -373,12 +373,15 @@ def runtime_transfers(model: StyleERD, labeller, style_rec, content_rec, data_di
     each with its labels given and with its labels inferred online by ``labeller``. The
     output as it plays is cut into ``window``-frame windows every ``stride`` frames and read
     by the recognisers. Returns, per source style and target style, {"given": {sra, cra},
-    "inferred": {sra, cra}, "windows": n}; also the labeller's style read at each clip's end.
+    "inferred": {sra, cra}, "windows": n, "missed_read_as": {style: windows}} (what the windows
+    not read as the target were read as, labels given); also the labeller's style read at each
+    clip's end.
     ``root_speed``: the stylizer's option (the root's ground speed from the network)."""
     fs, c = prepare(dataset, data_dir, progress=False), model.config
     neutral = c.neutral_style
     hits: dict[tuple[str, str], np.ndarray] = {}  # (source, target) -> [given s, given c, inferred s, inferred c, windows]
     read_as: dict[str, dict[str, int]] = {}
+    misread: dict[tuple[str, str], dict[str, int]] = {}  # (source, target) -> what the missed windows read as (labels given)
     for clip in tqdm(fs.clips(split), desc=f"{split} clips streamed", leave=False):
         sl = fs.frames(clip)
         if sl.stop - sl.start < window:
@@ -400,7 +403,12 @@ def runtime_transfers(model: StyleERD, labeller, style_rec, content_rec, data_di
             ch = played_channels(model, rot[k], pos[k], fs.params.fps)
             w = torch.from_numpy(gather_windows(ch, starts, window))
             target = targets[k % n]
-            ok_s = int((style_rec(w).argmax(-1).numpy() == c.styles.index(target)).sum())
+            read = style_rec(w).argmax(-1).numpy()
+            ok_s = int((read == c.styles.index(target)).sum())
+            if k < n:
+                missed = misread.setdefault((style, target), {})
+                for r in read[read != c.styles.index(target)]:
+                    missed[c.styles[r]] = missed.get(c.styles[r], 0) + 1
             ok_c = int((content_rec(w).argmax(-1).numpy() == c.contents.index(content)).sum())
             h = hits.setdefault((style, target), np.zeros(5, int))
             h[[0, 1] if k < n else [2, 3]] += (ok_s, ok_c)
@@ -411,5 +419,6 @@ def runtime_transfers(model: StyleERD, labeller, style_rec, content_rec, data_di
             "given": {"sra": round(h[0] / h[4], 4), "cra": round(h[1] / h[4], 4)},
             "inferred": {"sra": round(h[2] / h[4], 4), "cra": round(h[3] / h[4], 4)},
             "windows": int(h[4]),
+            "missed_read_as": dict(sorted(misread.get((source, target), {}).items(), key=lambda kv: -kv[1])),
         }
     return {"transfers": out, "labeller_reads_input_as_at_end": read_as}

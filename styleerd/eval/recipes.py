@@ -23,7 +23,7 @@ def recipe_models() -> dict[str, Path | None]:
     under models/recipes/ and the ablations."""
     models: dict[str, Path | None] = {"shipped": None}
     models.update({p.stem: p.with_suffix("") for p in sorted(RECIPES_DIR.glob("*.safetensors"))})
-    models.update({f"ablation: {name}": model_stem(name) for name in ABLATIONS if name != "full" and trained(name)})  # full: the shipped model
+    models.update({f"ablation: {name}": model_stem(name) for name in ABLATIONS if name != "full" and trained(name)})  # full: a row of its own (shipped, or a recipe)
     return models
 
 

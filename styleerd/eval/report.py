@@ -90,7 +90,7 @@ split; every figure is printed by its own command as well (named in each section
 | responsiveness: FMD on the first 10 frames / after | {quality['fmd_first_10']:.3f} / {quality['fmd_rest']:.3f} |
 | jitter (mean jerk of transfers / of real motion) | {quality['jitter_ratio']:.2f} |
 | reconstruction (target = input style) | {quality['rec_deg']:.2f} degrees, {quality['rec_cm']:.2f} cm |
-| training | {meta['training'].get('wall_minutes')} min on a 2-core CPU |
+| training | {training_minutes(meta['training'])} on a 2-core CPU |
 
 ## Ablations (the paper's Table 1; `styleerd eval ablations`)
 
@@ -117,6 +117,15 @@ split; every figure is printed by its own command as well (named in each section
     path = docs / "RESULTS.md"
     atomic_write_text(path, text)
     return path
+
+
+def training_minutes(training: dict) -> str:
+    """The training time of a model's metadata, each stage when it was fine-tuned from another."""
+    base = training.get("started_from")
+    here = f"{training.get('wall_minutes')} min ({training['config']['name']}"
+    if base is None:
+        return here + ")"
+    return f"{base['training'].get('wall_minutes')} min ({base['training']['config']['name']}) + {here}, fine-tuning from it)"
 
 
 def online_section(runtime: dict) -> str:

@@ -77,9 +77,10 @@ def make_generator(config: TrainConfig, s: Setup) -> StyleERD:
 
 
 def _resumable(config: dict) -> dict:
-    """What must match to resume a run: everything but how long it may go on and on how many
-    threads (a run may go on faster once the machine is free)."""
-    return {k: v for k, v in config.items() if k not in ("epochs", "max_minutes", "threads")}
+    """What must match to resume a run: everything but how long it may go on, on how many
+    threads (a run may go on faster once the machine is free), which epoch it exports, and
+    where its weights started (the checkpoint holds them once a run has one)."""
+    return {k: v for k, v in config.items() if k not in ("epochs", "max_minutes", "threads", "keep", "init_from")}
 
 
 def _check_in_sync(model: torch.nn.Module) -> None:
@@ -245,8 +246,11 @@ def train_step(G: StyleERD, D: Discriminator, opt_g: torch.optim.Optimizer, opt_
 
 def train(config: TrainConfig, out: Path, data_dir: str | None = None, progress: bool = True, export: Path | None = None) -> dict:
     """Train (or resume) in ``out``; returns the best validation metrics. With ``export``,
-    the best generator is also written there as a self-contained model."""
+    the best generator (``keep`` "last": the final one) is also written there as a
+    self-contained model."""
     torch.set_num_threads(config.threads)
+    if config.keep not in ("best", "last"):
+        raise StyleERDError(f"keep must be 'best' or 'last', got {config.keep!r}")
     if int(os.environ.get("WORLD_SIZE", "1")) > 1 and not dist.is_initialized():
         dist.init_process_group("gloo")
     rank = dist.get_rank() if dist.is_initialized() else 0
@@ -334,10 +338,16 @@ def train(config: TrainConfig, out: Path, data_dir: str | None = None, progress:
         _check_in_sync(D)
         done = epoch + 1
 
-    if _is_main() and export is not None and (out / "best.json").is_file():
-        tensors, meta = ckpt.load_tensors(out / "best")
+    if _is_main() and export is not None and (config.keep == "last" or (out / "best.json").is_file()):
+        if config.keep == "last":
+            tensors, meta = ckpt.prefixed("generator", G), _model_meta(G, s, config, best)
+            meta["training"]["kept"] = f"the last epoch ({done}), not the best validation epoch"
+        else:
+            tensors, meta = ckpt.load_tensors(out / "best")
         meta["training"]["wall_minutes"] = round(elapsed / 60, 2)
         meta["training"]["epochs_trained"] = done  # the run's budget (its ablations train as many)
+        if config.init_from:  # a fine-tuning stage: the training of the model it started from
+            meta["training"]["started_from"] = {"model": config.init_from, "training": ckpt.load_generator(config.init_from)[1]["training"]}
         ckpt.save_tensors(export, tensors, meta)
     return best or {}
 
