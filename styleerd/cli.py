@@ -295,7 +295,7 @@ def _bench(args: argparse.Namespace) -> None:
 def _report(args: argparse.Namespace) -> None:
     from styleerd.eval.report import write_report
 
-    print(f"wrote {write_report(Path(args.docs), args.data, args.steps)}")
+    print(f"wrote {write_report(Path(args.docs), args.data, args.steps, keep=tuple(args.keep))}")
 
 
 def _filmstrip(args: argparse.Namespace) -> None:
@@ -553,6 +553,8 @@ def build_parser() -> argparse.ArgumentParser:
     p = command("report", "regenerate docs/RESULTS.md: quality, ablations, runtime, online figures, pictures")
     p.add_argument("--docs", default="docs")
     p.add_argument("--steps", type=_whole(1), default=2000, help="frames timed per latency figure")
+    p.add_argument("--keep", nargs="*", default=[], choices=["ablations", "bench"],
+                   help="read these parts from their JSON in --docs, not measured again (their models and code unchanged since)")
     p.add_argument("--data", help="data folder")
     p.set_defaults(func=_report)
 

@@ -25,3 +25,18 @@ def test_report_regenerates_results_with_the_commands_figures(shared_data, tmp_p
     assert list(ablations) == list(ABLATIONS) and "| full |" in text and "paper, GTX 1060" in text
     for picture in ("filmstrip-bandai2.png", "intensity-bandai2.png", "mixture-bandai2.png", "first-frames-bandai2.png", "throughput.png"):
         assert (tmp_path / picture).stat().st_size > 10_000 and f"({picture})" in text
+
+
+def test_report_parts_kept_from_their_json_or_measured_and_written(tmp_path):
+    import json
+
+    import pytest
+
+    from styleerd.errors import StyleERDError
+    from styleerd.eval.report import measured
+
+    with pytest.raises(StyleERDError, match="--keep bench: .* has not been measured yet"):
+        measured(tmp_path, "bench", ("bench",), lambda: {"x": 1})
+    assert measured(tmp_path, "bench", (), lambda: {"x": 1}) == {"x": 1}
+    assert json.loads((tmp_path / "bench.json").read_text()) == {"x": 1}
+    assert measured(tmp_path, "bench", ("bench",), lambda: {"x": 2}) == {"x": 1}  # kept: not measured again

@@ -10,6 +10,7 @@ from pathlib import Path
 from styleerd.atomic import atomic_write_text
 from styleerd.data.datasets import Clip, data_root, find_clips, load_motion
 from styleerd.data.windows import split_takes
+from styleerd.errors import StyleERDError
 from styleerd.eval.ablations import ablation_table, markdown, model_stem, shipped_budget
 from styleerd.eval.bench import STREAMS, plot, run_bench, table
 from styleerd.eval.metrics import evaluate_model, runtime_report
@@ -52,20 +53,36 @@ def pictures(docs: Path, data_dir: str | None) -> dict[str, str]:
     return out
 
 
-def write_report(docs: Path = Path("docs"), data_dir: str | None = None, bench_steps: int = 2000, bench_streams: tuple[int, ...] = STREAMS, progress=print) -> Path:
+KEEPABLE = ("ablations", "bench")
+
+
+def measured(docs: Path, name: str, keep: tuple[str, ...], measure) -> dict:
+    """``docs/NAME.json`` as measured before when ``name`` is in ``keep`` (its models and code
+    unchanged since), else ``measure()``, written there."""
+    path = docs / f"{name}.json"
+    if name in keep:
+        if not path.is_file():
+            raise StyleERDError(f"--keep {name}: {path} has not been measured yet")
+        return json.loads(path.read_text())
+    figures = measure()
+    atomic_write_text(path, json.dumps(figures, indent=1) + "\n")
+    return figures
+
+
+def write_report(docs: Path = Path("docs"), data_dir: str | None = None, bench_steps: int = 2000, bench_streams: tuple[int, ...] = STREAMS, progress=print,
+                 keep: tuple[str, ...] = ()) -> Path:  # fmt: skip
+    """``keep``: parts of ``KEEPABLE`` read from their JSON in ``docs`` instead of measured again."""
     docs.mkdir(parents=True, exist_ok=True)
     model, meta = load_generator()
     progress("quality of the shipped model ...")
     quality = evaluate_model(model, data_dir)
     progress("ablations ...")
-    ablations = ablation_table(data_dir)
+    ablations = measured(docs, "ablations", keep, lambda: ablation_table(data_dir))
     epochs = shipped_budget()[1]
-    atomic_write_text(docs / "ablations.json", json.dumps(ablations, indent=1) + "\n")
     atomic_write_text(docs / "ablations.md", markdown(ablations, epochs))
     progress("runtime figures ...")
     runtime = runtime_report(model, load_labeller()[0], data_dir)
-    bench = run_bench(model, bench_steps, bench_streams, progress=progress)
-    atomic_write_text(docs / "bench.json", json.dumps(bench, indent=1) + "\n")
+    bench = measured(docs, "bench", keep, lambda: run_bench(model, bench_steps, bench_streams, progress=progress))
     plot(bench, docs / "throughput.png")
     progress("pictures ...")
     pics = pictures(docs, data_dir)
