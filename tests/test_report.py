@@ -40,3 +40,14 @@ def test_report_parts_kept_from_their_json_or_measured_and_written(tmp_path):
     assert measured(tmp_path, "bench", (), lambda: {"x": 1}) == {"x": 1}
     assert json.loads((tmp_path / "bench.json").read_text()) == {"x": 1}
     assert measured(tmp_path, "bench", ("bench",), lambda: {"x": 2}) == {"x": 1}  # kept: not measured again
+
+
+def test_the_bench_table_of_a_kept_bench_json():
+    """``report --keep bench`` reads docs/bench.json back: its stream counts are then strings."""
+    import json
+    from pathlib import Path
+
+    from styleerd.eval.bench import table
+
+    text = table(json.loads((Path(__file__).parents[1] / "docs" / "bench.json").read_text()))
+    assert "frames/s, 1,000 streams (2 threads)" in text

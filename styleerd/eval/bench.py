@@ -181,7 +181,7 @@ def table(report: dict) -> str:
             ("network step, one-style ONNX graph, p50 / p99 (us)", lambda r: f"{r['network_step_one_style_graph']['p50_us']:.0f} / {r['network_step_one_style_graph']['p99_us']:.0f}" if "network_step_one_style_graph" in r else ""),
             ("end to end p50 / p99 (us, batch 1, 1 thread)", lambda r: f"{r['end_to_end']['p50_us']:.0f} / {r['end_to_end']['p99_us']:.0f}"),
             *[(f"whole clip {k} (ms)", lambda r, k=k: f"{r['whole_clip_ms'][k]:.1f}") for k in ("L=60", "L=90", "L=120")],
-            *[(f"frames/s, {n:,} streams (2 threads)", lambda r, n=n: f"{r['frames_per_second'][n]:,}") for n in next(iter(report['backends'].values()))['frames_per_second']],
+            *[(f"frames/s, {int(n):,} streams (2 threads)", lambda r, n=n: f"{r['frames_per_second'][n]:,}") for n in next(iter(report['backends'].values()))['frames_per_second']],
             ("achieved GFLOP/s (fraction of matmul peak)", lambda r: f"{r['achieved_gflops']:.2f} ({100 * r['fraction_of_peak']:.1f} %)")]  # fmt: skip
     paper = {"network step p50 / p99 (us, batch 1, 1 thread)": "1,730 (online per frame)", "whole clip L=60 (ms)": "7.47", "whole clip L=90 (ms)": "10.18", "whole clip L=120 (ms)": "13.22"}
     lines = ["| | " + " | ".join(names) + " | paper, GTX 1060 |", "|" + " --- |" * (len(names) + 2)]
