@@ -243,9 +243,9 @@ def _eval_recipes(args: argparse.Namespace) -> None:
     out = check_output(args.out)
     rows = recipe_table(args.data, args.only or None)
     kept = out.with_suffix(".json")
-    if args.only and kept.is_file():  # the other rows as they were measured
-        rows = {**{k: v for k, v in json.loads(kept.read_text()).items() if k in recipe_models()}, **rows}
-        rows = {k: rows[k] for k in recipe_models() if k in rows}
+    if args.only and kept.is_file():  # the other rows as they were measured, in the models' order
+        before = json.loads(kept.read_text())
+        rows = {k: rows.get(k) or before[k] for k in recipe_models() if k in rows or k in before}
     atomic_write_text(out.with_suffix(".json"), json.dumps(rows, indent=1) + "\n")
     atomic_write_text(out.with_suffix(".md"), markdown(rows))
     tradeoff_plot(rows, out.with_suffix(".png"))

@@ -74,6 +74,19 @@ def replies(ws, n: int, timeout: float = 20.0) -> tuple[list[int], list[np.ndarr
     return seqs, payloads, texts
 
 
+def side_by_side(streams: list, values: np.ndarray, n: int) -> list[np.ndarray]:
+    """The first n frames sent to every stream in turn, one reply awaited per frame; then the
+    streams are closed. -> each stream's replies ``[n, channels]``."""
+    got = [[] for _ in streams]
+    for i in range(n):
+        for ws, out in zip(streams, got):
+            ws.send(frame(i, values[i]))
+            out += replies(ws, 1)[1]
+    for ws in streams:
+        ws.close()
+    return [np.stack(out) for out in got]
+
+
 def closed_with(ws, timeout: float = 20.0) -> tuple[int | None, list[dict]]:
     """Read until the server closes; -> (close code, the JSON messages it sent)."""
     texts = []
@@ -114,21 +127,14 @@ def test_body_parts_in_the_hello_beside_a_stream_without(server, clip):
     ws, ready = open_stream(url, m, input_style="normal", content="walk", parts=parts)
     plain, _ = open_stream(url, m, input_style="normal", content="walk")
     assert ready["parts"] == {"legs": {"exhausted": 1.0}, "arms": None}
-    got, plain_got = [], []
-    for i in range(30):
-        ws.send(frame(i, values[i]))
-        plain.send(frame(i, values[i]))
-        got += replies(ws, 1)[1]
-        plain_got += replies(plain, 1)[1]
-    ws.close()
-    plain.close()
+    got, plain_got = side_by_side([ws, plain], values, 30)
     model = load_generator()[0]
     local = ChannelStylizer(model, m.skeleton, {"elderly": 1.0}, "normal", "walk", fps=30.0, parts=parts)
     whole = ChannelStylizer(model, m.skeleton, {"elderly": 1.0}, "normal", "walk", fps=30.0)
     expected = np.stack([local.step(values[i].astype(np.float64))[0] for i in range(30)])
-    assert np.abs(np.stack(got) - expected).max() < 1e-2
-    assert np.abs(np.stack(plain_got) - np.stack([whole.step(values[i].astype(np.float64))[0] for i in range(30)])).max() < 1e-2
-    assert np.abs(expected - np.stack(plain_got)).max() > 1.0  # the parts change the output: the test can fail
+    assert np.abs(got - expected).max() < 1e-2
+    assert np.abs(plain_got - np.stack([whole.step(values[i].astype(np.float64))[0] for i in range(30)])).max() < 1e-2
+    assert np.abs(expected - plain_got).max() > 1.0  # the parts change the output: the test can fail
 
 
 def test_root_speed_in_the_hello_moves_the_root_at_the_styles_pace(server, clip):
@@ -140,17 +146,9 @@ def test_root_speed_in_the_hello_moves_the_root_at_the_styles_pace(server, clip)
     ws, ready = open_stream(url, m, input_style="normal", content="walk", root_speed=True, cleanup=False)
     plain, plain_ready = open_stream(url, m, input_style="normal", content="walk", cleanup=False)
     assert ready["root_speed"] is True and plain_ready["root_speed"] is False
-    got, plain_got = [], []
-    for i in range(60):
-        ws.send(frame(i, values[i]))
-        plain.send(frame(i, values[i]))
-        got += replies(ws, 1)[1]
-        plain_got += replies(plain, 1)[1]
-    ws.close()
-    plain.close()
+    got, plain_got = side_by_side([ws, plain], values, 60)
     local = ChannelStylizer(load_generator()[0], m.skeleton, {"elderly": 1.0}, "normal", "walk", fps=30.0, cleanup=False, root_speed=True)
     expected = np.stack([local.step(values[i].astype(np.float64))[0] for i in range(60)])
-    got, plain_got = np.stack(got), np.stack(plain_got)
     assert np.abs(got - expected).max() < 1e-2
     names = [c for chans in m.skeleton.channels for c in chans]
     root = [names.index(f"{axis}position") for axis in "XYZ"]  # the root's translation channels (its joint comes first)

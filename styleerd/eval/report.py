@@ -53,9 +53,6 @@ def pictures(docs: Path, data_dir: str | None) -> dict[str, str]:
     return out
 
 
-KEEPABLE = ("ablations", "bench")
-
-
 def measured(docs: Path, name: str, keep: tuple[str, ...], measure) -> dict:
     """``docs/NAME.json`` as measured before when ``name`` is in ``keep`` (its models and code
     unchanged since), else ``measure()``, written there."""
@@ -71,7 +68,7 @@ def measured(docs: Path, name: str, keep: tuple[str, ...], measure) -> dict:
 
 def write_report(docs: Path = Path("docs"), data_dir: str | None = None, bench_steps: int = 2000, bench_streams: tuple[int, ...] = STREAMS, progress=print,
                  keep: tuple[str, ...] = ()) -> Path:  # fmt: skip
-    """``keep``: parts of ``KEEPABLE`` read from their JSON in ``docs`` instead of measured again."""
+    """``keep``: parts ("ablations", "bench") read from their JSON in ``docs`` instead of measured again."""
     docs.mkdir(parents=True, exist_ok=True)
     model, meta = load_generator()
     progress("quality of the shipped model ...")
