@@ -70,7 +70,7 @@ def main() -> None:
         steps = len(s.train.starts) // B
         epoch[name] = steps * step / 1000
         report[name] = {"config": getattr(args, name), "batch": B, "parts_ms": {k: round(v, 2) for k, v in mean.items()}, "step_ms": round(step, 2),
-                        "steps_per_epoch": steps, "epoch_s": round(epoch[name], 1)}  # fmt: skip
+                        "steps_per_epoch": steps, "epoch_s": round(epoch[name], 3)}  # fmt: skip
         print(f"{name}: {getattr(args, name)} (batch {B})")
         for k, v in mean.items():
             print(f"  {k:38s} {v:7.2f} ms")

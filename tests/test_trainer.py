@@ -210,5 +210,5 @@ def test_bench_train_step_times_the_trainers_own_step_of_two_recipes(shared_data
         parts = r[name]["parts_ms"]
         assert {"generator forward (B + B)", "generator backward + Adam", "critic step (+ R1 on its steps)"} <= parts.keys()
         assert all(v > 0 for v in parts.values()) and abs(sum(parts.values()) - r[name]["step_ms"]) < 0.1
-    assert abs(r["speedup"] - r["before"]["epoch_s"] / r["after"]["epoch_s"]) < 0.01
+    assert abs(r["speedup"] - r["before"]["epoch_s"] / r["after"]["epoch_s"]) < 0.002
     assert "after / before epoch time" in bench.stdout
