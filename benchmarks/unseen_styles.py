@@ -37,14 +37,15 @@ from styleerd.data.datasets import data_root, find_clips
 from styleerd.data.features import FeatureLayout
 from styleerd.motion import quat
 from styleerd.data.windows import window_starts
-from styleerd.eval.metrics import _features, frechet_distance, played_channels
+from styleerd.eval.metrics import played_channels
 from styleerd.model import checkpoint as ckpt
+from styleerd.model.fmd import fmd_features
 from styleerd.train.add_style import AddStyleConfig, add_style
-from styleerd.train.batches import TrainingData, WindowSet, windows
+from styleerd.train.batches import TrainingData, WindowSet, window_rotations, windows
 from styleerd.train.classifiers import accuracy, train_classifier
 from styleerd.train.config import TrainConfig
-from styleerd.train.fmd import window_rotations
 from styleerd.train.trainer import setup
+from styleerd.train.validation import frechet_distance
 
 UNSEEN = ("happy", "sad", "angry", "proud", "not-confident", "childish", "musical", "giant", "chimpira")
 KEPT_BACK = ("walk-back", "dash", "byebye", "guide")  # and the second walk take
@@ -99,7 +100,7 @@ def judged(model, x, style_in, content, target, trajectory, recogniser, content_
 
 
 def scores(rot, channels: dict, contents, recogniser, content_rec, fmd, reference, real_feats, style_index, content_labels) -> dict:
-    out = {"fmd": round(frechet_distance(_features(fmd, rot, reference), real_feats), 3)}
+    out = {"fmd": round(frechet_distance(fmd_features(fmd, rot, reference), real_feats), 3)}
     for suffix, ch in channels.items():
         read = content_rec(ch).argmax(-1).numpy()
         out[f"sra{suffix}"] = round(float((recogniser(ch).argmax(-1).numpy() == style_index).mean()), 4)
@@ -161,7 +162,7 @@ def main() -> None:
     def moving_feats(ws: WindowSet, k: int) -> np.ndarray:
         """FMD features of the locomotion windows of Bandai-1 style ``k`` in ``ws``."""
         rows = (ws.style == k) & np.isin(ws.content, [data.contents.index(c) for c in LOCOMOTION])
-        return _features(fmd, window_rotations(data, ws.starts[rows]), reference)
+        return fmd_features(fmd, window_rotations(data, ws.starts[rows]), reference)
 
     # the content: neutral Bandai-2 test windows of walk and run
     s = setup(replace(config, stride=config.window), args.data, progress=False)

@@ -6,7 +6,8 @@ import numpy as np
 import pytest
 import scipy.linalg
 
-from styleerd.eval.metrics import frechet_distance, runtime_report
+from styleerd.eval.metrics import runtime_report
+from styleerd.train.validation import frechet_distance
 from styleerd.model import checkpoint as ckpt
 from styleerd.model.checkpoint import load_generator, load_labeller
 
@@ -45,7 +46,7 @@ def test_shipped_fmd_extractor_and_the_quality_figures(shared_data):
 
 
 def test_bootstrap_spread_is_the_standard_error_of_a_mean():
-    from styleerd.eval.metrics import bootstrap_spread
+    from styleerd.train.validation import bootstrap_spread
 
     x = np.random.default_rng(1).normal(0, 2.0, 400)
     sd = bootstrap_spread(len(x), lambda i: x[i].mean(), resamples=2000)

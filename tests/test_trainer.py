@@ -186,12 +186,34 @@ def test_fine_tune_from_a_saved_generator_with_a_critic_that_sees_rotations(shar
     train(TrainConfig(**{**tuning.to_dict(), "epochs": 2, "keep": "best", "init_from": ""}), tmp_path / "b", progress=False)
     with pytest.raises(StyleERDError, match="keep must be"):
         train(TrainConfig(**{**TINY, "keep": "newest"}, epochs=1), tmp_path / "d", progress=False)
+    # keep "realistic": every validation epoch judged by realism per style; the export is the most realistic one
+    train(TrainConfig(**TINY, epochs=3, init_from=str(tmp_path / "start"), keep="realistic"), tmp_path / "r", progress=False, export=tmp_path / "realistic")
+    rows = list(csv.DictReader(open(tmp_path / "r" / "metrics.csv")))
+    margins = [float(r["realism_margin"]) for r in rows]
+    assert len(margins) == 3 and all(0 < m < 10 for m in margins)
+    assert all(float(r["worst_fmd_over_floor"]) > 0 and 0 < float(r["worst_cra_of_ceiling"]) <= 1.5 for r in rows)
+    realistic, meta = ckpt.load_generator(tmp_path / "realistic")
+    chosen = max(range(3), key=lambda i: margins[i]) + 1
+    assert meta["training"]["best"]["epoch"] == chosen and f"epoch {chosen} of 3" in meta["training"]["kept"]
+    best, _ = ckpt.load_generator(tmp_path / "r" / "best")
+    assert all(torch.equal(v, best.state_dict()[k]) for k, v in realistic.state_dict().items())
     J = start.config.n_joints
     assert tensors["discriminator.trunk.0.1.weight"].shape[1] == 10 * J  # rotations, positions, velocities
     plain, _ = ckpt.load_tensors(tmp_path / "a" / "checkpoint")
     assert plain["discriminator.trunk.0.1.weight"].shape[1] == 6 * J  # the paper's critic: positions, velocities
     with pytest.raises(StyleERDError, match="init_from .* config differs"):
         train(TrainConfig(**{**TINY, "neutral_layers": 3}, epochs=1, init_from=str(tmp_path / "start")), tmp_path / "c", progress=False)
+
+
+def test_realism_margin_is_the_worst_styles_distance_inside_both_bars():
+    from styleerd.train.validation import realism_margin
+
+    q = {"fmd_per_style": {"a": 0.03, "b": 0.02}, "fmd_floor_per_style": {"a": 0.02, "b": 0.02},
+         "cra_per_style": {"a": 0.9, "b": 0.95}, "content_ceiling_per_style": {"a": 1.0, "b": 0.95}}  # fmt: skip
+    m = realism_margin(q)  # a: FMD 1.5 x (margin 2), CRA 90 % (margin 0.947); b: FMD 1 x, CRA 100 %
+    assert m == {"worst_fmd_over_floor": 1.5, "worst_cra_of_ceiling": 0.9, "realism_margin": round(0.9 / 0.95, 4)}
+    q["fmd_per_style"]["b"] = 0.08  # 4 x its floor: the worst margin is now b's FMD, 3 / 4
+    assert realism_margin(q)["realism_margin"] == 0.75
 
 
 def test_bench_train_step_times_the_trainers_own_step_of_two_recipes(shared_data, tmp_path):

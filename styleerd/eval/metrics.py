@@ -35,8 +35,7 @@ from styleerd.data.cache import prepare
 from styleerd.data.datasets import data_root, find_clips, load_motion
 from styleerd.data.features import features_to_motion, motion_features
 from styleerd.data.windows import gather_windows, split_takes
-from styleerd.model import torch_quat
-from styleerd.model.fmd import MotionAutoencoder
+from styleerd.model.fmd import MotionAutoencoder, fmd_features
 from styleerd.model.generator import StyleERD
 from styleerd.motion import bvh
 from styleerd.motion.motion import Motion
@@ -44,111 +43,13 @@ from styleerd.motion.kinematics import foot_contacts, forward_positions
 from styleerd.motion.skeleton import BodyRoles
 from styleerd.runtime.cleanup import FootLock
 from styleerd.runtime.stylizer import StreamStylizer
-from styleerd.train.batches import TrainingData, WindowSet
+from styleerd.train.batches import window_rotations
 from styleerd.train.config import TrainConfig
-from styleerd.train.fmd import hemisphere, window_rotations
 from styleerd.train.labeller import stream_accuracy
 from styleerd.train.trainer import Setup, setup
-from styleerd.train.validation import transfers
+from styleerd.train.validation import frechet_distance, proportional_real, transfer_quality
 
 FIRST_FRAMES = 10
-
-
-def frechet_distance(a: np.ndarray, b: np.ndarray) -> float:
-    """Fréchet distance between Gaussians fitted to feature sets ``a [n, d]``, ``b [m, d]``:
-    |mu_a - mu_b|^2 + tr(C_a + C_b - 2 (C_a^1/2 C_b C_a^1/2)^1/2), by symmetric eigensolves."""
-    mu = a.mean(0) - b.mean(0)
-    ca, cb = np.cov(a, rowvar=False), np.cov(b, rowvar=False)
-    w, v = np.linalg.eigh(ca)
-    root_a = (v * np.sqrt(np.clip(w, 0, None))) @ v.T
-    cross = np.linalg.eigvalsh(root_a @ cb @ root_a)
-    return float(mu @ mu + np.trace(ca) + np.trace(cb) - 2 * np.sqrt(np.clip(cross, 0, None)).sum())
-
-
-@torch.no_grad()
-def _features(fmd: MotionAutoencoder, rotations: torch.Tensor, reference: torch.Tensor) -> np.ndarray:
-    return fmd.features(hemisphere(rotations, reference)).numpy().astype(np.float64)
-
-
-def _proportional(real: dict[int, np.ndarray], targets: np.ndarray) -> np.ndarray:
-    """Real features drawn in the proportions of ``targets`` (cycling through each style's)."""
-    seen: dict[int, int] = {}
-    rows = []
-    for t in targets:
-        k = seen.get(int(t), 0)
-        rows.append(real[int(t)][k % len(real[int(t)])])
-        seen[int(t)] = k + 1
-    return np.stack(rows)
-
-
-def bootstrap_spread(n: int, statistic, resamples: int = 200, seed: int = 0) -> float:
-    """Standard deviation of ``statistic(rows)`` over ``resamples`` draws of ``n`` rows with
-    replacement (the spread of a figure over resamples of the test windows)."""
-    rng = np.random.default_rng(seed)
-    return float(np.std([statistic(rng.integers(0, n, n)) for _ in range(resamples)]))
-
-
-@torch.no_grad()
-def transfer_quality(model: StyleERD, s: Setup, test: WindowSet, style_rec, content_rec, fmd: MotionAutoencoder, batch: int = 256, resamples: int = 200) -> dict:
-    model.eval()
-    data = s.data
-    reference = torch.as_tensor(data.stats.reference, dtype=torch.float32)
-    # the content recogniser on each real window once (a neutral window is the input of several transfers)
-    read_in = np.concatenate([content_rec(data.gather(test.starts[i : i + batch])).argmax(-1).numpy() for i in range(0, len(test.starts), batch)])
-    feats, ok_s, ok_c, ok_in, jerk_fake, all_targets = [], [], [], [], [], []
-    for r, t, rot, _, ch in transfers(model, data, test, batch):
-        ok_s.append(style_rec(ch).argmax(-1).numpy() == t)
-        ok_c.append(content_rec(ch).argmax(-1).numpy() == test.content[r])
-        ok_in.append(read_in[r] == test.content[r])  # the input itself
-        feats.append(_features(fmd, rot, reference))
-        jerk_fake.append(_jerk(torch_quat.root_relative_positions(rot, model.offsets, model.parents)))
-        all_targets.append(t)
-    targets, ok_s, ok_c, ok_in = (np.concatenate(a) for a in (all_targets, ok_s, ok_c, ok_in))
-    fake = np.concatenate(feats)
-    real_all = np.concatenate([_features(fmd, window_rotations(data, test.starts[i : i + batch]), reference) for i in range(0, len(test.starts), batch)])
-    real = {k: real_all[test.style == k] for k in range(len(data.styles))}
-    styles = np.unique(targets)
-    per_style = {data.styles[k]: round(frechet_distance(fake[targets == k], real[k]), 3) for k in styles}
-    # floor: two halves of the real windows, split by clip
-    half = np.isin(test.clip, np.unique(test.clip)[::2])
-    floor_style = {data.styles[k]: round(frechet_distance(real_all[half & (test.style == k)], real_all[~half & (test.style == k)]), 3) for k in styles}
-    pooled_real = _proportional(real, targets)
-    pooled = frechet_distance(fake, pooled_real)
-    floor = frechet_distance(real_all[half], real_all[~half])
-    real_pos = torch.cat([_real_positions(model, data, test.starts[i : i + batch]) for i in range(0, len(test.starts), batch)])
-    # spreads over bootstrap resamples of the transfers (FMD: fake and real rows drawn together)
-    spread = {
-        "sra": bootstrap_spread(len(ok_s), lambda i: ok_s[i].mean(), resamples),
-        "cra": bootstrap_spread(len(ok_c), lambda i: ok_c[i].mean(), resamples),
-        "fmd": bootstrap_spread(len(fake), lambda i: frechet_distance(fake[i], pooled_real[i]), resamples),
-    }
-    return {
-        "transfers": len(targets),
-        "sra": round(float(ok_s.mean()), 4),
-        "cra": round(float(ok_c.mean()), 4),
-        "content_ceiling": round(float(ok_in.mean()), 4),  # the content recogniser on the transfers' inputs
-        "fmd": round(pooled, 3),
-        "fmd_floor": round(floor, 3),
-        "fmd_over_floor": round(pooled / floor, 2),
-        "spread": {k: round(v, 4) for k, v in spread.items()},
-        "fmd_per_style": per_style,
-        "fmd_floor_per_style": floor_style,
-        "cra_per_style": {data.styles[k]: round(float(ok_c[targets == k].mean()), 4) for k in styles},
-        # per target, the content recogniser's accuracy on the transfers' inputs: its ceiling there
-        "content_ceiling_per_style": {data.styles[k]: round(float(ok_in[targets == k].mean()), 4) for k in styles},
-        "sra_per_style": {data.styles[k]: round(float(ok_s[targets == k].mean()), 4) for k in styles},
-        "jitter_ratio": round(float(np.concatenate(jerk_fake).mean() / _jerk(real_pos).mean()), 3),
-    }
-
-
-def _real_positions(model: StyleERD, data: TrainingData, starts: np.ndarray) -> torch.Tensor:
-    return torch_quat.root_relative_positions(model.raw_rotations(data.gather(starts)), model.offsets, model.parents)
-
-
-def _jerk(positions: torch.Tensor) -> np.ndarray:
-    """Mean jerk magnitude per window (units per frame^3) of positions ``[B, T, J, 3]``."""
-    d3 = positions[:, 3:] - 3 * positions[:, 2:-1] + 3 * positions[:, 1:-2] - positions[:, :-3]
-    return d3.norm(dim=-1).mean(dim=(1, 2)).numpy()
 
 
 @torch.no_grad()
@@ -173,24 +74,24 @@ def responsiveness(model: StyleERD, s: Setup, style_rec, fmd: MotionAutoencoder,
         n_rest = (x.shape[1] - FIRST_FRAMES) // window
         t = np.array(targets)
         hit_first += int((style_rec(ch[:, :FIRST_FRAMES]).argmax(-1).numpy() == t).sum())
-        first_fake.append(_features(fmd, rot[:, :FIRST_FRAMES], reference))
+        first_fake.append(fmd_features(fmd, rot[:, :FIRST_FRAMES], reference))
         first_t.append(t)
         q_real = window_rotations(data, np.array([sl.start]))  # [1, 24, J, 4]: its first frames
-        first_real.setdefault(st, []).append(_features(fmd, q_real[:, :FIRST_FRAMES], reference)[0])
+        first_real.setdefault(st, []).append(fmd_features(fmd, q_real[:, :FIRST_FRAMES], reference)[0])
         for k in range(n_rest):
             a = FIRST_FRAMES + k * window
             hit_rest += int((style_rec(ch[:, a : a + window]).argmax(-1).numpy() == t).sum())
-            rest_fake.append(_features(fmd, rot[:, a : a + window], reference))
+            rest_fake.append(fmd_features(fmd, rot[:, a : a + window], reference))
             rest_t.append(t)
-            rest_real.setdefault(st, []).append(_features(fmd, window_rotations(data, np.array([sl.start + a])), reference)[0])
+            rest_real.setdefault(st, []).append(fmd_features(fmd, window_rotations(data, np.array([sl.start + a])), reference)[0])
     ft, rt = np.concatenate(first_t), np.concatenate(rest_t)
     first_real_by = {k: np.stack(v) for k, v in first_real.items()}
     rest_real_by = {k: np.stack(v) for k, v in rest_real.items()}
     return {
         "sra_first_10": round(hit_first / len(ft), 4),
         "sra_rest": round(hit_rest / len(rt), 4),
-        "fmd_first_10": round(frechet_distance(np.concatenate(first_fake), _proportional(first_real_by, ft)), 3),
-        "fmd_rest": round(frechet_distance(np.concatenate(rest_fake), _proportional(rest_real_by, rt)), 3),
+        "fmd_first_10": round(frechet_distance(np.concatenate(first_fake), proportional_real(first_real_by, ft)), 3),
+        "fmd_rest": round(frechet_distance(np.concatenate(rest_fake), proportional_real(rest_real_by, rt)), 3),
     }
 
 
@@ -206,7 +107,7 @@ def evaluate_model(model: StyleERD, data_dir: str | None = None) -> dict:
     fmd, _ = ckpt.load_fmd()
     rec = validate(model, s.data, test)
     out = {"rec_deg": round(rec["rec_deg"], 3), "rec_cm": round(rec["rec_cm"], 3)}
-    out.update(transfer_quality(model, s, test, style_rec, content_rec, fmd))
+    out.update(transfer_quality(model, s.data, test, style_rec, content_rec, fmd))
     out.update(responsiveness(model, s, style_rec, fmd))
     return out
 

@@ -4,6 +4,7 @@ is the feature of a window."""
 
 from __future__ import annotations
 
+import numpy as np
 import torch
 from torch import nn
 
@@ -43,3 +44,14 @@ class MotionAutoencoder(nn.Module):
 
     def config(self) -> dict:
         return {"n_joints": self.n_joints, "channels": list(self.channels), "kernel": self.kernel}
+
+
+def hemisphere(rotations: torch.Tensor, reference: torch.Tensor) -> torch.Tensor:
+    """Quaternions ``[..., J, 4]`` flipped into the hemisphere of ``reference [J, 4]``."""
+    return rotations * torch.where((rotations * reference).sum(-1, keepdim=True) < 0, -1.0, 1.0)
+
+
+@torch.no_grad()
+def fmd_features(model: MotionAutoencoder, rotations: torch.Tensor, reference: torch.Tensor) -> np.ndarray:
+    """FMD features ``[B, C]`` (float64) of windows of unit quaternions ``[B, T, J, 4]``."""
+    return model.features(hemisphere(rotations, reference)).numpy().astype(np.float64)

@@ -8,8 +8,9 @@ import numpy as np
 import torch
 
 from styleerd.data.cache import FeatureSet
-from styleerd.data.features import FeatureStats
+from styleerd.data.features import FeatureLayout, FeatureStats
 from styleerd.data.windows import window_starts
+from styleerd.model import torch_quat
 
 
 @dataclass
@@ -54,3 +55,12 @@ def windows(fs: FeatureSet, data: TrainingData, split: str, stride: int, max_cli
     style = np.array([data.styles.index(s) for s in fs.styles[clip]])
     content = np.array([data.contents.index(c) for c in fs.contents[clip]])
     return WindowSet(starts, style, content, clip)
+
+
+def window_rotations(data: TrainingData, starts: np.ndarray) -> torch.Tensor:
+    """Unit quaternions ``[B, T, J, 4]`` of real windows (already in the reference hemisphere)."""
+    x = data.gather(starts)
+    J = len(data.stats.reference)
+    rot = FeatureLayout(J).rotations
+    q = x[..., rot] * torch.as_tensor(data.stats.std[rot], dtype=torch.float32) + torch.as_tensor(data.stats.mean[rot], dtype=torch.float32)
+    return torch_quat.normalize(q.reshape(*x.shape[:2], J, 4))

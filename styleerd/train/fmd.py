@@ -10,27 +10,12 @@ import numpy as np
 import torch
 from tqdm import tqdm
 
-from styleerd.data.features import FeatureLayout
 from styleerd.model import checkpoint as ckpt
 from styleerd.model import torch_quat
 from styleerd.model.fmd import MotionAutoencoder
-from styleerd.train.batches import TrainingData, WindowSet, windows
+from styleerd.train.batches import TrainingData, WindowSet, window_rotations, windows
 from styleerd.train.config import TrainConfig
 from styleerd.train.trainer import setup
-
-
-def hemisphere(rotations: torch.Tensor, reference: torch.Tensor) -> torch.Tensor:
-    """Quaternions ``[..., J, 4]`` flipped into the hemisphere of ``reference [J, 4]``."""
-    return rotations * torch.where((rotations * reference).sum(-1, keepdim=True) < 0, -1.0, 1.0)
-
-
-def window_rotations(data: TrainingData, starts: np.ndarray) -> torch.Tensor:
-    """Unit quaternions ``[B, T, J, 4]`` of real windows (already in the reference hemisphere)."""
-    x = data.gather(starts)
-    J = len(data.stats.reference)
-    rot = FeatureLayout(J).rotations
-    q = x[..., rot] * torch.as_tensor(data.stats.std[rot], dtype=torch.float32) + torch.as_tensor(data.stats.mean[rot], dtype=torch.float32)
-    return torch_quat.normalize(q.reshape(*x.shape[:2], J, 4))
 
 
 def angle_loss(a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:

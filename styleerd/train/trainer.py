@@ -32,12 +32,18 @@ from styleerd.errors import StyleERDError
 from styleerd.model import checkpoint as ckpt
 from styleerd.model.classifiers import WindowClassifier
 from styleerd.model.discriminator import Discriminator
+from styleerd.model.fmd import MotionAutoencoder
 from styleerd.model.generator import GeneratorConfig, StyleERD
 from styleerd.train import losses
 from styleerd.train.batches import TrainingData, WindowSet, training_data, windows
 from styleerd.train.classifiers import accuracy, train_classifier
 from styleerd.train.config import TrainConfig
-from styleerd.train.validation import transfers, validate
+from styleerd.train.validation import realism_margin, transfer_quality, transfers, validate
+
+
+# what --export writes: the best validation epoch by SRA + CRA, the last epoch (a fixed budget),
+# or the validation epoch most realistic in its worst target style (train.validation.realism_margin)
+KEEP = ("best", "last", "realistic")
 
 
 @dataclass
@@ -249,8 +255,8 @@ def train(config: TrainConfig, out: Path, data_dir: str | None = None, progress:
     the best generator (``keep`` "last": the final one) is also written there as a
     self-contained model."""
     torch.set_num_threads(config.threads)
-    if config.keep not in ("best", "last"):
-        raise StyleERDError(f"keep must be 'best' or 'last', got {config.keep!r}")
+    if config.keep not in KEEP:
+        raise StyleERDError(f"keep must be one of {KEEP}, got {config.keep!r}")
     if int(os.environ.get("WORLD_SIZE", "1")) > 1 and not dist.is_initialized():
         dist.init_process_group("gloo")
     rank = dist.get_rank() if dist.is_initialized() else 0
@@ -268,6 +274,7 @@ def train(config: TrainConfig, out: Path, data_dir: str | None = None, progress:
     if per_classifier is not None:
         per_classifier.requires_grad_(False)
     style_rec, content_rec = _recognisers(s)
+    realism = _realism_judges(config, s, style_rec) if config.keep == "realistic" else None
 
     # ---- resume
     state_stem = out / "checkpoint"
@@ -325,8 +332,11 @@ def train(config: TrainConfig, out: Path, data_dir: str | None = None, progress:
         row.update({f"loss_{k}": round(v / counts[k], 5) for k, v in sums.items()})
         if (epoch + 1) % config.val_every == 0 or epoch + 1 == config.epochs:
             row.update({k: round(v, 4) for k, v in validate(G, s.data, s.val, style_rec, content_rec).items()})
+            if realism is not None:
+                fmd, val_all = realism
+                row.update(realism_margin(transfer_quality(G, s.data, val_all, style_rec, content_rec, fmd, resamples=0)))
         if _is_main():
-            score = _score(row)
+            score = _score(row, config.keep)
             if score is not None and (best is None or score > best["score"]):
                 best = {"score": score, **row}
                 ckpt.save_tensors(out / "best", ckpt.prefixed("generator", G), _model_meta(G, s, config, best))
@@ -344,6 +354,8 @@ def train(config: TrainConfig, out: Path, data_dir: str | None = None, progress:
             meta["training"]["kept"] = f"the last epoch ({done}), not the best validation epoch"
         else:
             tensors, meta = ckpt.load_tensors(out / "best")
+            if config.keep == "realistic":
+                meta["training"]["kept"] = f"epoch {meta['training']['best']['epoch']} of {done}: the validation epoch whose worst target style is furthest inside the realism bars"
         meta["training"]["wall_minutes"] = round(elapsed / 60, 2)
         meta["training"]["epochs_trained"] = done  # the run's budget (its ablations train as many)
         if config.init_from:  # a fine-tuning stage: the training of the model it started from
@@ -360,9 +372,22 @@ def _start_from(G: StyleERD, stem: str) -> None:
     G.load_state_dict(start.state_dict())
 
 
-def _score(row: dict) -> float | None:
-    """Model selection: style and content recognition of transfers when recognisers exist,
-    else (lower) reconstruction error."""
+def _realism_judges(config: TrainConfig, s: Setup, style_rec: WindowClassifier | None) -> tuple[MotionAutoencoder, WindowSet]:
+    """keep "realistic" judges realism per target style with the shipped FMD extractor and
+    recognisers, on every validation window of every clip (FMD per style needs more than the
+    quick subset, and than a tiny run's ``max_train_clips``)."""
+    fmd, _ = ckpt.load_fmd()
+    if style_rec is None or fmd.n_joints != s.fs.skeleton.n_joints:
+        raise StyleERDError(f"keep: realistic needs the shipped recognisers and FMD extractor, which do not fit {config.dataset}")
+    return fmd, windows(s.fs, s.data, "val", config.window)
+
+
+def _score(row: dict, keep: str) -> float | None:
+    """Model selection. keep "realistic": the worst target style's margin inside both realism
+    bars (``realism_margin``). Otherwise style and content recognition of transfers when
+    recognisers exist, else (lower) reconstruction error."""
+    if keep == "realistic":
+        return row.get("realism_margin")
     if "sra" in row:
         return row["sra"] + row["cra"]
     if "rec_deg" in row:

@@ -1,5 +1,7 @@
-"""Quick quality signal of a generator on held-out windows: reconstruction error (degrees, cm),
-style recognition accuracy (SRA) and content recognition accuracy (CRA) of its transfers."""
+"""Quality of a generator on held-out windows. ``validate``: the quick signal checked during
+training (reconstruction error in degrees and cm, style and content recognition accuracy (SRA,
+CRA) of its transfers). ``transfer_quality``: every figure of its transfers, FMD and CRA per
+target style among them (the test split's report, and model selection on realism)."""
 
 from __future__ import annotations
 
@@ -8,8 +10,13 @@ import torch
 
 from styleerd.model import torch_quat
 from styleerd.model.classifiers import WindowClassifier
+from styleerd.model.fmd import MotionAutoencoder, fmd_features
 from styleerd.model.generator import StyleERD
-from styleerd.train.batches import TrainingData, WindowSet
+from styleerd.train.batches import TrainingData, WindowSet, window_rotations
+
+# Issue 16's bars for a realistic model, per target style: FMD at most 3 x its floor, CRA at
+# least 95 % of the content recogniser's ceiling.
+FMD_BAR, CRA_BAR = 3.0, 0.95
 
 
 def transfer_targets(style: np.ndarray, neutral: int, n_styles: int) -> tuple[np.ndarray, np.ndarray]:
@@ -69,3 +76,106 @@ def transfers(model: StyleERD, data: TrainingData, ws: WindowSet, batch: int = 5
         x = data.gather(ws.starts[r])
         rot, vel, _ = model(x, data.onehot_style(ws.style[r]), data.onehot_content(ws.content[r]), data.onehot_style(t))
         yield r, t, rot, vel, model.motion_channels(rot, vel)
+
+
+def frechet_distance(a: np.ndarray, b: np.ndarray) -> float:
+    """Fréchet distance between Gaussians fitted to feature sets ``a [n, d]``, ``b [m, d]``:
+    |mu_a - mu_b|^2 + tr(C_a + C_b - 2 (C_a^1/2 C_b C_a^1/2)^1/2), by symmetric eigensolves."""
+    mu = a.mean(0) - b.mean(0)
+    ca, cb = np.cov(a, rowvar=False), np.cov(b, rowvar=False)
+    w, v = np.linalg.eigh(ca)
+    root_a = (v * np.sqrt(np.clip(w, 0, None))) @ v.T
+    cross = np.linalg.eigvalsh(root_a @ cb @ root_a)
+    return float(mu @ mu + np.trace(ca) + np.trace(cb) - 2 * np.sqrt(np.clip(cross, 0, None)).sum())
+
+
+def proportional_real(real: dict[int, np.ndarray], targets: np.ndarray) -> np.ndarray:
+    """Real features drawn in the proportions of ``targets`` (cycling through each style's)."""
+    seen: dict[int, int] = {}
+    rows = []
+    for t in targets:
+        k = seen.get(int(t), 0)
+        rows.append(real[int(t)][k % len(real[int(t)])])
+        seen[int(t)] = k + 1
+    return np.stack(rows)
+
+
+def bootstrap_spread(n: int, statistic, resamples: int = 200, seed: int = 0) -> float:
+    """Standard deviation of ``statistic(rows)`` over ``resamples`` draws of ``n`` rows with
+    replacement (the spread of a figure over resamples of the test windows)."""
+    rng = np.random.default_rng(seed)
+    return float(np.std([statistic(rng.integers(0, n, n)) for _ in range(resamples)]))
+
+
+@torch.no_grad()
+def transfer_quality(model: StyleERD, data: TrainingData, test: WindowSet, style_rec: WindowClassifier, content_rec: WindowClassifier, fmd: MotionAutoencoder, batch: int = 256, resamples: int = 200) -> dict:
+    """Every quality figure of the transfers of ``test``'s windows (see ``styleerd.eval.metrics``);
+    ``resamples`` 0 leaves out the bootstrap spreads (model selection during training)."""
+    model.eval()
+    reference = torch.as_tensor(data.stats.reference, dtype=torch.float32)
+    # the content recogniser on each real window once (a neutral window is the input of several transfers)
+    read_in = np.concatenate([content_rec(data.gather(test.starts[i : i + batch])).argmax(-1).numpy() for i in range(0, len(test.starts), batch)])
+    feats, ok_s, ok_c, ok_in, jerk_fake, all_targets = [], [], [], [], [], []
+    for r, t, rot, _, ch in transfers(model, data, test, batch):
+        ok_s.append(style_rec(ch).argmax(-1).numpy() == t)
+        ok_c.append(content_rec(ch).argmax(-1).numpy() == test.content[r])
+        ok_in.append(read_in[r] == test.content[r])  # the input itself
+        feats.append(fmd_features(fmd, rot, reference))
+        jerk_fake.append(_jerk(torch_quat.root_relative_positions(rot, model.offsets, model.parents)))
+        all_targets.append(t)
+    targets, ok_s, ok_c, ok_in = (np.concatenate(a) for a in (all_targets, ok_s, ok_c, ok_in))
+    fake = np.concatenate(feats)
+    real_all = np.concatenate([fmd_features(fmd, window_rotations(data, test.starts[i : i + batch]), reference) for i in range(0, len(test.starts), batch)])
+    real = {k: real_all[test.style == k] for k in range(len(data.styles))}
+    styles = np.unique(targets)
+    per_style = {data.styles[k]: round(frechet_distance(fake[targets == k], real[k]), 3) for k in styles}
+    # floor: two halves of the real windows, split by clip
+    half = np.isin(test.clip, np.unique(test.clip)[::2])
+    floor_style = {data.styles[k]: round(frechet_distance(real_all[half & (test.style == k)], real_all[~half & (test.style == k)]), 3) for k in styles}
+    pooled_real = proportional_real(real, targets)
+    pooled = frechet_distance(fake, pooled_real)
+    floor = frechet_distance(real_all[half], real_all[~half])
+    real_pos = torch.cat([_real_positions(model, data, test.starts[i : i + batch]) for i in range(0, len(test.starts), batch)])
+    # spreads over bootstrap resamples of the transfers (FMD: fake and real rows drawn together)
+    spread = {
+        "sra": bootstrap_spread(len(ok_s), lambda i: ok_s[i].mean(), resamples),
+        "cra": bootstrap_spread(len(ok_c), lambda i: ok_c[i].mean(), resamples),
+        "fmd": bootstrap_spread(len(fake), lambda i: frechet_distance(fake[i], pooled_real[i]), resamples),
+    } if resamples else {}
+    return {
+        "transfers": len(targets),
+        "sra": round(float(ok_s.mean()), 4),
+        "cra": round(float(ok_c.mean()), 4),
+        "content_ceiling": round(float(ok_in.mean()), 4),  # the content recogniser on the transfers' inputs
+        "fmd": round(pooled, 3),
+        "fmd_floor": round(floor, 3),
+        "fmd_over_floor": round(pooled / floor, 2),
+        "spread": {k: round(v, 4) for k, v in spread.items()},
+        "fmd_per_style": per_style,
+        "fmd_floor_per_style": floor_style,
+        "cra_per_style": {data.styles[k]: round(float(ok_c[targets == k].mean()), 4) for k in styles},
+        # per target, the content recogniser's accuracy on the transfers' inputs: its ceiling there
+        "content_ceiling_per_style": {data.styles[k]: round(float(ok_in[targets == k].mean()), 4) for k in styles},
+        "sra_per_style": {data.styles[k]: round(float(ok_s[targets == k].mean()), 4) for k in styles},
+        "jitter_ratio": round(float(np.concatenate(jerk_fake).mean() / _jerk(real_pos).mean()), 3),
+    }
+
+
+def _real_positions(model: StyleERD, data: TrainingData, starts: np.ndarray) -> torch.Tensor:
+    return torch_quat.root_relative_positions(model.raw_rotations(data.gather(starts)), model.offsets, model.parents)
+
+
+def _jerk(positions: torch.Tensor) -> np.ndarray:
+    """Mean jerk magnitude per window (units per frame^3) of positions ``[B, T, J, 3]``."""
+    d3 = positions[:, 3:] - 3 * positions[:, 2:-1] + 3 * positions[:, 1:-2] - positions[:, :-3]
+    return d3.norm(dim=-1).mean(dim=(1, 2)).numpy()
+
+
+def realism_margin(quality: dict) -> dict[str, float]:
+    """How far inside both realism bars the worst target style is: per style, the smaller of
+    FMD_BAR / (FMD / floor) and (CRA / ceiling) / CRA_BAR; >= 1 when every style meets both.
+    Also the worst FMD / floor and CRA / ceiling themselves (``transfer_quality``'s output in)."""
+    fmd = {k: quality["fmd_per_style"][k] / max(quality["fmd_floor_per_style"][k], 1e-9) for k in quality["fmd_per_style"]}
+    cra = {k: quality["cra_per_style"][k] / max(quality["content_ceiling_per_style"][k], 1e-9) for k in quality["cra_per_style"]}
+    margin = min(min(FMD_BAR / max(fmd[k], 1e-9), cra[k] / CRA_BAR) for k in fmd)
+    return {"worst_fmd_over_floor": round(max(fmd.values()), 3), "worst_cra_of_ceiling": round(min(cra.values()), 4), "realism_margin": round(margin, 4)}
