@@ -13,9 +13,9 @@ from tqdm import tqdm
 
 from styleerd.eval.ablations import ABLATIONS, model_stem, trained
 from styleerd.model import checkpoint as ckpt
+from styleerd.train.validation import CRA_BAR, FMD_BAR
 
 RECIPES_DIR = Path(__file__).resolve().parents[2] / "models" / "recipes"  # research models: in a checkout, not in the package
-FMD_LIMIT, CRA_LIMIT = 3.0, 0.95  # issue 16: every target style's FMD <= 3 x its floor with CRA >= 95 % of the ceiling
 
 
 def recipe_models() -> dict[str, Path | None]:
@@ -106,8 +106,8 @@ def tradeoff_plot(rows: dict, path: Path) -> None:
         for style, v in ps.items():
             b.annotate(style, (v["fmd_over_floor"], v["cra_of_ceiling"]), textcoords="offset points", xytext=(4, 3), fontsize=7)
     for ax in (a, b):
-        ax.axvline(FMD_LIMIT, ls="--", c="grey")
-        ax.axhline(CRA_LIMIT, ls="--", c="grey")
+        ax.axvline(FMD_BAR, ls="--", c="grey")
+        ax.axhline(CRA_BAR, ls="--", c="grey")
         ax.set_xscale("log")
         ax.grid(alpha=0.3)
     b.set(xlabel="FMD / floor per target style", ylabel="CRA / ceiling per target style", title="Per target style (limits dashed)")
