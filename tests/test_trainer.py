@@ -167,7 +167,7 @@ def test_both_bandai_sets_as_one_train_style_by_style(shared_data, tmp_path):
     assert model.config.styles == tuple(sorted(styles)) and "bow" in model.config.contents
 
 
-def test_fine_tune_from_a_saved_generator_with_a_critic_that_sees_rotations(shared_data, tmp_path):
+def test_fine_tune_from_a_saved_generator_with_a_critic_that_sees_rotations(shared_data, tmp_path, monkeypatch):
     from styleerd.train.trainer import train
 
     train(TrainConfig(**TINY, epochs=1), tmp_path / "a", progress=False, export=tmp_path / "start")
@@ -197,6 +197,9 @@ def test_fine_tune_from_a_saved_generator_with_a_critic_that_sees_rotations(shar
     assert meta["training"]["best"]["epoch"] == chosen and f"epoch {chosen} of 3" in meta["training"]["kept"]
     best, _ = ckpt.load_generator(tmp_path / "r" / "best")
     assert all(torch.equal(v, best.state_dict()[k]) for k, v in realistic.state_dict().items())
+    monkeypatch.setattr("styleerd.train.trainer._recognisers", lambda s: (None, None))  # judges that do not fit the data
+    with pytest.raises(StyleERDError, match="keep: realistic needs the shipped recognisers"):
+        train(TrainConfig(**TINY, epochs=1, keep="realistic"), tmp_path / "e", progress=False)
     J = start.config.n_joints
     assert tensors["discriminator.trunk.0.1.weight"].shape[1] == 10 * J  # rotations, positions, velocities
     plain, _ = ckpt.load_tensors(tmp_path / "a" / "checkpoint")

@@ -270,11 +270,11 @@ def train(config: TrainConfig, out: Path, data_dir: str | None = None, progress:
     D = make_critic(config, s)
     opt_g = torch.optim.Adam([p for p in G.parameters() if p.requires_grad], lr=config.lr_g, betas=(0.5, 0.999))
     opt_d = torch.optim.Adam(D.parameters(), lr=config.lr_d, betas=(0.5, 0.999))
+    style_rec, content_rec = _recognisers(s)
+    realism = _realism_judges(config, s, style_rec) if config.keep == "realistic" else None
     per_classifier = _perceptual_classifier(config, s, out, progress) if config.use_per or config.w_cls else None
     if per_classifier is not None:
         per_classifier.requires_grad_(False)
-    style_rec, content_rec = _recognisers(s)
-    realism = _realism_judges(config, s, style_rec) if config.keep == "realistic" else None
 
     # ---- resume
     state_stem = out / "checkpoint"
