@@ -35,7 +35,7 @@ def epochs_done(out):
 
 
 def test_kill_9_mid_run_then_rerun_continues_and_matches_an_uninterrupted_run(shared_data, tmp_path):
-    cfg = write_config(tmp_path / "c.yaml", epochs=6)
+    cfg = write_config(tmp_path / "c.yaml", epochs=6, ema=0.9)  # the weights' moving average resumes too
     straight = run_cli("train", "--config", cfg, "--out", tmp_path / "a")
     assert straight.wait(timeout=600) == 0, straight.stdout.read()
 
@@ -54,7 +54,7 @@ def test_kill_9_mid_run_then_rerun_continues_and_matches_an_uninterrupted_run(sh
     assert epochs_done(tmp_path / "b") == 6
     a, _ = ckpt.load_tensors(tmp_path / "a" / "checkpoint")
     b, _ = ckpt.load_tensors(tmp_path / "b" / "checkpoint")
-    assert a.keys() == b.keys()
+    assert a.keys() == b.keys() and any(k.startswith("average.") for k in a)
     assert all(torch.equal(a[k], b[k]) for k in a), "resumed run must end with the same weights"
 
 
@@ -184,6 +184,16 @@ def test_fine_tune_from_a_saved_generator_with_a_critic_that_sees_rotations(shar
     assert meta["training"]["started_from"]["training"]["epochs_trained"] == 1
     # where a run started and what it exports may change on resuming (the checkpoint holds the weights)
     train(TrainConfig(**{**tuning.to_dict(), "epochs": 2, "keep": "best", "init_from": ""}), tmp_path / "b", progress=False)
+    # ema: the export (and every validation) is the moving average of the weights, not the weights
+    train(TrainConfig(**TINY, epochs=1, init_from=str(tmp_path / "start"), keep="last", ema=0.99), tmp_path / "m", progress=False, export=tmp_path / "averaged")
+    tensors_m, _ = ckpt.load_tensors(tmp_path / "m" / "checkpoint")
+    averaged, meta = ckpt.load_generator(tmp_path / "averaged")
+    assert "moving average (decay 0.99)" in meta["training"]["kept"]
+    average, raw = ckpt.unprefixed("average", tensors_m), ckpt.unprefixed("generator", tensors_m)
+    assert all(torch.equal(v, average[k]) for k, v in averaged.state_dict().items())
+    assert not all(torch.equal(v, raw[k]) for k, v in averaged.state_dict().items())
+    with pytest.raises(StyleERDError, match="ema must be a decay"):
+        train(TrainConfig(**TINY, epochs=1, ema=1.0), tmp_path / "f", progress=False)
     with pytest.raises(StyleERDError, match="keep must be"):
         train(TrainConfig(**{**TINY, "keep": "newest"}, epochs=1), tmp_path / "d", progress=False)
     # keep "realistic": every validation epoch judged by realism per style; the export is the most realistic one
@@ -206,6 +216,23 @@ def test_fine_tune_from_a_saved_generator_with_a_critic_that_sees_rotations(shar
     assert plain["discriminator.trunk.0.1.weight"].shape[1] == 6 * J  # the paper's critic: positions, velocities
     with pytest.raises(StyleERDError, match="init_from .* config differs"):
         train(TrainConfig(**{**TINY, "neutral_layers": 3}, epochs=1, init_from=str(tmp_path / "start")), tmp_path / "c", progress=False)
+
+
+def test_moving_average_of_the_weights_follows_its_formula():
+    from conftest import walking_motion
+    from styleerd.data.features import FeatureStats, motion_features
+    from styleerd.model.generator import GeneratorConfig, StyleERD
+    from styleerd.train.trainer import update_average
+
+    m = walking_motion(30)
+    stats = FeatureStats.fit(motion_features(m)[0], m.skeleton.n_joints)
+    config = GeneratorConfig(m.skeleton.n_joints, ("normal", "old"), ("walk",), neutral_layers=2, style_layers=1)
+    torch.manual_seed(0)
+    G, G_avg = StyleERD(config, m.skeleton, stats), StyleERD(config, m.skeleton, stats)
+    before = {k: v.clone() for k, v in G_avg.state_dict().items()}
+    update_average(G_avg, G, 0.75)
+    for k, v in G_avg.state_dict().items():
+        torch.testing.assert_close(v, 0.75 * before[k] + 0.25 * G.state_dict()[k])
 
 
 def test_realism_margin_is_the_worst_styles_distance_inside_both_bars():

@@ -12,6 +12,7 @@ from the last finished epoch and ends with the same weights as an uninterrupted 
 
 from __future__ import annotations
 
+import copy
 import csv
 import io
 import os
@@ -148,8 +149,10 @@ def _recognisers(s: Setup, stem: Path | None = None) -> tuple[WindowClassifier |
     return style, content
 
 
-def _state(G: StyleERD, D: Discriminator, opt_g: torch.optim.Optimizer, opt_d: torch.optim.Optimizer) -> dict[str, torch.Tensor]:
+def _state(G: StyleERD, D: Discriminator, opt_g: torch.optim.Optimizer, opt_d: torch.optim.Optimizer, G_avg: StyleERD | None) -> dict[str, torch.Tensor]:
     tensors = {**ckpt.prefixed("generator", G), **ckpt.prefixed("discriminator", D)}
+    if G_avg is not None:
+        tensors.update(ckpt.prefixed("average", G_avg))
     for name, opt in (("opt_g", opt_g), ("opt_d", opt_d)):
         for i, st in opt.state_dict()["state"].items():
             for k, v in st.items():
@@ -157,9 +160,11 @@ def _state(G: StyleERD, D: Discriminator, opt_g: torch.optim.Optimizer, opt_d: t
     return tensors
 
 
-def _load_state(tensors: dict, G: StyleERD, D: Discriminator, opt_g: torch.optim.Optimizer, opt_d: torch.optim.Optimizer) -> None:
+def _load_state(tensors: dict, G: StyleERD, D: Discriminator, opt_g: torch.optim.Optimizer, opt_d: torch.optim.Optimizer, G_avg: StyleERD | None) -> None:
     G.load_state_dict(ckpt.unprefixed("generator", tensors))
     D.load_state_dict(ckpt.unprefixed("discriminator", tensors))
+    if G_avg is not None:
+        G_avg.load_state_dict(ckpt.unprefixed("average", tensors))
     for name, opt in (("opt_g", opt_g), ("opt_d", opt_d)):
         sd = opt.state_dict()
         state: dict[int, dict] = {}
@@ -168,6 +173,14 @@ def _load_state(tensors: dict, G: StyleERD, D: Discriminator, opt_g: torch.optim
             state.setdefault(int(i), {})[k] = v
         sd["state"] = state
         opt.load_state_dict(sd)
+
+
+def update_average(G_avg: StyleERD, G: StyleERD, decay: float) -> None:
+    """An exponential moving average of the generator's weights (``ema``): it smooths the
+    step-to-step wander of adversarial training (Yazici et al. 2019)."""
+    with torch.no_grad():
+        for avg, p in zip(G_avg.parameters(), G.parameters()):
+            avg.lerp_(p, 1.0 - decay)
 
 
 def critic_channels(config: TrainConfig, layout: FeatureLayout) -> slice:
@@ -257,6 +270,8 @@ def train(config: TrainConfig, out: Path, data_dir: str | None = None, progress:
     torch.set_num_threads(config.threads)
     if config.keep not in KEEP:
         raise StyleERDError(f"keep must be one of {KEEP}, got {config.keep!r}")
+    if not 0.0 <= config.ema < 1.0:
+        raise StyleERDError(f"ema must be a decay in [0, 1), got {config.ema!r}")
     if int(os.environ.get("WORLD_SIZE", "1")) > 1 and not dist.is_initialized():
         dist.init_process_group("gloo")
     rank = dist.get_rank() if dist.is_initialized() else 0
@@ -279,16 +294,18 @@ def train(config: TrainConfig, out: Path, data_dir: str | None = None, progress:
     # ---- resume
     state_stem = out / "checkpoint"
     epoch0, elapsed, best = 0, 0.0, None
+    if config.init_from:
+        _start_from(G, config.init_from)
+    G_avg = copy.deepcopy(G).requires_grad_(False) if config.ema else None  # what is validated and exported
     if state_stem.with_suffix(".safetensors").is_file():
         tensors, meta = ckpt.load_tensors(state_stem)
         if _resumable(TrainConfig.from_dict(meta["config"]).to_dict()) != _resumable(config.to_dict()):  # fields added since default
             raise StyleERDError(f"{out} holds a run with another config; use a new --out or delete it")
-        _load_state(tensors, G, D, opt_g, opt_d)
+        _load_state(tensors, G, D, opt_g, opt_d, G_avg)
         epoch0, elapsed, best = meta["epoch"], meta["elapsed_s"], meta.get("best")
         if progress:
             print(f"resuming {out} after epoch {epoch0} ({elapsed / 60:.1f} min trained)")
-    elif config.init_from:
-        _start_from(G, config.init_from)
+    G_eval = G_avg if G_avg is not None else G
 
     neutral = G.config.neutral_index
     n_styles = len(s.data.styles)
@@ -321,6 +338,8 @@ def train(config: TrainConfig, out: Path, data_dir: str | None = None, progress:
             rows = np.concatenate([rng.choice(neutral_rows, half), styled])
             target = np.where(s.train.style[rows] == neutral, rng.choice(others, B), neutral)
             logs = train_step(G, D, opt_g, opt_d, per_classifier, config, s, rows, target, step)
+            if G_avg is not None:
+                update_average(G_avg, G, config.ema)
             for k, v in logs.items():  # the mean of each loss over the steps that computed it
                 sums[k] = sums.get(k, 0.0) + v
                 counts[k] = counts.get(k, 0) + 1
@@ -331,17 +350,17 @@ def train(config: TrainConfig, out: Path, data_dir: str | None = None, progress:
         row = {"epoch": epoch + 1, "steps": (epoch + 1) * steps, "minutes": round(elapsed / 60, 3)}
         row.update({f"loss_{k}": round(v / counts[k], 5) for k, v in sums.items()})
         if (epoch + 1) % config.val_every == 0 or epoch + 1 == config.epochs:
-            row.update({k: round(v, 4) for k, v in validate(G, s.data, s.val, style_rec, content_rec).items()})
+            row.update({k: round(v, 4) for k, v in validate(G_eval, s.data, s.val, style_rec, content_rec).items()})
             if realism is not None:
                 fmd, val_all = realism
-                row.update(realism_margin(transfer_quality(G, s.data, val_all, style_rec, content_rec, fmd, resamples=0)))
+                row.update(realism_margin(transfer_quality(G_eval, s.data, val_all, style_rec, content_rec, fmd, resamples=0)))
         if _is_main():
             score = _score(row, config.keep)
             if score is not None and (best is None or score > best["score"]):
                 best = {"score": score, **row}
-                ckpt.save_tensors(out / "best", ckpt.prefixed("generator", G), _model_meta(G, s, config, best))
+                ckpt.save_tensors(out / "best", ckpt.prefixed("generator", G_eval), _model_meta(G_eval, s, config, best))
             _append_csv(metrics_path, row)
-            ckpt.save_tensors(state_stem, _state(G, D, opt_g, opt_d), {"config": config.to_dict(), "epoch": epoch + 1, "elapsed_s": elapsed, "best": best}, sidecar=False)
+            ckpt.save_tensors(state_stem, _state(G, D, opt_g, opt_d, G_avg), {"config": config.to_dict(), "epoch": epoch + 1, "elapsed_s": elapsed, "best": best}, sidecar=False)
             if progress:
                 print(" ".join(f"{k}={v}" for k, v in row.items()), flush=True)
         _check_in_sync(G)
@@ -350,8 +369,8 @@ def train(config: TrainConfig, out: Path, data_dir: str | None = None, progress:
 
     if _is_main() and export is not None and (config.keep == "last" or (out / "best.json").is_file()):
         if config.keep == "last":
-            tensors, meta = ckpt.prefixed("generator", G), _model_meta(G, s, config, best)
-            meta["training"]["kept"] = f"the last epoch ({done}), not the best validation epoch"
+            tensors, meta = ckpt.prefixed("generator", G_eval), _model_meta(G_eval, s, config, best)
+            meta["training"]["kept"] = f"the last epoch ({done}), not the best validation epoch" + (f"; its weights' moving average (decay {config.ema})" if config.ema else "")
         else:
             tensors, meta = ckpt.load_tensors(out / "best")
             if config.keep == "realistic":
