@@ -346,7 +346,7 @@ def _load_test(args: argparse.Namespace) -> None:
 def _vmc(args: argparse.Namespace) -> None:
     from styleerd.serve.vmc import run_bridge
 
-    run_bridge(args.listen, args.send, args.style, args.intensity, _parse_mix(args.mix) if args.mix else None, args.host, args.fps, args.parts, args.model)
+    run_bridge(args.listen, args.send, args.style, args.intensity, _parse_mix(args.mix) if args.mix else None, args.host, args.fps, args.parts, args.model, args.root_speed)
 
 
 def _demo(args: argparse.Namespace) -> None:
@@ -614,6 +614,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--mix")
     p.add_argument("--fps", type=_positive, default=30.0, help="the sender's frame rate (velocities are per second)")
     p.add_argument("--parts", help="body parts with targets of their own, as for transfer: e.g. arms=input (tracked hands keep their own motion)")
+    p.add_argument("--root-speed", action="store_true", help="the hips move at the style's pace, as transfer --root-speed (their path drifts from the performer's)")
     p.add_argument("--model", help=MODEL_HELP)
     p.set_defaults(func=_vmc)
 

@@ -14,8 +14,10 @@ from scipy.spatial.transform import Rotation
 
 from styleerd.errors import StyleERDError
 from styleerd.model.checkpoint import load_generator
+from styleerd.runtime.channels import ChannelStylizer
 from styleerd.motion import quat
 from styleerd.motion.kinematics import forward_kinematics
+from styleerd.motion.motion import Motion
 from styleerd.motion.procedural import walk
 from styleerd.serve.vmc import BONE, ROOT, VMCBridge, humanoid_skeleton, rotation_to_unity, unity_position, unity_rotation
 
@@ -129,6 +131,29 @@ def test_bridge_with_tracked_arms_keeps_them_and_stylises_the_rest(model):
     assert change[:, names.index("LeftUpperLeg")].mean() > 2.0  # the legs are stylised
     with pytest.raises(StyleERDError, match="unknown body part 'hands'"):
         VMCBridge(model, {"elderly": 1.0}, parts="hands=input")
+
+
+def test_bridge_with_root_speed_moves_the_hips_at_the_styles_pace(model):
+    """``--root-speed``: the hips sent are the stylised ones, as a local stylizer with root
+    speed gives them on the same frames; the other bones' positions stay the avatar's."""
+    m, names, frames = _unity_frames(bundled=True)
+    bridge = VMCBridge(model, {"elderly": 1.0}, report=lambda _: None, root_speed=True)
+    got, _ = _decode([out for datagrams in frames for d in datagrams for out in bridge.feed(d)])
+    hips = unity_position(np.stack([f["Hips"][0] for f in got]))
+    sent, _ = _decode([d for datagrams in frames for d in datagrams])  # as received: float32
+    sk = humanoid_skeleton({b: unity_position(p) for b, (p, _) in sent[0].items()})
+    local = ChannelStylizer(model, sk, {"elderly": 1.0}, fps=30.0, root_speed=True)
+    for t, bones in enumerate(sent):
+        rot = quat.normalize(np.stack([unity_rotation(bones[b][1]) for b in sk.names]))
+        pos = sk.offsets.copy()
+        pos[0] = unity_position(bones["Hips"][0])
+        expected = local.step_pose(Motion(sk, rot[None], pos[None], 30.0))
+        assert np.allclose(hips[t], expected.positions[0, 0], atol=1e-5), t
+    given = m.positions[:, 0] / 100.0
+    assert np.abs(hips - given).max() > 0.01  # another pace
+    assert abs(hips[:, 1].mean() - given[:, 1].mean()) < 0.02  # at the performer's height
+    knee = np.stack([f["LeftLowerLeg"][0] for f in got])
+    assert np.allclose(knee, unity_position(m.positions[:, names.index("LeftLowerLeg")] / 100.0), atol=1e-5)
 
 
 def test_bridge_rejects_bad_frames_and_datagrams(model):

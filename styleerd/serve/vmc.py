@@ -104,8 +104,10 @@ def humanoid_skeleton(bones: dict[str, np.ndarray]) -> Skeleton:
 class VMCBridge:
     """Datagrams in, datagrams out (no sockets here: ``run_bridge`` owns them)."""
 
-    def __init__(self, model: GeneratorWeights, target: dict[str, float], fps: float = 30.0, cleanup: bool = True, report=print, parts: str | dict | None = None):
+    def __init__(self, model: GeneratorWeights, target: dict[str, float], fps: float = 30.0, cleanup: bool = True, report=print, parts: str | dict | None = None,
+                 root_speed: bool = False):  # fmt: skip
         self.model, self.target, self.fps, self.cleanup, self.report = model, target, fps, cleanup, report
+        self.root_speed = root_speed  # the hips move at the style's pace (their path drifts from the performer's)
         self.parts = part_targets(model, parts)  # body parts with targets of their own (checked now, not at the first frame)
         self.stylizer: ChannelStylizer | None = None
         self.skeleton: Skeleton | None = None
@@ -149,7 +151,7 @@ class VMCBridge:
     def _start(self) -> list[bytes]:
         """The first frame fixes the bone set and the skeleton."""
         self.skeleton = humanoid_skeleton({b: unity_position(p) for b, (p, _) in self.bones.items()})
-        self.stylizer = ChannelStylizer(self.model, self.skeleton, self.target, fps=self.fps, cleanup=self.cleanup, parts=self.parts)
+        self.stylizer = ChannelStylizer(self.model, self.skeleton, self.target, fps=self.fps, cleanup=self.cleanup, parts=self.parts, root_speed=self.root_speed)
         self.report(f"VMC: {len(self.skeleton.names)} bones; joint mapping (model <- avatar):\n{self.stylizer.map.describe()}")
         return self._frame()
 
@@ -169,7 +171,7 @@ class VMCBridge:
         bundle = OscBundleBuilder(IMMEDIATELY)
         bundle.add_content(_message(ROOT, self.root))
         for j, name in enumerate(sk.names):
-            p = unity_position(pos[j])
+            p = unity_position(out.positions[0, j])  # the input's, but the hips' with root_speed
             q = rotation_to_unity(out.rotations[0, j])
             bundle.add_content(_message(BONE, [name, *map(float, p), *map(float, q)]))
         return [bundle.build().dgram]
@@ -183,11 +185,11 @@ def _message(address: str, params: list):
 
 
 def run_bridge(listen: int, send: int, style: str | None, intensity: float, mix: dict[str, float] | None, host: str = "127.0.0.1", fps: float = 30.0,
-               parts: str | None = None, model_name: str | None = None) -> None:  # fmt: skip
+               parts: str | None = None, model_name: str | None = None, root_speed: bool = False) -> None:  # fmt: skip
     """``styleerd vmc``: receive on ``host:listen``, send the stylised stream to ``host:send``."""
     model = load_generator_weights(model_name)
     target = target_weights(model, style, intensity, mix)
-    bridge = VMCBridge(model, target, fps, report=lambda text: print(text, flush=True), parts=parts)
+    bridge = VMCBridge(model, target, fps, report=lambda text: print(text, flush=True), parts=parts, root_speed=root_speed)
     rx = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
     rx.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 1 << 22)  # room for frames that arrive while the first is set up
     try:
