@@ -13,7 +13,7 @@ from tqdm import tqdm
 
 from styleerd.eval.ablations import ABLATIONS, model_stem, trained
 from styleerd.model import checkpoint as ckpt
-from styleerd.train.validation import CRA_BAR, FMD_BAR
+from styleerd.train.validation import CRA_BAR, FMD_BAR, style_ratios
 
 RECIPES_DIR = Path(__file__).resolve().parents[2] / "models" / "recipes"  # research models: in a checkout, not in the package
 
@@ -28,14 +28,9 @@ def recipe_models() -> dict[str, Path | None]:
 
 
 def per_style(quality: dict) -> dict[str, dict[str, float]]:
-    """Per target style: FMD / floor and CRA / ceiling."""
-    return {
-        k: {
-            "fmd_over_floor": round(quality["fmd_per_style"][k] / quality["fmd_floor_per_style"][k], 2),
-            "cra_of_ceiling": round(quality["cra_per_style"][k] / quality["content_ceiling_per_style"][k], 4),
-        }
-        for k in quality["fmd_per_style"]
-    }
+    """Per target style: FMD / floor and CRA / ceiling, rounded for the tables."""
+    fmd, cra = style_ratios(quality)
+    return {k: {"fmd_over_floor": round(fmd[k], 2), "cra_of_ceiling": round(cra[k], 4)} for k in fmd}
 
 
 def neutralisation(streamed: dict, neutral: str) -> dict:

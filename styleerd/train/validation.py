@@ -171,11 +171,17 @@ def _jerk(positions: torch.Tensor) -> np.ndarray:
     return d3.norm(dim=-1).mean(dim=(1, 2)).numpy()
 
 
+def style_ratios(quality: dict) -> tuple[dict[str, float], dict[str, float]]:
+    """Per target style, FMD / floor and CRA / ceiling (``transfer_quality``'s output in)."""
+    fmd = {k: quality["fmd_per_style"][k] / max(quality["fmd_floor_per_style"][k], 1e-9) for k in quality["fmd_per_style"]}
+    cra = {k: quality["cra_per_style"][k] / max(quality["content_ceiling_per_style"][k], 1e-9) for k in quality["cra_per_style"]}
+    return fmd, cra
+
+
 def realism_margin(quality: dict) -> dict[str, float]:
     """How far inside both realism bars the worst target style is: per style, the smaller of
     FMD_BAR / (FMD / floor) and (CRA / ceiling) / CRA_BAR; >= 1 when every style meets both.
-    Also the worst FMD / floor and CRA / ceiling themselves (``transfer_quality``'s output in)."""
-    fmd = {k: quality["fmd_per_style"][k] / max(quality["fmd_floor_per_style"][k], 1e-9) for k in quality["fmd_per_style"]}
-    cra = {k: quality["cra_per_style"][k] / max(quality["content_ceiling_per_style"][k], 1e-9) for k in quality["cra_per_style"]}
+    Also the worst FMD / floor and CRA / ceiling themselves."""
+    fmd, cra = style_ratios(quality)
     margin = min(min(FMD_BAR / max(fmd[k], 1e-9), cra[k] / CRA_BAR) for k in fmd)
     return {"worst_fmd_over_floor": round(max(fmd.values()), 3), "worst_cra_of_ceiling": round(min(cra.values()), 4), "realism_margin": round(margin, 4)}
