@@ -265,12 +265,16 @@ def _eval_rotations(args: argparse.Namespace) -> None:
 
 def _eval_ablations(args: argparse.Namespace) -> None:
     from styleerd.atomic import atomic_write_text
-    from styleerd.eval.ablations import ablation_table, markdown, shipped_budget, train_ablations
+    from styleerd.eval.ablations import ABLATIONS, ablation_table, markdown, shipped_budget, train_ablations
 
     if not args.no_train:
         train_ablations(Path(args.runs), args.data, args.threads)
-    rows = ablation_table(args.data)
+    rows = ablation_table(args.data, args.only or None)
     out = Path(args.out)
+    kept = out.with_suffix(".json")
+    if args.only and kept.is_file():  # the other rows as they were measured, in the table's order
+        before = json.loads(kept.read_text())
+        rows = {k: rows.get(k) or before[k] for k in ABLATIONS if k in rows or k in before}
     epochs = shipped_budget()[1]
     atomic_write_text(out.with_suffix(".json"), json.dumps(rows, indent=1) + "\n")
     atomic_write_text(out.with_suffix(".md"), markdown(rows, epochs))
@@ -538,6 +542,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--threads", type=_whole(1), default=1)
     p.add_argument("--runs", default="runs/ablations", help="run folders (checkpoints)")
     p.add_argument("--no-train", action="store_true", help="only evaluate the models in models/ablations/")
+    p.add_argument("--only", nargs="*", help="evaluate only these rows (e.g. 'rec only' full); the others are kept from the existing JSON")
     p.add_argument("--out", default="docs/ablations.md", help="Markdown table (a .json beside it)")
     p.add_argument("--data", help="data folder")
     p.set_defaults(func=_eval_ablations)

@@ -2,7 +2,9 @@
 figures of the shape `evaluate_model` and `runtime_transfers` return."""
 
 import numpy as np
+import pytest
 
+from styleerd.errors import StyleERDError
 from styleerd.eval.ablations import ABLATIONS, markdown as ablation_markdown
 from styleerd.eval.recipes import markdown, neutralisation, per_style, tradeoff_plot
 
@@ -124,3 +126,31 @@ def test_eval_recipes_only_remeasures_the_named_rows_and_keeps_the_others(tmp_pa
     assert list(rows) == ["shipped", "older"]  # in the models' order; a model no longer kept is dropped
     assert rows["shipped"]["quality"]["cra"] == quality(0.97)["cra"] and rows["older"]["quality"]["cra"] == quality(0.9)["cra"]
     assert out.with_suffix(".png").is_file() and "| older |" in out.read_text()
+
+
+def test_eval_ablations_only_remeasures_the_named_rows_and_keeps_the_others(tmp_path, monkeypatch):
+    import json
+
+    from styleerd import cli
+    from styleerd.eval import ablations
+
+    def row(name, fmd):
+        return {"recipe": f"ablation-{name}", "epochs": 40, "best_epoch": 30, **quality(1.0), "fmd": fmd}
+
+    evaluated, real_table = [], ablations.ablation_table
+
+    def table(data, names):
+        evaluated.append(names)
+        return {n: row(n, 0.02) for n in names}
+
+    monkeypatch.setattr(ablations, "ablation_table", table)
+    monkeypatch.setattr(ablations, "shipped_budget", lambda: (None, 40))
+    out = tmp_path / "ablations.md"
+    out.with_suffix(".json").write_text(json.dumps({"rec + adv": row("rec + adv", 0.07), "full": row("full", 0.05)}))
+    assert cli.main(["eval", "ablations", "--no-train", "--only", "rec only", "--out", str(out)]) in (0, None)
+    rows = json.loads(out.with_suffix(".json").read_text())
+    assert evaluated == [["rec only"]] and list(rows) == ["full", "rec only", "rec + adv"]  # the table's order
+    assert rows["rec only"]["fmd"] == 0.02 and rows["rec + adv"]["fmd"] == 0.07
+    assert "Ordering by FMD here (models at the full budget): rec only < full < rec + adv." in out.read_text()
+    with pytest.raises(StyleERDError, match="unknown ablations \\['rec'\\]"):
+        real_table(None, ["rec"])

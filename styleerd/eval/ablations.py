@@ -17,6 +17,7 @@ from pathlib import Path
 
 from tqdm import tqdm
 
+from styleerd.errors import StyleERDError
 from styleerd.model import checkpoint as ckpt
 from styleerd.train.config import TrainConfig
 from styleerd.train.trainer import train
@@ -104,13 +105,16 @@ COLUMNS = [
 ]  # fmt: skip
 
 
-def ablation_table(data_dir: str | None = None) -> dict:
-    """Evaluate every trained ablation model with the same judges (models not yet trained are
-    left out)."""
+def ablation_table(data_dir: str | None = None, names: list[str] | None = None) -> dict:
+    """Evaluate every trained ablation model (or those of ``names``) with the same judges
+    (models not yet trained are left out)."""
     from styleerd.eval.metrics import evaluate_model
 
+    unknown = sorted(set(names or ()) - set(ABLATIONS))
+    if unknown:
+        raise StyleERDError(f"unknown ablations {unknown}; known: {list(ABLATIONS)}")
     rows = {}
-    for name in tqdm([n for n in ABLATIONS if trained(n)], desc="evaluating"):
+    for name in tqdm([n for n in ABLATIONS if trained(n) and (names is None or n in names)], desc="evaluating"):
         model, meta = ckpt.load_generator(model_stem(name))
         training = meta["training"]
         rows[name] = {"recipe": training["config"]["name"], "epochs": int(training.get("epochs_trained", training["config"]["epochs"])), "best_epoch": training["best"]["epoch"], **evaluate_model(model, data_dir)}
