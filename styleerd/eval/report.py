@@ -109,6 +109,7 @@ split; every figure is printed by its own command as well (named in each section
 ## Ablations (the paper's Table 1; `styleerd eval ablations`)
 
 {markdown(ablations, epochs)}
+
 ## Runtime (the paper's Table 2 and more; `styleerd bench`)
 
 {table(bench)}
