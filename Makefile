@@ -38,6 +38,7 @@ test: install
 bench: $(STAMP)
 	$(BIN)/python benchmarks/bench_data.py
 	$(BIN)/python benchmarks/bench_train_step.py
+	$(BIN)/python benchmarks/bench_train_parallel.py
 	$(BIN)/styleerd bench
 	$(BIN)/python benchmarks/bench_serve.py
 

@@ -264,3 +264,19 @@ def test_bench_train_step_times_the_trainers_own_step_of_two_recipes(shared_data
         assert all(v > 0 for v in parts.values()) and abs(sum(parts.values()) - r[name]["step_ms"]) < 0.1
     assert abs(r["speedup"] - r["before"]["epoch_s"] / r["after"]["epoch_s"]) < 0.002
     assert "after / before epoch time" in bench.stdout
+
+
+def test_bench_train_parallel_times_real_epochs_in_one_and_two_processes(shared_data, tmp_path):
+    import json
+
+    cfg = write_config(tmp_path / "c.yaml")
+    out = tmp_path / "parallel.json"
+    bench = subprocess.run([sys.executable, "benchmarks/bench_train_parallel.py", "--config", cfg, "--clips", "40", "--rounds", "1", "--data", shared_data, "--json", out],
+                           capture_output=True, text=True, timeout=900, cwd=os.path.dirname(os.path.dirname(__file__)))  # fmt: skip
+    assert bench.returncode == 0, bench.stdout[-2000:] + bench.stderr[-2000:]
+    r = json.loads(out.read_text())
+    forms = r["forms"]
+    assert list(forms) == ["1 process x 1 thread", "1 process x 2 threads", "2 processes x 1 thread (torchrun)"]
+    assert len({f["steps"] for f in forms.values()}) == 1 and forms["1 process x 1 thread"]["speedup"] == 1.0  # one global batch: the same steps
+    for f in forms.values():
+        assert f["epoch_s"] > 0 and abs(f["windows_per_minute"] - 60 * f["steps"] * 16 / f["epoch_s"]) <= 1
