@@ -110,12 +110,16 @@ def _average_gradients(params: list[torch.nn.Parameter]) -> None:
     R1 double backward and branches that sometimes do not run need no special care)."""
     if not dist.is_initialized():
         return
-    world = dist.get_world_size()
     for p in params:
         if p.grad is None:
             p.grad = torch.zeros_like(p)
-        dist.all_reduce(p.grad)
-        p.grad /= world
+    flat = torch.cat([p.grad.reshape(-1) for p in params])  # one message, not one per tensor (each costs a round trip)
+    dist.all_reduce(flat)
+    flat /= dist.get_world_size()
+    at = 0
+    for p in params:
+        p.grad.copy_(flat[at : at + p.numel()].view_as(p.grad))
+        at += p.numel()
 
 
 def _perceptual_classifier(config: TrainConfig, s: Setup, out: Path, progress: bool) -> WindowClassifier:
