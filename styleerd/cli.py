@@ -214,7 +214,7 @@ def _eval_quality(args: argparse.Namespace) -> None:
     from styleerd.eval.metrics import evaluate_model
     from styleerd.model.checkpoint import load_generator
 
-    print(json.dumps(evaluate_model(load_generator(args.model)[0], args.data), indent=1))
+    print(json.dumps(evaluate_model(load_generator(args.model)[0], args.data, args.split), indent=1))
 
 
 def _eval_streamed(args: argparse.Namespace) -> None:
@@ -519,6 +519,7 @@ def build_parser() -> argparse.ArgumentParser:
     ev = command("eval", "quality figures: FMD, SRA, CRA, responsiveness, ablations").add_subparsers(dest="eval_command", required=True)
     p = ev.add_parser("quality", help="FMD (and its floor), SRA, CRA, responsiveness, jitter, reconstruction of one model")
     p.add_argument("--model", help=MODEL_HELP)
+    p.add_argument("--split", choices=("test", "val"), default="test", help="val: to choose between models without looking at the test set")
     p.add_argument("--data", help="data folder")
     p.set_defaults(func=_eval_quality)
     p = ev.add_parser("streamed", help="whole test clips streamed as `transfer` runs them: styled -> neutral, neutral -> each style, labels given and inferred, judged as played")

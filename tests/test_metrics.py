@@ -43,6 +43,12 @@ def test_shipped_fmd_extractor_and_the_quality_figures(shared_data):
     assert styles == set(q["cra_per_style"]) == set(q["content_ceiling_per_style"]) == set(q["sra_per_style"]) == set(ckpt.load_generator()[0].config.styles)
     assert all(0.5 < v <= 1 for v in q["content_ceiling_per_style"].values())
     assert 0 < q["spread"]["sra"] < 0.05 and 0 < q["spread"]["cra"] < 0.05 and 0 < q["spread"]["fmd"] < q["fmd"]
+    assert q["realism_margin"] > 0 and q["worst_fmd_over_floor"] == round(max(q["fmd_per_style"][k] / q["fmd_floor_per_style"][k] for k in styles), 3)
+    # the same on the validation split (choosing between models without the test set): other windows, other figures
+    v = evaluate_model(ckpt.load_generator()[0], str(shared_data), split="val")
+    val = windows(s.fs, s.data, "val", s.data.window)
+    assert v["transfers"] != q["transfers"] and len(val.starts) != len(test.starts)
+    assert set(v["fmd_per_style"]) == styles and v["fmd"] != q["fmd"] and v["realism_margin"] > 0
 
 
 def test_bootstrap_spread_is_the_standard_error_of_a_mean():

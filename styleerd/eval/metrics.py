@@ -53,8 +53,8 @@ FIRST_FRAMES = 10
 
 
 @torch.no_grad()
-def responsiveness(model: StyleERD, s: Setup, style_rec, fmd: MotionAutoencoder, window: int = 24) -> dict:
-    """Each test clip streamed from its first frame into its transfer target(s): SRA and FMD
+def responsiveness(model: StyleERD, s: Setup, style_rec, fmd: MotionAutoencoder, window: int = 24, split: str = "test") -> dict:
+    """Each clip of ``split`` streamed from its first frame into its transfer target(s): SRA and FMD
     of the first ``FIRST_FRAMES`` output frames and of the 24-frame windows after them."""
     model.eval()
     data, fs = s.data, s.fs
@@ -62,7 +62,7 @@ def responsiveness(model: StyleERD, s: Setup, style_rec, fmd: MotionAutoencoder,
     neutral = model.config.neutral_index
     first_fake, rest_fake, first_t, rest_t, first_real, rest_real = [], [], [], [], {}, {}
     hit_first = hit_rest = 0
-    for c in fs.clips("test"):
+    for c in fs.clips(split):
         sl = fs.frames(c)
         if sl.stop - sl.start < FIRST_FRAMES + window:
             continue
@@ -95,20 +95,22 @@ def responsiveness(model: StyleERD, s: Setup, style_rec, fmd: MotionAutoencoder,
     }
 
 
-def evaluate_model(model: StyleERD, data_dir: str | None = None) -> dict:
-    """Every quality figure of one generator on the test split (the ablation table's row)."""
+def evaluate_model(model: StyleERD, data_dir: str | None = None, split: str = "test") -> dict:
+    """Every quality figure of one generator on the test split (the ablation table's row), or on
+    the validation split (``split="val"``: for choosing between models without the test set)."""
     from styleerd.model import checkpoint as ckpt
     from styleerd.train.trainer import windows
-    from styleerd.train.validation import validate
+    from styleerd.train.validation import realism_margin, validate
 
     s = setup(TrainConfig(), data_dir, progress=False)
-    test = windows(s.fs, s.data, "test", s.data.window)
+    test = windows(s.fs, s.data, split, s.data.window)
     style_rec, content_rec, _ = ckpt.load_recognisers()
     fmd, _ = ckpt.load_fmd()
     rec = validate(model, s.data, test)
     out = {"rec_deg": round(rec["rec_deg"], 3), "rec_cm": round(rec["rec_cm"], 3)}
     out.update(transfer_quality(model, s.data, test, style_rec, content_rec, fmd))
-    out.update(responsiveness(model, s, style_rec, fmd))
+    out.update(realism_margin(out))
+    out.update(responsiveness(model, s, style_rec, fmd, split=split))
     return out
 
 
