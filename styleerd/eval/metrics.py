@@ -103,12 +103,12 @@ def evaluate_model(model: StyleERD, data_dir: str | None = None, split: str = "t
     from styleerd.train.validation import realism_margin, validate
 
     s = setup(TrainConfig(), data_dir, progress=False)
-    test = windows(s.fs, s.data, split, s.data.window)
+    ws = windows(s.fs, s.data, split, s.data.window)
     style_rec, content_rec, _ = ckpt.load_recognisers()
     fmd, _ = ckpt.load_fmd()
-    rec = validate(model, s.data, test)
+    rec = validate(model, s.data, ws)
     out = {"rec_deg": round(rec["rec_deg"], 3), "rec_cm": round(rec["rec_cm"], 3)}
-    out.update(transfer_quality(model, s.data, test, style_rec, content_rec, fmd))
+    out.update(transfer_quality(model, s.data, ws, style_rec, content_rec, fmd))
     out.update(realism_margin(out))
     out.update(responsiveness(model, s, style_rec, fmd, split=split))
     return out

@@ -116,10 +116,8 @@ def _average_gradients(params: list[torch.nn.Parameter]) -> None:
     flat = torch.cat([p.grad.reshape(-1) for p in params])  # one message, not one per tensor (each costs a round trip)
     dist.all_reduce(flat)
     flat /= dist.get_world_size()
-    at = 0
-    for p in params:
-        p.grad.copy_(flat[at : at + p.numel()].view_as(p.grad))
-        at += p.numel()
+    for p, mean in zip(params, flat.split([p.numel() for p in params])):
+        p.grad.copy_(mean.view_as(p.grad))
 
 
 def _perceptual_classifier(config: TrainConfig, s: Setup, out: Path, progress: bool) -> WindowClassifier:
