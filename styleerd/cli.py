@@ -53,7 +53,7 @@ def _train(args: argparse.Namespace) -> None:
     from styleerd.train.config import TrainConfig
     from styleerd.train.trainer import train
 
-    config = TrainConfig.from_yaml(args.config)
+    config = TrainConfig.from_yaml(args.config, **({"device": args.device} if args.device else {}))
     out = Path(args.out or f"runs/{config.name}")
     best = train(config, out, args.data, export=Path(args.export) if args.export else None)
     print(f"best epoch: {best}")
@@ -268,7 +268,7 @@ def _eval_ablations(args: argparse.Namespace) -> None:
     from styleerd.eval.ablations import ABLATIONS, ablation_table, markdown, shipped_budget, train_ablations
 
     if not args.no_train:
-        train_ablations(Path(args.runs), args.data, args.threads)
+        train_ablations(Path(args.runs), args.data, args.threads, args.device)
     rows = ablation_table(args.data, args.only or None)
     out = Path(args.out)
     kept = out.with_suffix(".json")
@@ -450,6 +450,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--out", help="run folder (default runs/<name>)")
     p.add_argument("--data", help="data folder")
     p.add_argument("--export", help="also write the best generator to this model path (no suffix)")
+    p.add_argument("--device", help="train on this torch device (e.g. cuda) instead of the config's; a run may resume on another")
     p.set_defaults(func=_train)
 
     p = command("add-style", "a new style from 1 to 20 clips of it, on any skeleton: trains one more branch, every old style unchanged")
@@ -542,6 +543,7 @@ def build_parser() -> argparse.ArgumentParser:
     p = ev.add_parser("ablations", help="train what is missing at the shipped run's budget (resumable) and tabulate the paper's ablations")
     p.add_argument("--threads", type=_whole(1), default=1)
     p.add_argument("--runs", default="runs/ablations", help="run folders (checkpoints)")
+    p.add_argument("--device", default="cpu", help="train on this torch device (e.g. cuda); a run may resume on another")
     p.add_argument("--no-train", action="store_true", help="only evaluate the models in models/ablations/")
     p.add_argument("--only", nargs="*", help="evaluate only these rows (e.g. 'rec only' full); the others are kept from the existing JSON")
     p.add_argument("--out", default="docs/ablations.md", help="Markdown table (a .json beside it)")

@@ -81,6 +81,7 @@ def test_results_section_from_the_recipe_table_and_the_step_timing(tmp_path):
 
 def test_parallel_ablation_trainers_take_different_ablations(tmp_path, monkeypatch):
     import fcntl
+    import json
 
     from styleerd.eval import ablations
 
@@ -94,14 +95,18 @@ def test_parallel_ablation_trainers_take_different_ablations(tmp_path, monkeypat
         for suffix in (".safetensors", ".json"):  # a run with the perceptual loss leaves its classifier
             (out / "content_classifier").with_suffix(suffix).write_text("")
 
-    monkeypatch.setattr(ablations, "ablation_config", lambda name, threads=1: TrainConfig(**ABLATIONS[name]))
+    monkeypatch.setattr(ablations, "ablation_config", lambda name, threads=1, device="cpu": TrainConfig(**ABLATIONS[name]))
     monkeypatch.setattr(ablations, "train", fake_train)
     monkeypatch.setattr(ablations, "ABLATIONS_DIR", tmp_path / "models")
+    monkeypatch.setattr(ablations, "shipped_budget", lambda: (TrainConfig(), 40))
+    (tmp_path / "models").mkdir()
+    for name, epochs in (("no-attention", 14), ("zero-initial-states", 40)):  # a shorter model is trained again, one at the budget is not
+        (tmp_path / "models" / f"{name}.json").write_text(json.dumps({"training": {"epochs_trained": epochs}}))
     with open(tmp_path / "rec-only.lock", "w") as held:  # another process is training "rec only"
         fcntl.flock(held, fcntl.LOCK_EX | fcntl.LOCK_NB)
         stems = ablations.train_ablations(tmp_path)
     assert "rec-only" not in trained and "rec only" not in stems
-    assert trained == ["rec-adv", "rec-per", "no-attention", "zero-initial-states"]
+    assert trained == ["rec-adv", "rec-per", "no-attention"]
     trained.clear()
     ablations.train_ablations(tmp_path)  # the lock released: it is taken up again
     assert trained[0] == "rec-only"

@@ -216,6 +216,13 @@ def test_fine_tune_from_a_saved_generator_with_a_critic_that_sees_rotations(shar
     assert plain["discriminator.trunk.0.1.weight"].shape[1] == 6 * J  # the paper's critic: positions, velocities
     with pytest.raises(StyleERDError, match="init_from .* config differs"):
         train(TrainConfig(**{**TINY, "neutral_layers": 3}, epochs=1, init_from=str(tmp_path / "start")), tmp_path / "c", progress=False)
+    # a run that resumes takes its weights from its checkpoint: the model it started from may be gone
+    for suffix in (".safetensors", ".json"):
+        (tmp_path / "start").with_suffix(suffix).unlink()
+    train(TrainConfig(**TINY, epochs=2, init_from=str(tmp_path / "start"), keep="last", ema=0.99), tmp_path / "m", progress=False)
+    assert len(list(csv.DictReader(open(tmp_path / "m" / "metrics.csv")))) == 2
+    with pytest.raises(StyleERDError, match="device 'no-such-device' cannot be used"):
+        train(TrainConfig(**TINY, epochs=1, device="no-such-device"), tmp_path / "g", progress=False)
 
 
 def test_moving_average_of_the_weights_follows_its_formula():

@@ -12,6 +12,7 @@ reconstruction loss and stays in every row, "rec only" included."""
 from __future__ import annotations
 
 import fcntl
+import json
 import shutil
 from pathlib import Path
 
@@ -54,9 +55,9 @@ def shipped_budget() -> tuple[TrainConfig, int]:
     return TrainConfig.from_dict(training["config"]), int(training.get("epochs_trained", training["best"]["epoch"]))
 
 
-def ablation_config(name: str, threads: int = 1) -> TrainConfig:
+def ablation_config(name: str, threads: int = 1, device: str = "cpu") -> TrainConfig:
     base, epochs = shipped_budget()
-    return TrainConfig.from_dict({**base.to_dict(), "name": f"ablation-{slug(name)}", "epochs": epochs, "max_minutes": 0, "threads": threads, **ABLATIONS[name]})
+    return TrainConfig.from_dict({**base.to_dict(), "name": f"ablation-{slug(name)}", "epochs": epochs, "max_minutes": 0, "threads": threads, "device": device, **ABLATIONS[name]})
 
 
 def model_stem(name: str) -> Path | None:
@@ -70,13 +71,26 @@ def trained(name: str) -> bool:
     return stem is None or stem.with_suffix(".safetensors").is_file()
 
 
-def train_ablations(root: Path, data_dir: str | None = None, threads: int = 1) -> dict[str, Path]:
-    """Train (or resume, or skip when finished) every ablation in run folders under ``root``
-    and export each best model to ``model_stem(name)``. Several processes may run this at once
+def at_budget(name: str, epochs: int) -> bool:
+    """The ablation's kept model was trained the full budget (older, shorter ones are kept in
+    the table until theirs are)."""
+    stem = model_stem(name)
+    if stem is None or not stem.with_suffix(".json").is_file():
+        return stem is None
+    return int(json.loads(stem.with_suffix(".json").read_text())["training"].get("epochs_trained", 0)) >= epochs
+
+
+def train_ablations(root: Path, data_dir: str | None = None, threads: int = 1, device: str = "cpu") -> dict[str, Path]:
+    """Train (or resume, or skip when its model is at the budget) every ablation in run folders
+    under ``root`` on ``device`` and export each best model to ``model_stem(name)``. Several processes may run this at once
     (one per core): each takes the ablations no other process holds (a lock file per run)."""
     stems = {}
     root.mkdir(parents=True, exist_ok=True)
+    epochs = shipped_budget()[1]
     for name in tqdm([n for n in ABLATIONS if n != "full"], desc="ablations"):
+        if at_budget(name, epochs):
+            tqdm.write(f"{name}: its model is trained at the budget ({epochs} epochs), skipped")
+            continue
         with open(root / f"{slug(name)}.lock", "w") as lock:
             try:
                 fcntl.flock(lock, fcntl.LOCK_EX | fcntl.LOCK_NB)
@@ -84,7 +98,7 @@ def train_ablations(root: Path, data_dir: str | None = None, threads: int = 1) -
                 tqdm.write(f"{name}: trained by another process, skipped")
                 continue
             out, stem = root / slug(name), model_stem(name)
-            config = ablation_config(name, threads)
+            config = ablation_config(name, threads, device)
             shared = root / "content_classifier"
             if config.use_per and shared.with_suffix(".safetensors").is_file() and not (out / "content_classifier.safetensors").is_file():
                 out.mkdir(parents=True, exist_ok=True)  # the perceptual classifier is the same for every run: train it once

@@ -18,10 +18,11 @@ from styleerd.train.batches import TrainingData, WindowSet
 def accuracy(model: WindowClassifier, data: TrainingData, ws: WindowSet, label: str, batch: int = 1024) -> float:
     model.eval()
     target = getattr(ws, label)
+    device = next(model.parameters()).device
     correct = 0
     for i in range(0, len(ws.starts), batch):
-        x = data.gather(ws.starts[i : i + batch])
-        correct += int((model(x).argmax(-1).numpy() == target[i : i + batch]).sum())
+        x = data.gather(ws.starts[i : i + batch]).to(device)
+        correct += int((model(x).argmax(-1).cpu().numpy() == target[i : i + batch]).sum())
     return correct / max(1, len(ws.starts))
 
 
@@ -37,14 +38,15 @@ def train_classifier(
     seed: int,
     batch: int = 128,
     progress: bool = True,
+    device: str = "cpu",
 ) -> tuple[WindowClassifier, float]:
     """Train on ``train`` windows to predict ``label`` ("style" or "content") from the feature
     ``channels``; return the model of the best validation epoch and that accuracy."""
     torch.manual_seed(seed)
     n_classes = len(data.styles if label == "style" else data.contents)
-    model = WindowClassifier(channels.stop - channels.start, n_classes, instance_norm=instance_norm, first_channel=channels.start)
+    model = WindowClassifier(channels.stop - channels.start, n_classes, instance_norm=instance_norm, first_channel=channels.start).to(device)
     opt = torch.optim.Adam(model.parameters(), lr=lr)
-    target = torch.as_tensor(getattr(train, label))
+    target = torch.as_tensor(getattr(train, label)).to(device)
     rng = np.random.default_rng(seed)
     best, best_acc = copy.deepcopy(model), -1.0
     for epoch in range(epochs):
@@ -53,7 +55,7 @@ def train_classifier(
         bar = tqdm(range(0, len(order) - batch + 1, batch), desc=f"{label} classifier {epoch + 1}/{epochs}", disable=not progress, leave=False)
         for i in bar:
             idx = order[i : i + batch]
-            x = data.gather(train.starts[idx])
+            x = data.gather(train.starts[idx]).to(device)
             loss = F.cross_entropy(model(x), target[idx])
             opt.zero_grad()
             loss.backward()

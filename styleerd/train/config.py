@@ -21,6 +21,7 @@ class TrainConfig:
     balance_styles: bool = False  # styled windows drawn style by style (styles with few clips get their share)
     seed: int = 0
     threads: int = 2
+    device: str = "cpu"  # where the networks train ("cuda" on a GPU); validation and the saved weights stay on the CPU
     # generator
     encoder: tuple[int, ...] = (64, 32)
     hidden: int = 32

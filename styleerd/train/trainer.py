@@ -86,8 +86,9 @@ def make_generator(config: TrainConfig, s: Setup) -> StyleERD:
 def _resumable(config: dict) -> dict:
     """What must match to resume a run: everything but how long it may go on, on how many
     threads (a run may go on faster once the machine is free), which epoch it exports, and
-    where its weights started (the checkpoint holds them once a run has one)."""
-    return {k: v for k, v in config.items() if k not in ("epochs", "max_minutes", "threads", "keep", "init_from")}
+    where its weights started (the checkpoint holds them once a run has one), and on which device
+    (a run started on a GPU may go on on the CPU)."""
+    return {k: v for k, v in config.items() if k not in ("epochs", "max_minutes", "threads", "device", "keep", "init_from")}
 
 
 def _check_in_sync(model: torch.nn.Module) -> None:
@@ -127,11 +128,11 @@ def _perceptual_classifier(config: TrainConfig, s: Setup, out: Path, progress: b
         tensors, meta = ckpt.load_tensors(stem)
         model = ckpt.build_classifier(meta)
         model.load_state_dict(ckpt.unprefixed("classifier", tensors))
-        return model.eval()
+        return model.eval().to(config.device)
     cls_train = windows(s.fs, s.data, "train", config.classifier_stride, config.max_train_clips)
     layout = FeatureLayout(s.fs.skeleton.n_joints)
     motion = slice(0, layout.velocities.stop)  # rotations, positions, velocities (paper)
-    model, acc = train_classifier(s.data, cls_train, s.val, "content", True, motion, config.classifier_epochs, config.classifier_lr, config.seed, progress=progress)
+    model, acc = train_classifier(s.data, cls_train, s.val, "content", True, motion, config.classifier_epochs, config.classifier_lr, config.seed, progress=progress, device=config.device)
     if _is_main():
         ckpt.save_tensors(stem, ckpt.prefixed("classifier", model), ckpt.classifier_meta(model, s.data.contents, val_accuracy=acc))
     return model
@@ -201,11 +202,11 @@ def train_step(G: StyleERD, D: Discriminator, opt_g: torch.optim.Optimizer, opt_
     """One optimisation step of the generator, then of the critic, on the training windows
     ``rows`` sent to the styles ``target``; returns the losses it computed. ``tick(part)`` is
     called as each part of the step ends (benchmarks/bench_train_step.py times them)."""
-    B, J, L = len(rows), G.config.n_joints, G.layout
+    B, J, L, dev = len(rows), G.config.n_joints, G.layout, G.mean.device
     seen = critic_channels(config, L)
-    x = s.data.gather(s.train.starts[rows])
-    style, content = s.data.onehot_style(s.train.style[rows]), s.data.onehot_content(s.train.content[rows])
-    tgt = s.data.onehot_style(target)
+    x = s.data.gather(s.train.starts[rows]).to(dev)
+    style, content = s.data.onehot_style(s.train.style[rows]).to(dev), s.data.onehot_content(s.train.content[rows]).to(dev)
+    tgt = s.data.onehot_style(target).to(dev)
     real = x[..., : 10 * J]
     tick("batch gather")
 
@@ -228,7 +229,7 @@ def train_step(G: StyleERD, D: Discriminator, opt_g: torch.optim.Optimizer, opt_
         loss_g = loss_g + config.w_per * loss_per
         logs["per"] = loss_per.item()
     if config.w_cls:
-        loss_cls = losses.content_classification(per_classifier, fake, torch.from_numpy(s.train.content[rows]).long())
+        loss_cls = losses.content_classification(per_classifier, fake, torch.from_numpy(s.train.content[rows]).long().to(dev))
         loss_g = loss_g + config.w_cls * loss_cls
         logs["cls"] = loss_cls.item()
     tick("generator losses")
@@ -274,6 +275,11 @@ def train(config: TrainConfig, out: Path, data_dir: str | None = None, progress:
         raise StyleERDError(f"keep must be one of {KEEP}, got {config.keep!r}")
     if not 0.0 <= config.ema < 1.0:
         raise StyleERDError(f"ema must be a decay in [0, 1), got {config.ema!r}")
+    try:
+        device = torch.device(config.device)
+        torch.empty(0, device=device)
+    except (RuntimeError, AssertionError) as e:
+        raise StyleERDError(f"device {config.device!r} cannot be used here: {e}") from None
     if int(os.environ.get("WORLD_SIZE", "1")) > 1 and not dist.is_initialized():
         dist.init_process_group("gloo")
     rank = dist.get_rank() if dist.is_initialized() else 0
@@ -283,8 +289,8 @@ def train(config: TrainConfig, out: Path, data_dir: str | None = None, progress:
     out.mkdir(parents=True, exist_ok=True)
     s = setup(config, data_dir, progress)
     torch.manual_seed(config.seed)
-    G = make_generator(config, s)
-    D = make_critic(config, s)
+    G = make_generator(config, s).to(config.device)
+    D = make_critic(config, s).to(config.device)
     opt_g = torch.optim.Adam([p for p in G.parameters() if p.requires_grad], lr=config.lr_g, betas=(0.5, 0.999))
     opt_d = torch.optim.Adam(D.parameters(), lr=config.lr_d, betas=(0.5, 0.999))
     style_rec, content_rec = _recognisers(s)
@@ -296,10 +302,11 @@ def train(config: TrainConfig, out: Path, data_dir: str | None = None, progress:
     # ---- resume
     state_stem = out / "checkpoint"
     epoch0, elapsed, best = 0, 0.0, None
-    if config.init_from:
+    resuming = state_stem.with_suffix(".safetensors").is_file()
+    if config.init_from and not resuming:  # once a run has a checkpoint, the weights come from it
         _start_from(G, config.init_from)
     G_avg = copy.deepcopy(G).requires_grad_(False) if config.ema else None  # what is validated and exported
-    if state_stem.with_suffix(".safetensors").is_file():
+    if resuming:
         tensors, meta = ckpt.load_tensors(state_stem)
         if _resumable(TrainConfig.from_dict(meta["config"]).to_dict()) != _resumable(config.to_dict()):  # fields added since default
             raise StyleERDError(f"{out} holds a run with another config; use a new --out or delete it")
@@ -352,10 +359,11 @@ def train(config: TrainConfig, out: Path, data_dir: str | None = None, progress:
         row = {"epoch": epoch + 1, "steps": (epoch + 1) * steps, "minutes": round(elapsed / 60, 3)}
         row.update({f"loss_{k}": round(v / counts[k], 5) for k, v in sums.items()})
         if (epoch + 1) % config.val_every == 0 or epoch + 1 == config.epochs:
-            row.update({k: round(v, 4) for k, v in validate(G_eval, s.data, s.val, style_rec, content_rec).items()})
+            judged = copy.deepcopy(G_eval).cpu()  # the judges and the data stay on the CPU
+            row.update({k: round(v, 4) for k, v in validate(judged, s.data, s.val, style_rec, content_rec).items()})
             if realism is not None:
                 fmd, val_all = realism
-                row.update(realism_margin(transfer_quality(G_eval, s.data, val_all, style_rec, content_rec, fmd, resamples=0)))
+                row.update(realism_margin(transfer_quality(judged, s.data, val_all, style_rec, content_rec, fmd, resamples=0)))
         if _is_main():
             score = _score(row, config.keep)
             if score is not None and (best is None or score > best["score"]):
