@@ -287,3 +287,18 @@ def test_bench_train_parallel_times_real_epochs_in_one_and_two_processes(shared_
     assert len({f["steps"] for f in forms.values()}) == 1 and forms["1 process x 1 thread"]["speedup"] == 1.0  # one global batch: the same steps
     for f in forms.values():
         assert f["epoch_s"] > 0 and abs(f["windows_per_minute"] - 60 * f["steps"] * 16 / f["epoch_s"]) <= 1
+
+
+def test_training_with_a_data_folder_given_needs_no_default_one(shared_data, tmp_path, monkeypatch):
+    """--data DIR is enough: nothing falls back to ../shared/data (absent on other machines)."""
+    from styleerd.data import datasets
+    from styleerd.train.trainer import train
+
+    monkeypatch.delenv("STYLEERD_DATA", raising=False)
+    monkeypatch.chdir(tmp_path)
+    monkeypatch.setattr(datasets, "__file__", str(tmp_path / "a" / "b" / "datasets.py"))
+    with pytest.raises(StyleERDError, match="data directory .* not found"):
+        datasets.data_root(None)
+    train(TrainConfig(**TINY, epochs=1), tmp_path / "run", str(shared_data), progress=False, export=tmp_path / "m")
+    _, meta = ckpt.load_generator(tmp_path / "m")
+    assert meta["data"]["sha256"] == datasets.file_digest(shared_data / "bandai-namco-2.tar.xz")

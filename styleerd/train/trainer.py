@@ -27,7 +27,7 @@ from tqdm import tqdm
 
 from styleerd.atomic import atomic_write_text
 from styleerd.data.cache import CODE_VERSION, FeatureSet, prepare
-from styleerd.data.datasets import data_root, file_digest
+from styleerd.data.datasets import file_digest
 from styleerd.data.features import FeatureLayout
 from styleerd.errors import StyleERDError
 from styleerd.model import checkpoint as ckpt
@@ -425,14 +425,13 @@ def _score(row: dict, keep: str) -> float | None:
 
 
 def _model_meta(G: StyleERD, s: Setup, config: TrainConfig, best: dict) -> dict:
-    root = Path(s.fs.meta.get("data", data_root(None)))
-    archive = root / f"{config.dataset}.tar.xz"
+    archive = Path(s.fs.meta["data"]) / f"{config.dataset}.tar.xz" if "data" in s.fs.meta else None  # where it was prepared from
     return ckpt.generator_meta(
         G,
         s.fs.skeleton,
         s.data.stats,
         code_version=CODE_VERSION,
-        data={"dataset": config.dataset, "sha256": file_digest(archive) if archive.is_file() else None, "fps": s.fs.params.fps},
+        data={"dataset": config.dataset, "sha256": file_digest(archive) if archive is not None and archive.is_file() else None, "fps": s.fs.params.fps},
         training={"config": config.to_dict(), "best": best},
     )
 
