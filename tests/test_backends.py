@@ -139,3 +139,14 @@ def test_compiled_lstm_cell_equals_numpy_cell(n):
     _numpy_cell(g.copy(), b, h, c)
     compiled_cell(g.copy(), b, h2, c2)
     assert np.abs(h - h2).max() < 2e-6 and np.abs(c - c2).max() < 2e-6
+
+
+def test_a_stylizer_on_threads_gives_onnxruntime_those_threads(model):
+    """Throughput on N threads means onnxruntime's intra-op pool has N threads too (it used
+    to run on one while the table said two)."""
+    from styleerd.runtime.stylizer import StreamStylizer
+
+    for name in ("onnx", "onnx-plain"):
+        st = StreamStylizer(model, "normal", "walk", {"elderly": 1.0}, n_streams=4, backend=name, threads=2)
+        assert st.backend.session.get_session_options().intra_op_num_threads == 2
+    assert make_backend("onnx", model, 1).session.get_session_options().intra_op_num_threads == 1

@@ -90,7 +90,9 @@ class OnnxBackend:
         return rot, vel
 
 
-def make_backend(name: str, model: GeneratorWeights, n_streams: int):
+def make_backend(name: str, model: GeneratorWeights, n_streams: int, threads: int = 1):
+    """The step backend ``name`` for ``n_streams`` streams; ``threads``: onnxruntime's intra-op
+    threads (numpy and numba are split over threads by the stylizer, torch uses its global pool)."""
     if name not in BACKENDS:
         raise StyleERDError(f"unknown backend {name!r}; valid: {', '.join(BACKENDS)}")
     model = generator_weights(model)
@@ -99,8 +101,8 @@ def make_backend(name: str, model: GeneratorWeights, n_streams: int):
             from styleerd.runtime.compiled import CompiledBackend  # imports numba: only when asked for
 
             return CompiledBackend(model, n_streams)
-        if name == "onnx-plain":
-            return OnnxBackend(model, n_streams, form="plain")
-        return {"torch": TorchBackend, "numpy": NumpyBackend, "onnx": OnnxBackend}[name](model, n_streams)
+        if name in ("onnx", "onnx-plain"):
+            return OnnxBackend(model, n_streams, threads, form="plain" if name == "onnx-plain" else "lstm")
+        return {"torch": TorchBackend, "numpy": NumpyBackend}[name](model, n_streams)
     except ImportError as e:  # the light install has numpy and numba; torch and onnxruntime come with styleerd[train]
         raise StyleERDError(f"the {name} backend needs {e.name or e}: pip install 'styleerd[train]'") from None

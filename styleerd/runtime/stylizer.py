@@ -183,7 +183,7 @@ class StreamStylizer:
                 self.part_passes.append(w)
             self.joint_pass[joints[part]] = 1 + (known[0] if known else len(self.part_passes) - 1)
         self.input_joints = np.nonzero(self.joint_pass < 0)[0]
-        self.backend = make_backend(backend, model, n_streams * (1 + len(self.part_passes)))
+        self.backend = make_backend(backend, model, n_streams * (1 + len(self.part_passes)), threads=max(1, threads))
         # steps of many streams split into this many shards on a thread pool (numpy and numba:
         # their kernels and BLAS calls release the GIL; torch and onnx have their own threads)
         self.threads = max(1, threads) if backend in ("numpy", "numba") else 1
