@@ -40,6 +40,7 @@ bench: $(STAMP)
 	$(BIN)/python benchmarks/bench_train_step.py
 	$(BIN)/python benchmarks/bench_train_parallel.py
 	$(BIN)/styleerd bench
+	$(BIN)/python benchmarks/onnx_profile.py
 	$(BIN)/python benchmarks/bench_serve.py
 
 clean:

@@ -150,3 +150,25 @@ def test_a_stylizer_on_threads_gives_onnxruntime_those_threads(model):
         st = StreamStylizer(model, "normal", "walk", {"elderly": 1.0}, n_streams=4, backend=name, threads=2)
         assert st.backend.session.get_session_options().intra_op_num_threads == 2
     assert make_backend("onnx", model, 1).session.get_session_options().intra_op_num_threads == 1
+
+
+def test_onnx_profile_bench_accounts_for_every_node(model, tmp_path):
+    """benchmarks/onnx_profile.py: per op type, the node counts are the graph's own and the
+    shares add up to the whole kernel time."""
+    import json
+    import subprocess
+    import sys
+
+    out = tmp_path / "profile.json"
+    done = subprocess.run([sys.executable, "benchmarks/onnx_profile.py", "--steps", "5", "--streams", "1", "3", "--out", str(out)], capture_output=True, text=True, timeout=300)
+    assert done.returncode == 0, done.stderr
+    report = json.loads(out.read_text())
+    assert set(report) == {f"{form}, {n} streams" for form in FORMS for n in (1, 3)}
+    for key, r in report.items():
+        graph = step_graph(model, key.split(",")[0])
+        counts = {}
+        for node in graph.graph.node:
+            counts[node.op_type] = counts.get(node.op_type, 0) + 1
+        assert abs(sum(v["share"] for v in r["per_op"].values()) - 1.0) < 0.01 and r["step_p50_us"] > 0
+        if key.startswith("lstm"):  # onnxruntime fuses some plain ops (Gemm + Relu), never the LSTM op
+            assert r["per_op"]["LSTM"]["nodes"] == counts["LSTM"] == len(state_layers(model))
