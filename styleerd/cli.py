@@ -265,10 +265,10 @@ def _eval_rotations(args: argparse.Namespace) -> None:
 
 def _eval_ablations(args: argparse.Namespace) -> None:
     from styleerd.atomic import atomic_write_text
-    from styleerd.eval.ablations import ABLATIONS, ablation_table, markdown, shipped_budget, train_ablations
+    from styleerd.eval.ablations import ABLATIONS, RUNS_DIR, ablation_table, markdown, shipped_budget, train_ablations
 
     if not args.no_train:
-        train_ablations(Path(args.runs), args.data, args.threads, args.device)
+        train_ablations(Path(args.runs) if args.runs else RUNS_DIR, args.data, args.threads, args.device)
     rows = ablation_table(args.data, args.only or None)
     out = Path(args.out)
     kept = out.with_suffix(".json")
@@ -542,7 +542,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.set_defaults(func=_eval_rotations)
     p = ev.add_parser("ablations", help="train what is missing at the shipped run's budget (resumable) and tabulate the paper's ablations")
     p.add_argument("--threads", type=_whole(1), default=1)
-    p.add_argument("--runs", default="runs/ablations", help="run folders (checkpoints)")
+    p.add_argument("--runs", help="run folders (checkpoints; default models/ablations/training, kept in git between sessions)")
     p.add_argument("--device", default="cpu", help="train on this torch device (e.g. cuda); a run may resume on another")
     p.add_argument("--no-train", action="store_true", help="only evaluate the models in models/ablations/")
     p.add_argument("--only", nargs="*", help="evaluate only these rows (e.g. 'rec only' full); the others are kept from the existing JSON")

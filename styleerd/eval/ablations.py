@@ -33,6 +33,9 @@ ABLATIONS = {
 }
 CHECKOUT = Path(__file__).resolve().parents[2]
 ABLATIONS_DIR = CHECKOUT / "models" / "ablations"  # research runs: in a checkout, not in the package
+# the runs' checkpoints, kept in git while they train: a run goes on in the next session (or
+# on another machine) where the last one stopped
+RUNS_DIR = ABLATIONS_DIR / "training"
 
 
 def slug(name: str) -> str:
