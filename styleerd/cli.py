@@ -148,6 +148,15 @@ def _export_onnx(args: argparse.Namespace) -> None:
     print(f"wrote {args.output} and {Path(args.output).with_suffix('.json')} (inputs, outputs and features: docs/ONNX.md)")
 
 
+def _soup(args: argparse.Namespace) -> None:
+    from styleerd.train.soup import save_soup
+
+    out = Path(args.output)
+    out = out.with_suffix("") if out.suffix in (".safetensors", ".json") else out
+    meta = save_soup(args.models, out, args.weights)
+    print(f"{meta['training']['kept']}; wrote {out}.safetensors")
+
+
 def _add_style(args: argparse.Namespace) -> None:
     from styleerd.train.add_style import AddStyleConfig, add_style
 
@@ -402,7 +411,7 @@ MODEL_HELP = "a model file, or a model name in $STYLEERD_MODELS or among the shi
 GROUPS = {
     "use": ("transfer", "styles", "info", "resample", "export-onnx", "demo"),
     "live": ("serve", "stream-bvh", "vmc", "load-test"),
-    "train (styleerd[train])": ("data", "train", "add-style", "train-labeller", "train-recognisers", "train-fmd"),
+    "train (styleerd[train])": ("data", "train", "add-style", "soup", "train-labeller", "train-recognisers", "train-fmd"),
     "evaluate (styleerd[train])": ("evaluate", "eval", "eval-runtime", "bench", "report", "filmstrip"),
 }
 
@@ -465,6 +474,12 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--joint-map", help="JSON object {model joint: clip joint} completing the automatic mapping")
     p.add_argument("--data", help="data folder (the neutral clips of the model's dataset are the content to stylise)")
     p.set_defaults(func=_add_style)
+
+    p = command("soup", "one model from several fine-tuned from the same start: the weighted average of their weights")
+    p.add_argument("models", nargs="+", help="saved generators (stems or shipped names), fine-tuned from one start")
+    p.add_argument("-o", "--output", required=True, help="the averaged model (no suffix)")
+    p.add_argument("--weights", nargs="+", type=float, help="one per model, summing to 1 (default: equal)")
+    p.set_defaults(func=_soup)
 
     for name, (text, default, _) in HELPER_MODELS.items():
         p = command(name, text)
