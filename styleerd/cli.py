@@ -223,7 +223,15 @@ def _eval_quality(args: argparse.Namespace) -> None:
     from styleerd.eval.metrics import evaluate_model
     from styleerd.model.checkpoint import load_generator
 
-    print(json.dumps(evaluate_model(load_generator(args.model)[0], args.data, args.split), indent=1))
+    result = evaluate_model(load_generator(args.model)[0], args.data, args.split)
+    print(json.dumps(result, indent=1))
+    if args.json:  # one entry per model, the file's others kept (docs/recipes-val.json: a choice made on val)
+        from styleerd.atomic import atomic_write_text
+
+        path = Path(args.json)
+        kept = json.loads(path.read_text()) if path.is_file() else {}
+        kept[args.as_name or (Path(args.model).name if args.model else "shipped")] = result
+        atomic_write_text(path, json.dumps(kept, indent=1) + "\n")
 
 
 def _eval_streamed(args: argparse.Namespace) -> None:
@@ -537,6 +545,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--model", help=MODEL_HELP)
     p.add_argument("--split", choices=("test", "val"), default="test", help="val: to choose between models without looking at the test set")
     p.add_argument("--data", help="data folder")
+    p.add_argument("--json", help="also write the figures into this JSON file, under the model's name (other entries kept)")
+    p.add_argument("--as-name", help="the entry's name in --json (default: the model's file name, or shipped)")
     p.set_defaults(func=_eval_quality)
     p = ev.add_parser("streamed", help="whole test clips streamed as `transfer` runs them: styled -> neutral, neutral -> each style, labels given and inferred, judged as played")
     p.add_argument("--model", help=MODEL_HELP)

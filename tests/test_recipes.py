@@ -52,6 +52,9 @@ def test_recipe_table_and_tradeoff_plot(tmp_path):
 
     img = np.asarray(Image.open(tmp_path / "t.png").convert("L"))
     assert img.shape[1] > 1000 and (img < 128).mean() > 0.01  # drawn: axes, points, labels
+    many = {f"recipe {i}": rows["shipped"] for i in range(12)}  # more recipes than marker shapes
+    tradeoff_plot(many, tmp_path / "many.png")
+    assert (tmp_path / "many.png").stat().st_size > 10_000
 
 
 def test_ablation_table_with_spreads_orders_only_models_at_the_budget():

@@ -62,3 +62,14 @@ def test_soup_refuses_what_does_not_average_into_a_model(two_stages, tmp_path):
         soup([str(tmp_path / "d"), str(a)])
     assert cli.main(["soup", str(a), str(tmp_path / "c"), "-o", str(tmp_path / "bad")]) not in (0, None)
     assert not list(tmp_path.glob("bad*"))  # nothing written
+
+
+def test_the_report_names_every_stage_of_a_soup(two_stages):
+    from styleerd.eval.report import training_minutes
+
+    a, b, _, _, meta = two_stages
+    _, m = soup([str(a), str(b)])
+    text = training_minutes(m["training"])
+    stage = f"{meta['training']['wall_minutes']} min ({meta['training']['config']['name']})"
+    assert text.count(stage) == 2 and "each fine-tuning from it, their weights averaged" in text
+    assert text.startswith(f"{meta['training']['started_from']['training']['wall_minutes']} min")

@@ -6,6 +6,8 @@ trade-off plot."""
 
 from __future__ import annotations
 
+import itertools
+
 from pathlib import Path
 
 import numpy as np
@@ -61,11 +63,12 @@ def recipe_table(data_dir: str | None = None, names: list[str] | None = None) ->
         model, meta = ckpt.load_generator(stem)
         q = evaluate_model(model, data_dir)
         training = meta["training"]
+        stages = [s["training"] for s in training.get("soup", [])] or [training]  # a soup: the steps of every stage averaged
         rows[name] = {
             "model": "shipped" if stem is None else str(stem.relative_to(RECIPES_DIR.parents[1])),
             "config": training["config"]["name"],
             "minutes": training.get("wall_minutes") or training["best"].get("minutes"),
-            "steps": training["best"].get("steps"),
+            "steps": sum(t["best"].get("steps") or 0 for t in stages),
             "quality": q,
             "per_style": per_style(q),
         }
@@ -91,7 +94,7 @@ def tradeoff_plot(rows: dict, path: Path) -> None:
         a.errorbar(x, y, xerr=q["spread"]["fmd"] / q["fmd_floor"], yerr=q["spread"]["cra"] / q["content_ceiling"], fmt="o", capsize=3)
         a.annotate(name, (x, y), textcoords="offset points", xytext=(5, 4), fontsize=8)
     a.set(xlabel="FMD / floor (lower is more real)", ylabel="CRA / ceiling (content kept)", title="Recipes (bars: bootstrap spread)")
-    markers = iter("osD^v<>")
+    markers = itertools.cycle("osD^v<>pPX*h")  # as many recipes as there are
     for name, r in rows.items():
         if name.startswith("ablation"):
             continue

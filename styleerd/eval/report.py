@@ -140,7 +140,11 @@ def training_minutes(training: dict) -> str:
     here = f"{training.get('wall_minutes')} min ({training['config']['name']}"
     if base is None:
         return here + ")"
-    return f"{base['training'].get('wall_minutes')} min ({base['training']['config']['name']}) + {here}, fine-tuning from it)"
+    start = f"{base['training'].get('wall_minutes')} min ({base['training']['config']['name']})"
+    if "soup" in training:  # stages fine-tuned from one start, their weights averaged
+        stages = " and ".join(f"{s['training'].get('wall_minutes')} min ({s['training']['config']['name']})" for s in training["soup"])
+        return f"{start} + {stages}, each fine-tuning from it, their weights averaged (`styleerd soup`)"
+    return f"{start} + {here}, fine-tuning from it)"
 
 
 def online_section(runtime: dict) -> str:
