@@ -84,9 +84,8 @@ def test_the_16_style_model_transfers_into_its_bandai1_styles_with_labels_inferr
 @pytest.mark.slow
 def test_shipped_model_is_realistic_in_every_style_with_the_content_kept(shared_data):
     """Issue 16: every target style's FMD within 3 x its floor (two halves of the style's real
-    test windows), with its content kept. The issue asks CRA >= 95 % of the content
-    recogniser's ceiling in every style: the shipped model measures 94.6 % for active and
-    elderly (and 97-100 % for the others), so this holds it to 94 %."""
+    test windows) and CRA >= 95 % of the content recogniser's ceiling, both at once (the
+    shipped soup measures FMD <= 1.70 x and CRA >= 95.4 %, normal the lowest)."""
     from styleerd.eval.metrics import evaluate_model
     from styleerd.eval.recipes import per_style
     from styleerd.train.validation import CRA_BAR, FMD_BAR
@@ -96,4 +95,4 @@ def test_shipped_model_is_realistic_in_every_style_with_the_content_kept(shared_
     print(ratios)
     assert set(ratios) == set(ckpt.load_generator()[0].config.styles)
     for style, r in ratios.items():
-        assert r["fmd_over_floor"] <= FMD_BAR and r["cra_of_ceiling"] >= CRA_BAR - 0.01, (style, r)
+        assert r["fmd_over_floor"] <= FMD_BAR and r["cra_of_ceiling"] >= CRA_BAR, (style, r)
