@@ -69,12 +69,13 @@ def profile(graph: bytes, inputs: dict, steps: int) -> dict:
             nodes[e["args"]["op_name"]] += 1
     runs = steps  # one profiled run per step
     kernels = sum(per_op.values()) / runs
+    p50 = float(np.percentile(np.array(times) * 1e6, 50))
     return {
-        "step_p50_us": round(float(np.percentile(np.array(times) * 1e6, 50)), 1),
+        "step_p50_us": round(p50, 1),
         "kernels_us": round(kernels, 1),
         # the profiler's own cost inflates short kernels: "us" is its time, "of_step_us" the
         # op type's share of the kernel time applied to the unprofiled step time
-        "per_op": {op: {"us": round(t / runs, 1), "share": round(t / sum(per_op.values()), 3), "of_step_us": round(t / sum(per_op.values()) * float(np.percentile(np.array(times) * 1e6, 50)), 1),
+        "per_op": {op: {"us": round(t / runs, 1), "share": round(t / sum(per_op.values()), 3), "of_step_us": round(t / sum(per_op.values()) * p50, 1),
                         "nodes": nodes[op] // runs} for op, t in per_op.most_common()},
     }
 
