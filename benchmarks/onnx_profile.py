@@ -24,13 +24,13 @@ sys.path.insert(0, str(ROOT))
 
 from styleerd.atomic import atomic_write_text  # noqa: E402
 from styleerd.model.stored import load_generator_weights  # noqa: E402
-from styleerd.runtime.onnx_export import FORMS, state_layers, step_graph  # noqa: E402
+from styleerd.runtime.onnx_export import FORMS, state_shape, step_graph  # noqa: E402
 
 
-def feeds(model, n: int) -> dict[str, np.ndarray]:
+def feeds(model, form: str, n: int) -> dict[str, np.ndarray]:
     """N streams past their first frame, each sent to one style (the usual case)."""
     c = model.config
-    S = len(state_layers(model))
+    rows, _, width = state_shape(model, form)
     eye = lambda k, i: np.eye(k, dtype=np.float32)[np.full(n, i)]  # noqa: E731
     rng = np.random.default_rng(0)
     return {
@@ -39,8 +39,8 @@ def feeds(model, n: int) -> dict[str, np.ndarray]:
         "content": eye(len(c.contents), 0),
         "target": eye(len(c.styles), (c.neutral_index + 1) % len(c.styles)),
         "first_frame": np.zeros((n, 1), np.float32),
-        "h": rng.normal(0, 0.1, (S, n, c.hidden)).astype(np.float32),
-        "c": rng.normal(0, 0.1, (S, n, c.hidden)).astype(np.float32),
+        "h": rng.normal(0, 0.1, (rows, n, width)).astype(np.float32),
+        "c": rng.normal(0, 0.1, (rows, n, width)).astype(np.float32),
     }
 
 
@@ -91,7 +91,7 @@ def main() -> None:
     for form in FORMS:
         graph = step_graph(model, form).SerializeToString()
         for n in args.streams:
-            r = profile(graph, feeds(model, n), args.steps if n == 1 else max(10, args.steps // 10))
+            r = profile(graph, feeds(model, form, n), args.steps if n == 1 else max(10, args.steps // 10))
             report[f"{form}, {n} streams"] = r
             top = ", ".join(f"{op} {100 * v['share']:.0f} % ({v['nodes']} nodes)" for op, v in list(r["per_op"].items())[:5])
             print(f"{form:5s} {n:5d} streams: step p50 {r['step_p50_us']:.0f} us; kernel time by op type: {top}", flush=True)

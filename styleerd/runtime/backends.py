@@ -67,15 +67,15 @@ class OnnxBackend:
     def __init__(self, model: GeneratorWeights, n_streams: int, threads: int = 1, form: str = "lstm", styles: tuple[str, ...] | None = None):
         import onnxruntime as ort
 
-        from styleerd.runtime.onnx_export import state_layers, step_graph
+        from styleerd.runtime.onnx_export import state_shape, step_graph
 
         options = ort.SessionOptions()
         options.intra_op_num_threads, options.inter_op_num_threads = threads, 1
         options.graph_optimization_level = ort.GraphOptimizationLevel.ORT_ENABLE_ALL
         self.session = ort.InferenceSession(step_graph(model, form, styles).SerializeToString(), options, providers=["CPUExecutionProvider"])
-        S, H = len(state_layers(model, styles)), model.config.hidden
+        rows, _, width = state_shape(model, form, styles)
         self.n = n_streams
-        self.state = {"h": np.zeros((S, n_streams, H), np.float32), "c": np.zeros((S, n_streams, H), np.float32)}
+        self.state = {name: np.zeros((rows, n_streams, width), np.float32) for name in ("h", "c")}
         self.first = np.ones((n_streams, 1), np.float32)
 
     def reset(self, streams: np.ndarray | None = None) -> None:

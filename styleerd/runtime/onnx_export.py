@@ -37,6 +37,11 @@ OPSET = 15  # the LSTM op with explicit state, as engines support it (Unity: ops
 FORMS = ("lstm", "plain")
 # torch packs LSTM gates as (input, forget, cell, output), ONNX as (input, output, forget, cell)
 TORCH_TO_ONNX_GATES = (0, 3, 1, 2)
+# LSTM form: with this many style branches or fewer, the layers of one depth are one op
+# (one style, 1 thread: batch 1 60 vs 72 us p50, 1,000 streams 122k vs 141k frames/s; all six
+# styles: 140 vs 166 us, but 24k vs 51k frames/s: the block-diagonal weights' waste grows as
+# the square of the branches)
+FUSE_UP_TO = 1
 
 
 class _Graph:
@@ -60,18 +65,6 @@ class _Graph:
 
 def _onnx_gates(a: np.ndarray, H: int, order=TORCH_TO_ONNX_GATES) -> np.ndarray:
     return np.concatenate([a[k * H : (k + 1) * H] for k in order]).astype(np.float32)
-
-
-def _lstm_op(g: _Graph, x: str, h: str, c: str, arrays: dict, prefix: str, i: int, H: int) -> tuple[str, str]:
-    """One LSTM layer as one ``LSTM`` op on ``x [1, N, in]`` and its state ``h, c [1, N, H]``
-    -> the new ``h, c`` (with one frame, the op's output Y_h is its output)."""
-    W = g.const(_onnx_gates(arrays[f"{prefix}.weight_ih_l{i}"], H)[None])
-    R = g.const(_onnx_gates(arrays[f"{prefix}.weight_hh_l{i}"], H)[None])
-    B = g.const(np.concatenate([_onnx_gates(arrays[f"{prefix}.bias_ih_l{i}"], H), _onnx_gates(arrays[f"{prefix}.bias_hh_l{i}"], H)])[None])
-    g.count += 1
-    h_new, c_new = f"lstm{g.count}_h", f"lstm{g.count}_c"
-    g.nodes.append(helper.make_node("LSTM", [x, W, R, B, "", h, c], ["", h_new, c_new], hidden_size=H))
-    return h_new, c_new
 
 
 def _lockstep_cells(g: _Graph, x: str, h: str, c: str, arrays: dict, members: list[tuple[str, int]], H: int) -> tuple[str, str]:
@@ -127,80 +120,115 @@ def state_layers(model: GeneratorWeights, styles: tuple[str, ...] | None = None)
     return [(name, i) for depth in _depths(c, _branches(c, styles)) for _, name, i in depth]
 
 
-def step_graph(model: GeneratorWeights, form: str = "lstm", styles: tuple[str, ...] | None = None) -> onnx.ModelProto:
-    """The step graph in ``form`` (``FORMS``) with the branches of ``styles`` (default every
-    style; a graph for the styles a host uses is smaller and faster), checked by
-    ``onnx.checker`` (full check).
-
-    Per-node cost, not arithmetic, sets a step's time at small batches (onnxruntime: about
-    0.4 us a plain node, 8 us an LSTM op), so the graph has few nodes: one state tensor per h
-    and c, split once and joined once; the learned initial states one batched product; the
-    branch outputs weighted and summed in one pass; one ``Where`` per state keeps the rows of
-    branches that do not run; and in the plain form, the branches' cells of one depth one
-    batched cell."""
-    if form not in FORMS:
-        raise ValueError(f"unknown ONNX form {form!r}; valid: {', '.join(FORMS)}")
-    model = generator_weights(model)
-    w, arrays, c = step_weights(model), model.arrays, model.config
-    unknown = set(styles or ()) - set(c.styles[s] for s in c.branch_styles)
-    if unknown:
-        raise StyleERDError(f"no style branch for {', '.join(sorted(unknown))}; the model's: {', '.join(c.styles[s] for s in c.branch_styles)}")
-    branches = _branches(c, styles)
-    depths = _depths(c, branches)
+def _lstm_form(g: _Graph, z: str, first: str, arrays: dict, w, c, depths: list, branches: list) -> tuple[str, np.ndarray]:
+    """The branches as ``LSTM`` ops on the state ``h, c [1, N, S H]`` (rows side by side, in
+    ``state_layers`` order): with at most ``FUSE_UP_TO`` style branches, the layers of one depth
+    run as one op (block-diagonal weights: fewer ops in sequence), else one op per layer. Writes
+    ``h_out``, ``c_out``; returns the decoder's first input ``[N, K]`` (the last layers' outputs,
+    branches weighted, then the target) and the rows of its first weight for those K columns."""
+    H, nC, nS = c.hidden, len(c.contents), len(c.styles)
     rows = [(prefix, i) for depth in depths for prefix, _, i in depth]
-    D, nI, nS, nC, H, J, S = c.feature_dim, len(c.input_styles), len(c.styles), len(c.contents), c.hidden, c.n_joints, len(rows)
-    g = _Graph()
-    # a stream's first frame starts from the learned initial states (the neutral one by content):
-    # content [N, nC] @ table [nC, 2 S H] -> [2S, N, H] (h rows, then c rows), the branch rows
-    # the same for every content. (2-D products throughout: onnxruntime runs a batched product
-    # as one small GEMM call per batch entry.)
-    first = g.op("Cast", "first_frame", to=TensorProto.BOOL)  # [N, 1]
+    T = len(rows) * H
+    ops = [[(prefix, i) for prefix, _, i in depth] for depth in depths] if len(branches) <= FUSE_UP_TO else [[row] for row in rows]
+    # a stream's first frame: the learned initial states, content [N, nC] @ table [nC, 2T] (the
+    # neutral rows by content, a branch's the same for every content)
+    table = np.concatenate([np.concatenate([init[:, i] if prefix == "neutral" else np.broadcast_to(branch_init[int(prefix.split(".")[1]), i], (nC, H)) for prefix, i in rows], 1)
+                            for init, branch_init in zip(w.neutral_init, w.branch_init)], 1)  # fmt: skip
+    starts = g.op("Split", g.op("MatMul", "content", g.const(table.astype(np.float32))), outputs=2, axis=1)
+    states = {name: g.op("Where", first, s0, name) for name, s0 in zip(("h", "c"), starts)}
+    widths = [len(members) * H for members in ops]
+    parts = {name: g.op("Split", states[name], _ints(g, *widths), outputs=len(ops), axis=2) if len(ops) > 1 else [states[name]] for name in states}
+    x0 = g.op("Unsqueeze", z, _ints(g, 0))  # [1, N, E]: a sequence of one frame
+    out_of: dict[tuple[str, int], tuple[str, int, int]] = {}  # (branch, layer) -> its op's output h, its first column there, the op's width
+    new = {"h": [], "c": []}
+    for k, members in enumerate(ops):
+        B, (prefix, i) = len(members), members[0]
+        x, _, width = (x0, 0, arrays[f"{prefix}.weight_ih_l0"].shape[1]) if i == 0 else out_of[(prefix, i - 1)]
+        W, R, bias = np.zeros((4 * B * H, width), np.float32), np.zeros((4 * B * H, B * H), np.float32), np.zeros((2, 4 * B * H), np.float32)
+        for m, (prefix, i) in enumerate(members):
+            for gate, torch_gate in enumerate(TORCH_TO_ONNX_GATES):
+                to, src = slice((gate * B + m) * H, (gate * B + m + 1) * H), slice(torch_gate * H, (torch_gate + 1) * H)
+                w_ih = arrays[f"{prefix}.weight_ih_l{i}"][src]
+                if i == 0:
+                    W[to] = w_ih
+                else:
+                    at = out_of[(prefix, i - 1)][1]  # its input: its own layer below
+                    W[to, at : at + H] = w_ih
+                R[to, m * H : (m + 1) * H] = arrays[f"{prefix}.weight_hh_l{i}"][src]
+                bias[0, to], bias[1, to] = arrays[f"{prefix}.bias_ih_l{i}"][src], arrays[f"{prefix}.bias_hh_l{i}"][src]
+        g.count += 1
+        h_new, c_new = f"lstm{g.count}_h", f"lstm{g.count}_c"
+        g.nodes.append(helper.make_node("LSTM", [x, g.const(W[None]), g.const(R[None]), g.const(bias.reshape(1, -1)), "", parts["h"][k], parts["c"][k]],
+                                        ["", h_new, c_new], hidden_size=B * H))  # fmt: skip
+        new["h"].append(h_new)
+        new["c"].append(c_new)
+        for m, member in enumerate(members):
+            out_of[member] = (h_new, m * H, B * H)
+    # per state column, the style whose weight lets it advance (the neutral columns always do):
+    # a branch's columns keep their state where the target gives its style no weight
+    style_of = {prefix: c.styles.index(style) for prefix, style in ((f"branches.{k}", style) for k, style in branches)}
+    pick, neutral = np.zeros((nS, T), np.float32), np.zeros(T, np.float32)
+    for r, (prefix, _) in enumerate(rows):
+        if prefix == "neutral":
+            neutral[r * H : (r + 1) * H] = 1.0
+        else:
+            pick[style_of[prefix], r * H : (r + 1) * H] = 1.0
+    keep = g.op("Equal", g.op("Gemm", "target", g.const(pick), g.const(neutral)), g.const(np.zeros(1, np.float32)))  # [N, T]
+    for name in ("h", "c"):
+        g.nodes.append(helper.make_node("Where", [keep, states[name], g.op("Concat", *new[name], axis=2) if len(ops) > 1 else new[name][0]], [f"{name}_out"]))
+    # the decoder reads neutral + sum_k w_k branch_k: the ops holding the last layers, side by
+    # side, each column weighted (1 for the neutral branch's, w_k for branch k's, 0 for others),
+    # and the decoder's first weight repeated for each last layer's columns
+    last = [("neutral", c.neutral_layers - 1)] + [(f"branches.{k}", c.style_layers - 1) for k, _ in branches]
+    held = dict((out_of[member][0], out_of[member][2]) for member in last)  # op output -> width, in order
+    offsets = dict(zip(held, np.cumsum([0, *held.values()])))
+    K = sum(held.values())
+    weigh, ones, copies = np.zeros((nS, K), np.float32), np.zeros(K, np.float32), np.zeros((K, H), np.float32)
+    for prefix, i in last:
+        name, at, _ = out_of[(prefix, i)]
+        cols = slice(offsets[name] + at, offsets[name] + at + H)
+        copies[cols] = np.eye(H, dtype=np.float32)
+        if prefix == "neutral":
+            ones[cols] = 1.0
+        else:
+            weigh[style_of[prefix], cols] = 1.0
+    joined = g.op("Concat", *held, axis=2) if len(held) > 1 else next(iter(held))
+    weighted = g.op("Squeeze", g.op("Mul", joined, g.op("Gemm", "target", g.const(weigh), g.const(ones))), _ints(g, 0))
+    return g.op("Concat", weighted, "target", axis=1), copies
+
+
+def _plain_form(g: _Graph, z: str, first: str, arrays: dict, w, c, depths: list, branches: list) -> tuple[str, np.ndarray]:
+    """The branches written out in plain ops on the state ``h, c [S, N, H]`` (a row per layer,
+    ``state_layers`` order), the cells of one depth one batched cell (``_lockstep_cells``).
+    Writes ``h_out``, ``c_out``; returns the decoder's first input ``[N, H + nS]`` and the rows
+    of its first weight for the first H columns (the identity)."""
+    rows = [(prefix, i) for depth in depths for prefix, _, i in depth]
+    nS, nC, H, S = len(c.styles), len(c.contents), c.hidden, len(rows)
+    # content [N, nC] @ table [nC, 2 S H] -> [2S, N, H] (h rows, then c rows); 2-D products
+    # throughout: onnxruntime runs a batched product as one small GEMM call per batch entry
     table = np.stack([neutral[:, i] if prefix == "neutral" else np.broadcast_to(branch[int(prefix.split(".")[1]), i], (nC, H))
                       for neutral, branch in zip(w.neutral_init, w.branch_init) for prefix, i in rows], axis=1)  # fmt: skip
     start = g.op("Transpose", g.op("Reshape", g.op("MatMul", "content", g.const(table.reshape(nC, -1).astype(np.float32))), _ints(g, -1, 2 * S, H)), perm=[1, 0, 2])
     starts = g.op("Split", start, outputs=2, axis=0)
     states = {name: g.op("Where", first, s0, name) for name, s0 in zip(("h", "c"), starts)}
-    # encoder; its last layer (linear) folded into the first LSTM layers' input weights
-    arrays = _fold_into_first_layers(arrays, *w.encoder[-1], [prefix for prefix, _, i in depths[0]])
-    z = g.op("Concat", "features", "style", "content", axis=1)
-    for W, b in w.encoder[:-1]:
-        z = g.op("Relu", g.op("Gemm", z, g.const(W), g.const(b)))
-    if form == "lstm":
-        z = g.op("Unsqueeze", z, _ints(g, 0))  # [1, N, E]: a sequence of one frame (MatMul broadcasts [N, E])
-    # the branches, depth by depth
     new = {"h": [], "c": []}
-    if form == "plain":  # one batched cell per depth on that depth's rows [B, N, H]
-        sizes = _ints(g, *(len(d) for d in depths))
-        parts = {name: g.op("Split", states[name], sizes, outputs=len(depths), axis=0) if len(depths) > 1 else [states[name]] for name in states}
-        x, previous = z, None
-        for d, depth in enumerate(depths):
-            members = [(prefix, i) for prefix, _, i in depth]
-            if previous is not None and members != [(p, i + 1) for p, _, i in previous][: len(members)]:
-                raise ValueError("a depth's branches must be the first of the depth before")  # the neutral branch is the deepest or as deep
-            if previous is not None and len(members) < len(previous):
-                x = g.op("Slice", x, _ints(g, 0), _ints(g, len(members)), _ints(g, 0))
-            x, c_new = _lockstep_cells(g, x, parts["h"][d], parts["c"][d], arrays, members, H)
-            new["h"].append(x)
-            new["c"].append(c_new)
-            previous = depth
-            if d == c.style_layers - 1:
-                branch_last = g.op("Slice", x, _ints(g, 1), _ints(g, 1 + len(branches)), _ints(g, 0)) if branches else None
-            if d == c.neutral_layers - 1:
-                neutral_last = g.op("Slice", x, _ints(g, 0), _ints(g, 1), _ints(g, 0)) if len(depth) > 1 else x
-    else:  # one LSTM op per row
-        parts = {name: g.op("Split", states[name], outputs=S, axis=0) if S > 1 else [states[name]] for name in states}
-        last, h_rows, c_rows = {}, {}, {}
-        for prefix in ["neutral"] + [f"branches.{k}" for k, _ in branches]:
-            x = z
-            for i in range(c.neutral_layers if prefix == "neutral" else c.style_layers):
-                r = rows.index((prefix, i))
-                x, c_rows[r] = _lstm_op(g, x, parts["h"][r], parts["c"][r], arrays, prefix, i, H)
-                h_rows[r] = x
-            last[prefix] = x
-        new = {"h": [h_rows[r] for r in range(S)], "c": [c_rows[r] for r in range(S)]}
-        neutral_last = last["neutral"]
-        ends = [last[f"branches.{k}"] for k, _ in branches]
-        branch_last = (g.op("Concat", *ends, axis=0) if len(ends) > 1 else ends[0]) if ends else None
+    sizes = _ints(g, *(len(d) for d in depths))
+    parts = {name: g.op("Split", states[name], sizes, outputs=len(depths), axis=0) if len(depths) > 1 else [states[name]] for name in states}
+    x, previous = z, None
+    for d, depth in enumerate(depths):
+        members = [(prefix, i) for prefix, _, i in depth]
+        if previous is not None and members != [(p, i + 1) for p, _, i in previous][: len(members)]:
+            raise ValueError("a depth's branches must be the first of the depth before")  # the neutral branch is the deepest or as deep
+        if previous is not None and len(members) < len(previous):
+            x = g.op("Slice", x, _ints(g, 0), _ints(g, len(members)), _ints(g, 0))
+        x, c_new = _lockstep_cells(g, x, parts["h"][d], parts["c"][d], arrays, members, H)
+        new["h"].append(x)
+        new["c"].append(c_new)
+        previous = depth
+        if d == c.style_layers - 1:
+            branch_last = g.op("Slice", x, _ints(g, 1), _ints(g, 1 + len(branches)), _ints(g, 0)) if branches else None
+        if d == c.neutral_layers - 1:
+            neutral_last = g.op("Slice", x, _ints(g, 0), _ints(g, 1), _ints(g, 0)) if len(depth) > 1 else x
     # the target's weight per branch [K, N, 1] and per state row [S, N, 1], read off by one product
     pick = np.zeros((nS, len(branches) + S), np.float32)
     for j, (_, style) in enumerate(branches):
@@ -211,8 +239,7 @@ def step_graph(model: GeneratorWeights, form: str = "lstm", styles: tuple[str, .
             pick[c.styles.index(style_of[int(prefix.split(".")[1])]), len(branches) + r] = 1.0
     picked = g.op("Unsqueeze", g.op("Transpose", g.op("MatMul", "target", g.const(pick)), perm=[1, 0]), _ints(g, 2))  # [K + S, N, 1]
     weights, row_weights = g.op("Split", picked, _ints(g, len(branches), S), outputs=2, axis=0) if branches else (None, picked)
-    # out = neutral + sum_k w_k branch_k
-    out = neutral_last
+    out = neutral_last  # out = neutral + sum_k w_k branch_k
     if branches:
         out = g.op("Add", out, g.op("ReduceSum", g.op("Mul", branch_last, weights), _ints(g, 0), keepdims=1))
     out = g.op("Squeeze", out, _ints(g, 0))  # [N, H]
@@ -220,14 +247,52 @@ def step_graph(model: GeneratorWeights, form: str = "lstm", styles: tuple[str, .
     neutral_rows = np.array([[[float(prefix == "neutral")]] for prefix, _ in rows], np.float32)
     keep = g.op("Equal", g.op("Add", row_weights, g.const(neutral_rows)), g.const(np.zeros(1, np.float32)))  # [S, N, 1]
     for name in ("h", "c"):
-        parts = new[name]
-        g.nodes.append(helper.make_node("Where", [keep, states[name], g.op("Concat", *parts, axis=0) if len(parts) > 1 else parts[0]], [f"{name}_out"]))
+        g.nodes.append(helper.make_node("Where", [keep, states[name], g.op("Concat", *new[name], axis=0) if len(depths) > 1 else new[name][0]], [f"{name}_out"]))
+    return g.op("Concat", out, "target", axis=1), np.eye(H, dtype=np.float32)
+
+
+def state_shape(model: GeneratorWeights, form: str = "lstm", styles: tuple[str, ...] | None = None) -> tuple:
+    """The shape of ``h`` and ``c`` (N: the number of streams): ``[1, N, S H]`` in the LSTM
+    form, ``[S, N, H]`` in the plain one (S = ``len(state_layers)``)."""
+    c = generator_weights(model).config
+    S = len(state_layers(model, styles))
+    return (1, "N", S * c.hidden) if form == "lstm" else (S, "N", c.hidden)
+
+
+def step_graph(model: GeneratorWeights, form: str = "lstm", styles: tuple[str, ...] | None = None) -> onnx.ModelProto:
+    """The step graph in ``form`` (``FORMS``) with the branches of ``styles`` (default every
+    style; a graph for the styles a host uses is smaller and faster), checked by
+    ``onnx.checker`` (full check).
+
+    Per-node cost, not arithmetic, sets a step's time at small batches (onnxruntime: about
+    0.5-1 us a plain node, 3-7 us an LSTM op), so the graph has few nodes: one state tensor
+    per h and c, split once and joined once; the learned initial states one product; the
+    branch outputs weighted in one pass; one ``Where`` per state keeps the rows of branches
+    that do not run; in the LSTM form with one style, one op per layer depth; in the plain
+    form, the branches' cells of one depth one batched cell."""
+    if form not in FORMS:
+        raise ValueError(f"unknown ONNX form {form!r}; valid: {', '.join(FORMS)}")
+    model = generator_weights(model)
+    w, arrays, c = step_weights(model), model.arrays, model.config
+    unknown = set(styles or ()) - set(c.styles[s] for s in c.branch_styles)
+    if unknown:
+        raise StyleERDError(f"no style branch for {', '.join(sorted(unknown))}; the model's: {', '.join(c.styles[s] for s in c.branch_styles)}")
+    branches = _branches(c, styles)
+    depths = _depths(c, branches)
+    D, nI, nS, nC, J = c.feature_dim, len(c.input_styles), len(c.styles), len(c.contents), c.n_joints
+    g = _Graph()
+    first = g.op("Cast", "first_frame", to=TensorProto.BOOL)  # [N, 1]
+    # encoder; its last layer (linear) folded into the first LSTM layers' input weights
+    arrays = _fold_into_first_layers(arrays, *w.encoder[-1], [prefix for prefix, _, i in depths[0]])
+    z = g.op("Concat", "features", "style", "content", axis=1)
+    for W, b in w.encoder[:-1]:
+        z = g.op("Relu", g.op("Gemm", z, g.const(W), g.const(b)))
+    y, copies = (_lstm_form if form == "lstm" else _plain_form)(g, z, first, arrays, w, c, depths, branches)
     # decoder (added styles' target rows below the trained ones'); its last layer as two
     # products, the rotations' and the velocities'
-    y = g.op("Concat", out, "target", axis=1)
     for i, (W, b) in enumerate(w.decoder[:-1]):
-        if i == 0 and w.decoder_added is not None:
-            W = np.concatenate([W, w.decoder_added])
+        if i == 0:
+            W = np.concatenate([copies @ W[: c.hidden], W[c.hidden :]] + ([w.decoder_added] if w.decoder_added is not None else [])).astype(np.float32)
         y = g.op("Relu", g.op("Gemm", y, g.const(W), g.const(b)))
     W, b = w.decoder[-1]
     q = g.op("Reshape", g.op("Gemm", y, g.const(W[:, : 4 * J].copy()), g.const(b[: 4 * J].copy())), _ints(g, -1, J, 4))
@@ -235,11 +300,11 @@ def step_graph(model: GeneratorWeights, form: str = "lstm", styles: tuple[str, .
     norm = g.op("Max", g.op("ReduceL2", q, axes=[2], keepdims=1), g.const(np.array(1e-8, np.float32)))
     g.nodes.append(helper.make_node("Div", [q, norm], ["rotations"]))
 
-    f32 = TensorProto.FLOAT
+    f32, state = TensorProto.FLOAT, list(state_shape(model, form, styles))
     inputs = [helper.make_tensor_value_info(name, f32, shape) for name, shape in
-              (("features", ["N", D]), ("style", ["N", nI]), ("content", ["N", nC]), ("target", ["N", nS]), ("first_frame", ["N", 1]), ("h", [S, "N", H]), ("c", [S, "N", H]))]  # fmt: skip
+              (("features", ["N", D]), ("style", ["N", nI]), ("content", ["N", nC]), ("target", ["N", nS]), ("first_frame", ["N", 1]), ("h", state), ("c", state))]  # fmt: skip
     outputs = [helper.make_tensor_value_info(name, f32, shape) for name, shape in
-               (("rotations", ["N", J, 4]), ("velocities", ["N", 3 * J]), ("h_out", [S, "N", H]), ("c_out", [S, "N", H]))]  # fmt: skip
+               (("rotations", ["N", J, 4]), ("velocities", ["N", 3 * J]), ("h_out", state), ("c_out", state))]  # fmt: skip
     graph = helper.make_graph(g.nodes, f"styleerd_step_{form}", inputs, outputs, g.initializers)
     proto = helper.make_model(graph, opset_imports=[helper.make_opsetid("", OPSET)], producer_name="styleerd")
     proto.ir_version = 8  # readable by onnxruntime 1.14+, onnxruntime-web and the engines

@@ -34,7 +34,7 @@ export class StyleHost {
     this.mean = side.stats.mean; this.std = side.stats.std; this.reference = side.stats.reference;
     this.roles = side.roles;
     this.maxFootSpeed = side.contact_speed_leg_lengths * side.roles.leg_length;
-    [this.S, , this.H] = side.state_shapes.h;
+    [this.S, , this.H] = side.state_shapes.h; // [1, N, S H] (LSTM form) or [S, N, H] (plain)
     this.setLabels("normal", "walk", { elderly: 1 });
     this.reset();
   }
