@@ -134,10 +134,11 @@ def _lstm_form(g: _Graph, z: str, first: str, arrays: dict, w, c, depths: list, 
     # neutral rows by content, a branch's the same for every content)
     table = np.concatenate([np.concatenate([init[:, i] if prefix == "neutral" else np.broadcast_to(branch_init[int(prefix.split(".")[1]), i], (nC, H)) for prefix, i in rows], 1)
                             for init, branch_init in zip(w.neutral_init, w.branch_init)], 1)  # fmt: skip
-    starts = g.op("Split", g.op("MatMul", "content", g.const(table.astype(np.float32))), outputs=2, axis=1)
-    states = {name: g.op("Where", first, s0, name) for name, s0 in zip(("h", "c"), starts)}
+    # h and c side by side [1, N, 2T]: one Where, one Split, one Concat for both
+    state = g.op("Where", first, g.op("MatMul", "content", g.const(table.astype(np.float32))), g.op("Concat", "h", "c", axis=2))
     widths = [len(members) * H for members in ops]
-    parts = {name: g.op("Split", states[name], _ints(g, *widths), outputs=len(ops), axis=2) if len(ops) > 1 else [states[name]] for name in states}
+    parts = g.op("Split", state, _ints(g, *widths, *widths), outputs=2 * len(ops), axis=2)
+    parts = {"h": parts[: len(ops)], "c": parts[len(ops) :]}
     x0 = g.op("Unsqueeze", z, _ints(g, 0))  # [1, N, E]: a sequence of one frame
     out_of: dict[tuple[str, int], tuple[str, int, int]] = {}  # (branch, layer) -> its op's output h, its first column there, the op's width
     new = {"h": [], "c": []}
@@ -173,9 +174,9 @@ def _lstm_form(g: _Graph, z: str, first: str, arrays: dict, w, c, depths: list, 
             neutral[r * H : (r + 1) * H] = 1.0
         else:
             pick[style_of[prefix], r * H : (r + 1) * H] = 1.0
-    keep = g.op("Equal", g.op("Gemm", "target", g.const(pick), g.const(neutral)), g.const(np.zeros(1, np.float32)))  # [N, T]
-    for name in ("h", "c"):
-        g.nodes.append(helper.make_node("Where", [keep, states[name], g.op("Concat", *new[name], axis=2) if len(ops) > 1 else new[name][0]], [f"{name}_out"]))
+    keep = g.op("Equal", g.op("Gemm", "target", g.const(np.tile(pick, 2)), g.const(np.tile(neutral, 2))), g.const(np.zeros(1, np.float32)))  # [N, 2T]
+    kept = g.op("Where", keep, state, g.op("Concat", *new["h"], *new["c"], axis=2))
+    g.nodes.append(helper.make_node("Split", [kept], ["h_out", "c_out"], axis=2))
     # the decoder reads neutral + sum_k w_k branch_k: the ops holding the last layers, side by
     # side, each column weighted (1 for the neutral branch's, w_k for branch k's, 0 for others),
     # and the decoder's first weight repeated for each last layer's columns
@@ -297,7 +298,7 @@ def step_graph(model: GeneratorWeights, form: str = "lstm", styles: tuple[str, .
     W, b = w.decoder[-1]
     q = g.op("Reshape", g.op("Gemm", y, g.const(W[:, : 4 * J].copy()), g.const(b[: 4 * J].copy())), _ints(g, -1, J, 4))
     g.nodes.append(helper.make_node("Gemm", [y, g.const(W[:, 4 * J :].copy()), g.const(b[4 * J :].copy())], ["velocities"]))
-    norm = g.op("Max", g.op("ReduceL2", q, axes=[2], keepdims=1), g.const(np.array(1e-8, np.float32)))
+    norm = g.op("Clip", g.op("ReduceL2", q, axes=[2], keepdims=1), g.const(np.array(1e-8, np.float32)))  # Clip, not Max: no broadcasting (1,000 streams: 10x faster)
     g.nodes.append(helper.make_node("Div", [q, norm], ["rotations"]))
 
     f32, state = TensorProto.FLOAT, list(state_shape(model, form, styles))
