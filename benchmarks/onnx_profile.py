@@ -1,5 +1,6 @@
 """Where an ONNX step's time goes in onnxruntime, per op type: both graph forms (the LSTM-op
-graph and the plain one), at batch 1 and at 1,000 streams, 1 intra-op thread, from
+graph and the plain one) with every style, and the LSTM-op graph of one style (its layers
+fused by depth), at batch 1 and at 1,000 streams, 1 intra-op thread, from
 onnxruntime's own profiler (its per-node kernel times, as shares; the step time beside them
 is timed without the profiler, whose own cost inflates short kernels). Writes docs/onnx-profile.json and prints a table.
 
@@ -27,17 +28,18 @@ from styleerd.model.stored import load_generator_weights  # noqa: E402
 from styleerd.runtime.onnx_export import FORMS, state_shape, step_graph  # noqa: E402
 
 
-def feeds(model, form: str, n: int) -> dict[str, np.ndarray]:
-    """N streams past their first frame, each sent to one style (the usual case)."""
+def feeds(model, form: str, styles: tuple[str, ...] | None, n: int) -> dict[str, np.ndarray]:
+    """N streams past their first frame, each sent to one style (the usual case: the graph's
+    first style branch)."""
     c = model.config
-    rows, _, width = state_shape(model, form)
+    rows, _, width = state_shape(model, form, styles)
     eye = lambda k, i: np.eye(k, dtype=np.float32)[np.full(n, i)]  # noqa: E731
     rng = np.random.default_rng(0)
     return {
         "features": rng.normal(0, 1, (n, c.feature_dim)).astype(np.float32),
         "style": eye(len(c.input_styles), c.neutral_index),
         "content": eye(len(c.contents), 0),
-        "target": eye(len(c.styles), (c.neutral_index + 1) % len(c.styles)),
+        "target": eye(len(c.styles), c.styles.index(styles[0]) if styles else c.branch_styles[0]),
         "first_frame": np.zeros((n, 1), np.float32),
         "h": rng.normal(0, 0.1, (rows, n, width)).astype(np.float32),
         "c": rng.normal(0, 0.1, (rows, n, width)).astype(np.float32),
@@ -88,13 +90,14 @@ def main() -> None:
     args = ap.parse_args()
     model = load_generator_weights()
     report = {}
-    for form in FORMS:
-        graph = step_graph(model, form).SerializeToString()
+    one = (model.config.styles[model.config.branch_styles[0]],)
+    for name, form, styles in [*((form, form, None) for form in FORMS), ("lstm one style", "lstm", one)]:
+        graph = step_graph(model, form, styles).SerializeToString()
         for n in args.streams:
-            r = profile(graph, feeds(model, form, n), args.steps if n == 1 else max(10, args.steps // 10))
-            report[f"{form}, {n} streams"] = r
+            r = profile(graph, feeds(model, form, styles, n), args.steps if n == 1 else max(10, args.steps // 10))
+            report[f"{name}, {n} streams"] = r
             top = ", ".join(f"{op} {100 * v['share']:.0f} % ({v['nodes']} nodes)" for op, v in list(r["per_op"].items())[:5])
-            print(f"{form:5s} {n:5d} streams: step p50 {r['step_p50_us']:.0f} us; kernel time by op type: {top}", flush=True)
+            print(f"{name:14s} {n:5d} streams: step p50 {r['step_p50_us']:.0f} us; kernel time by op type: {top}", flush=True)
     atomic_write_text(Path(args.out), json.dumps(report, indent=1) + "\n")
     print(f"wrote {args.out}")
 

@@ -165,12 +165,13 @@ def test_onnx_profile_bench_accounts_for_every_node(model, tmp_path):
     done = subprocess.run([sys.executable, "benchmarks/onnx_profile.py", "--steps", "5", "--streams", "1", "3", "--out", str(out)], capture_output=True, text=True, timeout=300)
     assert done.returncode == 0, done.stderr
     report = json.loads(out.read_text())
-    assert set(report) == {f"{form}, {n} streams" for form in FORMS for n in (1, 3)}
+    assert set(report) == {f"{form}, {n} streams" for form in (*FORMS, "lstm one style") for n in (1, 3)}
     for key, r in report.items():
-        graph = step_graph(model, key.split(",")[0])
+        form = key.split(",")[0]
+        graph = step_graph(model, form.split()[0], (model.config.styles[model.config.branch_styles[0]],) if "one style" in form else None)
         counts = {}
         for node in graph.graph.node:
             counts[node.op_type] = counts.get(node.op_type, 0) + 1
         assert abs(sum(v["share"] for v in r["per_op"].values()) - 1.0) < 0.01 and r["step_p50_us"] > 0
         if key.startswith("lstm"):  # onnxruntime fuses some plain ops (Gemm + Relu), never the LSTM op
-            assert r["per_op"]["LSTM"]["nodes"] == counts["LSTM"] == len(state_layers(model))
+            assert r["per_op"]["LSTM"]["nodes"] == counts["LSTM"] == (max(model.config.neutral_layers, model.config.style_layers) if "one style" in form else len(state_layers(model)))
