@@ -119,6 +119,31 @@ def test_numba_backend_switches_paths_by_batch_on_one_state(model, n):
         assert np.abs(got[0] - want[0]).max() <= 1e-5 and np.abs(got[1] - want[1]).max() <= 1e-4, t
 
 
+@pytest.mark.parametrize("name", ["numpy", "numba"])
+def test_shards_of_streams_stepped_at_once_equal_one_step_of_all(model, name):
+    """What StreamStylizer and the bench's network throughput do on two threads: disjoint
+    slices of the streams stepped concurrently, in place, give every stream the step of all."""
+    from concurrent.futures import ThreadPoolExecutor
+
+    from styleerd.eval.bench import network_throughput
+
+    c, n = model.config, 700
+    whole, sharded = make_backend(name, model, n), make_backend(name, model, n)
+    rng = np.random.default_rng(5)
+    style = np.eye(len(c.input_styles), dtype=np.float32)[rng.integers(0, len(c.input_styles), n)]
+    content = np.eye(len(c.contents), dtype=np.float32)[rng.integers(0, len(c.contents), n)]
+    target = np.eye(len(c.styles), dtype=np.float32)[rng.integers(0, len(c.styles), n)]
+    shards = [slice(0, 350), slice(350, n)]
+    with ThreadPoolExecutor(2) as pool:
+        for t in range(4):
+            x = rng.normal(0, 1, (n, c.feature_dim)).astype(np.float32)
+            want = whole.step(x, style, content, target)
+            got = list(pool.map(lambda s: sharded.step(x[s], style[s], content[s], target[s], s), shards))
+            assert np.array_equal(np.concatenate([r for r, _ in got]), want[0]), t
+    assert np.array_equal(whole.h, sharded.h) and np.array_equal(whole.hb, sharded.hb)
+    assert network_throughput(model, name, n_streams=64, seconds=0.01) > 0
+
+
 def test_fast_tanh_is_tanh_to_float32_precision():
     from styleerd.runtime.compiled import fast_tanh
 

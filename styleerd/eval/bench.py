@@ -9,8 +9,11 @@ run (the paper's Table 2 and more). Prints a table, writes JSON and a throughput
 - throughput of StreamStylizer (features + network) over 1 .. 4,096 concurrent streams, 2 threads
   (numpy and numba: large steps split into one shard of streams per thread; torch and onnx: their
   own intra-op threads);
-- FLOPs per frame, counted from the layer sizes, and achieved FLOP/s at the best batch against
-  this machine's float32 matrix-multiply peak, measured here;
+- the network step alone over 1,000 streams, 2 threads (normalised features in, rotations out;
+  numpy and numba in one shard of streams per thread, as StreamStylizer splits them);
+- FLOPs per frame, counted from the layer sizes, and achieved FLOP/s (at the best batch of
+  StreamStylizer, and of the network alone at 1,000 streams) against this machine's float32
+  matrix-multiply peak, measured here;
 - memory per stream (recurrent state and per-stream buffers); startup latency in frames.
 """
 
@@ -119,6 +122,32 @@ def throughput(model: StyleERD, backend: str, n_streams: int, seconds: float = 1
     return frames / (time.perf_counter() - t0)
 
 
+def network_throughput(model: StyleERD, backend: str, n_streams: int = 1000, seconds: float = 1.5, threads: int = 2) -> float:
+    """Frames/s of the network step alone over ``n_streams`` streams on ``threads`` threads:
+    numpy and numba in one shard of streams per thread (each shard's rows stepped in place, BLAS
+    on one thread per shard, as StreamStylizer runs them), torch and onnx in one call on their
+    own intra-op threads (the caller sets the pools: ``set_threads``)."""
+    from concurrent.futures import ThreadPoolExecutor
+
+    from threadpoolctl import threadpool_limits
+
+    c = model.config
+    b = make_backend(backend, model, n_streams, threads)
+    x = np.random.default_rng(0).normal(0, 1, (n_streams, c.feature_dim)).astype(np.float32)
+    one_hot = lambda k, i: np.eye(k, dtype=np.float32)[np.full(n_streams, i)]  # noqa: E731
+    inputs = (x, one_hot(len(c.input_styles), c.neutral_index), one_hot(len(c.contents), 0), one_hot(len(c.styles), c.styles.index("elderly")))
+    sharded = backend in ("numpy", "numba") and threads > 1
+    shards = [slice(k * n_streams // threads, (k + 1) * n_streams // threads) for k in range(threads)] if sharded else [slice(None)]
+    with ThreadPoolExecutor(len(shards)) as pool, threadpool_limits(1 if sharded else threads):
+        step = lambda s: b.step(*(a[s] for a in inputs), None if s == slice(None) else s)  # noqa: E731
+        list(pool.map(step, shards))
+        frames, t0 = 0, time.perf_counter()
+        while time.perf_counter() - t0 < seconds or frames < 3 * n_streams:
+            list(pool.map(step, shards))
+            frames += n_streams
+        return frames / (time.perf_counter() - t0)
+
+
 def flops_per_frame(model: StyleERD) -> int:
     """Multiply-adds x 2 of one frame with one style branch running (the usual case)."""
     c = model.config
@@ -169,6 +198,8 @@ def run_bench(model: StyleERD, steps: int = 2000, streams: tuple[int, ...] = STR
         best = max(r["frames_per_second"].values())
         r["achieved_gflops"] = round(best * report["flops_per_frame"] / 1e9, 2)
         r["fraction_of_peak"] = round(r["achieved_gflops"] / report["matmul_peak_gflops_2_threads"], 4)
+        net = network_throughput(model, name)
+        r["network_only_1000_streams"] = {"frames_per_second": round(net), "fraction_of_peak": round(net * report["flops_per_frame"] / 1e9 / report["matmul_peak_gflops_2_threads"], 4)}
         report["backends"][name] = r
         progress(f"{name}: step p50 {r['network_step']['p50_us']:.0f} us, end-to-end p50 {r['end_to_end']['p50_us']:.0f} us, "
                  f"{max(r['frames_per_second'].values()):,} frames/s at best")  # fmt: skip
@@ -182,7 +213,9 @@ def table(report: dict) -> str:
             ("end to end p50 / p99 (us, batch 1, 1 thread)", lambda r: f"{r['end_to_end']['p50_us']:.0f} / {r['end_to_end']['p99_us']:.0f}"),
             *[(f"whole clip {k} (ms)", lambda r, k=k: f"{r['whole_clip_ms'][k]:.1f}") for k in ("L=60", "L=90", "L=120")],
             *[(f"frames/s, {int(n):,} streams (2 threads)", lambda r, n=n: f"{r['frames_per_second'][n]:,}") for n in next(iter(report['backends'].values()))['frames_per_second']],
-            ("achieved GFLOP/s (fraction of matmul peak)", lambda r: f"{r['achieved_gflops']:.2f} ({100 * r['fraction_of_peak']:.1f} %)")]  # fmt: skip
+            ("achieved GFLOP/s (fraction of matmul peak)", lambda r: f"{r['achieved_gflops']:.2f} ({100 * r['fraction_of_peak']:.1f} %)"),
+            ("network alone, 1,000 streams (2 threads): frames/s (fraction of matmul peak)",
+             lambda r: f"{r['network_only_1000_streams']['frames_per_second']:,} ({100 * r['network_only_1000_streams']['fraction_of_peak']:.1f} %)" if "network_only_1000_streams" in r else "")]  # fmt: skip
     paper = {"network step p50 / p99 (us, batch 1, 1 thread)": "1,730 (online per frame)", "whole clip L=60 (ms)": "7.47", "whole clip L=90 (ms)": "10.18", "whole clip L=120 (ms)": "13.22"}
     lines = ["| | " + " | ".join(names) + " | paper, GTX 1060 |", "|" + " --- |" * (len(names) + 2)]
     for label, f in rows:
