@@ -175,6 +175,8 @@ def test_add_style_trains_from_clips_on_another_skeleton(tmp_path, shared_data):
             np.testing.assert_array_equal(w.arrays[key], value, err_msg=key)
     info = w.meta["added_styles"][-1]
     assert info["name"] == "stiff" and info["steps"] == 6 and info["contents"] == ["walk"]
+    # its critic read what the shipped recipe's critic read: rotations too (critic_rotations)
+    assert base.meta["training"]["config"]["critic_rotations"] and info["critic_reads"] == ["rotations", "positions", "velocities"]
 
 
 def test_styles_added_one_after_another_keep_each_other(models):

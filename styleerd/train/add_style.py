@@ -5,7 +5,8 @@ bit-identical (``StyleERD.decode`` keeps added styles' rows apart).
 
 The same losses as training: an FT-Att critic (the new clips are its real windows, neutral
 training windows sent to the new style its fakes; the base model's critic is training state
-and is not shipped, so a fresh one is trained for the style alone, conditioned on content),
+and is not shipped, so a fresh one is trained for the style alone, conditioned on content and
+reading the channels the model's own critic read),
 the content perceptual loss between each neutral window and its transfer (with the content
 cross-entropy of the shipped recipe), and the
 reconstruction of the new clips themselves in their style (labelled as the online labeller
@@ -39,7 +40,7 @@ from styleerd.motion.gltf import read_motion
 from styleerd.motion.retarget import joint_map, to_target
 from styleerd.train import losses
 from styleerd.train.config import TrainConfig
-from styleerd.train.trainer import _perceptual_classifier, setup
+from styleerd.train.trainer import _perceptual_classifier, critic_channels, setup
 
 
 MAX_CLIPS = 20
@@ -215,7 +216,8 @@ def add_style(
     for p in trainable:
         p.requires_grad_(True)
     J, L = c.n_joints, G2.layout
-    D = Discriminator(6 * J, 1, len(c.contents), train_config.window)
+    seen = critic_channels(train_config, L)  # what the model's own critic read (positions and velocities, and rotations if it did)
+    D = Discriminator(seen.stop - seen.start, 1, len(c.contents), train_config.window, attention=train_config.attention)
     opt_g = torch.optim.Adam(trainable, lr=config.lr_g, betas=(0.5, 0.999))
     opt_d = torch.optim.Adam(D.parameters(), lr=config.lr_d, betas=(0.5, 0.999))
 
@@ -242,17 +244,17 @@ def add_style(
         real_s = new.x[rs][..., : 10 * J]
         ones = torch.ones(B, 1)
         loss_rec = losses.reconstruction_loss(rot_r, rot_new[rs], ch_r, real_s, L)
-        loss_adv = losses.generator_adversarial(D(fake[..., L.positions.start :], ones, content_c[rc]))
+        loss_adv = losses.generator_adversarial(D(fake[..., seen], ones, content_c[rc]))
         loss_per = losses.perceptual(per, xc[rc][..., : 10 * J], fake)
         loss_cls = losses.content_classification(per, fake, content_ids[rc])
         loss_g = config.w_rec * loss_rec + config.w_adv * loss_adv + config.w_per * loss_per + config.w_cls * loss_cls
         opt_g.zero_grad(set_to_none=True)
         loss_g.backward()
         opt_g.step()
-        real_pos = real_s[..., L.positions.start :]
-        loss_d = losses.critic(D(real_pos, ones, new.content[rs]), D(fake.detach()[..., L.positions.start :], ones, content_c[rc]))
+        real_seen = real_s[..., seen]
+        loss_d = losses.critic(D(real_seen, ones, new.content[rs]), D(fake.detach()[..., seen], ones, content_c[rc]))
         if config.r1_every and step % config.r1_every == 0:
-            loss_d = loss_d + config.w_gp * config.r1_every * losses.r1_penalty(D, real_pos, ones, new.content[rs])
+            loss_d = loss_d + config.w_gp * config.r1_every * losses.r1_penalty(D, real_seen, ones, new.content[rs])
         opt_d.zero_grad(set_to_none=True)
         loss_d.backward()
         opt_d.step()
@@ -274,6 +276,7 @@ def add_style(
         "minutes": round(minutes, 2),
         "training_minutes": round((time.perf_counter() - t_train) / 60, 2),
         "config": asdict(config),
+        "critic_reads": [part for part in ("rotations", "positions", "velocities") if getattr(L, part).start >= seen.start and getattr(L, part).stop <= seen.stop],
         "last_losses": {k: round(float(np.mean([r[k] for r in log[-50:]])), 4) for k in ("rec", "adv", "per", "cls", "critic")},
     }
     meta2 = {**meta, "config": G2.config.to_dict(), "added_styles": [*meta.get("added_styles", []), added]}
