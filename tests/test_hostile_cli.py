@@ -17,7 +17,8 @@ from hypothesis import strategies as st
 from safetensors.numpy import save_file
 
 from styleerd.errors import StyleERDError
-from styleerd.model.checkpoint import MODELS_DIR, load_generator
+from styleerd.model.checkpoint import load_generator
+from styleerd.models import MODELS_DIR
 from styleerd.motion import bvh
 from styleerd.motion.procedural import walk
 from styleerd.runtime.stylizer import target_weights

@@ -20,7 +20,7 @@ from styleerd.model.generator import StyleERD
 from styleerd.model.fmd import MotionAutoencoder
 from styleerd.model.labeller import OnlineLabeller
 from styleerd.model.stored import GeneratorWeights, load_arrays, loaded
-from styleerd.models import DEFAULT_MODEL, FMD, LABELLER, MODELS_DIR, RECOGNISERS  # noqa: F401 (re-exported)
+from styleerd.models import DEFAULT_MODEL, FMD, LABELLER, RECOGNISERS
 from styleerd.motion.skeleton import Skeleton
 
 

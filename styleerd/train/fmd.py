@@ -11,6 +11,7 @@ import torch
 from tqdm import tqdm
 
 from styleerd.model import checkpoint as ckpt
+from styleerd.models import FMD, MODELS_DIR
 from styleerd.model import torch_quat
 from styleerd.model.fmd import MotionAutoencoder
 from styleerd.train.batches import TrainingData, WindowSet, window_rotations, windows
@@ -66,5 +67,5 @@ def train_and_save(config: TrainConfig, data_dir: str | None = None, out: Path |
     test = windows(s.fs, s.data, "test", config.window)
     report = {"val_reconstruction_deg": round(val_deg, 3), "test_reconstruction_deg": round(reconstruction_degrees(model, s.data, test), 3)}
     meta = {"kind": "styleerd-fmd", "config": model.config(), "reference": s.data.stats.reference.tolist(), "dataset": config.dataset, "window": config.window, **report}
-    ckpt.save_tensors(out or ckpt.MODELS_DIR / ckpt.FMD, ckpt.prefixed("autoencoder", model), meta)
+    ckpt.save_tensors(out or MODELS_DIR / FMD, ckpt.prefixed("autoencoder", model), meta)
     return report

@@ -25,6 +25,7 @@ from styleerd.data.cache import FeatureSet
 from styleerd.data.features import features_to_motion, motion_features
 from styleerd.data.windows import window_starts
 from styleerd.model import checkpoint as ckpt
+from styleerd.models import LABELLER, MODELS_DIR
 from styleerd.model.labeller import OnlineLabeller
 from styleerd.model.stored import toward_neutral
 from styleerd.train.batches import TrainingData, windows
@@ -139,5 +140,5 @@ def train_and_save(config: TrainConfig, data_dir: str | None = None, out: Path |
     report["test"] = stream_accuracy(model, s.fs, s.data, "test")
     report["test_leaning_neutral"] = stream_accuracy(model, s.fs, s.data, "test", neutral=config.neutral_style)
     meta = {"kind": "styleerd-labeller", "config": model.config(), "styles": s.data.styles, "contents": s.data.contents, "dataset": config.dataset, **report}
-    ckpt.save_tensors(out or ckpt.MODELS_DIR / ckpt.LABELLER, ckpt.prefixed("labeller", model), meta)
+    ckpt.save_tensors(out or MODELS_DIR / LABELLER, ckpt.prefixed("labeller", model), meta)
     return report

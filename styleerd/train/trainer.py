@@ -31,6 +31,7 @@ from styleerd.data.datasets import file_digest
 from styleerd.data.features import FeatureLayout
 from styleerd.errors import StyleERDError
 from styleerd.model import checkpoint as ckpt
+from styleerd.models import MODELS_DIR, RECOGNISERS
 from styleerd.model.classifiers import WindowClassifier
 from styleerd.model.discriminator import Discriminator
 from styleerd.model.fmd import MotionAutoencoder
@@ -468,7 +469,7 @@ def train_recognisers(config: TrainConfig, data_dir: str | None = None, out: Pat
         meta[label] = ckpt.classifier_meta(model, labels, **report[label])
     meta["feature_stats"] = s.data.stats.to_dict()
     meta["dataset"] = config.dataset
-    ckpt.save_tensors(out or ckpt.MODELS_DIR / ckpt.RECOGNISERS, tensors, meta)
+    ckpt.save_tensors(out or MODELS_DIR / RECOGNISERS, tensors, meta)
     return report
 
 
