@@ -66,8 +66,8 @@ class Host:
         one_hot = lambda names, name: np.eye(len(names), dtype=np.float32)[[names.index(name)]]  # noqa: E731
         self.style, self.content = one_hot(s["styles"], input_style), one_hot(s["contents"], content)
         self.target = one_hot(s["styles"], style)
-        S, H = s["state_shapes"]["h"][0], s["state_shapes"]["h"][2]
-        self.h, self.c = np.zeros((S, 1, H), np.float32), np.zeros((S, 1, H), np.float32)
+        rows, _, width = s["state_shapes"]["h"]  # [1, N, S H] (LSTM form) or [S, N, H] (plain); N = 1 here
+        self.h, self.c = np.zeros((rows, 1, width), np.float32), np.zeros((rows, 1, width), np.float32)
         self.previous: np.ndarray | None = None  # global joint positions of the last frame
         self.facing = np.array([0.0, 0.0, 1.0])
 

@@ -2,7 +2,7 @@
 and outputs, for onnxruntime, onnxruntime-web, Unity's inference engine (Sentis) or Unreal NNE.
 
 Two forms of the same step (opset 15, IR version 8; equal to the torch model to 1e-5):
-- ``lstm`` (the default): each LSTM layer is one ONNX ``LSTM`` op (seq_len 1), the form
+- ``lstm`` (the default): ONNX ``LSTM`` ops (seq_len 1; with one style, one per layer depth), the form
   engines run natively (Unity supports LSTM, not GRU, Loop or Scan; opsets 7-15);
 - ``plain``: the LSTM cells written out as MatMul / Add / Sigmoid / Tanh / Mul, for runtimes
   without the LSTM op.
@@ -11,7 +11,8 @@ Inputs (N streams, float32): ``features [N, D]`` (normalised per-frame features)
 ``style [N, nS]`` and ``content [N, nC]`` (the input's labels, one-hot or probabilities
 summing to 1), ``target [N, nS]`` (target style weights), ``first_frame [N, 1]`` (1 on a
 stream's first frame: the state inputs are then replaced by the learned initial states), and
-the recurrent state ``h``, ``c [S, N, H]`` (one row per LSTM layer: ``state_layers``).
+the recurrent state ``h``, ``c`` (one row of H per LSTM layer, ``state_layers``: side by side,
+``[1, N, S H]``, in the LSTM form; ``[S, N, H]`` in the plain one: ``state_shape``).
 Outputs: ``rotations [N, J, 4]`` (unit quaternions w, x, y, z; the root's relative to the
 heading frame), ``velocities [N, 3J]`` (normalised), ``h_out``, ``c_out`` (the state for the
 next frame). A style branch's rows only advance where its target weight is non-zero.
@@ -113,7 +114,7 @@ def _branches(c, styles: tuple[str, ...] | None) -> list[tuple[int, str]]:
 
 
 def state_layers(model: GeneratorWeights, styles: tuple[str, ...] | None = None) -> list[tuple[str, int]]:
-    """The rows of the state tensors ``h, c [S, N, H]``, depth by depth: (branch, layer) for
+    """The rows of the state tensors ``h, c`` (``state_shape``), depth by depth: (branch, layer) for
     layer 0 of the neutral branch and of each included style branch (all, or those of
     ``styles``), then layer 1, and so on."""
     c = generator_weights(model).config
