@@ -39,9 +39,9 @@ FORMS = ("lstm", "plain")
 # torch packs LSTM gates as (input, forget, cell, output), ONNX as (input, output, forget, cell)
 TORCH_TO_ONNX_GATES = (0, 3, 1, 2)
 # LSTM form: with this many style branches or fewer, the layers of one depth are one op
-# (one style, 1 thread: batch 1 60 vs 72 us p50, 1,000 streams 122k vs 141k frames/s; all six
-# styles: 140 vs 166 us, but 24k vs 51k frames/s: the block-diagonal weights' waste grows as
-# the square of the branches)
+# (benchmarks/bench_onnx.py, 1 thread; one style: batch 1 60 vs 73 us p50, 1,000 streams 129k
+# vs 143k frames/s; all six fused: 140 vs 166 us, but 24k vs 51k frames/s: the block-diagonal
+# weights' wasted arithmetic grows as the square of the branches)
 FUSE_UP_TO = 1
 
 
@@ -144,8 +144,8 @@ def _lstm_form(g: _Graph, z: str, first: str, arrays: dict, w, c, depths: list, 
     out_of: dict[tuple[str, int], tuple[str, int, int]] = {}  # (branch, layer) -> its op's output h, its first column there, the op's width
     new = {"h": [], "c": []}
     for k, members in enumerate(ops):
-        B, (prefix, i) = len(members), members[0]
-        x, _, width = (x0, 0, arrays[f"{prefix}.weight_ih_l0"].shape[1]) if i == 0 else out_of[(prefix, i - 1)]
+        B, (first_prefix, depth) = len(members), members[0]  # every member's input is the op below's output (or the encoding)
+        x, _, width = (x0, 0, arrays[f"{first_prefix}.weight_ih_l0"].shape[1]) if depth == 0 else out_of[(first_prefix, depth - 1)]
         W, R, bias = np.zeros((4 * B * H, width), np.float32), np.zeros((4 * B * H, B * H), np.float32), np.zeros((2, 4 * B * H), np.float32)
         for m, (prefix, i) in enumerate(members):
             for gate, torch_gate in enumerate(TORCH_TO_ONNX_GATES):
