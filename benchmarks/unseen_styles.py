@@ -131,6 +131,7 @@ def main() -> None:
     ap.add_argument("--styles", nargs="+", default=list(UNSEEN))
     ap.add_argument("--steps", type=int, default=AddStyleConfig.steps)
     ap.add_argument("--threads", type=int, default=2)
+    ap.add_argument("--critic-positions-only", action="store_true", help="the added styles' critic reads positions and velocities only (default: as the model's own critic)")
     ap.add_argument("--runs", default="runs/unseen-styles")
     ap.add_argument("--out", default="docs/unseen-styles.json")
     ap.add_argument("--from-start", default="styleerd/models/styleerd-bandai12", help="a model trained with the styles from the start (configs/bandai12.yaml), judged beside")
@@ -194,7 +195,7 @@ def main() -> None:
             continue
         clips = [paths[n] for n in fs.names[(fs.styles == style) & ~held]]
         if not (runs / f"{style}.safetensors").is_file():  # trained before, not yet judged: judge it
-            add_style(None, style, clips, runs / style, config=AddStyleConfig(steps=args.steps, threads=args.threads), data_dir=args.data, progress=True)
+            add_style(None, style, clips, runs / style, config=AddStyleConfig(steps=args.steps, threads=args.threads, critic_rotations=False if args.critic_positions_only else None), data_dir=args.data, progress=True)
         G2, meta2 = ckpt.load_generator(runs / style)
         added = meta2["added_styles"][-1]
         target = torch.zeros(len(x), len(G2.config.styles))
@@ -208,6 +209,7 @@ def main() -> None:
             "minutes": added["minutes"],
             "steps": added["steps"],
             "started_like": added["started_like"],
+            "critic_reads": added.get("critic_reads"),
             "added": judged(G2, x, style_in, content, target, trajectory, *judge),
             "none": judged(G2, x, style_in, content, None, trajectory, *judge),
             "recogniser_ceiling": ceiling[style],

@@ -51,3 +51,25 @@ def test_the_bench_table_of_a_kept_bench_json():
 
     text = table(json.loads((Path(__file__).parents[1] / "docs" / "bench.json").read_text()))
     assert "frames/s, 1,000 streams (2 threads)" in text
+
+
+def test_the_added_styles_section_sets_the_critics_side_by_side(tmp_path):
+    """docs/unseen-styles.json beside the positions-only critic's run: the paragraph's means are
+    the JSONs' own, and without the second file there is no paragraph."""
+    import json
+    import shutil
+    from pathlib import Path
+
+    import numpy as np
+
+    from styleerd.eval.report import added_styles_section
+
+    docs = Path(__file__).parents[1] / "docs"
+    shutil.copy(docs / "unseen-styles.json", tmp_path / "unseen-styles.json")
+    assert "--critic-positions-only" not in added_styles_section(tmp_path)
+    shutil.copy(docs / "unseen-styles-positions-critic.json", tmp_path / "unseen-styles-positions-critic.json")
+    text = added_styles_section(tmp_path)
+    ours, other = (json.loads((tmp_path / name).read_text())["styles"] for name in ("unseen-styles.json", "unseen-styles-positions-critic.json"))
+    fmd = lambda runs: np.mean([v["added"]["fmd"] for v in runs.values()])  # noqa: E731
+    assert f"FMD {fmd(ours):.3f} against {fmd(other):.3f}" in text
+    assert "its critic\nread rotations, positions, velocities" in text

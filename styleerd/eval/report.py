@@ -7,6 +7,8 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
+import numpy as np
+
 from styleerd.atomic import atomic_write_text
 from styleerd.data.datasets import Clip, data_root, find_clips, load_motion
 from styleerd.data.windows import split_takes
@@ -237,11 +239,14 @@ def added_styles_section(docs: Path) -> str:
             rows.append(f"| {style} | " + " | ".join(cells) + " |")
         trained = "\n".join(f"| {k} | {pct(v['sra_played'])} | {pct(v['cra_played'])} | {v['fmd']:.3f} |" for k, v in r.get("trained_styles", {}).items())
         start_note = f"`{r['from_start_model']['model']}` ({r['from_start_model']['training_minutes']} min of training)" if "from_start_model" in r else "not yet trained"
+        reads = {", ".join(v.get("critic_reads") or ["positions", "velocities"]) for v in r["styles"].values()}
+        critic = _critic_comparison(r, docs / "unseen-styles-positions-critic.json")
         text += f"""## Styles the shipped model never saw: `styleerd add-style` (`benchmarks/unseen_styles.py`)
 
 Per Bandai-Namco-1 style absent from Bandai-Namco-2: six of its eleven clips (walk 001, run,
 walk-left, walk-right, bow, bye) added it to the shipped model with `add-style` (1,200 steps,
-minutes of the whole command on this 2-core machine, shared with a training run); the other
+minutes of the whole command on this 2-core machine, sharing it with other work; its critic
+read {" / ".join(sorted(reads))}, as the model's own); the other
 five (walk 002, dash, walk-back, byebye, guide) were kept back. Judged on {r['content']['windows']}
 neutral Bandai-Namco-2 test windows of walk and run, transferred into the style, as they play
 (the output poses on the input's root path, velocities from the played positions): SRA by a
@@ -251,7 +256,7 @@ FMD (shipped extractor) against the kept-back locomotion clips of the style (wal
 walk-back), beside the FMD between the style's own adaptation and kept-back locomotion clips
 (real against real). "None" is the neutral input unchanged; "from the start" is {start_note},
 trained with the same six clips of every Bandai-1 style (SRA / CRA / FMD).
-
+{critic}
 | style | minutes | SRA added | CRA added | SRA none | CRA none | FMD added | FMD none | FMD real vs real | SRA ceiling | from the start |
 | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |
 """ + "\n".join(rows) + f"""
@@ -289,6 +294,24 @@ recogniser's {100 * r['style_ceiling']:.1f} % on real windows), CRA {100 * r['cr
 
 """
     return text
+
+
+def _critic_comparison(r: dict, other_path: Path) -> str:
+    """A paragraph setting the added styles beside the same run with a critic of positions and
+    velocities only (``benchmarks/unseen_styles.py --critic-positions-only``), where measured."""
+    if not other_path.is_file():
+        return ""
+    other = json.loads(other_path.read_text())["styles"]
+    both = [k for k in r["styles"] if k in other]
+    mean = lambda runs, key: float(np.mean([runs[k]["added"][key] for k in both]))  # noqa: E731
+    ours = r["styles"]
+    lower = sum(ours[k]["added"]["fmd"] < other[k]["added"]["fmd"] for k in both)
+    return f"""
+Against the same run with a critic of positions and velocities only (`benchmarks/unseen_styles.py
+--critic-positions-only`, `{other_path.name}`), mean over the {len(both)} styles: SRA
+{100 * mean(ours, "sra_played"):.1f} % against {100 * mean(other, "sra_played"):.1f} %, CRA {100 * mean(ours, "cra_played"):.1f} % against
+{100 * mean(other, "cra_played"):.1f} %, FMD {mean(ours, "fmd"):.3f} against {mean(other, "fmd"):.3f} (lower for {lower} of {len(both)} styles).
+"""
 
 
 def rotations_section(report: dict) -> str:
