@@ -33,7 +33,7 @@ from styleerd.motion.retarget import to_target
 from styleerd.runtime.backends import BACKENDS, make_backend
 from styleerd.runtime.channels import ChannelStylizer
 from styleerd.runtime.offline import map_skeleton
-from styleerd.runtime.stylizer import StreamStylizer
+from styleerd.runtime.stylizer import StreamStylizer, _slices
 
 PAPER_GTX1060_MS = {"online per frame": 1.73, "L=60": 7.47, "L=90": 10.18, "L=120": 13.22, "input frames needed": 1}
 STREAMS = (1, 4, 10, 16, 64, 100, 256, 1000, 4096)  # the throughput curve's points
@@ -137,7 +137,7 @@ def network_throughput(model: StyleERD, backend: str, n_streams: int = 1000, sec
     one_hot = lambda k, i: np.eye(k, dtype=np.float32)[np.full(n_streams, i)]  # noqa: E731
     inputs = (x, one_hot(len(c.input_styles), c.neutral_index), one_hot(len(c.contents), 0), one_hot(len(c.styles), c.styles.index("elderly")))
     sharded = backend in ("numpy", "numba") and threads > 1
-    shards = [slice(k * n_streams // threads, (k + 1) * n_streams // threads) for k in range(threads)] if sharded else [slice(None)]
+    shards = _slices(n_streams, threads) if sharded else [slice(None)]
     with ThreadPoolExecutor(len(shards)) as pool, threadpool_limits(1 if sharded else threads):
         step = lambda s: b.step(*(a[s] for a in inputs), None if s == slice(None) else s)  # noqa: E731
         list(pool.map(step, shards))

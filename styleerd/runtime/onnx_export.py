@@ -121,6 +121,14 @@ def state_layers(model: GeneratorWeights, styles: tuple[str, ...] | None = None)
     return [(name, i) for depth in _depths(c, _branches(c, styles)) for _, name, i in depth]
 
 
+def _initial_states(w, rows: list[tuple[str, int]], n_contents: int) -> np.ndarray:
+    """The learned initial states as one product's weights ``[nC, 2 S H]``: the h rows, then the
+    c rows, each (branch, layer) of ``rows`` H wide; the neutral rows by content, a branch's the
+    same for every content (so ``content @ table`` is every stream's first state)."""
+    return np.concatenate([(init[:, i] if prefix == "neutral" else np.broadcast_to(branch_init[int(prefix.split(".")[1]), i], (n_contents, init.shape[-1]))).astype(np.float32)
+                           for init, branch_init in zip(w.neutral_init, w.branch_init) for prefix, i in rows], 1)  # fmt: skip
+
+
 def _lstm_form(g: _Graph, z: str, first: str, arrays: dict, w, c, depths: list, branches: list) -> tuple[str, np.ndarray]:
     """The branches as ``LSTM`` ops on the state ``h, c [1, N, S H]`` (rows side by side, in
     ``state_layers`` order): with at most ``FUSE_UP_TO`` style branches, the layers of one depth
@@ -131,12 +139,9 @@ def _lstm_form(g: _Graph, z: str, first: str, arrays: dict, w, c, depths: list, 
     rows = [(prefix, i) for depth in depths for prefix, _, i in depth]
     T = len(rows) * H
     ops = [[(prefix, i) for prefix, _, i in depth] for depth in depths] if len(branches) <= FUSE_UP_TO else [[row] for row in rows]
-    # a stream's first frame: the learned initial states, content [N, nC] @ table [nC, 2T] (the
-    # neutral rows by content, a branch's the same for every content)
-    table = np.concatenate([np.concatenate([init[:, i] if prefix == "neutral" else np.broadcast_to(branch_init[int(prefix.split(".")[1]), i], (nC, H)) for prefix, i in rows], 1)
-                            for init, branch_init in zip(w.neutral_init, w.branch_init)], 1)  # fmt: skip
-    # h and c side by side [1, N, 2T]: one Where, one Split, one Concat for both
-    state = g.op("Where", first, g.op("MatMul", "content", g.const(table.astype(np.float32))), g.op("Concat", "h", "c", axis=2))
+    # a stream's first frame: the learned initial states, content [N, nC] @ [nC, 2T]; h and c
+    # side by side [1, N, 2T]: one Where, one Split, one Concat for both
+    state = g.op("Where", first, g.op("MatMul", "content", g.const(_initial_states(w, rows, nC))), g.op("Concat", "h", "c", axis=2))
     widths = [len(members) * H for members in ops]
     parts = g.op("Split", state, _ints(g, *widths, *widths), outputs=2 * len(ops), axis=2)
     parts = {"h": parts[: len(ops)], "c": parts[len(ops) :]}
@@ -206,11 +211,9 @@ def _plain_form(g: _Graph, z: str, first: str, arrays: dict, w, c, depths: list,
     of its first weight for the first H columns (the identity)."""
     rows = [(prefix, i) for depth in depths for prefix, _, i in depth]
     nS, nC, H, S = len(c.styles), len(c.contents), c.hidden, len(rows)
-    # content [N, nC] @ table [nC, 2 S H] -> [2S, N, H] (h rows, then c rows); 2-D products
+    # content [N, nC] @ [nC, 2 S H] -> [2S, N, H] (h rows, then c rows); 2-D products
     # throughout: onnxruntime runs a batched product as one small GEMM call per batch entry
-    table = np.stack([neutral[:, i] if prefix == "neutral" else np.broadcast_to(branch[int(prefix.split(".")[1]), i], (nC, H))
-                      for neutral, branch in zip(w.neutral_init, w.branch_init) for prefix, i in rows], axis=1)  # fmt: skip
-    start = g.op("Transpose", g.op("Reshape", g.op("MatMul", "content", g.const(table.reshape(nC, -1).astype(np.float32))), _ints(g, -1, 2 * S, H)), perm=[1, 0, 2])
+    start = g.op("Transpose", g.op("Reshape", g.op("MatMul", "content", g.const(_initial_states(w, rows, nC))), _ints(g, -1, 2 * S, H)), perm=[1, 0, 2])
     starts = g.op("Split", start, outputs=2, axis=0)
     states = {name: g.op("Where", first, s0, name) for name, s0 in zip(("h", "c"), starts)}
     new = {"h": [], "c": []}
