@@ -127,6 +127,30 @@ def test_torch_fk_and_quat_match_numpy():
     assert loss.item() < 1e-5  # q and -q are the same rotation
 
 
+def test_torch_fk_by_depth_matches_scipy_on_a_tree_in_any_order():
+    """Joints listed in no depth order (a parent may come after its siblings' children), as a
+    user's BVH may list them: positions against scipy's Rotation, gradients against finite differences."""
+    from scipy.spatial.transform import Rotation
+
+    rng = np.random.default_rng(3)
+    parents = [-1] + [int(rng.integers(0, j)) for j in range(1, 15)]
+    offsets = rng.normal(size=(15, 3))
+    q = rng.normal(size=(2, 5, 15, 4))
+    q /= np.linalg.norm(q, axis=-1, keepdims=True)
+    pos = torch_quat.root_relative_positions(torch.tensor(q), torch.tensor(offsets), parents).numpy()
+    local = Rotation.from_quat(q[..., [1, 2, 3, 0]].reshape(-1, 4)).as_matrix().reshape(10, 15, 3, 3)
+    glob, expected = [None] * 15, np.zeros((10, 15, 3))
+    for j in range(15):  # parents come before children in this list
+        p = parents[j]
+        glob[j] = local[:, j] if p < 0 else glob[p] @ local[:, j]
+        expected[:, j] = 0.0 if p < 0 else expected[:, p] + glob[p] @ offsets[j]
+    assert np.allclose(pos.reshape(10, 15, 3), expected, atol=1e-12)
+    x = torch.tensor(q[:1, :2], requires_grad=True)
+    assert torch.autograd.gradcheck(lambda r: torch_quat.root_relative_positions(r, torch.tensor(offsets), parents), (x,))
+    with pytest.raises(ValueError, match="one tree"):
+        torch_quat.root_relative_positions(torch.tensor(q), torch.tensor(offsets), [-1, 0, 3, 2] + list(range(11)))  # 2, 3: a loop
+
+
 def test_discriminator_attention_and_ablation_shapes():
     x = torch.randn(5, 24, 60)
     s, c = torch.eye(4)[[0, 1, 2, 3, 0]], torch.eye(2)[[0, 1, 0, 1, 0]]

@@ -80,6 +80,13 @@ def test_results_section_from_the_recipe_table_and_the_step_timing(tmp_path):
     text = recipes_section(tmp_path)
     assert "| shipped | 1 |" in text and "(recipes.png)" in text
     assert "| cycle pass + loss | 40.0 | 0.0 |" in text and "| step | 300.0 | 180.0 |" in text and "1.67 x the training windows per minute" in text
+    assert "the trainer's\ncode at the working tree" in text and "kept models' whole runs" not in text
+    step["before"] |= {"code": "abc1234", "model": "models/recipes/a", "epochs_trained": 100, "training_min": 200.0}
+    step["after"] |= {"model": "models/recipes/b", "epochs_trained": 50, "training_min": 60.0}
+    (tmp_path / "train-step.json").write_text(json.dumps({**step, "training_ratio": 0.3}))
+    text = recipes_section(tmp_path)
+    assert "code at commit abc1234" in text
+    assert "`models/recipes/a` 100 epochs, 200.0 min; `models/recipes/b` 50 epochs, 60.0 min: 0.30 of the time." in text
 
 
 def test_parallel_ablation_trainers_take_different_ablations(tmp_path, monkeypatch):

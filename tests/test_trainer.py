@@ -108,7 +108,8 @@ def test_content_loss_ranks_the_true_content_first():
     clf = WindowClassifier(6, 3, channels=(8,), instance_norm=True)
     x = torch.randn(4, 12, 6)
     pred = clf(x).argmax(-1)
-    right, wrong = losses.content_classification(clf, x, pred), losses.content_classification(clf, x, (pred + 1) % 3)
+    maps = clf.feature_maps(x)
+    right, wrong = losses.content_classification(clf, maps, pred), losses.content_classification(clf, maps, (pred + 1) % 3)
     assert right < wrong
     assert torch.isclose(right, torch.nn.functional.cross_entropy(clf(x), pred))
 
@@ -253,18 +254,43 @@ def test_realism_margin_is_the_worst_styles_distance_inside_both_bars():
     assert realism_margin(q)["realism_margin"] == 0.75
 
 
+def test_a_train_step_moves_both_networks_and_leaves_them_trainable(shared_data):
+    """The generator's step reads the critic with its weights frozen (it needs the gradient to
+    its input only); the critic's own step must find them trainable again."""
+    import numpy as np
+
+    from styleerd.model.classifiers import WindowClassifier
+    from styleerd.train.trainer import make_critic, make_generator, make_optimisers, setup, train_step
+
+    config = TrainConfig(**TINY, critic_rotations=True, w_cls=0.3, w_cyc=1.0)
+    s = setup(config, shared_data, progress=False)
+    G, D = make_generator(config, s), make_critic(config, s)
+    C = WindowClassifier(10 * G.config.n_joints, len(s.data.contents), instance_norm=True).requires_grad_(False)
+    before = [p.detach().clone() for p in (*G.parameters(), *D.parameters())]
+    rng = np.random.default_rng(0)
+    logs = {}
+    for step in range(2):  # R1 on the first
+        logs |= train_step(G, D, *make_optimisers(config, G, D), C, config, s, rng.choice(len(s.train.starts), 16), rng.integers(0, len(s.data.styles), 16), step)
+    assert {"rec", "adv", "per", "cls", "cyc", "critic", "r1"} <= logs.keys() and all(np.isfinite(v) for v in logs.values())
+    assert all(p.requires_grad for p in D.parameters()) and all(p.requires_grad for p in G.parameters())
+    moved = [not torch.equal(a, p) for a, p in zip(before, (*G.parameters(), *D.parameters()))]
+    assert all(moved[len(list(G.parameters())):]), "every critic weight must train"
+    assert sum(moved[: len(list(G.parameters()))]) > 0.9 * len(list(G.parameters()))
+
+
 def test_bench_train_step_times_the_trainers_own_step_of_two_recipes(shared_data, tmp_path):
     import json
 
     before = write_config(tmp_path / "before.yaml", w_cyc=1.0, w_cls=0.3, w_per=0.5)
     after = write_config(tmp_path / "after.yaml", critic_rotations=True, batch_size=12)  # its own batch
     out = tmp_path / "step.json"
-    bench = subprocess.run([sys.executable, "benchmarks/bench_train_step.py", "--steps", "4", "--threads", "1", "--before", before, "--after", after, "--json", out],
+    bench = subprocess.run([sys.executable, "benchmarks/bench_train_step.py", "--steps", "4", "--threads", "1", "--before", before, "--before-code", "HEAD", "--after", after, "--json", out],
                            capture_output=True, text=True, timeout=600, cwd=os.path.dirname(os.path.dirname(__file__)))  # fmt: skip
     assert bench.returncode == 0, bench.stderr
     r = json.loads(out.read_text())
     assert "cycle pass + loss" in r["before"]["parts_ms"] and "cycle pass + loss" not in r["after"]["parts_ms"]
     assert r["before"]["batch"] == 16 and r["after"]["batch"] == 12
+    assert r["before"]["code"] == "HEAD" and r["after"]["code"] == "working tree"  # the before recipe on the committed trainer, from git
     for name in ("before", "after"):
         parts = r[name]["parts_ms"]
         assert {"generator forward (B + B)", "generator backward + Adam", "critic step (+ R1 on its steps)"} <= parts.keys()

@@ -177,6 +177,21 @@ it never saw.
 """
 
 
+def _code(side: dict) -> str:
+    code = side.get("code", "working tree")
+    return "the working tree" if code == "working tree" else f"commit {code}"
+
+
+def _training_runs(r: dict) -> str:
+    """The two kept models' training runs, timed at the step times above (validation left out)."""
+    if "training_ratio" not in r:
+        return ""
+    b, a = r["before"], r["after"]
+    return (f" The kept models' whole runs at these step times: `{b['model']}` {b['epochs_trained']} epochs, "
+            f"{b['training_min']:.1f} min; `{a['model']}` {a['epochs_trained']} epochs, {a['training_min']:.1f} min: "
+            f"{r['training_ratio']:.2f} of the time.")
+
+
 def recipes_section(docs: Path) -> str:
     """Issue 16's section: the recipes side by side (``styleerd eval recipes``: docs/recipes.*)
     and the training step of two recipes timed side by side (``benchmarks/bench_train_step.py
@@ -203,11 +218,11 @@ network's pace. ± one standard deviation over 200 bootstrap resamples of the tr
         rows = "\n".join(f"| {k} | {r['before']['parts_ms'].get(k, 0):.1f} | {r['after']['parts_ms'].get(k, 0):.1f} |" for k in parts)
         text += f"""### A training step, two recipes side by side (`benchmarks/bench_train_step.py`)
 
-The trainer's own step (`train.trainer.train_step`) of `{r['before']['config']}` and of
-`{r['after']['config']}`, alternating in one run (batch {r['before']['batch']} and {r['after']['batch']}, {r['threads']} threads, {r['steps']} steps each), so
-both see the same machine; each part's time per step, averaged over the steps (R1 runs on every
-4th step, the cycle pass on every `cyc_every`-th). In both, the batch's reconstruction and
-transfer share one pass of the encoder and the neutral branch (`StyleERD.forward_targets`).
+The trainer's own step (`train.trainer.train_step`) of `{r['before']['config']}` on the trainer's
+code at {_code(r['before'])} and of `{r['after']['config']}` on {_code(r['after'])}, each in its own process, the two
+taking turns step by step in one run on the same batches (batch {r['before']['batch']} and {r['after']['batch']}, {r['threads']} threads, {r['steps']} steps
+each), so both see the same machine; each part's time per step, averaged over the steps (R1 runs
+on every 4th step, the cycle pass on every `cyc_every`-th).
 
 | part (ms) | before | after |
 | --- | --- | --- |
@@ -215,7 +230,7 @@ transfer share one pass of the encoder and the neutral branch (`StyleERD.forward
 | step | {r['before']['step_ms']:.1f} | {r['after']['step_ms']:.1f} |
 | epoch (s) | {r['before']['epoch_s']:.1f} | {r['after']['epoch_s']:.1f} |
 
-{r['speedup']:.2f} x the training windows per minute.
+{r['speedup']:.2f} x the training windows per minute.{_training_runs(r)}
 
 """
     return text

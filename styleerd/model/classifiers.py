@@ -42,6 +42,9 @@ class WindowClassifier(nn.Module):
         return maps
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
-        """Class logits ``[B, n_classes]`` (mean- and max-pooled over time)."""
-        h = self.feature_maps(x)[-1]
+        """Class logits ``[B, n_classes]`` of windows ``x [B, T, C]``."""
+        return self.logits(self.feature_maps(x)[-1])
+
+    def logits(self, h: torch.Tensor) -> torch.Tensor:
+        """Class logits of the last feature map ``h [B, C_last, T]``, mean- and max-pooled over time."""
         return self.head(torch.cat([h.mean(-1), h.amax(-1)], -1))

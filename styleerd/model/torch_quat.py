@@ -3,6 +3,8 @@ Same convention as ``styleerd.motion.quat``: (w, x, y, z), ``mul(a, b)`` applies
 
 from __future__ import annotations
 
+import functools
+
 import torch
 
 
@@ -33,14 +35,36 @@ def normalize(q: torch.Tensor, eps: float = 1e-8) -> torch.Tensor:
 def root_relative_positions(rotations: torch.Tensor, offsets: torch.Tensor, parents: list[int]) -> torch.Tensor:
     """Joint positions ``[..., J, 3]`` relative to the root, in the root's parent frame, from
     local rotations ``[..., J, 4]`` and rest offsets ``[J, 3]`` (forward kinematics with the
-    root at the origin)."""
-    g_rot = [rotations[..., 0, :]]
-    g_pos = [torch.zeros_like(rotations[..., 0, :3])]
-    for j in range(1, len(parents)):
-        p = parents[j]
-        g_pos.append(mul_vec(g_rot[p], offsets[j].expand_as(g_pos[p])) + g_pos[p])
-        g_rot.append(mul(g_rot[p], rotations[..., j, :]))
-    return torch.stack(g_pos, dim=-2)
+    root at the origin). The joints of one depth run together, taken from the rotations by one
+    gather and a split (a gather per joint would cost a full-size zero fill each in training's
+    backward pass)."""
+    sizes, slots, by_depth, order = _depth_levels(tuple(int(p) for p in parents))
+    levels = rotations[..., by_depth, :].split(sizes, -2)
+    level_offsets = offsets[by_depth].split(sizes, -2)
+    g_rot = levels[0]
+    g_pos = torch.zeros_like(g_rot[..., :3])
+    out = [g_pos]
+    for rot, offset, slot in zip(levels[1:], level_offsets[1:], slots):
+        p_rot, p_pos = g_rot[..., slot, :], g_pos[..., slot, :]
+        g_pos = mul_vec(p_rot, offset.expand_as(p_pos)) + p_pos
+        g_rot = mul(p_rot, rot)
+        out.append(g_pos)
+    return torch.cat(out, -2)[..., order, :]
+
+
+@functools.lru_cache(maxsize=64)
+def _depth_levels(parents: tuple[int, ...]) -> tuple[list[int], list[torch.Tensor], torch.Tensor, torch.Tensor]:
+    """Joints by depth: how many at each depth (the root alone at depth 0), each joint's
+    parent's slot in the depth above, the joints in depth order, and the permutation from
+    depth order back to the skeleton's."""
+    levels = [[0]]
+    while joints := [j for j, p in enumerate(parents) if p in levels[-1] and j != 0]:
+        levels.append(joints)
+    by_depth = [j for level in levels for j in level]
+    if sorted(by_depth) != list(range(len(parents))):
+        raise ValueError(f"parents {list(parents)} do not form one tree rooted at joint 0")
+    slots = [torch.tensor([above.index(parents[j]) for j in level]) for above, level in zip(levels, levels[1:])]
+    return [len(level) for level in levels], slots, torch.tensor(by_depth), torch.tensor([by_depth.index(j) for j in range(len(parents))])
 
 
 def angle_loss(a: torch.Tensor, b: torch.Tensor, eps: float = 1e-6) -> torch.Tensor:

@@ -221,8 +221,8 @@ def add_style(
     J, L = c.n_joints, G2.layout
     seen = critic_channels(train_config if config.critic_rotations is None else replace(train_config, critic_rotations=config.critic_rotations), L)
     D = Discriminator(seen.stop - seen.start, 1, len(c.contents), train_config.window, attention=train_config.attention)
-    opt_g = torch.optim.Adam(trainable, lr=config.lr_g, betas=(0.5, 0.999))
-    opt_d = torch.optim.Adam(D.parameters(), lr=config.lr_d, betas=(0.5, 0.999))
+    opt_g = torch.optim.Adam(trainable, lr=config.lr_g, betas=(0.5, 0.999), fused=True)
+    opt_d = torch.optim.Adam(D.parameters(), lr=config.lr_d, betas=(0.5, 0.999), fused=True)
 
     zc, nc = _encoded(G2, xc, style_c, content_c)
     zs, ns = _encoded(G2, new.x, new.style, new.content)
@@ -247,13 +247,16 @@ def add_style(
         real_s = new.x[rs][..., : 10 * J]
         ones = torch.ones(B, 1)
         loss_rec = losses.reconstruction_loss(rot_r, rot_new[rs], ch_r, real_s, L)
+        D.requires_grad_(False)  # the generator's step needs D's gradient to its input only
         loss_adv = losses.generator_adversarial(D(fake[..., seen], ones, content_c[rc]))
-        loss_per = losses.perceptual(per, xc[rc][..., : 10 * J], fake)
-        loss_cls = losses.content_classification(per, fake, content_ids[rc])
+        fake_maps = per.feature_maps(fake)
+        loss_per = losses.perceptual(per, xc[rc][..., : 10 * J], fake_maps)
+        loss_cls = losses.content_classification(per, fake_maps, content_ids[rc])
         loss_g = config.w_rec * loss_rec + config.w_adv * loss_adv + config.w_per * loss_per + config.w_cls * loss_cls
         opt_g.zero_grad(set_to_none=True)
         loss_g.backward()
         opt_g.step()
+        D.requires_grad_(True)
         real_seen = real_s[..., seen]
         loss_d = losses.critic(D(real_seen, ones, new.content[rs]), D(fake.detach()[..., seen], ones, content_c[rc]))
         if config.r1_every and step % config.r1_every == 0:

@@ -35,14 +35,15 @@ def r1_penalty(disc: Discriminator, real: torch.Tensor, style: torch.Tensor, con
     return grad.pow(2).sum(dim=(1, 2)).mean()
 
 
-def perceptual(classifier: WindowClassifier, source: torch.Tensor, output: torch.Tensor) -> torch.Tensor:
-    """MSE between the content classifier's feature maps of the input and of the output."""
+def perceptual(classifier: WindowClassifier, source: torch.Tensor, output_maps: list[torch.Tensor]) -> torch.Tensor:
+    """MSE between the content classifier's feature maps of the input and of the output
+    (``output_maps``: ``classifier.feature_maps(output)``, which content_classification shares)."""
     with torch.no_grad():
         target = classifier.feature_maps(source)
-    return sum(F.mse_loss(o, t) for o, t in zip(classifier.feature_maps(output), target))
+    return sum(F.mse_loss(o, t) for o, t in zip(output_maps, target))
 
 
-def content_classification(classifier: WindowClassifier, output: torch.Tensor, content: torch.Tensor) -> torch.Tensor:
-    """Cross-entropy of the (frozen) content classifier on the output against the input's
-    content label ``[B]``: the transfer must still read as the same action."""
-    return F.cross_entropy(classifier(output), content)
+def content_classification(classifier: WindowClassifier, output_maps: list[torch.Tensor], content: torch.Tensor) -> torch.Tensor:
+    """Cross-entropy of the (frozen) content classifier on the output (its feature maps)
+    against the input's content label ``[B]``: the transfer must still read as the same action."""
+    return F.cross_entropy(classifier.logits(output_maps[-1]), content)

@@ -198,6 +198,15 @@ def make_critic(config: TrainConfig, s: Setup) -> Discriminator:
     return Discriminator(seen.stop - seen.start, len(s.data.styles), len(s.data.contents), config.window, attention=config.attention)
 
 
+def make_optimisers(config: TrainConfig, G: StyleERD, D: Discriminator) -> tuple[torch.optim.Adam, torch.optim.Adam]:
+    """Adam for the generator's trainable weights and for the critic's (the fused kernel: one
+    pass over every weight, not a dozen small ops per tensor)."""
+    return (
+        torch.optim.Adam([p for p in G.parameters() if p.requires_grad], lr=config.lr_g, betas=(0.5, 0.999), fused=True),
+        torch.optim.Adam(D.parameters(), lr=config.lr_d, betas=(0.5, 0.999), fused=True),
+    )
+
+
 def train_step(G: StyleERD, D: Discriminator, opt_g: torch.optim.Optimizer, opt_d: torch.optim.Optimizer, per_classifier: WindowClassifier | None,
                config: TrainConfig, s: Setup, rows: np.ndarray, target: np.ndarray, step: int, tick=lambda part: None) -> dict[str, float]:  # fmt: skip
     """One optimisation step of the generator, then of the critic, on the training windows
@@ -222,15 +231,18 @@ def train_step(G: StyleERD, D: Discriminator, opt_g: torch.optim.Optimizer, opt_
     fake = ch[B:]
     logs = {"rec": loss_rec.item()}
     if config.use_adv:
+        D.requires_grad_(False)  # the generator's step needs D's gradient to its input only, not to D's weights
         loss_adv = losses.generator_adversarial(D(fake[..., seen], tgt, content))
         loss_g = loss_g + config.w_adv * loss_adv
         logs["adv"] = loss_adv.item()
+    if config.use_per or config.w_cls:
+        fake_maps = per_classifier.feature_maps(fake)  # one pass of the frozen classifier for both losses
     if config.use_per:
-        loss_per = losses.perceptual(per_classifier, real, fake)
+        loss_per = losses.perceptual(per_classifier, real, fake_maps)
         loss_g = loss_g + config.w_per * loss_per
         logs["per"] = loss_per.item()
     if config.w_cls:
-        loss_cls = losses.content_classification(per_classifier, fake, torch.from_numpy(s.train.content[rows]).long().to(dev))
+        loss_cls = losses.content_classification(per_classifier, fake_maps, torch.from_numpy(s.train.content[rows]).long().to(dev))
         loss_g = loss_g + config.w_cls * loss_cls
         logs["cls"] = loss_cls.item()
     tick("generator losses")
@@ -251,6 +263,7 @@ def train_step(G: StyleERD, D: Discriminator, opt_g: torch.optim.Optimizer, opt_
 
     # ---- critic
     if config.use_adv:
+        D.requires_grad_(True)
         d_real = D(real[..., seen], style, content)
         d_fake = D(fake.detach()[..., seen], tgt, content)
         loss_d = losses.critic(d_real, d_fake)
@@ -292,8 +305,7 @@ def train(config: TrainConfig, out: Path, data_dir: str | None = None, progress:
     torch.manual_seed(config.seed)
     G = make_generator(config, s).to(config.device)
     D = make_critic(config, s).to(config.device)
-    opt_g = torch.optim.Adam([p for p in G.parameters() if p.requires_grad], lr=config.lr_g, betas=(0.5, 0.999))
-    opt_d = torch.optim.Adam(D.parameters(), lr=config.lr_d, betas=(0.5, 0.999))
+    opt_g, opt_d = make_optimisers(config, G, D)
     style_rec, content_rec = _recognisers(s)
     realism = _realism_judges(config, s, style_rec) if config.keep == "realistic" else None
     per_classifier = _perceptual_classifier(config, s, out, progress) if config.use_per or config.w_cls else None
