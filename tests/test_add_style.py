@@ -84,6 +84,19 @@ def test_the_added_style_is_its_own_and_backends_agree_on_it(models):
     assert np.abs(_run(added, "torch", x, style, content, like) - ref).max() > 1e-2
 
 
+def test_many_streams_take_the_numba_backends_blas_path_with_the_added_style(models):
+    """From COMPILED_UP_TO streams on, the compiled step's products are BLAS calls, the added
+    style's decoder rows included: equal to the numpy backend's."""
+    from styleerd.runtime.compiled import COMPILED_UP_TO
+
+    _, added, _ = models
+    n = COMPILED_UP_TO + 9
+    x, style, content = _frames(added, n=6, streams=n)
+    t = np.eye(len(added.config.styles), dtype=np.float32)[np.arange(n) % len(added.config.styles)]
+    t[::3, -1] += 0.5  # some mixtures with the added style
+    np.testing.assert_allclose(_run(added, "numba", x, style, content, t), _run(added, "numpy", x, style, content, t), atol=1e-5)
+
+
 def test_onnx_graph_of_the_added_style_alone(models):
     _, added, _ = models
     proto = step_graph(generator_weights(added), "lstm", ("sneaky",))

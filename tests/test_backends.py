@@ -102,8 +102,8 @@ def test_numpy_labeller_equals_the_torch_labeller():
 
 @pytest.mark.parametrize("n", [8, 300])
 def test_numba_backend_switches_paths_by_batch_on_one_state(model, n):
-    """Few streams run the compiled step, many run numpy's matmuls with the compiled LSTM cell;
-    both on the same state, both equal to the numpy backend."""
+    """Few streams run the compiled step's own products, many its BLAS calls; both on the same
+    state, both equal to the numpy backend."""
     c = model.config
     ref, fast = make_backend("numpy", model, n), make_backend("numba", model, n)
     rng = np.random.default_rng(3)
@@ -144,6 +144,22 @@ def test_shards_of_streams_stepped_at_once_equal_one_step_of_all(model, name):
     assert network_throughput(model, name, n_streams=64, seconds=0.01) > 0
 
 
+@pytest.mark.parametrize("n", [3, 100])
+def test_numba_backend_refuses_inputs_that_do_not_fit_its_state(model, n):
+    """The compiled step does not check bounds; a call whose rows or widths do not fit is an
+    error before it runs, never a write past the state."""
+    c = model.config
+    b = make_backend("numba", model, n)
+    x = np.zeros((n, c.feature_dim), np.float32)
+    one = lambda k: np.eye(k, dtype=np.float32)[np.zeros(n, int)]  # noqa: E731
+    style, content, target = one(len(c.input_styles)), one(len(c.contents)), one(len(c.styles))
+    b.step(x, style, content, target)
+    for bad in ((x[:-1], style, content, target), (x, style, content, target[:-1]), (x[:, :-1], style, content, target),
+                (x, style, content, target[:, :-1]), (x[:2], style[:2], content[:2], target[:2], np.array([0]))):  # fmt: skip
+        with pytest.raises(ValueError, match="do not fit"):
+            b.step(*bad)
+
+
 def test_fast_tanh_is_tanh_to_float32_precision():
     from styleerd.runtime.compiled import fast_tanh
 
@@ -151,21 +167,6 @@ def test_fast_tanh_is_tanh_to_float32_precision():
     got = np.array([fast_tanh(a) for a in v[::97]] + [fast_tanh(np.float32(0.0))])
     want = np.tanh(np.append(v[::97], 0.0).astype(np.float64))
     assert np.abs(got - want).max() < 5e-7 and got[-1] == 0.0
-
-
-@pytest.mark.parametrize("n", [5, 300])
-def test_compiled_lstm_cell_equals_numpy_cell(n):
-    from styleerd.runtime.numpy_step import _numpy_cell
-    from styleerd.runtime.compiled import compiled_cell
-
-    rng = np.random.default_rng(0)
-    g = rng.normal(0, 3, (n, 128)).astype(np.float32)
-    b = rng.normal(0, 1, 128).astype(np.float32)
-    h, c = rng.normal(0, 1, (2, n, 32)).astype(np.float32)
-    h2, c2 = h.copy(), c.copy()
-    _numpy_cell(g.copy(), b, h, c)
-    compiled_cell(g.copy(), b, h2, c2)
-    assert np.abs(h - h2).max() < 2e-6 and np.abs(c - c2).max() < 2e-6
 
 
 def test_a_stylizer_on_threads_gives_onnxruntime_those_threads(model):

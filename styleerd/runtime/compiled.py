@@ -1,12 +1,14 @@
 """The generator's step compiled with numba: the numpy backend's arithmetic (same layout, same
-gate order) in one compiled call, so a frame pays for its floating-point work and not for a
-hundred numpy dispatches. That wins for a few streams; from ``COMPILED_UP_TO`` streams on, the
-step takes numpy's path (BLAS matmuls over all streams) on the same state, with the LSTM cell
-update compiled.
+gate order) in one compiled, GIL-free call, so a frame pays for its floating-point work and not
+for a hundred numpy dispatches, and shards of streams on threads run side by side (numpy's step
+holds the GIL between its products: two shards of 500 streams on two threads took 1.35x one
+shard's time; the compiled step's take 1.15x).
+Up to ``COMPILED_UP_TO`` streams the products are compiled loops; from there on they are BLAS
+calls (``np.dot`` inside the compiled step).
 
-Both use ``fast_tanh``, a rational approximation that vectorises (np.tanh in a compiled loop
-is a scalar libm call). Compiled on first use and cached on disk (``cache=True``), so later
-processes start at once.
+The activations use ``fast_tanh``, a rational approximation that vectorises (np.tanh in a
+compiled loop is a scalar libm call). Compiled on first use and cached on disk
+(``cache=True``), so later processes start at once.
 """
 
 from __future__ import annotations
@@ -15,7 +17,7 @@ import numba as nb
 import numpy as np
 
 from styleerd.model.stored import GeneratorWeights
-from styleerd.runtime.numpy_step import NumpyBackend, StepWeights, _numpy_step
+from styleerd.runtime.numpy_step import NumpyBackend, StepWeights
 
 COMPILED_UP_TO = 32  # streams per step (measured, 1 thread, side by side: 8 streams 88 us compiled, 175 us numpy + compiled cell; 32: 472 vs 514)
 
@@ -44,26 +46,35 @@ def _sigmoid(v):
     return np.float32(0.5) * fast_tanh(np.float32(0.5) * v) + np.float32(0.5)
 
 
-# Serial and GIL-free: threads come from StreamStylizer's shards of streams (runtime.stylizer.SHARD_FROM).
-@nb.njit(cache=True, fastmath=True, error_model="numpy", nogil=True)
-def compiled_cell(g, b, h, c):
-    """NumpyBackend's LSTM cell update (``numpy_step._numpy_cell``), one pass per stream."""
-    H = h.shape[1]
-    for n in range(g.shape[0]):
-        for j in range(H):
-            gi = _sigmoid(g[n, j] + b[j])
-            gf = _sigmoid(g[n, H + j] + b[H + j])
-            gg = fast_tanh(g[n, 2 * H + j] + b[2 * H + j])
-            go = _sigmoid(g[n, 3 * H + j] + b[3 * H + j])
-            c[n, j] = gf * c[n, j] + gi * gg
-            h[n, j] = go * fast_tanh(c[n, j])
-
-
 @nb.njit(cache=True, fastmath=True, error_model="numpy", nogil=True)
 def _dense(P, entry, x, y, accumulate):
-    """``y (+)= x @ W (+ b)`` for the matrix ``entry`` of the packed parameters; four rows of W
-    per pass over a row of y (a quarter of the loads and stores of one row at a time: 1.5x)."""
-    w, n_in, n_out, b = entry[0], entry[1], entry[2], entry[3]
+    """``y (+)= x @ W (+ b)`` for the matrix ``entry`` of the packed parameters (offset, rows,
+    columns, bias offset or -1): BLAS for many rows, compiled loops for a few."""
+    if x.shape[0] > COMPILED_UP_TO:
+        _blas(P, entry[0], entry[1], entry[2], entry[3], x, y, accumulate)
+    else:
+        _loops(P, entry[0], entry[1], entry[2], entry[3], x, y, accumulate)
+
+
+@nb.njit(cache=True, fastmath=True, error_model="numpy", nogil=True)
+def _blas(P, w, n_in, n_out, b, x, y, accumulate):
+    """``y (+)= x @ W (+ b)``, W ``[n_in, n_out]`` at ``P[w:]``, the bias at ``P[b:]`` (none if
+    b < 0), by BLAS (``x`` contiguous)."""
+    W = P[w : w + n_in * n_out].reshape((n_in, n_out))
+    if accumulate:
+        y += np.dot(x, W)
+        return
+    np.dot(x, W, y)
+    if b >= 0:
+        bias = P[b : b + n_out]
+        for n in range(y.shape[0]):
+            y[n] += bias
+
+
+@nb.njit(cache=True, fastmath=True, error_model="numpy", nogil=True)
+def _loops(P, w, n_in, n_out, b, x, y, accumulate):
+    """``_blas``'s product for a few rows: four rows of W per pass over a row of y (a quarter of
+    the loads and stores of one row at a time: 1.5x)."""
     if not accumulate:
         for n in range(x.shape[0]):
             for j in range(n_out):
@@ -86,56 +97,72 @@ def _dense(P, entry, x, y, accumulate):
 @nb.njit(cache=True, fastmath=True, error_model="numpy", nogil=True)
 def _relu(y):
     for n in range(y.shape[0]):
+        yn = y[n]
         for j in range(y.shape[1]):
-            y[n, j] = max(y[n, j], np.float32(0.0))
+            yn[j] = max(yn[j], np.float32(0.0))
 
 
 @nb.njit(cache=True, fastmath=True, error_model="numpy", nogil=True)
-def _stack(P, table, first_entry, layers, x, h, c, g):
+def _stack(P, table, first_entry, layers, x, hs, cs, at, g):
     """LSTM layers ``table[first_entry + 2i]`` (input weights and bias), ``+ 2i + 1`` (hidden
-    weights) on ``x [N, in]``: h, c [L, N, H] updated in place; the last h is the output."""
+    weights, stored right after the input weights) on ``x [N, in]``. Layer i's state is the
+    columns ``at + iH`` to ``at + (i + 1)H`` of hs, cs ``[N, S]``, updated in place; the last
+    layer's h is the output. Many streams: one product [x | h] @ [W_input; W_hidden]."""
+    N, H = x.shape[0], g.shape[1] // 4
     for i in range(layers):
-        _dense(P, table[first_entry + 2 * i], x, g, False)
-        _dense(P, table[first_entry + 2 * i + 1], h[i], g, True)
-        H = h.shape[2]
-        for n in range(x.shape[0]):
+        e, a = table[first_entry + 2 * i], at + i * H
+        k = x.shape[1] if i == 0 else H  # layer i > 0 reads layer i - 1's h, the H columns before its own
+        # Row by row through 1-d views: loops over a 2-d array at a column offset do not
+        # vectorise (6x slower), nor do copies from strided 2-d slices.
+        if N > COMPILED_UP_TO:
+            xh = np.empty((N, k + H), np.float32)
+            for n in range(N):
+                xh[n, :k] = x[n] if i == 0 else hs[n, a - H : a]
+                xh[n, k:] = hs[n, a : a + H]
+            _blas(P, e[0], k + H, e[2], e[3], xh, g, False)
+        else:
+            e_h = table[first_entry + 2 * i + 1]
+            _loops(P, e[0], e[1], e[2], e[3], x if i == 0 else hs[:, a - H : a], g, False)
+            _loops(P, e_h[0], e_h[1], e_h[2], e_h[3], hs[:, a : a + H], g, True)
+        for n in range(N):
+            gn, hn, cn = g[n], hs[n, a : a + H], cs[n, a : a + H]
             for j in range(H):
-                gi = _sigmoid(g[n, j])
-                gf = _sigmoid(g[n, H + j])
-                gg = fast_tanh(g[n, 2 * H + j])
-                go = _sigmoid(g[n, 3 * H + j])
-                c[i, n, j] = gf * c[i, n, j] + gi * gg
-                h[i, n, j] = go * fast_tanh(c[i, n, j])
-        x = h[i]
+                gi = _sigmoid(gn[j])
+                gf = _sigmoid(gn[H + j])
+                gg = fast_tanh(gn[2 * H + j])
+                go = _sigmoid(gn[3 * H + j])
+                cn[j] = gf * cn[j] + gi * gg
+                hn[j] = go * fast_tanh(cn[j])
 
 
 @nb.njit(cache=True, fastmath=True, error_model="numpy", nogil=True)
-def small_step(x, style, content, target, P, table, sizes, inits, branch_styles, h, c, hb, cb, first, rot, vel):
-    """The whole step for a few streams in one compiled call, on the packed parameters
-    (``pack``): no allocation per layer, no BLAS call per product. Writes ``rot [N, J, 4]``,
-    ``vel [N, 3J]``; updates h, c [L0, N, H], hb, cb [K, L1, N, H] and ``first`` in place."""
+def compiled_step(x, style, content, target, P, table, sizes, inits, branch_styles, h, c, hb, cb, first, rot, vel):
+    """The whole step in one compiled call, on the packed parameters (``pack``). Writes ``rot
+    [N, J, 4]``, ``vel [N, 3J]``; updates ``first`` and the states in place, streams first and
+    each stream's row flat: h, c ``[N, L0 * H]``, hb, cb ``[N, K * L1 * H]`` (branch, layer)."""
     n_enc, L0, L1, n_dec, J = sizes[0], sizes[1], sizes[2], sizes[3], sizes[4]
-    N, H, K = x.shape[0], h.shape[2], hb.shape[0]
+    N, H, K = x.shape[0], h.shape[1] // L0, len(branch_styles)
     nC = content.shape[1]
+    # no bounds are checked below: inputs that do not fit would read or write past them
+    if not (style.shape[0] == N and content.shape[0] == N and target.shape[0] == N and h.shape[0] == N and c.shape[0] == N
+            and hb.shape[0] == N and cb.shape[0] == N and first.shape[0] == N and rot.shape[0] == N and vel.shape[0] == N
+            and x.shape[1] + style.shape[1] + nC == table[0, 1] and target.shape[1] == sizes[6]):  # fmt: skip
+        raise ValueError("the step's inputs do not fit its state (rows: one per stream stepped; widths: the model's)")
     for n in range(N):  # a stream's first frame: the learned initial states (the neutral one by content)
         if first[n]:
-            for layer in range(L0):
-                for k in range(H):
-                    sh, sc = np.float32(0.0), np.float32(0.0)
-                    for label in range(nC):
-                        sh += content[n, label] * P[inits[0] + (label * L0 + layer) * H + k]
-                        sc += content[n, label] * P[inits[1] + (label * L0 + layer) * H + k]
-                    h[layer, n, k], c[layer, n, k] = sh, sc
-            for b in range(K):
-                for layer in range(L1):
-                    for k in range(H):
-                        hb[b, layer, n, k] = P[inits[2] + (b * L1 + layer) * H + k]
-                        cb[b, layer, n, k] = P[inits[3] + (b * L1 + layer) * H + k]
+            for q in range(L0 * H):
+                sh, sc = np.float32(0.0), np.float32(0.0)
+                for label in range(nC):
+                    sh += content[n, label] * P[inits[0] + label * L0 * H + q]
+                    sc += content[n, label] * P[inits[1] + label * L0 * H + q]
+                h[n, q], c[n, q] = sh, sc
+            for q in range(K * L1 * H):
+                hb[n, q], cb[n, q] = P[inits[2] + q], P[inits[3] + q]
             first[n] = False
-    z = np.empty((N, x.shape[1] + style.shape[1] + nC), np.float32)
-    z[:, : x.shape[1]] = x
-    z[:, x.shape[1] : x.shape[1] + style.shape[1]] = style
-    z[:, x.shape[1] + style.shape[1] :] = content
+    D, nS = x.shape[1], style.shape[1]
+    z = np.empty((N, D + nS + nC), np.float32)
+    for n in range(N):  # row by row: numba copies 2-d slices element by element, generically
+        z[n, :D], z[n, D : D + nS], z[n, D + nS :] = x[n], style[n], content[n]
     for i in range(n_enc):
         y = np.empty((N, table[i, 2]), np.float32)
         _dense(P, table[i], z, y, False)
@@ -143,23 +170,31 @@ def small_step(x, style, content, target, P, table, sizes, inits, branch_styles,
             _relu(y)
         z = y
     g = np.empty((N, 4 * H), np.float32)
-    _stack(P, table, n_enc, L0, z, h, c, g)
-    out = h[L0 - 1].copy()
+    _stack(P, table, n_enc, L0, z, h, c, 0, g)
+    out = np.empty((N, H), np.float32)
+    for n in range(N):
+        out[n] = h[n, (L0 - 1) * H :]
     for b in range(K):  # only the branches a stream weights run (and advance)
-        s = branch_styles[b]
+        s, first_entry, at = branch_styles[b], n_enc + 2 * L0 + 2 * L1 * b, b * L1 * H
         rows = np.nonzero(target[:, s])[0]
         if len(rows) == 0:
             continue
-        hk, ck = hb[b][:, rows].copy(), cb[b][:, rows].copy()
-        _stack(P, table, n_enc + 2 * L0 + 2 * L1 * b, L1, z[rows], hk, ck, g[: len(rows)])
+        if len(rows) == N:  # every stream: the state in place, no gather
+            _stack(P, table, first_entry, L1, z, hb, cb, at, g)
+            for n in range(N):
+                out[n] += target[n, s] * hb[n, at + (L1 - 1) * H : at + L1 * H]
+            continue
+        hk, ck = np.empty((len(rows), L1 * H), np.float32), np.empty((len(rows), L1 * H), np.float32)
         for r in range(len(rows)):
-            hb[b, :, rows[r]] = hk[:, r]
-            cb[b, :, rows[r]] = ck[:, r]
-            out[rows[r]] += target[rows[r], s] * hk[L1 - 1, r]
+            hk[r], ck[r] = hb[rows[r], at : at + L1 * H], cb[rows[r], at : at + L1 * H]
+        _stack(P, table, first_entry, L1, z[rows], hk, ck, 0, g[: len(rows)])
+        for r in range(len(rows)):
+            hb[rows[r], at : at + L1 * H], cb[rows[r], at : at + L1 * H] = hk[r], ck[r]
+            out[rows[r]] += target[rows[r], s] * hk[r, (L1 - 1) * H :]
     nI = sizes[5]
     y = np.empty((N, H + nI), np.float32)
-    y[:, :H] = out
-    y[:, H:] = target[:, :nI]
+    for n in range(N):
+        y[n, :H], y[n, H:] = out[n], target[n, :nI]
     first_dec = n_enc + 2 * L0 + 2 * L1 * K
     for i in range(n_dec):
         e = table[first_dec + i]
@@ -171,22 +206,22 @@ def small_step(x, style, content, target, P, table, sizes, inits, branch_styles,
             _relu(o)
         y = o
     for n in range(N):
+        yn, rn = y[n], rot[n]
         for j in range(J):
             norm = np.float32(0.0)
             for a in range(4):
-                norm += y[n, 4 * j + a] * y[n, 4 * j + a]
+                norm += yn[4 * j + a] * yn[4 * j + a]
             norm = max(np.sqrt(norm), np.float32(1e-8))
             for a in range(4):
-                rot[n, j, a] = y[n, 4 * j + a] / norm
-        for j in range(3 * J):
-            vel[n, j] = y[n, 4 * J + j]
+                rn[j, a] = yn[4 * j + a] / norm
+        vel[n] = yn[4 * J :]
 
 
 def pack(w: StepWeights) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """The step's parameters as one float32 array and a table of its matrices (offset, rows,
     columns, bias offset or -1): the encoder's layers, each LSTM layer's input (with the
     summed biases) and hidden weights, neutral branch first, then the decoder's layers; the
-    sizes (encoder layers, L0, L1, decoder layers, J, input styles) and the initial states'
+    sizes (encoder layers, L0, L1, decoder layers, J, input styles, target styles) and the initial states'
     offsets. The added styles' decoder rows, if any, are the last matrix."""
     parts, table, at = [], [], 0
 
@@ -202,31 +237,38 @@ def pack(w: StepWeights) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray
     for W, b in w.encoder:
         matrix(W, b)
     for layers in [w.neutral, *w.branches]:
-        for w_cat, b in layers:
-            inputs = len(w_cat) - w.hidden
-            matrix(w_cat[:inputs], b)
-            matrix(w_cat[inputs:], None)
+        for w_cat, b in layers:  # the hidden weights right after the input weights: [W_input; W_hidden] is one matrix too
+            inputs, at_w, at_b = len(w_cat) - w.hidden, put(w_cat), put(b)
+            table += [(at_w, inputs, w_cat.shape[1], at_b), (at_w + inputs * w_cat.shape[1], w.hidden, w_cat.shape[1], -1)]
     for W, b in w.decoder:
         matrix(W, b)
     if w.decoder_added is not None:
         matrix(w.decoder_added, None)
     inits = np.array([put(a) for a in (*w.neutral_init, *w.branch_init)], np.int64)
-    sizes = np.array([len(w.encoder), len(w.neutral), len(w.branches[0]) if w.branches else 0, len(w.decoder), w.n_joints, w.input_styles], np.int64)
+    n_targets = w.input_styles + (0 if w.decoder_added is None else len(w.decoder_added))
+    sizes = np.array([len(w.encoder), len(w.neutral), len(w.branches[0]) if w.branches else 0, len(w.decoder), w.n_joints, w.input_styles, n_targets], np.int64)
     return np.concatenate(parts), np.array(table, np.int64), sizes, inits
 
 
 class CompiledBackend(NumpyBackend):
-    """The ``numba`` backend: NumpyBackend's state, stepped by the compiled kernel for a few
-    streams and by numpy's arithmetic for more."""
+    """The ``numba`` backend: NumpyBackend's state, stepped by the compiled step."""
 
     def __init__(self, model: GeneratorWeights, n_streams: int):
         super().__init__(model, n_streams)
         self.params, self.table, self.sizes, self.inits = pack(self.w)
         self.branch_styles = np.array(self.w.branch_styles, dtype=np.int64)
+        self._whole = (self.h, *(_rows(a) for a in (self.h, self.c, self.hb, self.cb)))  # the whole state, flat, once
 
     def _arithmetic(self, x, style, content, target, h, c, hb, cb, first) -> tuple[np.ndarray, np.ndarray]:
-        if len(x) > COMPILED_UP_TO:
-            return _numpy_step(self.w, x, style, content, target, h, c, hb, cb, first, compiled_cell)
-        rot, vel = np.empty((len(x), self.w.n_joints, 4), np.float32), np.empty((len(x), 3 * self.w.n_joints), np.float32)
-        small_step(x, style, content, target, self.params, self.table, self.sizes, self.inits, self.branch_styles, h, c, hb, cb, first, rot, vel)
+        N = len(x)
+        rot, vel = np.empty((N, self.w.n_joints, 4), np.float32), np.empty((N, 3 * self.w.n_joints), np.float32)
+        flat = self._whole[1:] if h is self._whole[0] else tuple(_rows(a) for a in (h, c, hb, cb))
+        compiled_step(x, style, content, target, self.params, self.table, self.sizes, self.inits, self.branch_styles, *flat, first, rot, vel)
         return rot, vel
+
+
+def _rows(state: np.ndarray) -> np.ndarray:
+    """A state ``[N, ...]`` as ``[N, S]``, the same memory (a shard's rows are one block)."""
+    if not state.flags.c_contiguous:
+        raise ValueError("the numba backend steps a state whose streams are contiguous rows")
+    return state.reshape(len(state), -1)
