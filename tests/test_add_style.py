@@ -85,12 +85,12 @@ def test_the_added_style_is_its_own_and_backends_agree_on_it(models):
 
 
 def test_many_streams_take_the_numba_backends_blas_path_with_the_added_style(models):
-    """From COMPILED_UP_TO streams on, the compiled step's products are BLAS calls, the added
+    """Beyond LOOPS_UP_TO streams, the compiled step's products are BLAS calls, the added
     style's decoder rows included: equal to the numpy backend's."""
-    from styleerd.runtime.compiled import COMPILED_UP_TO
+    from styleerd.runtime.compiled import LOOPS_UP_TO
 
     _, added, _ = models
-    n = COMPILED_UP_TO + 9
+    n = LOOPS_UP_TO + 40
     x, style, content = _frames(added, n=6, streams=n)
     t = np.eye(len(added.config.styles), dtype=np.float32)[np.arange(n) % len(added.config.styles)]
     t[::3, -1] += 0.5  # some mixtures with the added style

@@ -3,8 +3,8 @@ gate order) in one compiled, GIL-free call, so a frame pays for its floating-poi
 for a hundred numpy dispatches, and shards of streams on threads run side by side (numpy's step
 holds the GIL between its products: two shards of 500 streams on two threads took 1.35x one
 shard's time; the compiled step's take 1.15x).
-Up to ``COMPILED_UP_TO`` streams the products are compiled loops; from there on they are BLAS
-calls (``np.dot`` inside the compiled step).
+The products are BLAS calls (``np.dot`` inside the compiled step), but for a single stream
+(``LOOPS_UP_TO``) compiled loops.
 
 The activations use ``fast_tanh``, a rational approximation that vectorises (np.tanh in a
 compiled loop is a scalar libm call). Compiled on first use and cached on disk
@@ -19,7 +19,7 @@ import numpy as np
 from styleerd.model.stored import GeneratorWeights
 from styleerd.runtime.numpy_step import NumpyBackend, StepWeights
 
-COMPILED_UP_TO = 32  # streams per step (measured, 1 thread, side by side: 8 streams 88 us compiled, 175 us numpy + compiled cell; 32: 472 vs 514)
+LOOPS_UP_TO = 1  # streams per step (measured, 1 thread, us per step with loops / BLAS: 1 stream 17.8 / 20.0, 2: 28.0 / 22.1, 8: 91.0 / 54.4)
 
 
 # tanh as a rational function (the odd 13/6 polynomial pair Eigen uses for float32), clamped
@@ -50,7 +50,7 @@ def _sigmoid(v):
 def _dense(P, entry, x, y, accumulate):
     """``y (+)= x @ W (+ b)`` for the matrix ``entry`` of the packed parameters (offset, rows,
     columns, bias offset or -1): BLAS for many rows, compiled loops for a few."""
-    if x.shape[0] > COMPILED_UP_TO:
+    if x.shape[0] > LOOPS_UP_TO:
         _blas(P, entry[0], entry[1], entry[2], entry[3], x, y, accumulate)
     else:
         _loops(P, entry[0], entry[1], entry[2], entry[3], x, y, accumulate)
@@ -114,7 +114,7 @@ def _stack(P, table, first_entry, layers, x, hs, cs, at, g):
         k = x.shape[1] if i == 0 else H  # layer i > 0 reads layer i - 1's h, the H columns before its own
         # Row by row through 1-d views: loops over a 2-d array at a column offset do not
         # vectorise (6x slower), nor do copies from strided 2-d slices.
-        if N > COMPILED_UP_TO:
+        if N > LOOPS_UP_TO:
             xh = np.empty((N, k + H), np.float32)
             for n in range(N):
                 xh[n, :k] = x[n] if i == 0 else hs[n, a - H : a]
