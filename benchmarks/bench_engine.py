@@ -7,7 +7,8 @@ Per commit: the network step at batch 1 (numba backend, and the ONNX graphs in o
 through ``OnnxBackend``: every style's branches, and one style's), end to end at batch 1 (raw
 BVH channel values in and out of a 22-joint Mixamo-named skeleton: retargeting both ways,
 features, network, foot cleanup; numba and numpy backends), and 1,000 streams on 2 threads
-(numba) against the float32 matrix-multiply peak measured in the same process.
+(numba; end to end, and the network alone) against the float32 matrix-multiply peak measured in
+the same process.
 
     python benchmarks/bench_engine.py [--before COMMIT] [--rounds 3]
 
@@ -29,11 +30,13 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 BEFORE = "bc2080d"  # the last commit before the compiled per-frame path and the batched ONNX graphs
 FIGURES = ("step_us numba", "step_us onnx", "step_us onnx one style", "step_us onnx-plain", "step_us onnx-plain one style",
-           "end_to_end_us numba", "end_to_end_us numpy", "frames_per_s 1000 streams numba", "fraction_of_peak 1000 streams numba")  # fmt: skip
+           "end_to_end_us numba", "end_to_end_us numpy", "frames_per_s 1000 streams numba", "fraction_of_peak 1000 streams numba",
+           "network_frames_per_s 1000 streams numba", "network_fraction_of_peak 1000 streams numba")  # fmt: skip
 
 
 def measure(steps: int) -> dict:
     """The figures of the styleerd importable here (run in a worker process per commit)."""
+    from styleerd.eval import bench
     from styleerd.eval.bench import end_to_end, flops_per_frame, matmul_peak, network_step, set_threads, throughput
     from styleerd.model.stored import load_generator_weights
 
@@ -50,6 +53,10 @@ def measure(steps: int) -> dict:
     fps = throughput(model, "numba", 1000)
     out["frames_per_s 1000 streams numba"] = round(fps)
     out["fraction_of_peak 1000 streams numba"] = round(fps * flops_per_frame(model) / peak, 4)
+    if hasattr(bench, "network_throughput"):  # the network alone, as `styleerd bench` measures it
+        net = bench.network_throughput(model, "numba")
+        out["network_frames_per_s 1000 streams numba"] = round(net)
+        out["network_fraction_of_peak 1000 streams numba"] = round(net * flops_per_frame(model) / peak, 4)
     out["matmul_peak_gflops"] = round(peak / 1e9, 1)
     out.update({f"stage_us {k}": v for k, v in stages(steps).items()})
     return out
@@ -135,7 +142,7 @@ def main() -> None:
             subprocess.run(["git", "-C", str(ROOT), "worktree", "remove", "--force", str(before)], check=False)
     median = {name: {k: float(np.median([m[k] for m in ms])) for k in ms[0]} for name, ms in rounds.items()}
     # the best round of each figure (least disturbed by other tenants): the lowest time, the highest rate
-    best = {name: {k: float((max if k.startswith(("frames", "fraction", "matmul")) else min)(m[k] for m in ms)) for k in ms[0]} for name, ms in rounds.items()}
+    best = {name: {k: float((max if k.startswith(("frames", "fraction", "matmul", "network")) else min)(m[k] for m in ms)) for k in ms[0]} for name, ms in rounds.items()}
     report = {"rounds": args.rounds, "steps": args.steps, "cpu_count": os.cpu_count(), "median": median, "best": best, "each_round": rounds}
     out = ROOT / "docs" / "engine-bench.json"
     out.write_text(json.dumps(report, indent=1) + "\n")
@@ -143,7 +150,9 @@ def main() -> None:
     bb, ab = best.values()
     print(f"\n| figure ({args.rounds} alternating rounds) | {' | '.join(median)}: median | speed-up | best round: {' | '.join(best)} | speed-up |\n| --- | --- | --- | --- | --- | --- | --- |")
     for k in FIGURES:
-        up = k.startswith(("frames", "fraction"))
+        if k not in b or k not in a:
+            continue
+        up = k.startswith(("frames", "fraction", "network"))
         print(f"| {k} | {b[k]:,} | {a[k]:,} | {(a[k] / b[k] if up else b[k] / a[k]):.2f}x | {bb[k]:,} | {ab[k]:,} | {(ab[k] / bb[k] if up else bb[k] / ab[k]):.2f}x |")
     print(f"matmul peak (GFLOP/s, 2 threads): {b['matmul_peak_gflops']} / {a['matmul_peak_gflops']}")
     print(f"\n| end to end, batch 1, numba: stage (us, median of rounds) | {' | '.join(median)} |\n| --- | --- | --- |")
