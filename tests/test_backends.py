@@ -160,6 +160,24 @@ def test_numba_backend_refuses_inputs_that_do_not_fit_its_state(model, n):
             b.step(*bad)
 
 
+@pytest.mark.parametrize("beta", [0.0, 1.0])
+def test_compiled_gemm_reads_blocks_of_columns_in_place(beta):
+    """The numba step's BLAS call (``compiled._gemm``) on operands whose rows are strided (a
+    block of a state's columns, as the LSTM layers read them), against numpy."""
+    from styleerd.runtime.compiled import _gemm
+
+    rng = np.random.default_rng(1)
+    state = rng.normal(size=(50, 7 * 32)).astype(np.float32)
+    weights = rng.normal(size=(70, 3 * 128)).astype(np.float32)
+    out = rng.normal(size=(50, 2 * 128)).astype(np.float32)
+    x, W, y = state[:, 64:128], weights[3:67, 128:256], out[:, 128:]
+    want = x.astype(np.float64) @ W + beta * y
+    before = out.copy()
+    _gemm(x, W, y, np.float32(beta))
+    assert np.abs(y - want).max() < 1e-4
+    assert np.array_equal(out[:, :128], before[:, :128])  # the columns beside the block are untouched
+
+
 def test_fast_tanh_is_tanh_to_float32_precision():
     from styleerd.runtime.compiled import fast_tanh
 

@@ -2,9 +2,10 @@
 gate order) in one compiled, GIL-free call, so a frame pays for its floating-point work and not
 for a hundred numpy dispatches, and shards of streams on threads run side by side (numpy's step
 holds the GIL between its products: two shards of 500 streams on two threads took 1.35x one
-shard's time; the compiled step's take 1.15x).
-The products are BLAS calls (``np.dot`` inside the compiled step), but for a single stream
-(``LOOPS_UP_TO``) compiled loops.
+shard's time; the compiled step's 1.1x).
+The products are BLAS calls from inside the compiled step (``_gemm``: sgemm reading the
+state's columns in place and accumulating into its output, nothing copied), but for a single
+stream (``LOOPS_UP_TO``) compiled loops.
 
 The activations use ``fast_tanh``, a rational approximation that vectorises (np.tanh in a
 compiled loop is a scalar libm call). Compiled on first use and cached on disk
@@ -13,13 +14,35 @@ compiled loop is a scalar libm call). Compiled on first use and cached on disk
 
 from __future__ import annotations
 
+import llvmlite.binding as llvm
 import numba as nb
 import numpy as np
+from numba.core import types
+from numba.extending import get_cython_function_address
 
 from styleerd.model.stored import GeneratorWeights
 from styleerd.runtime.numpy_step import NumpyBackend, StepWeights
 
-LOOPS_UP_TO = 1  # streams per step (measured, 1 thread, us per step with loops / BLAS: 1 stream 17.8 / 20.0, 2: 28.0 / 22.1, 8: 91.0 / 54.4)
+LOOPS_UP_TO = 1  # streams per step (measured, 1 thread, us per step with loops / BLAS: 1 stream 17.5 / 19.5, 2: 26.0 / 21.5, 8: 81 / 48)
+
+
+# BLAS sgemm called by name from compiled code (resolved when the code is linked, so it caches):
+# unlike np.dot it takes row-strided operands (a block of a state's columns) and accumulates
+# into its output (beta = 1), so the step copies nothing into a product and makes no temporaries.
+llvm.add_symbol("styleerd_sgemm", get_cython_function_address("scipy.linalg.cython_blas", "sgemm"))
+_sgemm = types.ExternalFunction("styleerd_sgemm", types.void(*[types.voidptr] * 13))
+
+
+@nb.njit(cache=True, nogil=True)
+def _gemm(x, W, y, beta):
+    """``y = x @ W + beta * y`` by BLAS; each operand's rows may be strided (a block of columns of
+    a wider array), its elements within a row not. Row-major ``y = x W`` is column-major
+    ``y^T = W^T x^T``, which is how BLAS is asked."""
+    ints = np.array([W.shape[1], x.shape[0], x.shape[1], W.strides[0] // 4, x.strides[0] // 4, y.strides[0] // 4], np.int32)
+    scalars = np.array([1.0, beta], np.float32)
+    no_transpose = np.array([78], np.uint8)  # "N"
+    _sgemm(no_transpose.ctypes, no_transpose.ctypes, ints.ctypes, ints[1:].ctypes, ints[2:].ctypes, scalars.ctypes, W.ctypes, ints[3:].ctypes,
+           x.ctypes, ints[4:].ctypes, scalars[1:].ctypes, y.ctypes, ints[5:].ctypes)  # fmt: skip
 
 
 # tanh as a rational function (the odd 13/6 polynomial pair Eigen uses for float32), clamped
@@ -59,13 +82,9 @@ def _dense(P, entry, x, y, accumulate):
 @nb.njit(cache=True, fastmath=True, error_model="numpy", nogil=True)
 def _blas(P, w, n_in, n_out, b, x, y, accumulate):
     """``y (+)= x @ W (+ b)``, W ``[n_in, n_out]`` at ``P[w:]``, the bias at ``P[b:]`` (none if
-    b < 0), by BLAS (``x`` contiguous)."""
-    W = P[w : w + n_in * n_out].reshape((n_in, n_out))
-    if accumulate:
-        y += np.dot(x, W)
-        return
-    np.dot(x, W, y)
-    if b >= 0:
+    b < 0), by BLAS."""
+    _gemm(x, P[w : w + n_in * n_out].reshape((n_in, n_out)), y, np.float32(1.0 if accumulate else 0.0))
+    if b >= 0 and not accumulate:
         bias = P[b : b + n_out]
         for n in range(y.shape[0]):
             y[n] += bias
@@ -107,30 +126,29 @@ def _stack(P, table, first_entry, layers, x, hs, cs, at, g):
     """LSTM layers ``table[first_entry + 2i]`` (input weights and bias), ``+ 2i + 1`` (hidden
     weights, stored right after the input weights) on ``x [N, in]``. Layer i's state is the
     columns ``at + iH`` to ``at + (i + 1)H`` of hs, cs ``[N, S]``, updated in place; the last
-    layer's h is the output. Many streams: one product [x | h] @ [W_input; W_hidden]."""
+    layer's h is the output. From layer 1 on, the layer's input (the h of the layer before) and
+    its own h are adjacent columns: one product [x | h] @ [W_input; W_hidden], read in place."""
     N, H = x.shape[0], g.shape[1] // 4
     for i in range(layers):
-        e, a = table[first_entry + 2 * i], at + i * H
-        k = x.shape[1] if i == 0 else H  # layer i > 0 reads layer i - 1's h, the H columns before its own
-        # Row by row through 1-d views: loops over a 2-d array at a column offset do not
-        # vectorise (6x slower), nor do copies from strided 2-d slices.
-        if N > LOOPS_UP_TO:
-            xh = np.empty((N, k + H), np.float32)
-            for n in range(N):
-                xh[n, :k] = x[n] if i == 0 else hs[n, a - H : a]
-                xh[n, k:] = hs[n, a : a + H]
-            _blas(P, e[0], k + H, e[2], e[3], xh, g, False)
+        e, e_h, a = table[first_entry + 2 * i], table[first_entry + 2 * i + 1], at + i * H
+        if N <= LOOPS_UP_TO:
+            _loops(P, e[0], e[1], e[2], -1, x if i == 0 else hs[:, a - H : a], g, False)
+            _loops(P, e_h[0], e_h[1], e_h[2], -1, hs[:, a : a + H], g, True)
+        elif i == 0:
+            _blas(P, e[0], e[1], e[2], -1, x, g, False)
+            _blas(P, e_h[0], e_h[1], e_h[2], -1, hs[:, a : a + H], g, True)
         else:
-            e_h = table[first_entry + 2 * i + 1]
-            _loops(P, e[0], e[1], e[2], e[3], x if i == 0 else hs[:, a - H : a], g, False)
-            _loops(P, e_h[0], e_h[1], e_h[2], e_h[3], hs[:, a : a + H], g, True)
+            _blas(P, e[0], 2 * H, e[2], -1, hs[:, a - H : a + H], g, False)
+        # Row by row through 1-d views: loops over a 2-d array at a column offset do not
+        # vectorise (6x slower).
+        bias = P[e[3] : e[3] + 4 * H]
         for n in range(N):
             gn, hn, cn = g[n], hs[n, a : a + H], cs[n, a : a + H]
             for j in range(H):
-                gi = _sigmoid(gn[j])
-                gf = _sigmoid(gn[H + j])
-                gg = fast_tanh(gn[2 * H + j])
-                go = _sigmoid(gn[3 * H + j])
+                gi = _sigmoid(gn[j] + bias[j])
+                gf = _sigmoid(gn[H + j] + bias[H + j])
+                gg = fast_tanh(gn[2 * H + j] + bias[2 * H + j])
+                go = _sigmoid(gn[3 * H + j] + bias[3 * H + j])
                 cn[j] = gf * cn[j] + gi * gg
                 hn[j] = go * fast_tanh(cn[j])
 
@@ -201,7 +219,7 @@ def compiled_step(x, style, content, target, P, table, sizes, inits, branch_styl
         o = np.empty((N, e[2]), np.float32)
         _dense(P, e, y, o, False)
         if i == 0 and nI < target.shape[1]:  # the added styles' target rows, apart (see StyleERD.decode)
-            _dense(P, table[first_dec + n_dec], np.ascontiguousarray(target[:, nI:]), o, True)
+            _dense(P, table[first_dec + n_dec], target[:, nI:], o, True)
         if i < n_dec - 1:
             _relu(o)
         y = o
