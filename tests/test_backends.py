@@ -178,6 +178,24 @@ def test_compiled_gemm_reads_blocks_of_columns_in_place(beta):
     assert np.array_equal(out[:, :128], before[:, :128])  # the columns beside the block are untouched
 
 
+def test_shards_limit_the_blas_the_compiled_step_calls_even_if_made_first():
+    """StreamStylizer's shards hold BLAS to one thread each; the numba step's BLAS (scipy's) is
+    among those held even when the limits were first taken before that backend was loaded."""
+    import subprocess
+    import sys
+
+    code = """
+from styleerd.runtime.stylizer import _blas_pools
+held = {c.filepath for c in _blas_pools().lib_controllers}
+import styleerd.runtime.compiled
+from threadpoolctl import threadpool_info
+loaded = {i["filepath"] for i in threadpool_info() if i["user_api"] == "blas"}
+assert loaded <= held, (loaded, held)
+"""
+    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
+    assert done.returncode == 0, done.stderr
+
+
 def test_fast_tanh_is_tanh_to_float32_precision():
     from styleerd.runtime.compiled import fast_tanh
 

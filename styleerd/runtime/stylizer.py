@@ -378,8 +378,13 @@ class StreamStylizer:
 
 @cache
 def _blas_pools():
+    """Every BLAS the step may call: numpy's, and scipy's, which the numba backend's compiled
+    step calls (loaded here first, or a controller made before that backend would miss it)."""
+    import importlib
+
     from threadpoolctl import ThreadpoolController
 
+    importlib.import_module("scipy.linalg.cython_blas")
     return ThreadpoolController().select(user_api="blas")
 
 
