@@ -4,10 +4,10 @@ minutes; alternating puts both under the same conditions); the median over round
 each figure's best round (the one least disturbed by other work on the machine).
 
 Per commit: the network step at batch 1 (numba backend, and the ONNX graphs in onnxruntime
-through ``OnnxBackend``: every style's branches, and one style's), end to end at batch 1 (raw
+through ``OnnxBackend``: the graph of every style's branches, and of one style's), end to end at batch 1 (raw
 BVH channel values in and out of a 22-joint Mixamo-named skeleton: retargeting both ways,
 features, network, foot cleanup; numba and numpy backends), and 1,000 streams on 2 threads
-(numba; end to end, and the network alone) against the float32 matrix-multiply peak measured in
+(numba: end to end, and the network alone; numpy and ONNX: the network alone) against the float32 matrix-multiply peak measured in
 the same process.
 
     python benchmarks/bench_engine.py [--before COMMIT] [--rounds 3]
@@ -18,6 +18,7 @@ Writes docs/engine-bench.json and prints a table.
 from __future__ import annotations
 
 import argparse
+import inspect
 import json
 import os
 import subprocess
@@ -31,7 +32,8 @@ ROOT = Path(__file__).resolve().parents[1]
 BEFORE = "bc2080d"  # the last commit before the compiled per-frame path and the batched ONNX graphs
 FIGURES = ("step_us numba", "step_us onnx", "step_us onnx one style", "step_us onnx-plain", "step_us onnx-plain one style",
            "end_to_end_us numba", "end_to_end_us numpy", "frames_per_s 1000 streams numba", "fraction_of_peak 1000 streams numba",
-           "frames_per_s 1000 streams numba, network alone", "fraction_of_peak 1000 streams numba, network alone")  # fmt: skip
+           "frames_per_s 1000 streams numba, network alone", "fraction_of_peak 1000 streams numba, network alone",
+           "frames_per_s 1000 streams numpy, network alone", "frames_per_s 1000 streams onnx, network alone")  # fmt: skip
 
 
 def measure(steps: int) -> dict:
@@ -43,9 +45,10 @@ def measure(steps: int) -> dict:
     model = load_generator_weights()
     set_threads(1)
     out = {"step_us numba": network_step(model, "numba", steps)["p50_us"]}
+    by_itself = "every_branch" in inspect.signature(network_step).parameters  # the backend picks the target's graph itself
     for form in ("onnx", "onnx-plain"):
-        out[f"step_us {form}"] = network_step(model, form, steps)["p50_us"]
-        out[f"step_us {form} one style"] = network_step(model, form, steps, one_style=True)["p50_us"]
+        out[f"step_us {form}"] = network_step(model, form, steps, **({"every_branch": True} if by_itself else {}))["p50_us"]
+        out[f"step_us {form} one style"] = network_step(model, form, steps, **({} if by_itself else {"one_style": True}))["p50_us"]
     for backend in ("numba", "numpy"):
         out[f"end_to_end_us {backend}"] = end_to_end(model, backend, steps)["p50_us"]
     peak = matmul_peak(2)
@@ -57,6 +60,8 @@ def measure(steps: int) -> dict:
         net = bench.network_throughput(model, "numba")
         out["frames_per_s 1000 streams numba, network alone"] = round(net)
         out["fraction_of_peak 1000 streams numba, network alone"] = round(net * flops_per_frame(model) / peak, 4)
+        for backend in ("numpy", "onnx"):
+            out[f"frames_per_s 1000 streams {backend}, network alone"] = round(bench.network_throughput(model, backend))
     out["matmul_peak_gflops"] = round(peak / 1e9, 1)
     out.update({f"stage_us {k}": v for k, v in stages(steps).items()})
     return out

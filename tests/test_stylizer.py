@@ -87,11 +87,11 @@ def test_batched_streams_equal_single_streams(model):
             assert np.allclose(r[k], singles[k].step(m.rotations[t], m.positions[t])[0][0], atol=1e-5)
 
 
-@pytest.mark.parametrize("backend", ["numpy", "numba"])
+@pytest.mark.parametrize("backend", ["numpy", "numba", "onnx"])
 def test_steps_split_over_threads_equal_one_thread_and_reject_as_a_whole(model, backend, monkeypatch):
     from styleerd.runtime import stylizer
 
-    monkeypatch.setattr(stylizer, "SHARD_FROM", 4)  # split even this small batch (two shards of 3)
+    monkeypatch.setattr(stylizer, "SHARD_FROM", {backend: 4})  # split even this small batch (two shards of 3)
     ms = [walking_motion(12, seed=k) for k in range(6)]
     targets = [{"old": 1.0}, {"angry": 0.5, "old": 0.5}, {"normal": 1.0}] * 2
     torch.manual_seed(1)

@@ -7,10 +7,10 @@ run (the paper's Table 2 and more). Prints a table, writes JSON and a throughput
   features, network, foot cleanup);
 - whole clips of L = 60, 90, 120 frames streamed frame by frame (model skeleton, 1 thread);
 - throughput of StreamStylizer (features + network) over 1 .. 4,096 concurrent streams, 2 threads
-  (numpy and numba: large steps split into one shard of streams per thread; torch and onnx: their
-  own intra-op threads);
+  (numpy, numba and onnx: large steps split into one shard of streams per thread; torch: its own
+  intra-op threads);
 - the network step alone over 1,000 streams, 2 threads (normalised features in, rotations out;
-  numpy and numba in one shard of streams per thread, as StreamStylizer splits them);
+  one shard of streams per thread, as StreamStylizer splits them; torch on its own threads);
 - FLOPs per frame, counted from the layer sizes, and achieved FLOP/s (at the best batch of
   StreamStylizer, and of the network alone at 1,000 streams) against this machine's float32
   matrix-multiply peak, measured here;
@@ -56,14 +56,14 @@ def _percentiles(seconds: list[float]) -> dict[str, float]:
     return {"p50_us": round(float(np.percentile(us, 50)), 1), "p99_us": round(float(np.percentile(us, 99)), 1)}
 
 
-def network_step(model: StyleERD, backend: str, steps: int, one_style: bool = False) -> dict:
-    """Step latency at batch 1 to a style target; ``one_style``: an ONNX graph with that style's
-    branch only (``export-onnx --styles``)."""
+def network_step(model: StyleERD, backend: str, steps: int, every_branch: bool = False) -> dict:
+    """Step latency at batch 1 to a style target; ``every_branch``: ONNX on the graph of every
+    style's branches (the backend otherwise runs the graph of the target's style)."""
     c = model.config
-    if one_style:
+    if every_branch:
         from styleerd.runtime.backends import OnnxBackend
 
-        b = OnnxBackend(generator_weights(model), 1, form="plain" if backend == "onnx-plain" else "lstm", styles=(c.styles[(c.neutral_index + 1) % len(c.styles)],))
+        b = OnnxBackend(generator_weights(model), 1, form="plain" if backend == "onnx-plain" else "lstm", every_branch=True)
     else:
         b = make_backend(backend, model, 1)
     x = np.random.default_rng(0).normal(0, 1, (steps + 50, 1, c.feature_dim)).astype(np.float32)
@@ -124,19 +124,19 @@ def throughput(model: StyleERD, backend: str, n_streams: int, seconds: float = 1
 
 def network_throughput(model: StyleERD, backend: str, n_streams: int = 1000, seconds: float = 1.5, threads: int = 2) -> float:
     """Frames/s of the network step alone over ``n_streams`` streams on ``threads`` threads:
-    numpy and numba in one shard of streams per thread (each shard's rows stepped in place, BLAS
-    on one thread per shard, as StreamStylizer runs them), torch and onnx in one call on their
-    own intra-op threads (the caller sets the pools: ``set_threads``)."""
+    numpy, numba and onnx in one shard of streams per thread (each shard's rows stepped in place,
+    BLAS or onnxruntime on one thread per shard, as StreamStylizer runs them), torch in one call
+    on its own intra-op threads (the caller sets the pools: ``set_threads``)."""
     from concurrent.futures import ThreadPoolExecutor
 
     from threadpoolctl import threadpool_limits
 
     c = model.config
-    b = make_backend(backend, model, n_streams, threads)
+    sharded = backend != "torch" and threads > 1
+    b = make_backend(backend, model, n_streams, 1 if sharded else threads)
     x = np.random.default_rng(0).normal(0, 1, (n_streams, c.feature_dim)).astype(np.float32)
     one_hot = lambda k, i: np.eye(k, dtype=np.float32)[np.full(n_streams, i)]  # noqa: E731
     inputs = (x, one_hot(len(c.input_styles), c.neutral_index), one_hot(len(c.contents), 0), one_hot(len(c.styles), c.styles.index("elderly")))
-    sharded = backend in ("numpy", "numba") and threads > 1
     shards = _slices(n_streams, threads) if sharded else [slice(None)]
     with ThreadPoolExecutor(len(shards)) as pool, threadpool_limits(1 if sharded else threads):
         step = lambda s: b.step(*(a[s] for a in inputs), None if s == slice(None) else s)  # noqa: E731
@@ -191,7 +191,7 @@ def run_bench(model: StyleERD, steps: int = 2000, streams: tuple[int, ...] = STR
         set_threads(1)
         r = {"network_step": network_step(model, name, steps), "end_to_end": end_to_end(model, name, steps)}
         if name.startswith("onnx"):
-            r["network_step_one_style_graph"] = network_step(model, name, steps, one_style=True)
+            r["network_step_every_branch_graph"] = network_step(model, name, steps, every_branch=True)
         r["whole_clip_ms"] = {f"L={n}": whole_clip_ms(model, name, n) for n in (60, 90, 120)}
         set_threads(2)
         r["frames_per_second"] = {n: round(throughput(model, name, n)) for n in streams}
@@ -209,7 +209,7 @@ def run_bench(model: StyleERD, steps: int = 2000, streams: tuple[int, ...] = STR
 def table(report: dict) -> str:
     names = list(report["backends"])
     rows = [("network step p50 / p99 (us, batch 1, 1 thread)", lambda r: f"{r['network_step']['p50_us']:.0f} / {r['network_step']['p99_us']:.0f}"),
-            ("network step, one-style ONNX graph, p50 / p99 (us)", lambda r: f"{r['network_step_one_style_graph']['p50_us']:.0f} / {r['network_step_one_style_graph']['p99_us']:.0f}" if "network_step_one_style_graph" in r else ""),
+            ("network step, ONNX graph of every style's branches, p50 / p99 (us)", lambda r: f"{r['network_step_every_branch_graph']['p50_us']:.0f} / {r['network_step_every_branch_graph']['p99_us']:.0f}" if "network_step_every_branch_graph" in r else ""),
             ("end to end p50 / p99 (us, batch 1, 1 thread)", lambda r: f"{r['end_to_end']['p50_us']:.0f} / {r['end_to_end']['p99_us']:.0f}"),
             *[(f"whole clip {k} (ms)", lambda r, k=k: f"{r['whole_clip_ms'][k]:.1f}") for k in ("L=60", "L=90", "L=120")],
             *[(f"frames/s, {int(n):,} streams (2 threads)", lambda r, n=n: f"{r['frames_per_second'][n]:,}") for n in next(iter(report['backends'].values()))['frames_per_second']],

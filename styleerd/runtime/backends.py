@@ -12,6 +12,8 @@ streams that give its style a non-zero weight.
 
 from __future__ import annotations
 
+import threading
+
 import numpy as np
 
 from styleerd.errors import StyleERDError
@@ -61,38 +63,104 @@ class TorchBackend:
 
 
 class OnnxBackend:
-    """onnxruntime on the exported step graph (``form``: the LSTM-op graph, or the plain one;
-    ``styles``: only these styles' branches, for targets that use no others)."""
+    """onnxruntime on the exported step graphs (``form``: the LSTM-op graph, or the plain one).
 
-    def __init__(self, model: GeneratorWeights, n_streams: int, threads: int = 1, form: str = "lstm", styles: tuple[str, ...] | None = None):
+    Each step runs, for each group of streams that weight the same styles, the graph of those
+    styles' branches only (``export-onnx --styles``; built on first use and kept): the
+    arithmetic of the branches that run, as the numpy backend does, not of every branch (at
+    1,000 streams to one style, 3x the frames/s). ``every_branch``: one graph of every style's
+    branches for all streams, what a host that exports one graph runs. The state of every
+    branch is kept here, streams first (``h, c [N, S, H]``, rows in ``state_layers`` order); a
+    stream's first frame takes the learned initial states of all its rows, so a branch that
+    first runs later starts from its own."""
+
+    def __init__(self, model: GeneratorWeights, n_streams: int, threads: int = 1, form: str = "lstm", every_branch: bool = False):
         import onnxruntime as ort
 
-        from styleerd.runtime.onnx_export import state_shape, step_graph
+        from styleerd.runtime.onnx_export import initial_states, state_layers
 
-        options = ort.SessionOptions()
-        options.intra_op_num_threads, options.inter_op_num_threads = threads, 1
-        options.graph_optimization_level = ort.GraphOptimizationLevel.ORT_ENABLE_ALL
-        self.session = ort.InferenceSession(step_graph(model, form, styles).SerializeToString(), options, providers=["CPUExecutionProvider"])
-        rows, _, width = state_shape(model, form, styles)
-        self.n = n_streams
-        self.state = {name: np.zeros((rows, n_streams, width), np.float32) for name in ("h", "c")}
-        self.first = np.ones((n_streams, 1), np.float32)
+        self.options = ort.SessionOptions()
+        self.options.intra_op_num_threads, self.options.inter_op_num_threads = threads, 1
+        self.options.graph_optimization_level = ort.GraphOptimizationLevel.ORT_ENABLE_ALL
+        c = model.config
+        self.model, self.form, self.n, self.every_branch = model, form, n_streams, every_branch
+        self.layers = state_layers(model)
+        self.styles = np.array([c.styles[s] for s in c.branch_styles])  # a branch per style, the target's column
+        self.columns = np.array(c.branch_styles, dtype=np.int64)
+        self.initial = initial_states(model).reshape(len(c.contents), 2, len(self.layers), c.hidden)
+        self.h = np.zeros((n_streams, len(self.layers), c.hidden), np.float32)
+        self.c = np.zeros_like(self.h)
+        self.first = np.ones(n_streams, dtype=bool)
+        self.graphs: dict = {}  # styles (None: every style) -> (session, its state rows among self.layers)
+        self.building = threading.Lock()
 
     def reset(self, streams: np.ndarray | None = None) -> None:
-        self.first[slice(None) if streams is None else streams] = 1.0
+        self.first[slice(None) if streams is None else streams] = True
+
+    def graph(self, styles: tuple[str, ...] | None):
+        """The session of the graph with the branches of ``styles`` (None: every style), and the
+        rows of its state."""
+        with self.building:  # shards of streams step concurrently: one build per graph
+            if styles not in self.graphs:
+                import onnxruntime as ort
+
+                from styleerd.runtime.onnx_export import state_layers, step_graph
+
+                proto = step_graph(self.model, self.form, styles)
+                session = ort.InferenceSession(proto.SerializeToString(), self.options, providers=["CPUExecutionProvider"])
+                self.graphs[styles] = (session, np.array([self.layers.index(row) for row in state_layers(self.model, styles)]))
+            return self.graphs[styles]
 
     def step(self, x: np.ndarray, style: np.ndarray, content: np.ndarray, target: np.ndarray, rows: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
-        sel = slice(None) if rows is None else rows
-        feeds = {"features": x, "style": style, "content": content, "target": target, "first_frame": self.first[sel], "h": self.state["h"][:, sel], "c": self.state["c"][:, sel]}
-        rot, vel, h, c = self.session.run(None, {k: np.ascontiguousarray(v, np.float32) for k, v in feeds.items()})
-        self.state["h"][:, sel], self.state["c"][:, sel] = h, c
-        self.first[sel] = 0.0
+        f32 = lambda a: np.ascontiguousarray(a, np.float32)  # noqa: E731
+        x, style, content, target = f32(x), f32(style), f32(content), f32(target)
+        streams = np.arange(self.n)[slice(None) if rows is None else rows]
+        fresh = self.first[streams]
+        if fresh.any():
+            at = streams[fresh]
+            start = np.einsum("nk,k...->n...", content[fresh], self.initial)
+            self.h[at], self.c[at], self.first[at] = start[:, 0], start[:, 1], False
+        if self.every_branch:
+            groups = [(None, slice(None))]
+        else:  # streams grouped by the styles they weight (usually one group)
+            on = target[:, self.columns] != 0
+            if (on == on[:1]).all():
+                groups = [(tuple(self.styles[on[0]]), slice(None))] if len(on) else []
+            else:
+                keys, which = np.unique(on, axis=0, return_inverse=True)
+                groups = [(tuple(self.styles[key]), np.nonzero(which.ravel() == g)[0]) for g, key in enumerate(keys)]
+        run = lambda styles, members: self._run(styles, members, slice(None) if rows is None and isinstance(members, slice) else streams[members], x, style, content, target)  # noqa: E731
+        if len(groups) == 1:
+            return run(*groups[0])
+        c = self.model.config
+        rot, vel = np.empty((len(streams), c.n_joints, 4), np.float32), np.empty((len(streams), 3 * c.n_joints), np.float32)
+        for styles, members in groups:
+            rot[members], vel[members] = run(styles, members)
+        return rot, vel
+
+    def _run(self, styles, members, at, x, style, content, target) -> tuple[np.ndarray, np.ndarray]:
+        """The graph of ``styles`` on the streams ``at`` (a slice: all, in order), whose inputs
+        are those at ``members``; their state rows are read and written back here."""
+        session, layers = self.graph(styles)
+        h, c = np.take(self.h[at], layers, axis=1), np.take(self.c[at], layers, axis=1)  # [n, S', H]
+        n = len(h)
+        if self.form == "lstm":  # [1, n, S' H]: the rows side by side
+            h, c = h.reshape(1, n, -1), c.reshape(1, n, -1)
+        else:  # [S', n, H]
+            h, c = np.ascontiguousarray(h.transpose(1, 0, 2)), np.ascontiguousarray(c.transpose(1, 0, 2))
+        feeds = {"features": x[members], "style": style[members], "content": content[members], "target": target[members],
+                 "first_frame": np.zeros((n, 1), np.float32), "h": h, "c": c}  # fmt: skip
+        rot, vel, h, c = session.run(None, feeds)
+        h, c = (h.reshape(n, len(layers), -1), c.reshape(n, len(layers), -1)) if self.form == "lstm" else (h.transpose(1, 0, 2), c.transpose(1, 0, 2))
+        at = (at, layers) if isinstance(at, slice) else np.ix_(at, layers)
+        self.h[at], self.c[at] = h, c
         return rot, vel
 
 
 def make_backend(name: str, model: GeneratorWeights, n_streams: int, threads: int = 1):
     """The step backend ``name`` for ``n_streams`` streams; ``threads``: onnxruntime's intra-op
-    threads (numpy and numba are split over threads by the stylizer, torch uses its global pool)."""
+    threads (StreamStylizer on N threads splits large steps into N shards of streams instead,
+    each on one; torch uses its global pool)."""
     if name not in BACKENDS:
         raise StyleERDError(f"unknown backend {name!r}; valid: {', '.join(BACKENDS)}")
     model = generator_weights(model)

@@ -121,6 +121,15 @@ def state_layers(model: GeneratorWeights, styles: tuple[str, ...] | None = None)
     return [(name, i) for depth in _depths(c, _branches(c, styles)) for _, name, i in depth]
 
 
+def initial_states(model: GeneratorWeights, styles: tuple[str, ...] | None = None) -> np.ndarray:
+    """The learned initial states of the state rows ``state_layers(model, styles)`` per content,
+    ``[nC, 2 S H]`` (the h rows, then the c rows): ``content @ table`` is a stream's first state."""
+    model = generator_weights(model)
+    c = model.config
+    rows = [(prefix, i) for depth in _depths(c, _branches(c, styles)) for prefix, _, i in depth]
+    return _initial_states(step_weights(model), rows, len(c.contents))
+
+
 def _initial_states(w, rows: list[tuple[str, int]], n_contents: int) -> np.ndarray:
     """The learned initial states as one product's weights ``[nC, 2 S H]``: the h rows, then the
     c rows, each (branch, layer) of ``rows`` H wide; the neutral rows by content, a branch's the

@@ -38,7 +38,10 @@ MAX_FEATURE = 1e6
 # threads, frames/s serial vs split: 500 streams 197k vs 190k, 700: 199k vs 229k, 1,000: 202k vs
 # 250k; small shards lose to the GIL: 100 streams 160k vs 71k). Threads inside the kernels instead
 # (numba's parallel loops) spun against BLAS's threads on few cores: 1,000 streams 186k -> 100k.
-SHARD_FROM = 600
+# onnxruntime's step is one call however many nodes, so smaller shards pay (network alone, 2
+# threads: 256 streams 82k split vs 57k on one thread and 60k on its own 2 intra-op threads; 64
+# streams 51k vs 57k and 56k).
+SHARD_FROM = {"onnx": 128, "onnx-plain": 128}  # per backend; the others 600
 _ALL = slice(None)  # every stream (state rows as views)
 
 
@@ -183,10 +186,12 @@ class StreamStylizer:
                 self.part_passes.append(w)
             self.joint_pass[joints[part]] = 1 + (known[0] if known else len(self.part_passes) - 1)
         self.input_joints = np.nonzero(self.joint_pass < 0)[0]
-        self.backend = make_backend(backend, model, n_streams * (1 + len(self.part_passes)), threads=max(1, threads))
-        # steps of many streams split into this many shards on a thread pool (numpy and numba:
-        # their kernels and BLAS calls release the GIL; torch and onnx have their own threads)
-        self.threads = max(1, threads) if backend in ("numpy", "numba") else 1
+        # steps of many streams split into this many shards on a thread pool, each shard's
+        # network step on one thread (numpy, numba and onnxruntime release the GIL; torch has
+        # its own threads)
+        self.threads = max(1, threads) if backend != "torch" else 1
+        self.shard_from = SHARD_FROM.get(backend, 600)
+        self.backend = make_backend(backend, model, n_streams * (1 + len(self.part_passes)), threads=max(1, threads) // self.threads)
         self._pool: ThreadPoolExecutor | None = None
         self.skeleton = model.skeleton
         self.roles = BodyRoles.of(self.skeleton)
@@ -278,7 +283,7 @@ class StreamStylizer:
         J = self.skeleton.n_joints
         rotations = np.asarray(rotations, dtype=np.float64).reshape(n, J, 4)
         positions = np.asarray(positions, dtype=np.float64).reshape(n, J, 3)
-        if not (rows is None and self.threads > 1 and n >= SHARD_FROM):
+        if not (rows is None and self.threads > 1 and n >= self.shard_from):
             features = self._features(rotations, positions, sel)
             self._refuse_unless(features[4], sel, rotations, positions)
             return self._advance(sel, features, self.current_weights(), rotations, positions)
