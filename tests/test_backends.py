@@ -280,3 +280,24 @@ def test_onnx_profile_bench_accounts_for_every_node(model, tmp_path):
         assert abs(sum(v["share"] for v in r["per_op"].values()) - 1.0) < 0.01 and r["step_p50_us"] > 0
         if key.startswith("lstm"):  # onnxruntime fuses some plain ops (Gemm + Relu), never the LSTM op
             assert r["per_op"]["LSTM"]["nodes"] == counts["LSTM"] == (max(model.config.neutral_layers, model.config.style_layers) if "one style" in form else len(state_layers(model)))
+
+
+def test_the_products_alone_are_the_numba_steps_own_and_count_its_flops(model):
+    """``bench.products_alone``, the ceiling under the step's fraction of peak: the products of
+    ``step_products`` are those the step makes (2 x their multiply-adds = the FLOPs per frame the
+    bench counts), each ``x @ W`` of the step's own weights (the first, the encoder's first layer,
+    checked against numpy)."""
+    from styleerd.eval.bench import flops_per_frame, products_alone, step_products
+    from styleerd.runtime.compiled import products
+
+    P, calls = step_products(model)
+    assert 2 * int((calls[:, 1] * calls[:, 2]).sum()) == flops_per_frame(model)
+    # the first call is the encoder's first layer: on the buffer's inputs, x @ W
+    N, (w, n_in, n_out) = 5, calls[0]
+    buffer = np.random.default_rng(0).normal(0, 1, 2 * N * int(calls[:, 1:].max())).astype(np.float32)
+    x = buffer[: N * n_in].reshape(N, n_in).copy()
+    products(P, calls[:1], N, buffer)
+    half = len(buffer) // 2
+    assert n_in == model.config.feature_dim + len(model.config.input_styles) + len(model.config.contents)
+    assert np.abs(buffer[half : half + N * n_out].reshape(N, n_out) - x @ P[w : w + n_in * n_out].reshape(n_in, n_out)).max() < 1e-4
+    assert products_alone(model, n_streams=64, seconds=0.01) > 0

@@ -13,7 +13,8 @@ run (the paper's Table 2 and more). Prints a table, writes JSON and a throughput
   one shard of streams per thread, as StreamStylizer splits them; torch on its own threads);
 - FLOPs per frame, counted from the layer sizes, and achieved FLOP/s (at the best batch of
   StreamStylizer, and of the network alone at 1,000 streams) against this machine's float32
-  matrix-multiply peak, measured here;
+  matrix-multiply peak, measured here; and the numba step's matrix products alone (the same
+  BLAS calls on the same shapes, nothing else), the ceiling under the step's fraction;
 - memory per stream (recurrent state and per-stream buffers); startup latency in frames.
 """
 
@@ -148,6 +149,46 @@ def network_throughput(model: StyleERD, backend: str, n_streams: int = 1000, sec
         return frames / (time.perf_counter() - t0)
 
 
+def step_products(model: StyleERD) -> tuple[np.ndarray, np.ndarray]:
+    """The numba step's matrix products with one style branch running: its packed parameters
+    and, in the step's order, each product's (offset, inputs, outputs): the encoder's; per LSTM
+    stack, layer 0's input and hidden products, later layers' [x | h] as one; the decoder's."""
+    from styleerd.runtime.compiled import pack
+    from styleerd.runtime.numpy_step import step_weights
+
+    P, table, sizes, _ = pack(step_weights(generator_weights(model)))
+    n_enc, L0, L1, n_dec = (int(v) for v in sizes[:4])
+    H = model.config.hidden
+    stack = lambda e, layers: [table[e][:3], table[e + 1][:3]] + [(table[e + 2 * i][0], 2 * H, table[e + 2 * i][2]) for i in range(1, layers)]  # noqa: E731
+    first_dec = n_enc + 2 * L0 + 2 * L1 * len(model.config.branch_styles)
+    calls = [table[i][:3] for i in range(n_enc)] + stack(n_enc, L0) + stack(n_enc + 2 * L0, L1) + [table[first_dec + i][:3] for i in range(n_dec)]
+    return P, np.array(calls, np.int64)
+
+
+def products_alone(model: StyleERD, n_streams: int = 1000, seconds: float = 1.5, threads: int = 2) -> float:
+    """Frames/s of the numba step's matrix products alone (``step_products``): the same BLAS
+    calls on the same shapes, one shard of streams per thread, nothing else (no activations, no
+    copies). The whole step's fraction of peak sits under this one."""
+    from concurrent.futures import ThreadPoolExecutor
+
+    from threadpoolctl import threadpool_limits
+
+    from styleerd.runtime.compiled import products
+
+    P, calls = step_products(model)
+    shards = _slices(n_streams, threads)
+    rng = np.random.default_rng(0)
+    buffers = [rng.normal(0, 1, 2 * (s.stop - s.start) * int(calls[:, 1:].max())).astype(np.float32) for s in shards]
+    with ThreadPoolExecutor(len(shards)) as pool, threadpool_limits(1):
+        run = lambda k: products(P, calls, shards[k].stop - shards[k].start, buffers[k])  # noqa: E731
+        list(pool.map(run, range(len(shards))))
+        frames, t0 = 0, time.perf_counter()
+        while time.perf_counter() - t0 < seconds or frames < 3 * n_streams:
+            list(pool.map(run, range(len(shards))))
+            frames += n_streams
+        return frames / (time.perf_counter() - t0)
+
+
 def flops_per_frame(model: StyleERD) -> int:
     """Multiply-adds x 2 of one frame with one style branch running (the usual case)."""
     c = model.config
@@ -200,6 +241,9 @@ def run_bench(model: StyleERD, steps: int = 2000, streams: tuple[int, ...] = STR
         r["fraction_of_peak"] = round(r["achieved_gflops"] / report["matmul_peak_gflops_2_threads"], 4)
         net = network_throughput(model, name)
         r["network_only_1000_streams"] = {"frames_per_second": round(net), "fraction_of_peak": round(net * report["flops_per_frame"] / 1e9 / report["matmul_peak_gflops_2_threads"], 4)}
+        if name == "numba":  # the ceiling: its matrix products alone, same calls and shapes
+            alone = products_alone(model)
+            r["products_alone_1000_streams"] = {"frames_per_second": round(alone), "fraction_of_peak": round(alone * report["flops_per_frame"] / 1e9 / report["matmul_peak_gflops_2_threads"], 4)}
         report["backends"][name] = r
         progress(f"{name}: step p50 {r['network_step']['p50_us']:.0f} us, end-to-end p50 {r['end_to_end']['p50_us']:.0f} us, "
                  f"{max(r['frames_per_second'].values()):,} frames/s at best")  # fmt: skip
@@ -215,7 +259,9 @@ def table(report: dict) -> str:
             *[(f"frames/s, {int(n):,} streams (2 threads)", lambda r, n=n: f"{r['frames_per_second'][n]:,}") for n in next(iter(report['backends'].values()))['frames_per_second']],
             ("achieved GFLOP/s (fraction of matmul peak)", lambda r: f"{r['achieved_gflops']:.2f} ({100 * r['fraction_of_peak']:.1f} %)"),
             ("network alone, 1,000 streams (2 threads): frames/s (fraction of matmul peak)",
-             lambda r: f"{r['network_only_1000_streams']['frames_per_second']:,} ({100 * r['network_only_1000_streams']['fraction_of_peak']:.1f} %)" if "network_only_1000_streams" in r else "")]  # fmt: skip
+             lambda r: f"{r['network_only_1000_streams']['frames_per_second']:,} ({100 * r['network_only_1000_streams']['fraction_of_peak']:.1f} %)" if "network_only_1000_streams" in r else ""),
+            ("the network's matrix products alone (same BLAS calls and shapes, nothing else), 1,000 streams: frames/s (fraction of matmul peak)",
+             lambda r: f"{r['products_alone_1000_streams']['frames_per_second']:,} ({100 * r['products_alone_1000_streams']['fraction_of_peak']:.1f} %)" if "products_alone_1000_streams" in r else "")]  # fmt: skip
     paper = {"network step p50 / p99 (us, batch 1, 1 thread)": "1,730 (online per frame)", "whole clip L=60 (ms)": "7.47", "whole clip L=90 (ms)": "10.18", "whole clip L=120 (ms)": "13.22"}
     lines = ["| | " + " | ".join(names) + " | paper, GTX 1060 |", "|" + " --- |" * (len(names) + 2)]
     for label, f in rows:

@@ -235,6 +235,17 @@ def compiled_step(x, style, content, target, P, table, sizes, inits, branch_styl
         vel[n] = yn[4 * J :]
 
 
+@nb.njit(cache=True, nogil=True)
+def products(P, calls, N, buffer):
+    """The products ``calls`` (rows: offset in P, inputs, outputs) on ``N`` rows of ``buffer``
+    (its first half the inputs, its second the outputs), nothing else: what the step's products
+    alone cost (``eval.bench.products_alone``)."""
+    half = len(buffer) // 2
+    for k in range(len(calls)):
+        w, n_in, n_out = calls[k, 0], calls[k, 1], calls[k, 2]
+        _gemm(buffer[: N * n_in].reshape((N, n_in)), P[w : w + n_in * n_out].reshape((n_in, n_out)), buffer[half : half + N * n_out].reshape((N, n_out)), np.float32(0.0))
+
+
 def pack(w: StepWeights) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """The step's parameters as one float32 array and a table of its matrices (offset, rows,
     columns, bias offset or -1): the encoder's layers, each LSTM layer's input (with the
