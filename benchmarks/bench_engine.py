@@ -33,7 +33,8 @@ BEFORE = "bc2080d"  # the last commit before the compiled per-frame path and the
 FIGURES = ("step_us numba", "step_us onnx", "step_us onnx one style", "step_us onnx-plain", "step_us onnx-plain one style",
            "end_to_end_us numba", "end_to_end_us numpy", "frames_per_s 1000 streams numba", "fraction_of_peak 1000 streams numba",
            "frames_per_s 1000 streams numba, network alone", "fraction_of_peak 1000 streams numba, network alone",
-           "frames_per_s 1000 streams numpy, network alone", "frames_per_s 1000 streams onnx, network alone")  # fmt: skip
+           "frames_per_s 1000 streams numpy, network alone", "frames_per_s 1000 streams onnx, network alone",
+           "fraction_of_peak 1000 streams numba, products alone")  # fmt: skip
 
 
 def measure(steps: int) -> dict:
@@ -62,6 +63,8 @@ def measure(steps: int) -> dict:
         out["fraction_of_peak 1000 streams numba, network alone"] = round(net * flops_per_frame(model) / peak, 4)
         for backend in ("numpy", "onnx"):
             out[f"frames_per_s 1000 streams {backend}, network alone"] = round(bench.network_throughput(model, backend))
+    if hasattr(bench, "products_alone"):  # the ceiling: the numba step's matrix products alone
+        out["fraction_of_peak 1000 streams numba, products alone"] = round(bench.products_alone(model) * flops_per_frame(model) / peak, 4)
     out["matmul_peak_gflops"] = round(peak / 1e9, 1)
     out.update({f"stage_us {k}": v for k, v in stages(steps).items()})
     return out
