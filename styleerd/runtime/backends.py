@@ -92,7 +92,9 @@ class OnnxBackend:
         self.c = np.zeros_like(self.h)
         self.first = np.ones(n_streams, dtype=bool)
         self.graphs: dict = {}  # styles (None: every style) -> (session, its state rows among self.layers)
+        self.by_pattern: dict = {}  # bytes of a row of target != 0 -> the same
         self.building = threading.Lock()
+        self.no_first = np.zeros((n_streams, 1), np.float32)  # first frames are reset here, not by the graph
 
     def reset(self, streams: np.ndarray | None = None) -> None:
         self.first[slice(None) if streams is None else streams] = True
@@ -111,49 +113,53 @@ class OnnxBackend:
                 self.graphs[styles] = (session, np.array([self.layers.index(row) for row in state_layers(self.model, styles)]))
             return self.graphs[styles]
 
+    def _graph_of(self, weighted: np.ndarray):
+        """``graph`` of the styles a row of ``target != 0`` weights (looked up by its bytes: the
+        per-frame path)."""
+        key = weighted.tobytes()
+        if key not in self.by_pattern:
+            self.by_pattern[key] = self.graph(None if self.every_branch else tuple(self.styles[weighted[self.columns]]))
+        return self.by_pattern[key]
+
     def step(self, x: np.ndarray, style: np.ndarray, content: np.ndarray, target: np.ndarray, rows: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
-        f32 = lambda a: np.ascontiguousarray(a, np.float32)  # noqa: E731
-        x, style, content, target = f32(x), f32(style), f32(content), f32(target)
-        streams = np.arange(self.n)[slice(None) if rows is None else rows]
+        f32 = np.ascontiguousarray
+        inputs = (f32(x, np.float32), f32(style, np.float32), f32(content, np.float32), f32(target, np.float32))
+        streams = slice(None) if rows is None else np.arange(self.n)[rows]  # a slice: every stream, in order
         fresh = self.first[streams]
         if fresh.any():
-            at = streams[fresh]
-            start = np.einsum("nk,k...->n...", content[fresh], self.initial)
+            at = np.nonzero(fresh)[0] if rows is None else streams[fresh]
+            start = np.einsum("nk,k...->n...", inputs[2][fresh], self.initial)
             self.h[at], self.c[at], self.first[at] = start[:, 0], start[:, 1], False
-        if self.every_branch:
-            groups = [(None, slice(None))]
-        else:  # streams grouped by the styles they weight (usually one group)
-            on = target[:, self.columns] != 0
-            if (on == on[:1]).all():
-                groups = [(tuple(self.styles[on[0]]), slice(None))] if len(on) else []
-            else:
-                keys, which = np.unique(on, axis=0, return_inverse=True)
-                groups = [(tuple(self.styles[key]), np.nonzero(which.ravel() == g)[0]) for g, key in enumerate(keys)]
-        run = lambda styles, members: self._run(styles, members, slice(None) if rows is None and isinstance(members, slice) else streams[members], x, style, content, target)  # noqa: E731
-        if len(groups) == 1:
-            return run(*groups[0])
+        weighted = inputs[3] != 0
+        if len(weighted) == 1 or self.every_branch or not (weighted != weighted[:1]).any():  # one group (the usual case)
+            return self._run(self._graph_of(weighted[0] if len(weighted) else weighted.any(0)), streams, inputs)
+        # streams grouped by the styles they weight
+        patterns, which = np.unique(weighted, axis=0, return_inverse=True)
         c = self.model.config
-        rot, vel = np.empty((len(streams), c.n_joints, 4), np.float32), np.empty((len(streams), 3 * c.n_joints), np.float32)
-        for styles, members in groups:
-            rot[members], vel[members] = run(styles, members)
+        rot, vel = np.empty((len(weighted), c.n_joints, 4), np.float32), np.empty((len(weighted), 3 * c.n_joints), np.float32)
+        for g, pattern in enumerate(patterns):
+            members = np.nonzero(which.ravel() == g)[0]
+            at = members if rows is None else streams[members]
+            rot[members], vel[members] = self._run(self._graph_of(pattern), at, tuple(a[members] for a in inputs))
         return rot, vel
 
-    def _run(self, styles, members, at, x, style, content, target) -> tuple[np.ndarray, np.ndarray]:
-        """The graph of ``styles`` on the streams ``at`` (a slice: all, in order), whose inputs
-        are those at ``members``; their state rows are read and written back here."""
-        session, layers = self.graph(styles)
-        h, c = np.take(self.h[at], layers, axis=1), np.take(self.c[at], layers, axis=1)  # [n, S', H]
+    def _run(self, graph, at, inputs) -> tuple[np.ndarray, np.ndarray]:
+        """One call of ``graph`` (session, state rows) on the streams ``at`` (a slice: all, in
+        order), their state rows read and written back here."""
+        session, layers = graph
+        h, c = (self.h, self.c) if isinstance(at, slice) else (self.h[at], self.c[at])
+        h, c = h.take(layers, axis=1), c.take(layers, axis=1)  # [n, S', H]
         n = len(h)
         if self.form == "lstm":  # [1, n, S' H]: the rows side by side
             h, c = h.reshape(1, n, -1), c.reshape(1, n, -1)
         else:  # [S', n, H]
             h, c = np.ascontiguousarray(h.transpose(1, 0, 2)), np.ascontiguousarray(c.transpose(1, 0, 2))
-        feeds = {"features": x[members], "style": style[members], "content": content[members], "target": target[members],
-                 "first_frame": np.zeros((n, 1), np.float32), "h": h, "c": c}  # fmt: skip
+        x, style, content, target = inputs
+        feeds = {"features": x, "style": style, "content": content, "target": target, "first_frame": self.no_first[:n], "h": h, "c": c}
         rot, vel, h, c = session.run(None, feeds)
         h, c = (h.reshape(n, len(layers), -1), c.reshape(n, len(layers), -1)) if self.form == "lstm" else (h.transpose(1, 0, 2), c.transpose(1, 0, 2))
-        at = (at, layers) if isinstance(at, slice) else np.ix_(at, layers)
-        self.h[at], self.c[at] = h, c
+        rows = (at, layers) if isinstance(at, slice) else np.ix_(at, layers)
+        self.h[rows], self.c[rows] = h, c
         return rot, vel
 
 
