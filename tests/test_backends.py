@@ -206,6 +206,27 @@ def test_fast_tanh_is_tanh_to_float32_precision():
     assert np.abs(got - want).max() < 5e-7 and got[-1] == 0.0
 
 
+def test_onnx_backend_runs_many_streams_on_a_graph_of_one_op_per_layer(model):
+    """A call of many streams (from ``UNFUSED_FROM``) runs the one-style LSTM graph with an op
+    per layer (faster there), a few streams the one with an op per depth; same outputs."""
+    from styleerd.runtime.backends import UNFUSED_FROM
+
+    c, n = model.config, UNFUSED_FROM + 4
+    ref, onnx_ = make_backend("numpy", model, n), make_backend("onnx", model, n)
+    rng = np.random.default_rng(2)
+    one = lambda k, i: np.eye(k, dtype=np.float32)[np.full(n, i)]  # noqa: E731
+    style, content, target = one(len(c.input_styles), c.neutral_index), one(len(c.contents), 4), one(len(c.styles), c.styles.index("elderly"))
+    for t in range(6):
+        rows = np.arange(3) if t % 2 else None  # a few streams, then all
+        sel = slice(None) if rows is None else rows
+        x = rng.normal(0, 1, (n, c.feature_dim)).astype(np.float32)[sel]
+        want, got = ref.step(x, style[sel], content[sel], target[sel], rows), onnx_.step(x, style[sel], content[sel], target[sel], rows)
+        assert np.abs(got[0] - want[0]).max() <= 1e-5, t
+    assert set(onnx_.graphs) == {(("elderly",), None), (("elderly",), False)}
+    counts = {fuse: sum(node.op_type == "LSTM" for node in step_graph(model, "lstm", ("elderly",), fuse).graph.node) for fuse in (True, False)}
+    assert counts == {True: max(c.neutral_layers, c.style_layers), False: c.neutral_layers + c.style_layers}
+
+
 def test_a_stylizer_on_threads_runs_onnxruntime_on_them(model):
     """Throughput on N threads means onnxruntime runs on N threads (it once ran on one while the
     table said two): a step of many streams is N shards on the stylizer's pool, each one call of
@@ -221,7 +242,7 @@ def test_a_stylizer_on_threads_runs_onnxruntime_on_them(model):
         st.backend.step = lambda *a: calls.append((threading.current_thread().name, len(a[0]))) or step(*a)
         st.step(np.zeros((300, J, 4)) + [1, 0, 0, 0], np.zeros((300, J, 3)))
         assert sorted(n for _, n in calls) == [150, 150] and all(t.startswith("styleerd-shard") for t, _ in calls)
-        assert [s.get_session_options().intra_op_num_threads for s, _ in st.backend.graphs.values()] == [1]
+        assert {s.get_session_options().intra_op_num_threads for s, _ in st.backend.graphs.values()} == {1}
     assert make_backend("onnx", model, 1, threads=2).options.intra_op_num_threads == 2
 
 
@@ -255,7 +276,7 @@ def test_onnx_backend_runs_each_group_of_streams_on_the_graph_of_its_styles(mode
         for b in (grouped, every):
             rot, vel = b.step(x, style[sel], content[sel], target[sel], rows)
             assert np.abs(rot - want[0]).max() <= 1e-5 and np.abs(vel - want[1]).max() <= 1e-4, (t, b.every_branch)
-    assert set(grouped.graphs) == {("elderly",), ("elderly", "youthful"), ("youthful",), ()} and set(every.graphs) == {None}
+    assert {styles for styles, _ in grouped.graphs} == {("elderly",), ("elderly", "youthful"), ("youthful",), ()} and {s for s, _ in every.graphs} == {None}
     assert np.abs(grouped.h - every.h).max() <= 1e-5 and np.abs(grouped.c - every.c).max() <= 1e-5
 
 

@@ -39,7 +39,8 @@ from styleerd.runtime.stylizer import StreamStylizer, _slices
 PAPER_GTX1060_MS = {"online per frame": 1.73, "L=60": 7.47, "L=90": 10.18, "L=120": 13.22, "input frames needed": 1}
 STREAMS = (1, 4, 10, 16, 64, 100, 256, 1000, 4096)  # the throughput curve's points
 TARGETS = ("targets (issue 4): step p50 <= 100 us, end-to-end p50 <= 300 us, >= 200,000 frames/s at 1,000 streams; (issue 18, numba): step p50 <= 20 us,\n"
-           "end to end p50 <= 100 us, 1,000 streams >= 50 % of the matmul peak. This machine's speed wanders 2-4x: benchmarks/bench_engine.py compares commits in alternating rounds")
+           "end to end p50 <= 100 us, 1,000 streams >= 50 % of the matmul peak (under the products-alone row); (issue 18, onnx) 1,000 streams >= the numpy backend.\n"
+           "This machine's speed wanders 2-4x: benchmarks/bench_engine.py compares commits in alternating rounds")
 
 
 def set_threads(n: int) -> None:

@@ -20,6 +20,11 @@ from styleerd.errors import StyleERDError
 from styleerd.model.stored import GeneratorWeights, generator_weights
 from styleerd.runtime.numpy_step import NumpyBackend
 
+# streams per call from which the onnx backend runs a one-style LSTM graph with one op per layer,
+# not per depth (1 thread, us per call fused / one op per layer: 8 streams 238 / 303, 32: 573 /
+# 481, 500: 7,818 / 6,925)
+UNFUSED_FROM = 16
+
 BACKENDS = ("torch", "numpy", "numba", "onnx", "onnx-plain")  # onnx: the LSTM-op graph; onnx-plain: cells written out
 
 
@@ -91,7 +96,7 @@ class OnnxBackend:
         self.h = np.zeros((n_streams, len(self.layers), c.hidden), np.float32)
         self.c = np.zeros_like(self.h)
         self.first = np.ones(n_streams, dtype=bool)
-        self.graphs: dict = {}  # styles (None: every style) -> (session, its state rows among self.layers)
+        self.graphs: dict = {}  # (styles (None: every style), fuse) -> (session, its state rows among self.layers)
         self.by_pattern: dict = {}  # bytes of a row of target != 0 -> the same
         self.building = threading.Lock()
         self.no_first = np.zeros((n_streams, 1), np.float32)  # first frames are reset here, not by the graph
@@ -99,26 +104,29 @@ class OnnxBackend:
     def reset(self, streams: np.ndarray | None = None) -> None:
         self.first[slice(None) if streams is None else streams] = True
 
-    def graph(self, styles: tuple[str, ...] | None):
-        """The session of the graph with the branches of ``styles`` (None: every style), and the
-        rows of its state."""
+    def graph(self, styles: tuple[str, ...] | None, fuse: bool | None = None):
+        """The session of the graph with the branches of ``styles`` (None: every style; ``fuse``:
+        see ``step_graph``), and the rows of its state."""
         with self.building:  # shards of streams step concurrently: one build per graph
-            if styles not in self.graphs:
+            if (styles, fuse) not in self.graphs:
                 import onnxruntime as ort
 
                 from styleerd.runtime.onnx_export import state_layers, step_graph
 
-                proto = step_graph(self.model, self.form, styles)
+                proto = step_graph(self.model, self.form, styles, fuse)
                 session = ort.InferenceSession(proto.SerializeToString(), self.options, providers=["CPUExecutionProvider"])
-                self.graphs[styles] = (session, np.array([self.layers.index(row) for row in state_layers(self.model, styles)]))
-            return self.graphs[styles]
+                self.graphs[(styles, fuse)] = (session, np.array([self.layers.index(row) for row in state_layers(self.model, styles)]))
+            return self.graphs[(styles, fuse)]
 
-    def _graph_of(self, weighted: np.ndarray):
-        """``graph`` of the styles a row of ``target != 0`` weights (looked up by its bytes: the
-        per-frame path)."""
-        key = weighted.tobytes()
+    def _graph_of(self, weighted: np.ndarray, n: int):
+        """``graph`` of the styles a row of ``target != 0`` weights for a call of ``n`` streams
+        (from ``UNFUSED_FROM``, the LSTM form with one op per layer), looked up by its bytes: the
+        per-frame path."""
+        unfused = n >= UNFUSED_FROM and self.form == "lstm"
+        key = weighted.tobytes() + (b"u" if unfused else b"")
         if key not in self.by_pattern:
-            self.by_pattern[key] = self.graph(None if self.every_branch else tuple(self.styles[weighted[self.columns]]))
+            styles = None if self.every_branch else tuple(self.styles[weighted[self.columns]])
+            self.by_pattern[key] = self.graph(styles, False if unfused else None)
         return self.by_pattern[key]
 
     def step(self, x: np.ndarray, style: np.ndarray, content: np.ndarray, target: np.ndarray, rows: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
@@ -132,7 +140,7 @@ class OnnxBackend:
             self.h[at], self.c[at], self.first[at] = start[:, 0], start[:, 1], False
         weighted = inputs[3] != 0
         if len(weighted) == 1 or self.every_branch or not (weighted != weighted[:1]).any():  # one group (the usual case)
-            return self._run(self._graph_of(weighted[0] if len(weighted) else weighted.any(0)), streams, inputs)
+            return self._run(self._graph_of(weighted[0] if len(weighted) else weighted.any(0), len(weighted)), streams, inputs)
         # streams grouped by the styles they weight
         patterns, which = np.unique(weighted, axis=0, return_inverse=True)
         c = self.model.config
@@ -140,7 +148,7 @@ class OnnxBackend:
         for g, pattern in enumerate(patterns):
             members = np.nonzero(which.ravel() == g)[0]
             at = members if rows is None else streams[members]
-            rot[members], vel[members] = self._run(self._graph_of(pattern), at, tuple(a[members] for a in inputs))
+            rot[members], vel[members] = self._run(self._graph_of(pattern, len(members)), at, tuple(a[members] for a in inputs))
         return rot, vel
 
     def _run(self, graph, at, inputs) -> tuple[np.ndarray, np.ndarray]:

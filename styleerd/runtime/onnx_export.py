@@ -138,16 +138,16 @@ def _initial_states(w, rows: list[tuple[str, int]], n_contents: int) -> np.ndarr
                            for init, branch_init in zip(w.neutral_init, w.branch_init) for prefix, i in rows], 1)  # fmt: skip
 
 
-def _lstm_form(g: _Graph, z: str, first: str, arrays: dict, w, c, depths: list, branches: list) -> tuple[str, np.ndarray]:
+def _lstm_form(g: _Graph, z: str, first: str, arrays: dict, w, c, depths: list, branches: list, fuse: bool) -> tuple[str, np.ndarray]:
     """The branches as ``LSTM`` ops on the state ``h, c [1, N, S H]`` (rows side by side, in
-    ``state_layers`` order): with at most ``FUSE_UP_TO`` style branches, the layers of one depth
-    run as one op (block-diagonal weights: fewer ops in sequence), else one op per layer. Writes
+    ``state_layers`` order): ``fuse``, the layers of one depth run as one op (block-diagonal
+    weights: fewer ops in sequence), else one op per layer. Writes
     ``h_out``, ``c_out``; returns the decoder's first input ``[N, K]`` (the last layers' outputs,
     branches weighted, then the target) and the rows of its first weight for those K columns."""
     H, nC, nS = c.hidden, len(c.contents), len(c.styles)
     rows = [(prefix, i) for depth in depths for prefix, _, i in depth]
     T = len(rows) * H
-    ops = [[(prefix, i) for prefix, _, i in depth] for depth in depths] if len(branches) <= FUSE_UP_TO else [[row] for row in rows]
+    ops = [[(prefix, i) for prefix, _, i in depth] for depth in depths] if fuse else [[row] for row in rows]
     # a stream's first frame: the learned initial states, content [N, nC] @ [nC, 2T]; h and c
     # side by side [1, N, 2T]: one Where, one Split, one Concat for both
     state = g.op("Where", first, g.op("MatMul", "content", g.const(_initial_states(w, rows, nC))), g.op("Concat", "h", "c", axis=2))
@@ -213,7 +213,7 @@ def _lstm_form(g: _Graph, z: str, first: str, arrays: dict, w, c, depths: list, 
     return g.op("Concat", weighted, "target", axis=1), copies
 
 
-def _plain_form(g: _Graph, z: str, first: str, arrays: dict, w, c, depths: list, branches: list) -> tuple[str, np.ndarray]:
+def _plain_form(g: _Graph, z: str, first: str, arrays: dict, w, c, depths: list, branches: list, fuse: bool) -> tuple[str, np.ndarray]:
     """The branches written out in plain ops on the state ``h, c [S, N, H]`` (a row per layer,
     ``state_layers`` order), the cells of one depth one batched cell (``_lockstep_cells``).
     Writes ``h_out``, ``c_out``; returns the decoder's first input ``[N, H + nS]`` and the rows
@@ -273,10 +273,12 @@ def state_shape(model: GeneratorWeights, form: str = "lstm", styles: tuple[str, 
     return (1, "N", S * c.hidden) if form == "lstm" else (S, "N", c.hidden)
 
 
-def step_graph(model: GeneratorWeights, form: str = "lstm", styles: tuple[str, ...] | None = None) -> onnx.ModelProto:
+def step_graph(model: GeneratorWeights, form: str = "lstm", styles: tuple[str, ...] | None = None, fuse: bool | None = None) -> onnx.ModelProto:
     """The step graph in ``form`` (``FORMS``) with the branches of ``styles`` (default every
     style; a graph for the styles a host uses is smaller and faster), checked by
-    ``onnx.checker`` (full check).
+    ``onnx.checker`` (full check). ``fuse`` (LSTM form): the layers of one depth as one op
+    (default: with at most ``FUSE_UP_TO`` style branches); faster at small batches, slower at
+    large ones (``backends.UNFUSED_FROM``).
 
     Per-node cost, not arithmetic, sets a step's time at small batches (onnxruntime: about
     0.5-1 us a plain node, 3-7 us an LSTM op), so the graph has few nodes: one state tensor
@@ -301,7 +303,8 @@ def step_graph(model: GeneratorWeights, form: str = "lstm", styles: tuple[str, .
     z = g.op("Concat", "features", "style", "content", axis=1)
     for W, b in w.encoder[:-1]:
         z = g.op("Relu", g.op("Gemm", z, g.const(W), g.const(b)))
-    y, copies = (_lstm_form if form == "lstm" else _plain_form)(g, z, first, arrays, w, c, depths, branches)
+    fuse = len(branches) <= FUSE_UP_TO if fuse is None else fuse
+    y, copies = (_lstm_form if form == "lstm" else _plain_form)(g, z, first, arrays, w, c, depths, branches, fuse)
     # decoder (added styles' target rows below the trained ones'); its last layer as two
     # products, the rotations' and the velocities'
     for i, (W, b) in enumerate(w.decoder[:-1]):
