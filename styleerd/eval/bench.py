@@ -13,8 +13,9 @@ run (the paper's Table 2 and more). Prints a table, writes JSON and a throughput
   one shard of streams per thread, as StreamStylizer splits them; torch on its own threads);
 - FLOPs per frame, counted from the layer sizes, and achieved FLOP/s (at the best batch of
   StreamStylizer, and of the network alone at 1,000 streams) against this machine's float32
-  matrix-multiply peak (the best of six measures spread over the run); and the numba step's matrix products alone (the same
-  BLAS calls on the same shapes, nothing else), the ceiling under the step's fraction;
+  matrix-multiply peak (the best of six measures spread over the run); and the numba step's
+  matrix products alone (the same BLAS calls on the same shapes, nothing else), the ceiling
+  under the step's fraction;
 - memory per stream (recurrent state and per-stream buffers); startup latency in frames.
 """
 

@@ -213,7 +213,7 @@ def _lstm_form(g: _Graph, z: str, first: str, arrays: dict, w, c, depths: list, 
     return g.op("Concat", weighted, "target", axis=1), copies
 
 
-def _plain_form(g: _Graph, z: str, first: str, arrays: dict, w, c, depths: list, branches: list, fuse: bool) -> tuple[str, np.ndarray]:
+def _plain_form(g: _Graph, z: str, first: str, arrays: dict, w, c, depths: list, branches: list) -> tuple[str, np.ndarray]:
     """The branches written out in plain ops on the state ``h, c [S, N, H]`` (a row per layer,
     ``state_layers`` order), the cells of one depth one batched cell (``_lockstep_cells``).
     Writes ``h_out``, ``c_out``; returns the decoder's first input ``[N, H + nS]`` and the rows
@@ -303,8 +303,10 @@ def step_graph(model: GeneratorWeights, form: str = "lstm", styles: tuple[str, .
     z = g.op("Concat", "features", "style", "content", axis=1)
     for W, b in w.encoder[:-1]:
         z = g.op("Relu", g.op("Gemm", z, g.const(W), g.const(b)))
-    fuse = len(branches) <= FUSE_UP_TO if fuse is None else fuse
-    y, copies = (_lstm_form if form == "lstm" else _plain_form)(g, z, first, arrays, w, c, depths, branches, fuse)
+    if form == "lstm":
+        y, copies = _lstm_form(g, z, first, arrays, w, c, depths, branches, len(branches) <= FUSE_UP_TO if fuse is None else fuse)
+    else:
+        y, copies = _plain_form(g, z, first, arrays, w, c, depths, branches)
     # decoder (added styles' target rows below the trained ones'); its last layer as two
     # products, the rotations' and the velocities'
     for i, (W, b) in enumerate(w.decoder[:-1]):
