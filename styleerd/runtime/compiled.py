@@ -250,9 +250,9 @@ def _step_block(x, style, content, target, P, table, sizes, inits, branch_styles
             norm = np.float32(0.0)
             for a in range(4):
                 norm += yn[4 * j + a] * yn[4 * j + a]
-            norm = max(np.sqrt(norm), np.float32(1e-8))
+            scale = np.float32(1.0) / max(np.sqrt(norm), np.float32(1e-8))
             for a in range(4):
-                rn[j, a] = yn[4 * j + a] / norm
+                rn[j, a] = yn[4 * j + a] * scale
         vel[n] = yn[4 * J :]
 
 

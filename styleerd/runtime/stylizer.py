@@ -142,8 +142,8 @@ def _root_on_heading(rot, trajectory, out):
             w, x, y, z = float(rot[n, j, 0]), float(rot[n, j, 1]), float(rot[n, j, 2]), float(rot[n, j, 3])
             if j == 0:
                 w, x, y, z = quat.mul_scalars(hw, hx, hy, hz, w, x, y, z)
-            norm = max(np.sqrt(w * w + x * x + y * y + z * z), 1e-12)
-            out[n, j, 0], out[n, j, 1], out[n, j, 2], out[n, j, 3] = w / norm, x / norm, y / norm, z / norm
+            scale = 1.0 / max(np.sqrt(w * w + x * x + y * y + z * z), 1e-12)
+            out[n, j, 0], out[n, j, 1], out[n, j, 2], out[n, j, 3] = w * scale, x * scale, y * scale, z * scale
 
 
 class StreamStylizer:
