@@ -127,6 +127,7 @@ def _stream_features_kernel(rot, pos, previous, previous_facing, started, parent
     left, right, feet = roles
     inv_std = 1.0 / std  # a product per value, not a division (the divisions were a tenth of the kernel)
     g_rot, unit = np.empty(rot.shape), np.empty(rot.shape)
+    raw = np.empty(x.shape[1])  # a stream's features before normalisation: one vectorisable pass normalises them
     for n in range(rot.shape[0]):
         for j in range(J):
             scale = 1.0 / max(np.sqrt(rot[n, j, 0] ** 2 + rot[n, j, 1] ** 2 + rot[n, j, 2] ** 2 + rot[n, j, 3] ** 2), 1e-12)
@@ -152,7 +153,6 @@ def _stream_features_kernel(rot, pos, previous, previous_facing, started, parent
         hw, hy = np.cos(half), np.sin(half)
         traj[n, 0], traj[n, 1], traj[n, 2] = g[n, 0, 0], g[n, 0, 1], g[n, 0, 2]
         traj[n, 3], traj[n, 4], traj[n, 5], traj[n, 6] = hw, 0.0, hy, 0.0
-        good = True
         for j in range(J):  # rotations: root in the heading frame, w >= 0, then the reference's hemisphere
             qw, qx, qy, qz = unit[n, j, 0], unit[n, j, 1], unit[n, j, 2], unit[n, j, 3]
             if j == 0:
@@ -160,29 +160,16 @@ def _stream_features_kernel(rot, pos, previous, previous_facing, started, parent
             sign = -1.0 if qw < 0.0 else 1.0
             if sign * (qw * reference[j, 0] + qx * reference[j, 1] + qy * reference[j, 2] + qz * reference[j, 3]) < 0.0:
                 sign = -sign
-            q = (qw, qx, qy, qz)
-            for k in range(4):
-                d = 4 * j + k
-                y = (sign * q[k] - mean[d]) * inv_std[d]
-                x[n, d] = y
-                good &= abs(y) < limit
+            raw[4 * j], raw[4 * j + 1], raw[4 * j + 2], raw[4 * j + 3] = sign * qw, sign * qx, sign * qy, sign * qz
         moved = started[n]
         for j in range(J):  # positions (relative to the root) and velocities, in the heading frame
-            for part in range(2):
-                if part == 0:
-                    vx, vy, vz = g[n, j, 0] - g[n, 0, 0], g[n, j, 1] - g[n, 0, 1], g[n, j, 2] - g[n, 0, 2]
-                    base, scale = 4 * J + 3 * j, 1.0
-                elif moved:
-                    vx, vy, vz = g[n, j, 0] - previous[n, j, 0], g[n, j, 1] - previous[n, j, 1], g[n, j, 2] - previous[n, j, 2]
-                    base, scale = 7 * J + 3 * j, fps
-                else:
-                    vx, vy, vz = 0.0, 0.0, 0.0
-                    base, scale = 7 * J + 3 * j, fps
-                r = quat.mul_vec_scalars(hw, 0.0, -hy, 0.0, vx * scale, vy * scale, vz * scale)  # by inv(heading)
-                for k in range(3):
-                    y = (r[k] - mean[base + k]) * inv_std[base + k]
-                    x[n, base + k] = y
-                    good &= abs(y) < limit
+            raw[4 * J + 3 * j], raw[4 * J + 3 * j + 1], raw[4 * J + 3 * j + 2] = quat.mul_vec_scalars(
+                hw, 0.0, -hy, 0.0, g[n, j, 0] - g[n, 0, 0], g[n, j, 1] - g[n, 0, 1], g[n, j, 2] - g[n, 0, 2])  # by inv(heading)
+            if moved:
+                raw[7 * J + 3 * j], raw[7 * J + 3 * j + 1], raw[7 * J + 3 * j + 2] = quat.mul_vec_scalars(
+                    hw, 0.0, -hy, 0.0, (g[n, j, 0] - previous[n, j, 0]) * fps, (g[n, j, 1] - previous[n, j, 1]) * fps, (g[n, j, 2] - previous[n, j, 2]) * fps)
+            else:
+                raw[7 * J + 3 * j], raw[7 * J + 3 * j + 1], raw[7 * J + 3 * j + 2] = 0.0, 0.0, 0.0
         for k in range(len(feet)):  # contacts: foot speed since the previous frame below max_speed
             f = feet[k]
             if moved:
@@ -190,9 +177,12 @@ def _stream_features_kernel(rot, pos, previous, previous_facing, started, parent
                 planted = np.sqrt(dx * dx + dy * dy + dz * dz) * fps < max_speed
             else:
                 planted = 0.0 < max_speed
-            d = 10 * J + k
-            y = ((1.0 if planted else 0.0) - mean[d]) * inv_std[d]
-            x[n, d] = y
+            raw[10 * J + k] = 1.0 if planted else 0.0
+        good = True
+        xn = x[n]
+        for d in range(len(raw)):
+            y = (raw[d] - mean[d]) * inv_std[d]
+            xn[d] = y
             good &= abs(y) < limit
         ok[n] = good
 
