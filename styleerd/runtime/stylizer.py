@@ -286,7 +286,7 @@ class StreamStylizer:
         if not (rows is None and self.threads > 1 and n >= self.shard_from):
             features = self._features(rotations, positions, sel)
             self._refuse_unless(features[4], sel, rotations, positions)
-            return self._advance(sel, features, self.current_weights(), rotations, positions)
+            return self._advance(sel, features, self.current_weights(), rotations, positions, np.empty(rotations.shape))
         # shards of streams, one per thread; BLAS gets one thread per call (two callers each
         # asking BLAS for both cores spin against each other)
         if self._pool is None:
@@ -297,8 +297,9 @@ class StreamStylizer:
             for s, f in zip(shards, features):  # every shard is checked before any state changes
                 self._refuse_unless(f[4], s, rotations[s], positions[s])
             weights = self.current_weights()
-            done = list(self._pool.map(lambda s, f: self._advance(s, f, weights, rotations[s], positions[s]), shards, features))
-            return np.concatenate([r for r, _ in done]), np.concatenate([p for _, p in done])
+            out = np.empty(rotations.shape)  # each shard writes its rows
+            done = list(self._pool.map(lambda s, f: self._advance(s, f, weights, rotations[s], positions[s], out[s]), shards, features))
+            return out, np.concatenate([p for _, p in done]) if self.root_speed else positions
 
     def _refuse_unless(self, ok: np.ndarray, sel, rotations: np.ndarray, positions: np.ndarray) -> None:
         """Raise for the first stream of ``sel`` whose frame cannot be stylised (``ok`` False:
@@ -355,9 +356,10 @@ class StreamStylizer:
         out[:, 0] += self.root_offset[sel]
         return out
 
-    def _advance(self, sel, features, weights: np.ndarray, rotations: np.ndarray, positions: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    def _advance(self, sel, features, weights: np.ndarray, rotations: np.ndarray, positions: np.ndarray, out: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """The network and the state updates of the streams ``sel`` (``_ALL``: all), whose
-        input frame is ``rotations``, ``positions``; returns the output frame."""
+        input frame is ``rotations``, ``positions``; returns the output frame (its rotations
+        written into ``out``)."""
         x, traj, g, facing, _ = features
         rows = None if sel is _ALL else sel
         style, content = self.given_style[sel], self.given_content[sel]
@@ -369,7 +371,6 @@ class StreamStylizer:
         rot, vel = self._network(sel, x, style, content, weights[sel])
         if self.root_speed:
             positions = self._stylised_root(sel, x, vel, positions)
-        out = np.empty(rot.shape)
         _root_on_heading(np.ascontiguousarray(rot), traj, out)
         if len(self.input_joints):  # parts that keep the input's own motion
             out[:, self.input_joints] = quat.normalize(rotations[:, self.input_joints])
@@ -398,5 +399,4 @@ def _one_blas_thread():
 
 
 def _slices(n: int, parts: int) -> list[slice]:
-    bounds = np.linspace(0, n, parts + 1).astype(int)
-    return [slice(int(a), int(b)) for a, b in zip(bounds, bounds[1:])]
+    return [slice(n * k // parts, n * (k + 1) // parts) for k in range(parts)]
