@@ -169,8 +169,9 @@ def step_products(model: StyleERD) -> tuple[np.ndarray, np.ndarray]:
 
 def products_alone(model: StyleERD, n_streams: int = 1000, seconds: float = 1.5, threads: int = 2) -> float:
     """Frames/s of the numba step's matrix products alone (``step_products``): the same BLAS
-    calls on the same shapes, one shard of streams per thread, nothing else (no activations, no
-    copies). The whole step's fraction of peak sits under this one."""
+    calls on the same shapes (blocks of ``compiled.BLOCK_ROWS`` streams), one shard of streams
+    per thread, nothing else (no activations, no copies). The whole step's fraction of peak
+    sits under this one."""
     from concurrent.futures import ThreadPoolExecutor
 
     from threadpoolctl import threadpool_limits

@@ -5,7 +5,8 @@ holds the GIL between its products: two shards of 500 streams on two threads too
 shard's time; the compiled step's 1.1x).
 The products are BLAS calls from inside the compiled step (``_gemm``: sgemm reading the
 state's columns in place and accumulating into its output, nothing copied), but for a single
-stream (``LOOPS_UP_TO``) compiled loops.
+stream (``LOOPS_UP_TO``) compiled loops. Many streams go through the whole network a block of
+``BLOCK_ROWS`` at a time, so a block's state and gates stay in cache between layers.
 
 The activations use ``fast_tanh``, a rational approximation that vectorises (np.tanh in a
 compiled loop is a scalar libm call). Compiled on first use and cached on disk
