@@ -71,9 +71,9 @@ class OnnxBackend:
     """onnxruntime on the exported step graphs (``form``: the LSTM-op graph, or the plain one).
 
     Each step runs, for each group of streams that weight the same styles, the graph of those
-    styles' branches only (``export-onnx --styles``; built on first use and kept): the
-    arithmetic of the branches that run, as the numpy backend does, not of every branch (at
-    1,000 streams to one style, 3x the frames/s). ``every_branch``: one graph of every style's
+    styles' branches only (``export-onnx --styles``, grouped: ``step_graph``; built on first
+    use and kept): the arithmetic of the branches that run, as the numpy backend does, not of
+    every branch (at 1,000 streams to one style, 3x the frames/s). ``every_branch``: one graph of every style's
     branches for all streams, what a host that exports one graph runs. The state of every
     branch is kept here, streams first (``h, c [N, S, H]``, rows in ``state_layers`` order); a
     stream's first frame takes the learned initial states of all its rows, so a branch that
@@ -99,7 +99,7 @@ class OnnxBackend:
         self.graphs: dict = {}  # (styles (None: every style), fuse) -> (session, its state rows among self.layers)
         self.by_pattern: dict = {}  # bytes of a row of target != 0 -> the same
         self.building = threading.Lock()
-        self.no_first = np.zeros((n_streams, 1), np.float32)  # first frames are reset here, not by the graph
+        self.no_first = np.zeros((n_streams, 1), np.float32)  # the graph of every branch: first frames are reset here, not by it
 
     def reset(self, streams: np.ndarray | None = None) -> None:
         self.first[slice(None) if streams is None else streams] = True
@@ -113,7 +113,7 @@ class OnnxBackend:
 
                 from styleerd.runtime.onnx_export import state_layers, step_graph
 
-                proto = step_graph(self.model, self.form, styles, fuse)
+                proto = step_graph(self.model, self.form, styles, fuse, grouped=not self.every_branch)
                 session = ort.InferenceSession(proto.SerializeToString(), self.options, providers=["CPUExecutionProvider"])
                 self.graphs[(styles, fuse)] = (session, np.array([self.layers.index(row) for row in state_layers(self.model, styles)]))
             return self.graphs[(styles, fuse)]
@@ -132,10 +132,11 @@ class OnnxBackend:
     def step(self, x: np.ndarray, style: np.ndarray, content: np.ndarray, target: np.ndarray, rows: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
         f32 = np.ascontiguousarray
         inputs = (f32(x, np.float32), f32(style, np.float32), f32(content, np.float32), f32(target, np.float32))
-        streams = slice(None) if rows is None else np.arange(self.n)[rows]  # a slice: every stream, in order
+        # a slice of streams (every stream, a shard) stays one: its state rows are read and written as views
+        streams = slice(None) if rows is None else slice(*rows.indices(self.n)) if isinstance(rows, slice) else np.arange(self.n)[rows]
         fresh = self.first[streams]
         if fresh.any():
-            at = np.nonzero(fresh)[0] if rows is None else streams[fresh]
+            at = np.arange(self.n)[streams][fresh]
             start = np.einsum("nk,k...->n...", inputs[2][fresh], self.initial)
             self.h[at], self.c[at], self.first[at] = start[:, 0], start[:, 1], False
         weighted = inputs[3] != 0
@@ -147,15 +148,15 @@ class OnnxBackend:
         rot, vel = np.empty((len(weighted), c.n_joints, 4), np.float32), np.empty((len(weighted), 3 * c.n_joints), np.float32)
         for g, pattern in enumerate(patterns):
             members = np.nonzero(which.ravel() == g)[0]
-            at = members if rows is None else streams[members]
+            at = np.arange(self.n)[streams][members]
             rot[members], vel[members] = self._run(self._graph_of(pattern, len(members)), at, tuple(a[members] for a in inputs))
         return rot, vel
 
     def _run(self, graph, at, inputs) -> tuple[np.ndarray, np.ndarray]:
-        """One call of ``graph`` (session, state rows) on the streams ``at`` (a slice: all, in
-        order), their state rows read and written back here."""
+        """One call of ``graph`` (session, state rows) on the streams ``at`` (a slice, or their
+        indices), their state rows read and written back here."""
         session, layers = graph
-        h, c = (self.h, self.c) if isinstance(at, slice) else (self.h[at], self.c[at])
+        h, c = self.h[at], self.c[at]
         h, c = h.take(layers, axis=1), c.take(layers, axis=1)  # [n, S', H]
         n = len(h)
         if self.form == "lstm":  # [1, n, S' H]: the rows side by side
@@ -163,7 +164,9 @@ class OnnxBackend:
         else:  # [S', n, H]
             h, c = np.ascontiguousarray(h.transpose(1, 0, 2)), np.ascontiguousarray(c.transpose(1, 0, 2))
         x, style, content, target = inputs
-        feeds = {"features": x, "style": style, "content": content, "target": target, "first_frame": self.no_first[:n], "h": h, "c": c}
+        feeds = {"features": x, "style": style, "content": content, "target": target, "h": h, "c": c}
+        if self.every_branch:
+            feeds["first_frame"] = self.no_first[:n]
         rot, vel, h, c = session.run(None, feeds)
         h, c = (h.reshape(n, len(layers), -1), c.reshape(n, len(layers), -1)) if self.form == "lstm" else (h.transpose(1, 0, 2), c.transpose(1, 0, 2))
         rows = (at, layers) if isinstance(at, slice) else np.ix_(at, layers)

@@ -138,10 +138,11 @@ def _initial_states(w, rows: list[tuple[str, int]], n_contents: int) -> np.ndarr
                            for init, branch_init in zip(w.neutral_init, w.branch_init) for prefix, i in rows], 1)  # fmt: skip
 
 
-def _lstm_form(g: _Graph, z: str, first: str, arrays: dict, w, c, depths: list, branches: list, fuse: bool) -> tuple[str, np.ndarray]:
+def _lstm_form(g: _Graph, z: str, first: str | None, arrays: dict, w, c, depths: list, branches: list, fuse: bool) -> tuple[str, np.ndarray]:
     """The branches as ``LSTM`` ops on the state ``h, c [1, N, S H]`` (rows side by side, in
     ``state_layers`` order): ``fuse``, the layers of one depth run as one op (block-diagonal
-    weights: fewer ops in sequence), else one op per layer. Writes
+    weights: fewer ops in sequence), else one op per layer. ``first`` None: a grouped graph
+    (``step_graph``), every row advances and no first frame is reset. Writes
     ``h_out``, ``c_out``; returns the decoder's first input ``[N, K]`` (the last layers' outputs,
     branches weighted, then the target) and the rows of its first weight for those K columns."""
     H, nC, nS = c.hidden, len(c.contents), len(c.styles)
@@ -150,7 +151,9 @@ def _lstm_form(g: _Graph, z: str, first: str, arrays: dict, w, c, depths: list, 
     ops = [[(prefix, i) for prefix, _, i in depth] for depth in depths] if fuse else [[row] for row in rows]
     # a stream's first frame: the learned initial states, content [N, nC] @ [nC, 2T]; h and c
     # side by side [1, N, 2T]: one Where, one Split, one Concat for both
-    state = g.op("Where", first, g.op("MatMul", "content", g.const(_initial_states(w, rows, nC))), g.op("Concat", "h", "c", axis=2))
+    state = g.op("Concat", "h", "c", axis=2)
+    if first is not None:
+        state = g.op("Where", first, g.op("MatMul", "content", g.const(_initial_states(w, rows, nC))), state)
     widths = [len(members) * H for members in ops]
     parts = g.op("Split", state, _ints(g, *widths, *widths), outputs=2 * len(ops), axis=2)
     parts = {"h": parts[: len(ops)], "c": parts[len(ops) :]}
@@ -189,8 +192,10 @@ def _lstm_form(g: _Graph, z: str, first: str, arrays: dict, w, c, depths: list, 
             neutral[r * H : (r + 1) * H] = 1.0
         else:
             pick[style_of[prefix], r * H : (r + 1) * H] = 1.0
-    keep = g.op("Equal", g.op("Gemm", "target", g.const(np.tile(pick, 2)), g.const(np.tile(neutral, 2))), g.const(np.zeros(1, np.float32)))  # [N, 2T]
-    kept = g.op("Where", keep, state, g.op("Concat", *new["h"], *new["c"], axis=2))
+    kept = g.op("Concat", *new["h"], *new["c"], axis=2)
+    if first is not None:
+        keep = g.op("Equal", g.op("Gemm", "target", g.const(np.tile(pick, 2)), g.const(np.tile(neutral, 2))), g.const(np.zeros(1, np.float32)))  # [N, 2T]
+        kept = g.op("Where", keep, state, kept)
     g.nodes.append(helper.make_node("Split", [kept], ["h_out", "c_out"], axis=2))
     # the decoder reads neutral + sum_k w_k branch_k: the ops holding the last layers, side by
     # side, each column weighted (1 for the neutral branch's, w_k for branch k's, 0 for others),
@@ -213,18 +218,21 @@ def _lstm_form(g: _Graph, z: str, first: str, arrays: dict, w, c, depths: list, 
     return g.op("Concat", weighted, "target", axis=1), copies
 
 
-def _plain_form(g: _Graph, z: str, first: str, arrays: dict, w, c, depths: list, branches: list) -> tuple[str, np.ndarray]:
+def _plain_form(g: _Graph, z: str, first: str | None, arrays: dict, w, c, depths: list, branches: list) -> tuple[str, np.ndarray]:
     """The branches written out in plain ops on the state ``h, c [S, N, H]`` (a row per layer,
-    ``state_layers`` order), the cells of one depth one batched cell (``_lockstep_cells``).
+    ``state_layers`` order), the cells of one depth one batched cell (``_lockstep_cells``);
+    ``first`` None: a grouped graph (``_lstm_form``).
     Writes ``h_out``, ``c_out``; returns the decoder's first input ``[N, H + nS]`` and the rows
     of its first weight for the first H columns (the identity)."""
     rows = [(prefix, i) for depth in depths for prefix, _, i in depth]
     nS, nC, H, S = len(c.styles), len(c.contents), c.hidden, len(rows)
     # content [N, nC] @ [nC, 2 S H] -> [2S, N, H] (h rows, then c rows); 2-D products
     # throughout: onnxruntime runs a batched product as one small GEMM call per batch entry
-    start = g.op("Transpose", g.op("Reshape", g.op("MatMul", "content", g.const(_initial_states(w, rows, nC))), _ints(g, -1, 2 * S, H)), perm=[1, 0, 2])
-    starts = g.op("Split", start, outputs=2, axis=0)
-    states = {name: g.op("Where", first, s0, name) for name, s0 in zip(("h", "c"), starts)}
+    states = {"h": "h", "c": "c"}
+    if first is not None:
+        start = g.op("Transpose", g.op("Reshape", g.op("MatMul", "content", g.const(_initial_states(w, rows, nC))), _ints(g, -1, 2 * S, H)), perm=[1, 0, 2])
+        starts = g.op("Split", start, outputs=2, axis=0)
+        states = {name: g.op("Where", first, s0, name) for name, s0 in zip(("h", "c"), starts)}
     new = {"h": [], "c": []}
     sizes = _ints(g, *(len(d) for d in depths))
     parts = {name: g.op("Split", states[name], sizes, outputs=len(depths), axis=0) if len(depths) > 1 else [states[name]] for name in states}
@@ -244,24 +252,27 @@ def _plain_form(g: _Graph, z: str, first: str, arrays: dict, w, c, depths: list,
         if d == c.neutral_layers - 1:
             neutral_last = g.op("Slice", x, _ints(g, 0), _ints(g, 1), _ints(g, 0)) if len(depth) > 1 else x
     # the target's weight per branch [K, N, 1] and per state row [S, N, 1], read off by one product
-    pick = np.zeros((nS, len(branches) + S), np.float32)
+    # (a grouped graph: the branches' weights only)
+    pick = np.zeros((nS, len(branches) + (S if first is not None else 0)), np.float32)
     for j, (_, style) in enumerate(branches):
         pick[c.styles.index(style), j] = 1.0
     style_of = dict(branches)
-    for r, (prefix, _) in enumerate(rows):
+    for r, (prefix, _) in enumerate(rows if first is not None else []):
         if prefix != "neutral":
             pick[c.styles.index(style_of[int(prefix.split(".")[1])]), len(branches) + r] = 1.0
-    picked = g.op("Unsqueeze", g.op("Transpose", g.op("MatMul", "target", g.const(pick)), perm=[1, 0]), _ints(g, 2))  # [K + S, N, 1]
-    weights, row_weights = g.op("Split", picked, _ints(g, len(branches), S), outputs=2, axis=0) if branches else (None, picked)
+    picked = g.op("Unsqueeze", g.op("Transpose", g.op("MatMul", "target", g.const(pick)), perm=[1, 0]), _ints(g, 2)) if pick.size else None  # [K + S, N, 1]
+    weights, row_weights = g.op("Split", picked, _ints(g, len(branches), S), outputs=2, axis=0) if branches and first is not None else (picked, picked)
     out = neutral_last  # out = neutral + sum_k w_k branch_k
     if branches:
         out = g.op("Add", out, g.op("ReduceSum", g.op("Mul", branch_last, weights), _ints(g, 0), keepdims=1))
     out = g.op("Squeeze", out, _ints(g, 0))  # [N, H]
     # a branch's rows advance only for streams that give its style a weight; the neutral rows always
-    neutral_rows = np.array([[[float(prefix == "neutral")]] for prefix, _ in rows], np.float32)
-    keep = g.op("Equal", g.op("Add", row_weights, g.const(neutral_rows)), g.const(np.zeros(1, np.float32)))  # [S, N, 1]
+    if first is not None:
+        neutral_rows = np.array([[[float(prefix == "neutral")]] for prefix, _ in rows], np.float32)
+        keep = g.op("Equal", g.op("Add", row_weights, g.const(neutral_rows)), g.const(np.zeros(1, np.float32)))  # [S, N, 1]
     for name in ("h", "c"):
-        g.nodes.append(helper.make_node("Where", [keep, states[name], g.op("Concat", *new[name], axis=0) if len(depths) > 1 else new[name][0]], [f"{name}_out"]))
+        joined = [g.op("Concat", *new[name], axis=0) if len(depths) > 1 else new[name][0]]
+        g.nodes.append(helper.make_node("Where", [keep, states[name], *joined], [f"{name}_out"]) if first is not None else helper.make_node("Identity", joined, [f"{name}_out"]))
     return g.op("Concat", out, "target", axis=1), np.eye(H, dtype=np.float32)
 
 
@@ -273,12 +284,15 @@ def state_shape(model: GeneratorWeights, form: str = "lstm", styles: tuple[str, 
     return (1, "N", S * c.hidden) if form == "lstm" else (S, "N", c.hidden)
 
 
-def step_graph(model: GeneratorWeights, form: str = "lstm", styles: tuple[str, ...] | None = None, fuse: bool | None = None) -> onnx.ModelProto:
+def step_graph(model: GeneratorWeights, form: str = "lstm", styles: tuple[str, ...] | None = None, fuse: bool | None = None, grouped: bool = False) -> onnx.ModelProto:
     """The step graph in ``form`` (``FORMS``) with the branches of ``styles`` (default every
     style; a graph for the styles a host uses is smaller and faster), checked by
     ``onnx.checker`` (full check). ``fuse`` (LSTM form): the layers of one depth as one op
     (default: with at most ``FUSE_UP_TO`` style branches); faster at small batches, slower at
-    large ones (``backends.UNFUSED_FROM``).
+    large ones (``backends.UNFUSED_FROM``). ``grouped``: for a host that steps each stream on the
+    graph of exactly the styles it weights and sets first frames' states itself (``OnnxBackend``):
+    no ``first_frame`` input and none of the ``Where`` ops that reset first frames and keep
+    the rows of branches that do not run.
 
     Per-node cost, not arithmetic, sets a step's time at small batches (onnxruntime: about
     0.5-1 us a plain node, 3-7 us an LSTM op), so the graph has few nodes: one state tensor
@@ -297,7 +311,7 @@ def step_graph(model: GeneratorWeights, form: str = "lstm", styles: tuple[str, .
     depths = _depths(c, branches)
     D, nI, nS, nC, J = c.feature_dim, len(c.input_styles), len(c.styles), len(c.contents), c.n_joints
     g = _Graph()
-    first = g.op("Cast", "first_frame", to=TensorProto.BOOL)  # [N, 1]
+    first = None if grouped else g.op("Cast", "first_frame", to=TensorProto.BOOL)  # [N, 1]
     # encoder; its last layer (linear) folded into the first LSTM layers' input weights
     arrays = _fold_into_first_layers(arrays, *w.encoder[-1], [prefix for prefix, _, i in depths[0]])
     z = g.op("Concat", "features", "style", "content", axis=1)
@@ -321,7 +335,8 @@ def step_graph(model: GeneratorWeights, form: str = "lstm", styles: tuple[str, .
 
     f32, state = TensorProto.FLOAT, list(state_shape(model, form, styles))
     inputs = [helper.make_tensor_value_info(name, f32, shape) for name, shape in
-              (("features", ["N", D]), ("style", ["N", nI]), ("content", ["N", nC]), ("target", ["N", nS]), ("first_frame", ["N", 1]), ("h", state), ("c", state))]  # fmt: skip
+              (("features", ["N", D]), ("style", ["N", nI]), ("content", ["N", nC]), ("target", ["N", nS]), ("first_frame", ["N", 1]), ("h", state), ("c", state))
+              if not (grouped and name == "first_frame")]  # fmt: skip
     outputs = [helper.make_tensor_value_info(name, f32, shape) for name, shape in
                (("rotations", ["N", J, 4]), ("velocities", ["N", 3 * J]), ("h_out", state), ("c_out", state))]  # fmt: skip
     graph = helper.make_graph(g.nodes, f"styleerd_step_{form}", inputs, outputs, g.initializers)
@@ -347,7 +362,7 @@ def sidecar(model: GeneratorWeights, proto: onnx.ModelProto, graph_name: str, fo
         "neutral_style": c.neutral_style,
         "branch_styles": [b for b, layer in layers if layer == 0 and b != c.neutral_style],
         "state_layers": [list(row) for row in layers],
-        "state_shapes": {i.name: [d.dim_param or d.dim_value for d in i.type.tensor_type.shape.dim] for i in proto.graph.input[5:]},
+        "state_shapes": {i.name: [d.dim_param or d.dim_value for d in i.type.tensor_type.shape.dim] for i in proto.graph.input if i.name in ("h", "c")},
         "feature_layout": "[rotations 4J (w,x,y,z) | positions 3J | velocities 3J | foot contacts 4], see docs/ONNX.md",
         "fps": meta.get("data", {}).get("fps"),
         # who faces where (left and right: hip, shoulder), the contacts' joints (left foot, left
