@@ -144,11 +144,11 @@ class OnnxBackend:
             return self._run(self._graph_of(weighted[0] if len(weighted) else weighted.any(0), len(weighted)), streams, inputs)
         # streams grouped by the styles they weight
         patterns, which = np.unique(weighted, axis=0, return_inverse=True)
-        c = self.model.config
+        ids, c = np.arange(self.n)[streams], self.model.config
         rot, vel = np.empty((len(weighted), c.n_joints, 4), np.float32), np.empty((len(weighted), 3 * c.n_joints), np.float32)
         for g, pattern in enumerate(patterns):
             members = np.nonzero(which.ravel() == g)[0]
-            at = np.arange(self.n)[streams][members]
+            at = ids[members]
             rot[members], vel[members] = self._run(self._graph_of(pattern, len(members)), at, tuple(a[members] for a in inputs))
         return rot, vel
 

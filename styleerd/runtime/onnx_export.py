@@ -186,14 +186,14 @@ def _lstm_form(g: _Graph, z: str, first: str | None, arrays: dict, w, c, depths:
     # per state column, the style whose weight lets it advance (the neutral columns always do):
     # a branch's columns keep their state where the target gives its style no weight
     style_of = {prefix: c.styles.index(style) for prefix, style in ((f"branches.{k}", style) for k, style in branches)}
-    pick, neutral = np.zeros((nS, T), np.float32), np.zeros(T, np.float32)
-    for r, (prefix, _) in enumerate(rows):
-        if prefix == "neutral":
-            neutral[r * H : (r + 1) * H] = 1.0
-        else:
-            pick[style_of[prefix], r * H : (r + 1) * H] = 1.0
     kept = g.op("Concat", *new["h"], *new["c"], axis=2)
-    if first is not None:
+    if first is not None:  # (a grouped graph advances every column)
+        pick, neutral = np.zeros((nS, T), np.float32), np.zeros(T, np.float32)
+        for r, (prefix, _) in enumerate(rows):
+            if prefix == "neutral":
+                neutral[r * H : (r + 1) * H] = 1.0
+            else:
+                pick[style_of[prefix], r * H : (r + 1) * H] = 1.0
         keep = g.op("Equal", g.op("Gemm", "target", g.const(np.tile(pick, 2)), g.const(np.tile(neutral, 2))), g.const(np.zeros(1, np.float32)))  # [N, 2T]
         kept = g.op("Where", keep, state, kept)
     g.nodes.append(helper.make_node("Split", [kept], ["h_out", "c_out"], axis=2))
@@ -261,7 +261,10 @@ def _plain_form(g: _Graph, z: str, first: str | None, arrays: dict, w, c, depths
         if prefix != "neutral":
             pick[c.styles.index(style_of[int(prefix.split(".")[1])]), len(branches) + r] = 1.0
     picked = g.op("Unsqueeze", g.op("Transpose", g.op("MatMul", "target", g.const(pick)), perm=[1, 0]), _ints(g, 2)) if pick.size else None  # [K + S, N, 1]
-    weights, row_weights = g.op("Split", picked, _ints(g, len(branches), S), outputs=2, axis=0) if branches and first is not None else (picked, picked)
+    if first is None:  # the branches' weights only
+        weights = picked
+    else:
+        weights, row_weights = g.op("Split", picked, _ints(g, len(branches), S), outputs=2, axis=0) if branches else (None, picked)
     out = neutral_last  # out = neutral + sum_k w_k branch_k
     if branches:
         out = g.op("Add", out, g.op("ReduceSum", g.op("Mul", branch_last, weights), _ints(g, 0), keepdims=1))
