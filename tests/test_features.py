@@ -4,7 +4,7 @@ import pytest
 from conftest import walking_motion
 from styleerd.data.features import FeatureLayout, FeatureStats, features_to_motion, motion_features, pose_features, stream_features
 from styleerd.motion import quat
-from styleerd.motion.kinematics import forward_kinematics
+from styleerd.motion.kinematics import facing_directions, forward_kinematics, heading_rotations
 from styleerd.motion.motion import Motion
 from styleerd.motion.skeleton import BodyRoles
 
@@ -79,6 +79,25 @@ def test_compiled_stream_features_flag_values_past_the_limit():
     previous = np.repeat(m.positions[:1], 2, 0)
     x, *_, ok = stream_features(np.repeat(m.rotations[:1], 2, 0), pos, previous, np.zeros((2, 3)), np.ones(2, bool), m.skeleton, BodyRoles.of(m.skeleton), m.fps, stats, 1e6)
     assert ok.tolist() == [True, False]
+
+
+def test_compiled_heading_equals_the_angle_of_the_facing_all_around():
+    """The compiled kernel's heading (half-angle identities, no trigonometry) against
+    kinematics.heading_rotations (arctan2) for a character turned to every angle: both sides
+    of the identities' switch (cos 120 degrees) and exactly 180 degrees (w = 0) included."""
+    m = walking_motion(1)
+    skeleton, roles = m.skeleton, BodyRoles.of(m.skeleton)
+    stats = FeatureStats.fit(np.concatenate([motion_features(walking_motion(12, seed=k))[0] for k in range(2)]), skeleton.n_joints)
+    angles = np.concatenate([np.linspace(-np.pi, np.pi, 721), np.radians([119.999, 120.0, 120.001, -120.0, 180.0, -180.0])])
+    n = len(angles)
+    turn = quat.from_angle_axis(angles, np.array([0.0, 1.0, 0.0]))
+    rot, pos = np.repeat(m.rotations[:1], n, 0), np.repeat(m.positions[:1], n, 0)
+    rot[:, 0] = quat.mul(turn, rot[:, 0])
+    _, traj, g, facing, ok = stream_features(rot, pos, np.zeros((n, skeleton.n_joints, 3)), np.zeros((n, 3)), np.zeros(n, bool), skeleton, roles, m.fps, stats, 1e6)
+    expected = heading_rotations(facing)
+    assert ok.all() and np.all(traj[:, 3] >= 0)
+    assert np.abs(traj[:, 3:7] - expected).max() < 1e-12  # same sign too: w >= 0 in both
+    assert np.abs(traj[:, 3:7] - heading_rotations(facing_directions(g, roles.left, roles.right))).max() < 1e-12
 
 
 def test_features_do_not_depend_on_where_the_character_is_or_faces():

@@ -111,6 +111,42 @@ def test_steps_split_over_threads_equal_one_thread_and_reject_as_a_whole(model, 
     assert two.inferred_labels() == one.inferred_labels()
 
 
+def test_a_failing_shard_releases_the_others(model, monkeypatch):
+    """A sharded step's shards meet at a barrier before any state changes: a shard that fails
+    before it releases the others (its error is raised, no stream advanced, nothing hangs)."""
+    import threading
+
+    from styleerd.runtime import stylizer
+
+    monkeypatch.setattr(stylizer, "SHARD_FROM", {"numba": 3})
+    ms = [walking_motion(8, seed=k) for k in range(6)]
+    one = StreamStylizer(model, "normal", "walk", {"old": 1.0}, n_streams=6, backend="numba")
+    three = StreamStylizer(model, "normal", "walk", {"old": 1.0}, n_streams=6, backend="numba", threads=3)
+    frame = lambda t: (np.stack([m.rotations[t] for m in ms]), np.stack([m.positions[t] for m in ms]))  # noqa: E731
+    features, raised = three._features, []
+
+    def fails_on_the_last_shard(rotations, positions, sel):
+        if sel.start == 4:
+            raise MemoryError("out of memory")
+        return features(rotations, positions, sel)
+
+    def step():
+        try:
+            three.step(*frame(0))
+        except MemoryError as e:
+            raised.append(e)
+
+    three._features = fails_on_the_last_shard
+    stepper = threading.Thread(target=step, daemon=True)
+    stepper.start()
+    stepper.join(timeout=60)
+    assert not stepper.is_alive() and len(raised) == 1
+    three._features = features
+    assert not three.started.any()
+    for t in range(3):
+        assert np.abs(three.step(*frame(t))[0] - one.step(*frame(t))[0]).max() <= 1e-5
+
+
 def test_style_switch_blends_without_a_pop(model):
     m = walking_motion(60)
     s = StreamStylizer(model, "normal", "walk", {"normal": 1.0}, blend_frames=10)

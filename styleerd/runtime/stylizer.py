@@ -16,7 +16,8 @@ takes the label's place.
 from __future__ import annotations
 
 import math
-from concurrent.futures import ThreadPoolExecutor
+import threading
+from concurrent.futures import ThreadPoolExecutor, wait
 from dataclasses import dataclass
 from functools import cache
 
@@ -193,6 +194,7 @@ class StreamStylizer:
         self.shard_from = SHARD_FROM.get(backend, 600)
         self.backend = make_backend(backend, model, n_streams * (1 + len(self.part_passes)), threads=max(1, threads) // self.threads)
         self._pool: ThreadPoolExecutor | None = None
+        self._sharded_step = threading.Lock()  # steps from several threads take turns: the barrier needs all of one step's shards running
         self.skeleton = model.skeleton
         self.roles = BodyRoles.of(self.skeleton)
         self.stats = model.stats()
@@ -287,31 +289,45 @@ class StreamStylizer:
             features = self._features(rotations, positions, sel)
             self._refuse_unless(features[4], sel, rotations, positions)
             return self._advance(sel, features, self.current_weights(), rotations, positions, np.empty(rotations.shape))
-        # shards of streams, one per thread; BLAS gets one thread per call (two callers each
-        # asking BLAS for both cores spin against each other)
+        # shards of streams, one per thread, each its features and then its network in one call
+        # (1.12x the frames/s of a pool call for each: 1,000 streams, 2 threads, 9 alternating
+        # rounds); BLAS gets one thread per call (two callers each asking BLAS for both cores
+        # spin against each other)
         shards = _slices(n, self.threads)
-        with _one_blas_thread():
-            features = self._on_shards(lambda s: self._features(rotations[s], positions[s], s), shards)
-            for s, f in zip(shards, features):  # every shard is checked before any state changes
-                self._refuse_unless(f[4], s, rotations[s], positions[s])
-            weights = self.current_weights()
-            out = np.empty(rotations.shape)  # each shard writes its rows
-            done = self._on_shards(lambda s, f: self._advance(s, f, weights, rotations[s], positions[s], out[s]), shards, features)
-            return out, np.concatenate([p for _, p in done]) if self.root_speed else positions
+        weights, out = self.current_weights(), np.empty(rotations.shape)  # each shard writes its rows
+        features: list = [None] * len(shards)
+        checked = threading.Barrier(len(shards))
 
-    def _on_shards(self, f, shards: list[slice], *more: list) -> list:
-        """``[f(shard, *its items of more)]``, the first shard on this thread, the others on the
-        pool at the same time (one thread fewer to wake: 1.03x the frames/s at 1,000 streams on
-        2 threads); every call has ended when this returns or raises."""
+        def shard(k: int, s: slice):
+            try:
+                features[k] = self._features(rotations[s], positions[s], s)
+            except BaseException:
+                checked.abort()  # the others stop waiting
+                raise
+            try:
+                checked.wait()  # every shard's frames are checked before any state changes
+            except threading.BrokenBarrierError:
+                return None  # another shard failed: its error is the one raised
+            return self._advance(s, features[k], weights, rotations[s], positions[s], out[s]) if all(f[4].all() for f in features) else None
+
+        with self._sharded_step, _one_blas_thread():
+            done = self._on_shards(shard, shards)
+        for s, f in zip(shards, features):
+            self._refuse_unless(f[4], s, rotations[s], positions[s])
+        return out, np.concatenate([p for _, p in done]) if self.root_speed else positions
+
+    def _on_shards(self, f, shards: list[slice]) -> list:
+        """``[f(k, shards[k])]``, the first shard on this thread, the others on the pool at the
+        same time (one thread fewer to wake: 1.03x the frames/s at 1,000 streams on 2 threads);
+        every call has ended when this returns or raises."""
         if self._pool is None:
             self._pool = ThreadPoolExecutor(self.threads - 1, thread_name_prefix="styleerd-shard")
-        calls = list(zip(shards, *more))
-        futures = [self._pool.submit(f, *call) for call in calls[1:]]
+        futures = [self._pool.submit(f, k, s) for k, s in enumerate(shards) if k]
         try:
-            first = f(*calls[0])
+            first = f(0, shards[0])
         finally:
-            rest = [future.result() for future in futures]
-        return [first, *rest]
+            wait(futures)  # every call has ended, whichever raised
+        return [first, *(future.result() for future in futures)]
 
     def _refuse_unless(self, ok: np.ndarray, sel, rotations: np.ndarray, positions: np.ndarray) -> None:
         """Raise for the first stream of ``sel`` whose frame cannot be stylised (``ok`` False:
