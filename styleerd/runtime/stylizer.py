@@ -17,13 +17,12 @@ from __future__ import annotations
 
 import math
 import threading
-from concurrent.futures import ThreadPoolExecutor
+from concurrent.futures import ThreadPoolExecutor, wait
 from dataclasses import dataclass
 from functools import cache
 
 import numba as nb
 import numpy as np
-from numba.core import types
 
 from styleerd.data.features import FeatureLayout, stream_features
 from styleerd.errors import StyleERDError
@@ -195,7 +194,7 @@ class StreamStylizer:
         self.shard_from = SHARD_FROM.get(backend, 600)
         self.backend = make_backend(backend, model, n_streams * (1 + len(self.part_passes)), threads=max(1, threads) // self.threads)
         self._pool: ThreadPoolExecutor | None = None
-        self._sharded_step = threading.Lock()  # steps from several threads take turns: the shards of one step wait for each other, so all must be running
+        self._sharded_step = threading.Lock()  # steps from several threads take turns: the barrier needs all of one step's shards running
         self.skeleton = model.skeleton
         self.roles = BodyRoles.of(self.skeleton)
         self.stats = model.stats()
@@ -297,17 +296,19 @@ class StreamStylizer:
         shards = _slices(n, self.threads)
         weights, out = self.current_weights(), np.empty(rotations.shape)  # each shard writes its rows
         features: list = [None] * len(shards)
-        checked = np.zeros(len(shards), np.int64)  # per shard: its features are done (or failed)
+        checked = threading.Barrier(len(shards))
 
         def shard(k: int, s: slice):
             try:
                 features[k] = self._features(rotations[s], positions[s], s)
-            finally:
-                checked[k] = 1
-            _wait_for(checked)  # every shard's frames are checked before any state changes
-            if any(f is None or not f[4].all() for f in features):
-                return None  # a bad frame (raised below) or a failed shard (its error is raised)
-            return self._advance(s, features[k], weights, rotations[s], positions[s], out[s])
+            except BaseException:
+                checked.abort()  # the others stop waiting
+                raise
+            try:
+                checked.wait()  # every shard's frames are checked before any state changes
+            except threading.BrokenBarrierError:
+                return None  # another shard failed: its error is the one raised
+            return self._advance(s, features[k], weights, rotations[s], positions[s], out[s]) if all(f[4].all() for f in features) else None
 
         with self._sharded_step, _one_blas_thread():
             done = self._on_shards(shard, shards)
@@ -318,27 +319,15 @@ class StreamStylizer:
     def _on_shards(self, f, shards: list[slice]) -> list:
         """``[f(k, shards[k])]``, the first shard on this thread, the others on the pool at the
         same time (one thread fewer to wake: 1.03x the frames/s at 1,000 streams on 2 threads);
-        every call has ended when this returns or raises (the first shard's error first)."""
+        every call has ended when this returns or raises."""
         if self._pool is None:
             self._pool = ThreadPoolExecutor(self.threads - 1, thread_name_prefix="styleerd-shard")
-        results, errors, ended = [None] * len(shards), [None] * len(shards), np.zeros(len(shards), np.int64)
-
-        def call(k: int) -> None:
-            try:
-                results[k] = f(k, shards[k])
-            except BaseException as e:
-                errors[k] = e
-            finally:
-                ended[k] = 1
-
-        for k in range(1, len(shards)):
-            self._pool.submit(call, k)
-        call(0)
-        _wait_for(ended)
-        for e in errors:
-            if e is not None:
-                raise e
-        return results
+        futures = [self._pool.submit(f, k, s) for k, s in enumerate(shards) if k]
+        try:
+            first = f(0, shards[0])
+        finally:
+            wait(futures)  # every call has ended, whichever raised
+        return [first, *(future.result() for future in futures)]
 
     def _refuse_unless(self, ok: np.ndarray, sel, rotations: np.ndarray, positions: np.ndarray) -> None:
         """Raise for the first stream of ``sel`` whose frame cannot be stylised (``ok`` False:
@@ -435,21 +424,6 @@ def _blas_pools():
 
 def _one_blas_thread():
     return _blas_pools().limit(limits=1)
-
-
-_sched_yield = types.ExternalFunction("sched_yield", types.int32())  # libc's, resolved when linked (so it caches)
-
-
-@nb.njit(cache=True, nogil=True)
-def _wait_for(flags):
-    """Until every flag is set (by other threads), spin, giving the core away each time round
-    (``sched_yield``): without the GIL, so the threads waited for are never kept from it. The
-    shards of a step wait for each other for tens of microseconds, and a lock's or a future's
-    wake-up took 30-100 us on a 2-core VM (1,000 streams, 2 threads: 1.11x the frames/s of a
-    threading.Barrier and futures, 9 alternating rounds, each 1.08-1.17x). The call in the
-    loop also makes each pass read the flags again."""
-    while flags.sum() < len(flags):
-        _sched_yield()
 
 
 def _slices(n: int, parts: int) -> list[slice]:
