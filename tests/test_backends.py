@@ -204,13 +204,16 @@ assert loaded <= held, (loaded, held)
     assert done.returncode == 0, done.stderr
 
 
-def test_fast_tanh_is_tanh_to_float32_precision():
-    from styleerd.runtime.compiled import fast_tanh
+def test_tanh_fraction_gives_tanh_and_sigmoid_to_float32_precision():
+    """The numba LSTM cell's activations: tanh(v) = p / q and sigmoid(v) = (q + p) / 2q for
+    (p, q) = tanh_fraction(v / 2), across and past the range where they saturate."""
+    from styleerd.runtime.compiled import tanh_fraction
 
-    v = np.linspace(-30.0, 30.0, 600_001).astype(np.float32)
-    got = np.array([fast_tanh(a) for a in v[::97]] + [fast_tanh(np.float32(0.0))])
-    want = np.tanh(np.append(v[::97], 0.0).astype(np.float64))
-    assert np.abs(got - want).max() < 5e-7 and got[-1] == 0.0
+    v = np.append(np.linspace(-30.0, 30.0, 600_001).astype(np.float32)[::97], np.float32(0.0))
+    p, q = np.array([tanh_fraction(a) for a in v]).T
+    assert np.abs(p / q - np.tanh(v.astype(np.float64))).max() < 5e-7 and p[-1] == 0.0
+    p, q = np.array([tanh_fraction(np.float32(0.5) * a) for a in v]).T
+    assert np.abs((q + p) / (2 * q) - 1 / (1 + np.exp(-v.astype(np.float64)))).max() < 5e-7
 
 
 def test_onnx_backend_runs_many_streams_on_a_graph_of_one_op_per_layer(model):

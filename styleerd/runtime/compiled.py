@@ -8,7 +8,7 @@ state's columns in place and accumulating into its output, nothing copied), but 
 stream (``LOOPS_UP_TO``) compiled loops. Many streams go through the whole network a block of
 ``BLOCK_ROWS`` at a time, so a block's state and gates stay in cache between layers.
 
-The activations use ``fast_tanh``, a rational approximation that vectorises (np.tanh in a
+The activations use ``tanh_fraction``, a rational approximation that vectorises (np.tanh in a
 compiled loop is a scalar libm call). Compiled on first use and cached on disk
 (``cache=True``), so later processes start at once.
 """
@@ -54,7 +54,8 @@ def _gemm(x, W, y, beta):
 # where tanh is 1 in float32: plain arithmetic, so loops over it vectorise (error_model="numpy":
 # no zero-division checks in the way). Error <= 4e-7.
 @nb.njit(cache=True, fastmath=True, error_model="numpy")
-def fast_tanh(v):
+def tanh_fraction(v):
+    """(p, q) with tanh(v) = p / q: the LSTM cell puts several of them over one division."""
     v = min(max(v, np.float32(-7.90531110763549805)), np.float32(7.90531110763549805))
     v2 = v * v
     p = np.float32(-2.76076847742355e-16) * v2 + np.float32(2.00018790482477e-13)
@@ -66,12 +67,7 @@ def fast_tanh(v):
     q = np.float32(1.19825839466702e-06) * v2 + np.float32(1.18534705686654e-04)
     q = q * v2 + np.float32(2.26843463243900e-03)
     q = q * v2 + np.float32(4.89352518554385e-03)
-    return v * p / q
-
-
-@nb.njit(cache=True, fastmath=True, error_model="numpy")
-def _sigmoid(v):
-    return np.float32(0.5) * fast_tanh(np.float32(0.5) * v) + np.float32(0.5)
+    return v * p, q
 
 
 @nb.njit(cache=True, fastmath=True, error_model="numpy", nogil=True)
@@ -157,12 +153,16 @@ def _stack(P, table, first_entry, layers, x, hs, cs, at, g):
         for n in range(N):
             gn, hn, cn = g[n], hs[n, a : a + H], cs[n, a : a + H]
             for j in range(H):
-                gi = _sigmoid(gn[j] + bias[j])
-                gf = _sigmoid(gn[H + j] + bias[H + j])
-                gg = fast_tanh(gn[2 * H + j] + bias[2 * H + j])
-                go = _sigmoid(gn[3 * H + j] + bias[3 * H + j])
-                cn[j] = gf * cn[j] + gi * gg
-                hn[j] = go * fast_tanh(cn[j])
+                # sigmoid(v) = (q + p) / 2q and tanh(v) = p / q for (p, q) = tanh_fraction(v / 2)
+                # and (v): c' = sigmoid_f c + sigmoid_i tanh_g and h' = sigmoid_o tanh(c') each
+                # over one division, not five divisions (1.02x the step, 500 streams)
+                pi, qi = tanh_fraction(np.float32(0.5) * (gn[j] + bias[j]))
+                pf, qf = tanh_fraction(np.float32(0.5) * (gn[H + j] + bias[H + j]))
+                pg, qg = tanh_fraction(gn[2 * H + j] + bias[2 * H + j])
+                po, qo = tanh_fraction(np.float32(0.5) * (gn[3 * H + j] + bias[3 * H + j]))
+                c = ((qf + pf) * cn[j] * qi * qg + (qi + pi) * pg * qf) / (np.float32(2.0) * qf * qi * qg)
+                pc, qc = tanh_fraction(c)
+                cn[j], hn[j] = c, (qo + po) * pc / (np.float32(2.0) * qo * qc)
 
 
 @nb.njit(cache=True, fastmath=True, error_model="numpy", nogil=True)
@@ -245,15 +245,14 @@ def _step_block(x, style, content, target, P, table, sizes, inits, branch_styles
         if i < n_dec - 1:
             _relu(o)
         y = o
-    for n in range(N):
-        yn, rn = y[n], rot[n]
+    flat, scale = rot.reshape((N, 4 * J)), np.empty(4 * J, np.float32)
+    for n in range(N):  # unit quaternions: each one's scale written out four times, then one product per value (vectorises)
+        yn, rn = y[n], flat[n]
         for j in range(J):
-            norm = np.float32(0.0)
-            for a in range(4):
-                norm += yn[4 * j + a] * yn[4 * j + a]
-            scale = np.float32(1.0) / max(np.sqrt(norm), np.float32(1e-8))
-            for a in range(4):
-                rn[j, a] = yn[4 * j + a] * scale
+            s = np.float32(1.0) / max(np.sqrt(yn[4 * j] ** 2 + yn[4 * j + 1] ** 2 + yn[4 * j + 2] ** 2 + yn[4 * j + 3] ** 2), np.float32(1e-8))
+            scale[4 * j], scale[4 * j + 1], scale[4 * j + 2], scale[4 * j + 3] = s, s, s, s
+        for k in range(4 * J):
+            rn[k] = yn[k] * scale[k]
         vel[n] = yn[4 * J :]
 
 
