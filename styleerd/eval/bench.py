@@ -21,6 +21,7 @@ run (the paper's Table 2 and more). Prints a table, writes JSON and a throughput
 
 from __future__ import annotations
 
+import itertools
 import os
 import time
 
@@ -39,6 +40,10 @@ from styleerd.runtime.stylizer import StreamStylizer, _slices
 
 PAPER_GTX1060_MS = {"online per frame": 1.73, "L=60": 7.47, "L=90": 10.18, "L=120": 13.22, "input frames needed": 1}
 STREAMS = (1, 4, 10, 16, 64, 100, 256, 1000, 4096)  # the throughput curve's points
+# untimed calls before each rate is timed: right after another measure (the matmul peak: OpenBLAS's
+# threads spin on for a while) the first second ran slower (1,000 streams, numba: the same measure
+# repeated at once gave 1.02-1.06x, 5 rounds of 5)
+WARMUP_S = 0.3
 TARGETS = ("targets (issue 4): step p50 <= 100 us, end-to-end p50 <= 300 us, >= 200,000 frames/s at 1,000 streams; (issue 18, numba): step p50 <= 20 us,\n"
            "end to end p50 <= 100 us, 1,000 streams >= 50 % of the matmul peak (under the products-alone row); (issue 18, onnx) 1,000 streams >= the numpy backend.\n"
            "This machine's speed wanders 2-4x: benchmarks/bench_engine.py compares commits in alternating rounds")
@@ -117,11 +122,25 @@ def throughput(model: StyleERD, backend: str, n_streams: int, seconds: float = 1
     st = StreamStylizer(model, "normal", "walk", {"elderly": 1.0}, n_streams=n_streams, backend=backend, threads=threads)
     rot = np.repeat(m.rotations[:, None], n_streams, 1)
     pos = np.repeat(m.positions[:, None], n_streams, 1)
-    frames, t0 = 0, time.perf_counter()
-    while time.perf_counter() - t0 < seconds or frames < 3 * n_streams:
-        t = (frames // n_streams) % m.n_frames
+    frame = itertools.count()
+
+    def step() -> None:
+        t = next(frame) % m.n_frames
         st.step(rot[t], pos[t])
-        frames += n_streams
+
+    return _steady_rate(step, n_streams, seconds)
+
+
+def _steady_rate(run, frames_per_call: int, seconds: float) -> float:
+    """Frames/s of ``run()`` in steady state: calls for ``WARMUP_S`` untimed, then for
+    ``seconds`` (at least 3 calls) timed."""
+    t0 = time.perf_counter()
+    while time.perf_counter() - t0 < min(WARMUP_S, seconds):
+        run()
+    frames, t0 = 0, time.perf_counter()
+    while time.perf_counter() - t0 < seconds or frames < 3 * frames_per_call:
+        run()
+        frames += frames_per_call
     return frames / (time.perf_counter() - t0)
 
 
@@ -143,12 +162,7 @@ def network_throughput(model: StyleERD, backend: str, n_streams: int = 1000, sec
     shards = _slices(n_streams, threads) if sharded else [slice(None)]
     with ThreadPoolExecutor(len(shards)) as pool, threadpool_limits(1 if sharded else threads):
         step = lambda s: b.step(*(a[s] for a in inputs), None if s == slice(None) else s)  # noqa: E731
-        list(pool.map(step, shards))
-        frames, t0 = 0, time.perf_counter()
-        while time.perf_counter() - t0 < seconds or frames < 3 * n_streams:
-            list(pool.map(step, shards))
-            frames += n_streams
-        return frames / (time.perf_counter() - t0)
+        return _steady_rate(lambda: list(pool.map(step, shards)), n_streams, seconds)
 
 
 def step_products(model: StyleERD) -> tuple[np.ndarray, np.ndarray]:
@@ -184,12 +198,7 @@ def products_alone(model: StyleERD, n_streams: int = 1000, seconds: float = 1.5,
     buffers = [rng.normal(0, 1, 2 * (s.stop - s.start) * int(calls[:, 1:].max())).astype(np.float32) for s in shards]
     with ThreadPoolExecutor(len(shards)) as pool, threadpool_limits(1):
         run = lambda k: products(P, calls, shards[k].stop - shards[k].start, buffers[k])  # noqa: E731
-        list(pool.map(run, range(len(shards))))
-        frames, t0 = 0, time.perf_counter()
-        while time.perf_counter() - t0 < seconds or frames < 3 * n_streams:
-            list(pool.map(run, range(len(shards))))
-            frames += n_streams
-        return frames / (time.perf_counter() - t0)
+        return _steady_rate(lambda: list(pool.map(run, range(len(shards)))), n_streams, seconds)
 
 
 def flops_per_frame(model: StyleERD) -> int:
