@@ -193,7 +193,7 @@ def test_shards_limit_the_blas_the_compiled_step_calls_even_if_made_first():
     import sys
 
     code = """
-from styleerd.runtime.stylizer import _blas_pools
+from styleerd.runtime.numpy_step import _blas_pools
 held = {c.filepath for c in _blas_pools().lib_controllers}
 import styleerd.runtime.compiled
 from threadpoolctl import threadpool_info

@@ -89,9 +89,13 @@ def test_batched_streams_equal_single_streams(model):
 
 @pytest.mark.parametrize("backend", ["numpy", "numba", "onnx"])
 def test_steps_split_over_threads_equal_one_thread_and_reject_as_a_whole(model, backend, monkeypatch):
+    from styleerd.data import parallel
     from styleerd.runtime import stylizer
 
-    monkeypatch.setattr(stylizer, "SHARD_FROM", {backend: 4})  # split even this small batch (two shards of 3)
+    # split even this small batch (two shards of 3): numpy's and onnx's on the stylizer's pool,
+    # numba's inside its kernels
+    monkeypatch.setattr(stylizer, "SHARD_FROM", {backend: 4})
+    monkeypatch.setattr(parallel, "PARALLEL_FROM", 4)
     ms = [walking_motion(12, seed=k) for k in range(6)]
     targets = [{"old": 1.0}, {"angry": 0.5, "old": 0.5}, {"normal": 1.0}] * 2
     torch.manual_seed(1)
@@ -111,6 +115,38 @@ def test_steps_split_over_threads_equal_one_thread_and_reject_as_a_whole(model, 
     assert two.inferred_labels() == one.inferred_labels()
 
 
+def test_numba_kernels_on_threads_from_two_callers_at_once_equal_one_thread(model, monkeypatch):
+    """The numba stylizer on 2 threads splits its compiled kernels over them (numba's parallel
+    loops); two such stylizers stepped from two Python threads at once (a server's callers)
+    launch those loops concurrently. Every output equals the one-thread stylizer's."""
+    from concurrent.futures import ThreadPoolExecutor
+
+    from styleerd.runtime import compiled
+
+    n, frames = 40, 10  # at least data.parallel.PARALLEL_FROM streams
+    ms = [walking_motion(frames, seed=k) for k in range(n)]
+    targets = [{"old": 1.0}, {"angry": 0.5, "old": 0.5}, {"normal": 1.0}, {"angry": 1.0}] * (n // 4)
+    splits, on_shards = [], compiled.compiled_step_on_shards
+
+    def counted(shards, *args):
+        splits.append(shards)
+        return on_shards(shards, *args)
+
+    monkeypatch.setattr(compiled, "compiled_step_on_shards", counted)
+
+    def run(threads: int) -> np.ndarray:
+        st = StreamStylizer(model, "normal", "walk", targets, n_streams=n, backend="numba", threads=threads)
+        return np.stack([st.step(np.stack([m.rotations[t] for m in ms]), np.stack([m.positions[t] for m in ms]))[0] for t in range(frames)])
+
+    want = run(1)
+    assert splits == []
+    with ThreadPoolExecutor(2) as pool:
+        got = list(pool.map(run, [2, 2]))
+    assert splits == [2] * (2 * frames)
+    for out in got:
+        assert np.abs(out - want).max() <= 1e-5
+
+
 def test_a_failing_shard_releases_the_others(model, monkeypatch):
     """A sharded step's shards meet at a barrier before any state changes: a shard that fails
     before it releases the others (its error is raised, no stream advanced, nothing hangs)."""
@@ -118,10 +154,10 @@ def test_a_failing_shard_releases_the_others(model, monkeypatch):
 
     from styleerd.runtime import stylizer
 
-    monkeypatch.setattr(stylizer, "SHARD_FROM", {"numba": 3})
+    monkeypatch.setattr(stylizer, "SHARD_FROM", {"numpy": 3})
     ms = [walking_motion(8, seed=k) for k in range(6)]
-    one = StreamStylizer(model, "normal", "walk", {"old": 1.0}, n_streams=6, backend="numba")
-    three = StreamStylizer(model, "normal", "walk", {"old": 1.0}, n_streams=6, backend="numba", threads=3)
+    one = StreamStylizer(model, "normal", "walk", {"old": 1.0}, n_streams=6, backend="numpy")
+    three = StreamStylizer(model, "normal", "walk", {"old": 1.0}, n_streams=6, backend="numpy", threads=3)
     frame = lambda t: (np.stack([m.rotations[t] for m in ms]), np.stack([m.positions[t] for m in ms]))  # noqa: E731
     features, raised = three._features, []
 
@@ -254,3 +290,15 @@ def test_root_speed_is_causal(model):
         ra, pa = a.step(m.rotations[t], m.positions[t])
         rb, pb = b.step(m2.rotations[t], m2.positions[t])
         assert np.array_equal(ra, rb) and np.array_equal(pa, pb)
+
+
+def test_kernel_threads_are_one_for_small_steps_and_at_most_numbas():
+    """A step's compiled kernels run on the threads asked for, capped at numba's, from
+    ``PARALLEL_FROM`` streams; numba uses a layer that allows concurrent launches."""
+    import numba
+
+    from styleerd.data.parallel import PARALLEL_FROM, kernel_threads
+
+    assert kernel_threads(1, 10_000) == 1 and kernel_threads(8, PARALLEL_FROM - 1) == 1
+    assert kernel_threads(10_000, PARALLEL_FROM) == numba.config.NUMBA_NUM_THREADS == numba.get_num_threads()
+    assert numba.config.THREADING_LAYER == "threadsafe"

@@ -24,6 +24,7 @@ from dataclasses import dataclass
 import numba as nb
 import numpy as np
 
+from styleerd.data.parallel import kernel_threads
 from styleerd.motion import quat
 from styleerd.motion.kinematics import facing_directions, foot_contacts, forward_pose, forward_positions, heading_rotations
 from styleerd.motion.motion import Motion
@@ -100,6 +101,7 @@ def stream_features(
     stats: "FeatureStats",
     limit: float,
     contact_speed: float = CONTACT_SPEED,
+    threads: int = 1,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """One frame of N streams, the streaming hot path: ``pose_features`` of quaternions
     normalised first, then ``stats.normalize``, in one compiled loop. A stream not ``started``
@@ -109,18 +111,33 @@ def stream_features(
 
     Returns (normalised features ``[N, D]`` float32, trajectory ``[N, 7]``, global joint
     positions ``[N, J, 3]``, facing directions ``[N, 3]``, ``ok [N]``: every normalised value
-    finite and below ``limit``). Nothing passed in is modified."""
+    finite and below ``limit``). Nothing passed in is modified. Many streams run on up to
+    ``threads`` threads (``parallel.kernel_threads``)."""
     rot = np.ascontiguousarray(rotations, dtype=np.float64)
     pos = np.ascontiguousarray(positions, dtype=np.float64)
     N, J = rot.shape[:2]
     x, traj = np.empty((N, FeatureLayout(J).dim), np.float32), np.empty((N, 7))
     g, facing, ok = np.empty((N, J, 3)), np.empty((N, 3)), np.empty(N, np.bool_)
-    _stream_features_kernel(rot, pos, np.ascontiguousarray(previous_global, dtype=np.float64), np.ascontiguousarray(previous_facing, dtype=np.float64), np.ascontiguousarray(started, dtype=np.bool_),
-           skeleton.parents, roles.joint_arrays, float(fps), contact_speed * roles.leg_length, stats.mean, stats.std, stats.reference, float(limit), x, traj, g, facing, ok)  # fmt: skip
+    shards = kernel_threads(threads, N)
+    args = (rot, pos, np.ascontiguousarray(previous_global, dtype=np.float64), np.ascontiguousarray(previous_facing, dtype=np.float64), np.ascontiguousarray(started, dtype=np.bool_),
+            skeleton.parents, roles.joint_arrays, float(fps), contact_speed * roles.leg_length, stats.mean, stats.std, stats.reference, float(limit), x, traj, g, facing, ok)  # fmt: skip
+    if shards > 1:
+        _stream_features_on_shards(shards, *args)
+    else:
+        _stream_features_kernel(*args)
     return x, traj, g, facing, ok
 
 
-# Serial and GIL-free: threads come from StreamStylizer's shards of streams (runtime.stylizer.SHARD_FROM).
+@nb.njit(cache=True, nogil=True, parallel=True)
+def _stream_features_on_shards(shards, rot, pos, previous, previous_facing, started, parents, roles, fps, max_speed, mean, std, reference, limit, x, traj, g, facing, ok):
+    """``_stream_features_kernel`` on ``shards`` slices of the streams, one per thread."""
+    N = rot.shape[0]
+    for k in nb.prange(shards):
+        s, e = N * k // shards, N * (k + 1) // shards
+        _stream_features_kernel(rot[s:e], pos[s:e], previous[s:e], previous_facing[s:e], started[s:e], parents, roles, fps, max_speed, mean, std, reference,
+                                limit, x[s:e], traj[s:e], g[s:e], facing[s:e], ok[s:e])  # fmt: skip
+
+
 @nb.njit(cache=True, nogil=True)
 def _stream_features_kernel(rot, pos, previous, previous_facing, started, parents, roles, fps, max_speed, mean, std, reference, limit, x, traj, g, facing, ok):
     J = rot.shape[1]

@@ -145,16 +145,17 @@ def _steady_rate(run, frames_per_call: int, seconds: float) -> float:
 
 
 def network_throughput(model: StyleERD, backend: str, n_streams: int = 1000, seconds: float = 1.5, threads: int = 2) -> float:
-    """Frames/s of the network step alone over ``n_streams`` streams on ``threads`` threads:
-    numpy, numba and onnx in one shard of streams per thread (each shard's rows stepped in place,
-    BLAS or onnxruntime on one thread per shard, as StreamStylizer runs them), torch in one call
-    on its own intra-op threads (the caller sets the pools: ``set_threads``)."""
+    """Frames/s of the network step alone over ``n_streams`` streams on ``threads`` threads, as
+    StreamStylizer runs it: numpy and onnx in one shard of streams per thread of a pool (each
+    shard's rows stepped in place, BLAS or onnxruntime on one thread per shard), numba in one
+    call on its compiled step's threads, torch in one call on its own intra-op threads (the
+    caller sets the pools: ``set_threads``)."""
     from concurrent.futures import ThreadPoolExecutor
 
     from threadpoolctl import threadpool_limits
 
     c = model.config
-    sharded = backend != "torch" and threads > 1
+    sharded = backend not in ("torch", "numba") and threads > 1
     b = make_backend(backend, model, n_streams, 1 if sharded else threads)
     x = np.random.default_rng(0).normal(0, 1, (n_streams, c.feature_dim)).astype(np.float32)
     one_hot = lambda k, i: np.eye(k, dtype=np.float32)[np.full(n_streams, i)]  # noqa: E731

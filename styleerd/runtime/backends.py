@@ -175,9 +175,10 @@ class OnnxBackend:
 
 
 def make_backend(name: str, model: GeneratorWeights, n_streams: int, threads: int = 1):
-    """The step backend ``name`` for ``n_streams`` streams; ``threads``: onnxruntime's intra-op
-    threads (StreamStylizer on N threads splits large steps into N shards of streams instead,
-    each on one; torch uses its global pool)."""
+    """The step backend ``name`` for ``n_streams`` streams; ``threads``: the numba step's
+    threads for many streams (``data.parallel``), onnxruntime's intra-op threads (StreamStylizer
+    on N threads splits large onnx and numpy steps into N shards of streams instead, each on
+    one); torch uses its global pool."""
     if name not in BACKENDS:
         raise StyleERDError(f"unknown backend {name!r}; valid: {', '.join(BACKENDS)}")
     model = generator_weights(model)
@@ -185,7 +186,7 @@ def make_backend(name: str, model: GeneratorWeights, n_streams: int, threads: in
         if name == "numba":
             from styleerd.runtime.compiled import CompiledBackend  # imports numba: only when asked for
 
-            return CompiledBackend(model, n_streams)
+            return CompiledBackend(model, n_streams, threads)
         if name in ("onnx", "onnx-plain"):
             return OnnxBackend(model, n_streams, threads, form="plain" if name == "onnx-plain" else "lstm")
         return {"torch": TorchBackend, "numpy": NumpyBackend}[name](model, n_streams)

@@ -21,8 +21,9 @@ import numpy as np
 from numba.core import types
 from numba.extending import get_cython_function_address
 
+from styleerd.data.parallel import kernel_threads
 from styleerd.model.stored import GeneratorWeights
-from styleerd.runtime.numpy_step import NumpyBackend, StepWeights
+from styleerd.runtime.numpy_step import NumpyBackend, StepWeights, one_blas_thread
 
 # Streams a step takes through the whole network at a time: a block's state, gates and
 # activations stay in cache from one layer to the next (500 streams, 1 thread, alternating
@@ -171,20 +172,42 @@ def compiled_step(x, style, content, target, P, table, sizes, inits, branch_styl
     [N, J, 4]``, ``vel [N, 3J]``; updates ``first`` and the states in place, streams first and
     each stream's row flat: h, c ``[N, L0 * H]``, hb, cb ``[N, K * L1 * H]`` (branch, layer).
     Steps ``BLOCK_ROWS`` streams at a time through the whole network."""
+    _refuse_unless_fitting(x, style, content, target, table, sizes, h, c, hb, cb, first, rot, vel)
+    _step_rows(x, style, content, target, P, table, sizes, inits, branch_styles, h, c, hb, cb, first, rot, vel)
+
+
+@nb.njit(cache=True, nogil=True, parallel=True)
+def compiled_step_on_shards(shards, x, style, content, target, P, table, sizes, inits, branch_styles, h, c, hb, cb, first, rot, vel):
+    """``compiled_step`` on ``shards`` slices of the streams at once, one per thread (the caller
+    holds BLAS to one thread)."""
+    _refuse_unless_fitting(x, style, content, target, table, sizes, h, c, hb, cb, first, rot, vel)
     N = x.shape[0]
-    # no bounds are checked below: inputs that do not fit would read or write past them
+    for k in nb.prange(shards):
+        s, e = N * k // shards, N * (k + 1) // shards
+        _step_rows(x[s:e], style[s:e], content[s:e], target[s:e], P, table, sizes, inits, branch_styles, h[s:e], c[s:e], hb[s:e], cb[s:e], first[s:e], rot[s:e], vel[s:e])
+
+
+@nb.njit(cache=True, nogil=True)
+def _refuse_unless_fitting(x, style, content, target, table, sizes, h, c, hb, cb, first, rot, vel):
+    # no bounds are checked in the step: inputs that do not fit would read or write past them
+    N = x.shape[0]
     if not (style.shape[0] == N and content.shape[0] == N and target.shape[0] == N and h.shape[0] == N and c.shape[0] == N
             and hb.shape[0] == N and cb.shape[0] == N and first.shape[0] == N and rot.shape[0] == N and vel.shape[0] == N
             and x.shape[1] + style.shape[1] + content.shape[1] == table[0, 1] and target.shape[1] == sizes[6]):  # fmt: skip
         raise ValueError("the step's inputs do not fit its state (rows: one per stream stepped; widths: the model's)")
-    for s in range(0, N, BLOCK_ROWS):
-        e = min(N, s + BLOCK_ROWS)
+
+
+@nb.njit(cache=True, fastmath=True, error_model="numpy", nogil=True)
+def _step_rows(x, style, content, target, P, table, sizes, inits, branch_styles, h, c, hb, cb, first, rot, vel):
+    """``compiled_step`` on rows that fit, ``BLOCK_ROWS`` at a time."""
+    for s in range(0, x.shape[0], BLOCK_ROWS):
+        e = min(x.shape[0], s + BLOCK_ROWS)
         _step_block(x[s:e], style[s:e], content[s:e], target[s:e], P, table, sizes, inits, branch_styles, h[s:e], c[s:e], hb[s:e], cb[s:e], first[s:e], rot[s:e], vel[s:e])
 
 
 @nb.njit(cache=True, fastmath=True, error_model="numpy", nogil=True)
 def _step_block(x, style, content, target, P, table, sizes, inits, branch_styles, h, c, hb, cb, first, rot, vel):
-    """``compiled_step`` on rows that fit (checked by it)."""
+    """``compiled_step`` on one block of rows that fit."""
     n_enc, L0, L1, n_dec, J = sizes[0], sizes[1], sizes[2], sizes[3], sizes[4]
     N, H, K = x.shape[0], h.shape[1] // L0, len(branch_styles)
     nC = content.shape[1]
@@ -304,10 +327,12 @@ def pack(w: StepWeights) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray
 
 
 class CompiledBackend(NumpyBackend):
-    """The ``numba`` backend: NumpyBackend's state, stepped by the compiled step."""
+    """The ``numba`` backend: NumpyBackend's state, stepped by the compiled step; a step of
+    many streams on up to ``threads`` threads (``data.parallel``)."""
 
-    def __init__(self, model: GeneratorWeights, n_streams: int):
+    def __init__(self, model: GeneratorWeights, n_streams: int, threads: int = 1):
         super().__init__(model, n_streams)
+        self.threads = threads
         self.params, self.table, self.sizes, self.inits = pack(self.w)
         self.branch_styles = np.array(self.w.branch_styles, dtype=np.int64)
         self._whole = (self.h, *(_rows(a) for a in (self.h, self.c, self.hb, self.cb)))  # the whole state, flat, once
@@ -316,7 +341,13 @@ class CompiledBackend(NumpyBackend):
         N = len(x)
         rot, vel = np.empty((N, self.w.n_joints, 4), np.float32), np.empty((N, 3 * self.w.n_joints), np.float32)
         flat = self._whole[1:] if h is self._whole[0] else tuple(_rows(a) for a in (h, c, hb, cb))
-        compiled_step(x, style, content, target, self.params, self.table, self.sizes, self.inits, self.branch_styles, *flat, first, rot, vel)
+        args = (x, style, content, target, self.params, self.table, self.sizes, self.inits, self.branch_styles, *flat, first, rot, vel)
+        shards = kernel_threads(self.threads, N)
+        if shards == 1:
+            compiled_step(*args)
+        else:
+            with one_blas_thread():
+                compiled_step_on_shards(shards, *args)
         return rot, vel
 
 

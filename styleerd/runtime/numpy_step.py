@@ -6,6 +6,7 @@ the backend keeps; and the online labeller's step the same way. The compiled bac
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import cache
 
 import numpy as np
 
@@ -197,3 +198,21 @@ class NumpyLabeller:
             e = np.exp(logits - logits.max(-1, keepdims=True))
             probs.append(e / e.sum(-1, keepdims=True))
         return probs[0], probs[1], h
+
+
+@cache
+def _blas_pools():
+    """Every BLAS a step may call: numpy's, and scipy's, which the numba backend's compiled
+    step calls (loaded here first, or a controller made before that backend would miss it)."""
+    import importlib
+
+    from threadpoolctl import ThreadpoolController
+
+    importlib.import_module("scipy.linalg.cython_blas")
+    return ThreadpoolController().select(user_api="blas")
+
+
+def one_blas_thread():
+    """BLAS held to one thread while steps run on several threads of their own (two callers
+    each asking BLAS for both cores spin against each other)."""
+    return _blas_pools().limit(limits=1)

@@ -19,30 +19,31 @@ import math
 import threading
 from concurrent.futures import ThreadPoolExecutor, wait
 from dataclasses import dataclass
-from functools import cache
 
 import numba as nb
 import numpy as np
 
 from styleerd.data.features import FeatureLayout, stream_features
+from styleerd.data.parallel import kernel_threads
 from styleerd.errors import StyleERDError
 from styleerd.model.stored import GeneratorWeights, LabellerWeights, generator_weights, labeller_stem, labeller_weights, load_labeller_weights, toward_neutral
 from styleerd.motion import quat
 from styleerd.motion.retarget import BODY_PARTS, part_joints
 from styleerd.motion.skeleton import BodyRoles
 from styleerd.runtime.backends import make_backend
-from styleerd.runtime.numpy_step import NumpyLabeller
+from styleerd.runtime.numpy_step import NumpyLabeller, one_blas_thread
 
 
 MAX_FEATURE = 1e6
-# streams per step from which a step is split over the stylizer's threads (measured, numba, 2
-# threads, frames/s serial vs split: 500 streams 197k vs 190k, 700: 199k vs 229k, 1,000: 202k vs
-# 250k; small shards lose to the GIL: 100 streams 160k vs 71k). Threads inside the kernels instead
-# (numba's parallel loops) spun against BLAS's threads on few cores: 1,000 streams 186k -> 100k.
-# onnxruntime's step is one call however many nodes, so smaller shards pay (network alone, 2
-# threads: 256 streams 82k split vs 57k on one thread and 60k on its own 2 intra-op threads; 64
-# streams 51k vs 57k and 56k).
-SHARD_FROM = {"onnx": 128, "onnx-plain": 128}  # per backend; the others 600
+# streams per step from which a numpy or onnx step is split over the stylizer's threads, a shard
+# of streams per thread of a pool (measured, numpy, 2 threads, frames/s serial vs split: 500
+# streams 197k vs 190k, 1,000: 202k vs 250k; small shards lose to the GIL: 100 streams 160k vs
+# 71k). onnxruntime's step is one call however many nodes, so smaller shards pay (network alone,
+# 2 threads: 256 streams 82k split vs 57k on one thread and 60k on its own 2 intra-op threads; 64
+# streams 51k vs 57k and 56k). The numba backend's threads are inside its compiled kernels
+# instead (``data.parallel``: no GIL, no pool handoffs; 1,000 streams 1.07x the frames/s of
+# these shards, 256 streams 1.9x).
+SHARD_FROM = {"onnx": 128, "onnx-plain": 128}  # per backend; numpy 600
 _ALL = slice(None)  # every stream (state rows as views)
 
 
@@ -147,6 +148,15 @@ def _root_on_heading(rot, trajectory, out):
             out[n, j, 0], out[n, j, 1], out[n, j, 2], out[n, j, 3] = w * scale, x * scale, y * scale, z * scale
 
 
+@nb.njit(cache=True, nogil=True, parallel=True)
+def _root_on_heading_on_shards(shards, rot, trajectory, out):
+    """``_root_on_heading`` on ``shards`` slices of the streams, one per thread."""
+    N = rot.shape[0]
+    for k in nb.prange(shards):
+        s, e = N * k // shards, N * (k + 1) // shards
+        _root_on_heading(rot[s:e], trajectory[s:e], out[s:e])
+
+
 class StreamStylizer:
     """``input_style``, ``content`` and ``target`` apply to every stream, or are lists with
     one value per stream; labels left None are inferred.
@@ -188,9 +198,11 @@ class StreamStylizer:
             self.joint_pass[joints[part]] = 1 + (known[0] if known else len(self.part_passes) - 1)
         self.input_joints = np.nonzero(self.joint_pass < 0)[0]
         # steps of many streams split into this many shards on a thread pool, each shard's
-        # network step on one thread (numpy, numba and onnxruntime release the GIL; torch has
-        # its own threads)
-        self.threads = max(1, threads) if backend != "torch" else 1
+        # network step on one thread (numpy and onnxruntime release the GIL); the numba
+        # backend's compiled kernels run on the threads themselves (``kernel_threads``), torch
+        # has its own
+        self.threads = max(1, threads) if backend not in ("torch", "numba") else 1
+        self.kernel_threads = max(1, threads) if backend == "numba" else 1
         self.shard_from = SHARD_FROM.get(backend, 600)
         self.backend = make_backend(backend, model, n_streams * (1 + len(self.part_passes)), threads=max(1, threads) // self.threads)
         self._pool: ThreadPoolExecutor | None = None
@@ -310,7 +322,7 @@ class StreamStylizer:
                 return None  # another shard failed: its error is the one raised
             return self._advance(s, features[k], weights, rotations[s], positions[s], out[s]) if all(f[4].all() for f in features) else None
 
-        with self._sharded_step, _one_blas_thread():
+        with self._sharded_step, one_blas_thread():
             done = self._on_shards(shard, shards)
         for s, f in zip(shards, features):
             self._refuse_unless(f[4], s, rotations[s], positions[s])
@@ -342,7 +354,7 @@ class StreamStylizer:
         raise StyleERDError(f"frame rejected: stream {streams[np.nonzero(~ok)[0][0]]}: its values are too large to stylise")
 
     def _features(self, rotations: np.ndarray, positions: np.ndarray, sel):
-        return stream_features(rotations, positions, self.previous[sel], self.facing[sel], self.started[sel], self.skeleton, self.roles, self.fps, self.stats, MAX_FEATURE)
+        return stream_features(rotations, positions, self.previous[sel], self.facing[sel], self.started[sel], self.skeleton, self.roles, self.fps, self.stats, MAX_FEATURE, threads=self.kernel_threads)
 
     def _pass_rows(self, sel, p: int):
         """The backend's rows of pass ``p`` for the streams ``sel``."""
@@ -399,7 +411,11 @@ class StreamStylizer:
         rot, vel = self._network(sel, x, style, content, weights[sel])
         if self.root_speed:
             positions = self._stylised_root(sel, x, vel, positions)
-        _root_on_heading(np.ascontiguousarray(rot), traj, out)
+        shards = kernel_threads(self.kernel_threads, len(out))
+        if shards > 1:
+            _root_on_heading_on_shards(shards, np.ascontiguousarray(rot), traj, out)
+        else:
+            _root_on_heading(np.ascontiguousarray(rot), traj, out)
         if len(self.input_joints):  # parts that keep the input's own motion
             out[:, self.input_joints] = quat.normalize(rotations[:, self.input_joints])
         if self.labeller is not None:
@@ -408,22 +424,6 @@ class StreamStylizer:
         self.labels[0][sel], self.labels[1][sel] = style, content
         self.blend.frame[sel] += 1
         return out, positions
-
-
-@cache
-def _blas_pools():
-    """Every BLAS the step may call: numpy's, and scipy's, which the numba backend's compiled
-    step calls (loaded here first, or a controller made before that backend would miss it)."""
-    import importlib
-
-    from threadpoolctl import ThreadpoolController
-
-    importlib.import_module("scipy.linalg.cython_blas")
-    return ThreadpoolController().select(user_api="blas")
-
-
-def _one_blas_thread():
-    return _blas_pools().limit(limits=1)
 
 
 def _slices(n: int, parts: int) -> list[slice]:
