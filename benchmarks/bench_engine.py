@@ -6,7 +6,8 @@ each figure's best round (the one least disturbed by other work on the machine).
 Per commit: the network step at batch 1 (numba backend, and the ONNX graphs in onnxruntime
 through ``OnnxBackend``: the graph of every style's branches, and of one style's), end to end at batch 1 (raw
 BVH channel values in and out of a 22-joint Mixamo-named skeleton: retargeting both ways,
-features, network, foot cleanup; numba and numpy backends), and 1,000 streams on 2 threads
+features, network, foot cleanup; numba and numpy backends), 64 and 256 streams on 2 threads
+(numba, end to end), and 1,000 streams on 2 threads
 (numba: end to end, and the network alone; numpy and ONNX: the network alone) against the float32 matrix-multiply peak measured in
 the same process.
 
@@ -34,7 +35,7 @@ FIGURES = ("step_us numba", "step_us onnx", "step_us onnx one style", "step_us o
            "end_to_end_us numba", "end_to_end_us numpy", "frames_per_s 1000 streams numba", "fraction_of_peak 1000 streams numba",
            "frames_per_s 1000 streams numba, network alone", "fraction_of_peak 1000 streams numba, network alone",
            "frames_per_s 1000 streams numpy, network alone", "frames_per_s 1000 streams onnx, network alone",
-           "fraction_of_peak 1000 streams numba, products alone")  # fmt: skip
+           "fraction_of_peak 1000 streams numba, products alone", "frames_per_s 64 streams numba", "frames_per_s 256 streams numba")  # fmt: skip
 
 
 def measure(steps: int) -> dict:
@@ -60,6 +61,8 @@ def measure(steps: int) -> dict:
     fps = throughput(model, "numba", 1000)
     out["frames_per_s 1000 streams numba"] = round(fps)
     out["fraction_of_peak 1000 streams numba"] = round(fps * flops_per_frame(model) / peak, 4)
+    for n in (64, 256):  # fewer streams than a step once needed to be split over threads
+        out[f"frames_per_s {n} streams numba"] = round(throughput(model, "numba", n))
     if hasattr(bench, "network_throughput"):  # the network alone, as `styleerd bench` measures it
         net = bench.network_throughput(model, "numba")
         out["frames_per_s 1000 streams numba, network alone"] = round(net)

@@ -1,8 +1,7 @@
 """The generator's step compiled with numba: the numpy backend's arithmetic (same layout, same
 gate order) in one compiled, GIL-free call, so a frame pays for its floating-point work and not
-for a hundred numpy dispatches, and shards of streams on threads run side by side (numpy's step
-holds the GIL between its products: two shards of 500 streams on two threads took 1.35x one
-shard's time; the compiled step's 1.1x).
+for a hundred numpy dispatches; a step of many streams runs one shard of streams per thread in
+numba's parallel loops (``compiled_step_on_shards``, ``data.parallel``).
 The products are BLAS calls from inside the compiled step (``_gemm``: sgemm reading the
 state's columns in place and accumulating into its output, nothing copied), but for a single
 stream (``LOOPS_UP_TO``) compiled loops. Many streams go through the whole network a block of
