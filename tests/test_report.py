@@ -51,6 +51,9 @@ def test_the_bench_table_of_a_kept_bench_json():
 
     text = table(json.loads((Path(__file__).parents[1] / "docs" / "bench.json").read_text()))
     assert "frames/s, 1,000 streams (2 threads)" in text
+    numba = list(json.loads((Path(__file__).parents[1] / "docs" / "bench.json").read_text())["backends"]).index("numba")
+    row = next(line for line in text.splitlines() if line.startswith("| 1,000 streams (2 threads; each rate the best of 3 windows): fraction of matmul peak |"))
+    assert row.split(" | ")[1 + numba].endswith(" %")  # issue 18's target, for the backend it was set for
 
 
 def test_the_added_styles_section_sets_the_critics_side_by_side(tmp_path):

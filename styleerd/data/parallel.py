@@ -14,9 +14,10 @@ from functools import cache
 
 import numba as nb
 
-# streams per step from which the kernels split over threads (measured, numba backend, 2
-# threads, frames/s of the whole stylizer, one thread vs two: 16 streams 180k vs 180k, 64 streams
-# 224k vs 345k, 256 streams 229k vs 432k)
+# streams per step from which the kernels split over threads (numba backend, 2 threads, the
+# whole stylizer's frames/s against one thread, medians of 5 alternating rounds of
+# benchmarks/bench_engine.py: 64 streams 1.45x, 256 streams 1.74x; at 16 streams a one-off
+# measure found no gain: a shard there is half a block of the step)
 PARALLEL_FROM = 32
 
 

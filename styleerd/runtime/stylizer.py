@@ -41,8 +41,8 @@ MAX_FEATURE = 1e6
 # 71k). onnxruntime's step is one call however many nodes, so smaller shards pay (network alone,
 # 2 threads: 256 streams 82k split vs 57k on one thread and 60k on its own 2 intra-op threads; 64
 # streams 51k vs 57k and 56k). The numba backend's threads are inside its compiled kernels
-# instead (``data.parallel``: no GIL, no pool handoffs; 1,000 streams 1.07x the frames/s of
-# these shards, 256 streams 1.9x).
+# instead (``data.parallel``: no GIL, no pool handoffs; 1,000 streams 1.09x the frames/s of
+# these shards, medians of 5 alternating rounds of benchmarks/bench_engine.py).
 SHARD_FROM = {"onnx": 128, "onnx-plain": 128}  # per backend; numpy 600
 _ALL = slice(None)  # every stream (state rows as views)
 
