@@ -152,12 +152,12 @@ def test_shards_of_streams_stepped_at_once_equal_one_step_of_all(model, name):
     assert network_throughput(model, name, n_streams=64, seconds=0.01) > 0
 
 
-@pytest.mark.parametrize("n", [3, 100])
-def test_numba_backend_refuses_inputs_that_do_not_fit_its_state(model, n):
+@pytest.mark.parametrize("n, threads", [(3, 1), (100, 1), (100, 2)])
+def test_numba_backend_refuses_inputs_that_do_not_fit_its_state(model, n, threads):
     """The compiled step does not check bounds; a call whose rows or widths do not fit is an
-    error before it runs, never a write past the state."""
+    error before it runs, never a write past the state (on 2 threads: before the shards split)."""
     c = model.config
-    b = make_backend("numba", model, n)
+    b = make_backend("numba", model, n, threads)
     x = np.zeros((n, c.feature_dim), np.float32)
     one = lambda k: np.eye(k, dtype=np.float32)[np.zeros(n, int)]  # noqa: E731
     style, content, target = one(len(c.input_styles)), one(len(c.contents)), one(len(c.styles))

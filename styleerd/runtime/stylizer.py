@@ -36,9 +36,9 @@ from styleerd.runtime.numpy_step import NumpyLabeller, one_blas_thread
 
 MAX_FEATURE = 1e6
 # streams per step from which a numpy or onnx step is split over the stylizer's threads, a shard
-# of streams per thread of a pool (measured, numpy, 2 threads, frames/s serial vs split: 500
-# streams 197k vs 190k, 1,000: 202k vs 250k; small shards lose to the GIL: 100 streams 160k vs
-# 71k). onnxruntime's step is one call however many nodes, so smaller shards pay (network alone,
+# of streams per thread of a pool (measured with the numba step when it was split so, 2
+# threads, frames/s serial vs split: 500 streams 197k vs 190k, 1,000: 202k vs 250k; small shards
+# lose to the GIL: 100 streams 160k vs 71k). onnxruntime's step is one call however many nodes, so smaller shards pay (network alone,
 # 2 threads: 256 streams 82k split vs 57k on one thread and 60k on its own 2 intra-op threads; 64
 # streams 51k vs 57k and 56k). The numba backend's threads are inside its compiled kernels
 # instead (``data.parallel``: no GIL, no pool handoffs; 1,000 streams 1.09x the frames/s of
