@@ -54,7 +54,7 @@ def main() -> None:
     # callees); the serial kernels too: below data.parallel.PARALLEL_FROM streams, or on one thread
     for module, name, label in ((features, "_stream_features_on_shards", "features"), (features, "_stream_features_kernel", "features"),
                                 (compiled, "compiled_step_on_shards", "network"), (compiled, "compiled_step", "network"),
-                                (stylizer, "_root_on_heading_on_shards", "root on heading"), (stylizer, "_root_on_heading", "root on heading")):  # fmt: skip
+                                (stylizer, "_root_on_heading_on_shards", "root_on_heading"), (stylizer, "_root_on_heading", "root_on_heading")):  # fmt: skip
         timed(module, name, label)
     peak = matmul_peak(args.threads)
     print(f"{N:,} streams, {args.threads} threads; matmul peak {peak / 1e9:.1f} GFLOP/s")
@@ -69,7 +69,7 @@ def main() -> None:
         parts = {k: v / args.steps * 1e6 for k, v in spent.items()}
         rest = total - sum(parts.values())
         fps = N / total * 1e6
-        cells = " | ".join(f"{parts[k]:.0f} ({100 * parts[k] / total:.0f} %)" for k in ("features", "network", "root on heading"))
+        cells = " | ".join(f"{parts[k]:.0f} ({100 * parts[k] / total:.0f} %)" for k in ("features", "network", "root_on_heading"))
         print(f"| {r + 1} | {total:.0f} | {cells} | {rest:.0f} ({100 * rest / total:.0f} %) | {fps:,.0f} | {fps * flops_per_frame(model) / peak:.3f} |")
         rounds.append({"step_us": round(total, 1), **{f"{k}_us": round(v, 1) for k, v in parts.items()}, "rest_us": round(rest, 1),
                        "frames_per_s": round(fps), "fraction_of_peak": round(fps * flops_per_frame(model) / peak, 4)})  # fmt: skip

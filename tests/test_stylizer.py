@@ -302,3 +302,19 @@ def test_kernel_threads_are_one_for_small_steps_and_at_most_numbas():
     assert kernel_threads(1, 10_000) == 1 and kernel_threads(8, PARALLEL_FROM - 1) == 1
     assert kernel_threads(10_000, PARALLEL_FROM) == numba.config.NUMBA_NUM_THREADS == numba.get_num_threads()
     assert numba.config.THREADING_LAYER == "threadsafe"
+
+
+def test_the_stream_profile_accounts_for_every_part_of_a_step(tmp_path):
+    """benchmarks/profile_streams.py times each compiled kernel of a many-stream step from Python
+    (on 2 threads: the parallel ones); the parts and the rest add up to the step."""
+    import json
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    out = tmp_path / "profile.json"
+    root = Path(__file__).parents[1]
+    subprocess.run([sys.executable, "benchmarks/profile_streams.py", "--streams", "40", "--steps", "5", "--rounds", "1", "--json", str(out)], cwd=root, check=True, capture_output=True, timeout=600)
+    r = json.loads(out.read_text())["rounds"][0]
+    parts = [r["features_us"], r["network_us"], r["root_on_heading_us"]]
+    assert all(p > 0 for p in parts) and abs(sum(parts) + r["rest_us"] - r["step_us"]) < 1.0
