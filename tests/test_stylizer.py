@@ -292,6 +292,27 @@ def test_root_speed_is_causal(model):
         assert np.array_equal(ra, rb) and np.array_equal(pa, pb)
 
 
+def test_numba_kernels_on_threads_with_parts_root_speed_and_some_rows_equal_one_thread(model):
+    """Every path of the many-stream step through the threaded kernels: body parts with their
+    own target (a backend pass each) and the input's own arms, the root speed, steps of some
+    streams only (by index and as a slice), a stream reset mid-way: as on one thread."""
+    n, frames = 48, 8
+    ms = [walking_motion(frames, seed=k) for k in range(n)]
+    frame = lambda t, rows=slice(None): (np.stack([m.rotations[t] for m in ms])[rows], np.stack([m.positions[t] for m in ms])[rows])  # noqa: E731
+    make = lambda threads: StreamStylizer(model, "normal", "walk", {"old": 1.0}, n_streams=n, backend="numba", threads=threads,  # noqa: E731
+                                          parts="legs=angry,arms=input", root_speed=True)  # fmt: skip
+    one, two = make(1), make(2)
+    some = np.arange(0, n, 3)  # 16 streams: below PARALLEL_FROM
+    most = np.arange(40)  # 40: at or above it
+    for t in range(frames):
+        for st in (one, two):
+            if t == 4:
+                st.reset([5, 6])
+        rows = [None, most, some][t % 3]
+        got = [st.step(*frame(t, slice(None) if rows is None else rows), rows=rows) for st in (one, two)]
+        assert np.abs(got[0][0] - got[1][0]).max() <= 1e-5 and np.abs(got[0][1] - got[1][1]).max() <= 1e-9, t
+
+
 def test_kernel_threads_are_one_for_small_steps_and_at_most_numbas():
     """A step's compiled kernels run on the threads asked for, capped at numba's, from
     ``PARALLEL_FROM`` streams; numba uses a layer that allows concurrent launches."""
