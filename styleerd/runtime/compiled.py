@@ -172,18 +172,22 @@ def compiled_step(x, style, content, target, P, table, sizes, inits, branch_styl
     each stream's row flat: h, c ``[N, L0 * H]``, hb, cb ``[N, K * L1 * H]`` (branch, layer).
     Steps ``BLOCK_ROWS`` streams at a time through the whole network."""
     _refuse_unless_fitting(x, style, content, target, table, sizes, h, c, hb, cb, first, rot, vel)
-    _step_rows(x, style, content, target, P, table, sizes, inits, branch_styles, h, c, hb, cb, first, rot, vel)
+    N = x.shape[0]
+    for s in range(0, N, BLOCK_ROWS):
+        e = min(N, s + BLOCK_ROWS)
+        _step_block(x[s:e], style[s:e], content[s:e], target[s:e], P, table, sizes, inits, branch_styles, h[s:e], c[s:e], hb[s:e], cb[s:e], first[s:e], rot[s:e], vel[s:e])
 
 
 @nb.njit(cache=True, nogil=True, parallel=True)
 def compiled_step_on_shards(shards, x, style, content, target, P, table, sizes, inits, branch_styles, h, c, hb, cb, first, rot, vel):
     """``compiled_step`` on ``shards`` slices of the streams at once, one per thread (the caller
-    holds BLAS to one thread)."""
+    holds BLAS to one thread). Inputs that do not fit are refused before the split (a shard of
+    inputs that fit fits too)."""
     _refuse_unless_fitting(x, style, content, target, table, sizes, h, c, hb, cb, first, rot, vel)
     N = x.shape[0]
     for k in nb.prange(shards):
         s, e = N * k // shards, N * (k + 1) // shards
-        _step_rows(x[s:e], style[s:e], content[s:e], target[s:e], P, table, sizes, inits, branch_styles, h[s:e], c[s:e], hb[s:e], cb[s:e], first[s:e], rot[s:e], vel[s:e])
+        compiled_step(x[s:e], style[s:e], content[s:e], target[s:e], P, table, sizes, inits, branch_styles, h[s:e], c[s:e], hb[s:e], cb[s:e], first[s:e], rot[s:e], vel[s:e])
 
 
 @nb.njit(cache=True, nogil=True)
@@ -194,14 +198,6 @@ def _refuse_unless_fitting(x, style, content, target, table, sizes, h, c, hb, cb
             and hb.shape[0] == N and cb.shape[0] == N and first.shape[0] == N and rot.shape[0] == N and vel.shape[0] == N
             and x.shape[1] + style.shape[1] + content.shape[1] == table[0, 1] and target.shape[1] == sizes[6]):  # fmt: skip
         raise ValueError("the step's inputs do not fit its state (rows: one per stream stepped; widths: the model's)")
-
-
-@nb.njit(cache=True, fastmath=True, error_model="numpy", nogil=True)
-def _step_rows(x, style, content, target, P, table, sizes, inits, branch_styles, h, c, hb, cb, first, rot, vel):
-    """``compiled_step`` on rows that fit, ``BLOCK_ROWS`` at a time."""
-    for s in range(0, x.shape[0], BLOCK_ROWS):
-        e = min(x.shape[0], s + BLOCK_ROWS)
-        _step_block(x[s:e], style[s:e], content[s:e], target[s:e], P, table, sizes, inits, branch_styles, h[s:e], c[s:e], hb[s:e], cb[s:e], first[s:e], rot[s:e], vel[s:e])
 
 
 @nb.njit(cache=True, fastmath=True, error_model="numpy", nogil=True)
