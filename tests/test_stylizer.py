@@ -339,3 +339,28 @@ def test_the_stream_profile_accounts_for_every_part_of_a_step(tmp_path):
     r = json.loads(out.read_text())["rounds"][0]
     parts = [r["features_us"], r["network_us"], r["root_on_heading_us"]]
     assert all(p > 0 for p in parts) and abs(sum(parts) + r["rest_us"] - r["step_us"]) < 1.0
+
+
+def test_without_a_thread_safe_layer_the_kernels_stay_on_one_thread(model, monkeypatch):
+    """Where neither OpenMP nor TBB loads, numba's only layer could not take concurrent launches:
+    the kernels then run on the calling thread, and a stylizer asked for 2 threads still steps."""
+    import numba
+
+    from styleerd.data import parallel
+
+    def unloadable(name):
+        raise OSError(f"{name}: libgomp.so.1: cannot open shared object file")
+
+    monkeypatch.setattr(parallel.importlib, "import_module", unloadable)
+    parallel._threadsafe_layer.cache_clear()
+    try:
+        assert parallel.kernel_threads(2, 1000) == 1
+        ms = [walking_motion(3, seed=k) for k in range(40)]
+        frame = lambda t: (np.stack([m.rotations[t] for m in ms]), np.stack([m.positions[t] for m in ms]))  # noqa: E731
+        one, two = (StreamStylizer(model, "normal", "walk", {"old": 1.0}, n_streams=40, backend="numba", threads=k) for k in (1, 2))
+        for t in range(3):
+            assert np.abs(two.step(*frame(t))[0] - one.step(*frame(t))[0]).max() <= 1e-5
+    finally:
+        monkeypatch.undo()
+        parallel._threadsafe_layer.cache_clear()
+    assert parallel.kernel_threads(2, 1000) == min(2, numba.config.NUMBA_NUM_THREADS)
