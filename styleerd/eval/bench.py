@@ -37,7 +37,7 @@ from styleerd.motion.retarget import to_target
 from styleerd.runtime.backends import BACKENDS, make_backend
 from styleerd.runtime.channels import ChannelStylizer
 from styleerd.runtime.offline import map_skeleton
-from styleerd.runtime.stylizer import StreamStylizer, _slices
+from styleerd.runtime.stylizer import OWN_THREADS, StreamStylizer, _slices
 
 PAPER_GTX1060_MS = {"online per frame": 1.73, "L=60": 7.47, "L=90": 10.18, "L=120": 13.22, "input frames needed": 1}
 STREAMS = (1, 4, 10, 16, 64, 100, 256, 1000, 4096)  # the throughput curve's points
@@ -161,7 +161,7 @@ def network_throughput(model: StyleERD, backend: str, n_streams: int = 1000, sec
     from threadpoolctl import threadpool_limits
 
     c = model.config
-    sharded = backend not in ("torch", "numba") and threads > 1
+    sharded = backend not in OWN_THREADS and threads > 1
     b = make_backend(backend, model, n_streams, 1 if sharded else threads)
     x = np.random.default_rng(0).normal(0, 1, (n_streams, c.feature_dim)).astype(np.float32)
     one_hot = lambda k, i: np.eye(k, dtype=np.float32)[np.full(n_streams, i)]  # noqa: E731

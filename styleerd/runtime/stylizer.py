@@ -38,12 +38,13 @@ MAX_FEATURE = 1e6
 # streams per step from which a numpy or onnx step is split over the stylizer's threads, a shard
 # of streams per thread of a pool (measured with the numba step when it was split so, 2
 # threads, frames/s serial vs split: 500 streams 197k vs 190k, 1,000: 202k vs 250k; small shards
-# lose to the GIL: 100 streams 160k vs 71k). onnxruntime's step is one call however many nodes, so smaller shards pay (network alone,
-# 2 threads: 256 streams 82k split vs 57k on one thread and 60k on its own 2 intra-op threads; 64
-# streams 51k vs 57k and 56k). The numba backend's threads are inside its compiled kernels
+# lose to the GIL: 100 streams 160k vs 71k). onnxruntime's step is one call however many nodes,
+# so smaller shards pay (network alone, 2 threads: 256 streams 82k split vs 57k on one thread and
+# 60k on its own 2 intra-op threads; 64 streams 51k vs 57k and 56k). The numba backend's threads are inside its compiled kernels
 # instead (``data.parallel``: no GIL, no pool handoffs; 1,000 streams 1.09x the frames/s of
 # these shards, medians of 5 alternating rounds of benchmarks/bench_engine.py).
 SHARD_FROM = {"onnx": 128, "onnx-plain": 128}  # per backend; numpy 600
+OWN_THREADS = ("torch", "numba")  # backends whose steps run on threads of their own (torch's pool, numba's parallel loops), never on the stylizer's pool
 _ALL = slice(None)  # every stream (state rows as views)
 
 
@@ -201,7 +202,7 @@ class StreamStylizer:
         # network step on one thread (numpy and onnxruntime release the GIL); the numba
         # backend's compiled kernels run on the threads themselves (``kernel_threads``), torch
         # has its own
-        self.threads = max(1, threads) if backend not in ("torch", "numba") else 1
+        self.threads = max(1, threads) if backend not in OWN_THREADS else 1
         self.kernel_threads = max(1, threads) if backend == "numba" else 1
         self.shard_from = SHARD_FROM.get(backend, 600)
         self.backend = make_backend(backend, model, n_streams * (1 + len(self.part_passes)), threads=max(1, threads) // self.threads)
