@@ -125,6 +125,8 @@ ATTACKS = {
     "set with mix NaN": (_frames(VALUES, ['{"type": "set", "mix": {"elderly": NaN}}']), 1008, "mixture weights must be finite"),
     "unknown message type": (_frames(VALUES, [json.dumps({"type": "dance"})]), 1008, "unknown message type"),
     "a watcher that sends frames": ([json.dumps({"type": "watch"}), frame(0, VALUES[0])], 1008, "expected a JSON text message"),
+    "watch token a number": ([json.dumps({"type": "watch", "token": 5})], 1008, "'token' must be the text"),
+    "watch token 10,000 characters": ([json.dumps({"type": "watch", "token": "a" * 10_000})], 1008, "'token' must be the text"),
 }
 
 
@@ -376,3 +378,55 @@ def test_fuzzed_messages_on_an_open_stream_are_taken_or_refused_clearly(style_se
 
     run()
     server._close_stream(stream)
+
+
+def test_a_watcher_with_a_non_ascii_token_locks_nobody_out(server, clip):
+    """Issue 36: a watcher's token "é" made every private hello after it fail inside the stream's
+    registration, each keeping its slot, until the server was full for everyone. Now each private
+    hello (more than the server's 40 slots) is taken and released, and the probe goes on."""
+    url = server[0]
+    m, values, _ = clip
+    watcher = connect(url, open_timeout=20, legacy=True)
+    watcher.send(json.dumps({"type": "watch", "token": "é"}))
+    assert json.loads(watcher.recv(timeout=20))["type"] == "waiting"
+    for k in range(45):
+        ws = connect(url, open_timeout=20, legacy=True)
+        ws.send(json.dumps({**hello(m, 30.0, "elderly", 1.0, None, f"private-{k}"), "private": True}))
+        assert json.loads(ws.recv(timeout=20))["type"] == "ready", k
+        ws.close()
+    with pytest.raises(TimeoutError):
+        watcher.recv(timeout=0.5)  # it follows no private stream
+    watcher.close()
+    _, stats = probe(url, clip)
+    deadline = time.time() + 10
+    while stats["streams"] != 1 and time.time() < deadline:
+        time.sleep(0.2)
+        _, stats = probe(url, clip)
+    assert stats["streams"] == 1, stats
+
+
+def test_fuzzed_watcher_tokens_never_keep_a_stream(style_server):
+    """Any token a watcher holds, compared with a private stream's: the stream opens and closes and
+    leaves no slot, watcher or pool behind."""
+    from hypothesis import HealthCheck, given, settings
+    from hypothesis import strategies as st
+
+    from styleerd.serve.server import Watcher
+
+    server, loop = style_server
+    private = {**json.loads(_hello()), "private": True}
+
+    @settings(max_examples=200, deadline=None, suppress_health_check=list(HealthCheck), derandomize=True)
+    @given(st.text(max_size=40))
+    def run(token):
+        watcher = Watcher(_FakeConnection(), None, __import__("asyncio").Queue(4), token=token)
+        server.watchers.add(watcher)
+        try:
+            stream = loop.run_until_complete(server._open_stream(_FakeConnection(), private))
+            assert watcher.stream is None  # no token but the stream's own follows it
+            server._close_stream(stream)
+        finally:
+            server.watchers.discard(watcher)
+        assert not server.streams and not server.pools and not server.watchers
+
+    run()

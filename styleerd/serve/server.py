@@ -61,6 +61,7 @@ GOING_AWAY, INVALID_DATA, POLICY, INTERNAL, TRY_LATER = 1001, 1007, 1008, 1011, 
 HELLO_TIMEOUT_S = 10.0
 OVERLOAD = 4  # x queue: frames a client in real time may have waiting while the server is behind
 log = logging.getLogger("styleerd.serve")
+MAX_TOKEN = 200  # characters of a watcher's token (a stream's own is 22)
 SEND_BUFFER = 1 << 16  # bytes of kernel send buffer per connection
 
 
@@ -240,9 +241,13 @@ class StyleServer:
                         private=bool(msg.get("private", False)), token=secrets.token_urlsafe(16))  # fmt: skip
         pool.streams[row] = stream
         self.streams[stream.id] = stream
-        for w in self.watchers:
-            if w.stream is None and self._follows(w, stream):
-                self._attach(w, stream)
+        try:  # from here the stream holds a slot: anything that fails gives it back
+            for w in self.watchers:
+                if w.stream is None and self._follows(w, stream):
+                    self._attach(w, stream)
+        except BaseException:
+            self._close_stream(stream)
+            raise
         log.info("stream %d %r opened: %d joints, %g fps, target %s", stream.id, stream.name, pool.skeleton.n_joints, fps, target)
         return stream
 
@@ -453,7 +458,8 @@ class StyleServer:
 
     @staticmethod
     def _follows(watcher: Watcher, stream: Stream) -> bool:
-        if stream.private and not secrets.compare_digest(watcher.token, stream.token):
+        # as bytes: compare_digest raises on a str with non-ASCII characters
+        if stream.private and not secrets.compare_digest(watcher.token.encode(), stream.token.encode()):
             return False
         return watcher.name is None or watcher.name == stream.name
 
@@ -472,16 +478,18 @@ class StyleServer:
                                            "parents": [int(p) for p in sk.parents], "target": self._weights(stream)}), drop_oldest=True)  # fmt: skip
 
     async def _watch(self, ws: ServerConnection, msg: dict) -> None:
-        name, token = msg.get("stream"), msg.get("token")
-        watcher = Watcher(ws, name if isinstance(name, str) else None, asyncio.Queue(self.config.queue), fronts=bool(msg.get("fronts", False)),
-                          token=token if isinstance(token, str) else "")  # fmt: skip
+        name, token = msg.get("stream"), msg.get("token", "")
+        if not isinstance(token, str) or len(token) > MAX_TOKEN:
+            raise ClientError(POLICY, f"'token' must be the text a private stream's 'ready' carried (at most {MAX_TOKEN} characters)")
+        watcher = Watcher(ws, name if isinstance(name, str) else None, asyncio.Queue(self.config.queue), fronts=bool(msg.get("fronts", False)), token=token)
         self.watchers.add(watcher)
-        candidates = [s for s in self.streams.values() if self._follows(watcher, s)]
-        await ws.send(json.dumps({"type": "waiting", "streams": [s.name for s in self.streams.values() if not s.private]}))
-        if candidates:
-            self._attach(watcher, candidates[-1])
-        sender = asyncio.create_task(_send_loop(ws, watcher.outbox))
-        try:
+        sender = None
+        try:  # the watcher is released however its connection ends
+            candidates = [s for s in self.streams.values() if self._follows(watcher, s)]
+            await ws.send(json.dumps({"type": "waiting", "streams": [s.name for s in self.streams.values() if not s.private]}))
+            if candidates:
+                self._attach(watcher, candidates[-1])
+            sender = asyncio.create_task(_send_loop(ws, watcher.outbox))
             async for message in ws:  # a viewer may steer the style of the stream it watches
                 msg = _json(message)
                 if msg.get("type") != "set":
@@ -492,7 +500,8 @@ class StyleServer:
             self.watchers.discard(watcher)
             if watcher.stream is not None:
                 watcher.stream.watchers.discard(watcher)
-            sender.cancel()
+            if sender is not None:
+                sender.cancel()
 
     # ---- HTTP: the viewer page, its files, demo clips, the list of streams ----
 
