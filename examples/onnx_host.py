@@ -10,7 +10,10 @@ with styleerd's own stylizer.
 ``poses.npz`` holds ``rotations [T, J, 4]`` (local unit quaternions w, x, y, z) and
 ``positions [T, J, 3]`` (local translations; the root's is its world position), ``fps``;
 ``out.npz`` gets the stylised ``rotations`` (same layout; root position and translations are
-the input's).
+the input's). Each frame runs the graph twice, each run with its own recurrent state: into the
+target, and into the input's own style (the identity transfer); the output is the input's pose
+turned, joint by joint, by the change from the second to the first (input * inv(identity) *
+target), so any action passes through with the style's change on it, as styleerd's stylizer does.
 """
 
 from __future__ import annotations
@@ -64,10 +67,12 @@ class Host:
         self.left, self.right, self.feet = r["left"], r["right"], r["feet"]
         self.max_foot_speed = s["contact_speed_leg_lengths"] * r["leg_length"]
         one_hot = lambda names, name: np.eye(len(names), dtype=np.float32)[[names.index(name)]]  # noqa: E731
-        self.style, self.content = one_hot(s["styles"], input_style), one_hot(s["contents"], content)
+        self.style, self.content = one_hot(s.get("input_styles", s["styles"]), input_style), one_hot(s["contents"], content)
         self.target = one_hot(s["styles"], style)
+        self.identity = np.zeros_like(self.target)
+        self.identity[:, : self.style.shape[1]] = self.style  # the input's own style, among the targets
         rows, _, width = s["state_shapes"]["h"]  # [1, N, S H] (LSTM form) or [S, N, H] (plain); N = 1 here
-        self.h, self.c = np.zeros((rows, 1, width), np.float32), np.zeros((rows, 1, width), np.float32)
+        self.state = {k: [np.zeros((rows, 1, width), np.float32), np.zeros((rows, 1, width), np.float32)] for k in ("target", "identity")}
         self.previous: np.ndarray | None = None  # global joint positions of the last frame
         self.facing = np.array([0.0, 0.0, 1.0])
 
@@ -101,10 +106,18 @@ class Host:
         """One frame's local rotations ``[J, 4]`` and translations ``[J, 3]`` -> stylised rotations."""
         first = np.array([[0.0 if self.previous is not None else 1.0]], np.float32)
         x, heading = self.features(rot, pos, fps)
-        out, _, self.h, self.c = self.session.run(None, {"features": x, "style": self.style, "content": self.content, "target": self.target,
-                                                         "first_frame": first, "h": self.h, "c": self.c})  # fmt: skip
-        out = out[0].astype(np.float64)
-        out[0] = qmul(heading, out[0])  # the root back from the heading frame
+        poses = {}
+        for key, target in (("target", self.target), ("identity", self.identity)):
+            h, c = self.state[key]
+            out, _, h, c = self.session.run(None, {"features": x, "style": self.style, "content": self.content, "target": target,
+                                                   "first_frame": first, "h": h, "c": c})  # fmt: skip
+            self.state[key] = [h, c]
+            out = out[0].astype(np.float64)
+            out[0] = qmul(heading, out[0])  # the root back from the heading frame
+            poses[key] = out / np.linalg.norm(out, axis=-1, keepdims=True)
+        given = rot / np.linalg.norm(rot, axis=-1, keepdims=True)
+        inverse = poses["identity"] * [1, -1, -1, -1]
+        out = qmul(given, qmul(inverse, poses["target"]))
         return out / np.linalg.norm(out, axis=-1, keepdims=True)
 
 

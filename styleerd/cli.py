@@ -99,7 +99,7 @@ def _transfer(args: argparse.Namespace) -> None:
     target = target_weights(model, args.style, args.intensity, _parse_mix(args.mix) if args.mix else None)
     explicit = _read_joint_map(args.joint_map) if args.joint_map else None
     parts = part_targets(model, args.parts)  # checked once here, not once per file
-    options = TransferOptions(target, args.input_style, args.content, explicit, not args.no_cleanup, args.backend, args.mesh, parts or None, args.root_speed)
+    options = TransferOptions(target, args.input_style, args.content, explicit, not args.no_cleanup, args.backend, args.mesh, parts or None, args.root_speed, args.pose)
     out = Path(args.output)
     into_folder = len(args.input) > 1 or Path(args.input[0]).is_dir() or out.is_dir() or args.output.endswith(os.sep)
     if not into_folder:
@@ -223,7 +223,7 @@ def _eval_quality(args: argparse.Namespace) -> None:
     from styleerd.eval.metrics import evaluate_model
     from styleerd.model.checkpoint import load_generator
 
-    result = evaluate_model(load_generator(args.model)[0], args.data, args.split)
+    result = evaluate_model(load_generator(args.model)[0], args.data, args.split, args.pose)
     print(json.dumps(result, indent=1))
     if args.json:  # one entry per model, the file's others kept (docs/recipes-val.json: a choice made on val)
         from styleerd.atomic import atomic_write_text
@@ -277,6 +277,21 @@ def _eval_rotations(args: argparse.Namespace) -> None:
     report = rotation_report(model, meta["data"]["fps"], args.data, stylised=args.style)
     if args.out:
         write(report, Path(args.out))
+    print(markdown(report))
+
+
+def _eval_actions(args: argparse.Namespace) -> None:
+    from styleerd.atomic import atomic_write_text
+    from styleerd.eval.actions import evaluate_actions, evaluate_feet, markdown
+    from styleerd.model.stored import load_generator_weights
+
+    out = check_output(args.out)
+    model = load_generator_weights(args.model)
+    report = evaluate_actions(model, args.data, progress=print)
+    if not args.no_feet:
+        report["feet"] = evaluate_feet(model, args.data)
+    atomic_write_text(out.with_suffix(".json"), json.dumps(report, indent=1) + "\n")
+    atomic_write_text(out.with_suffix(".md"), markdown(report) + "\n")
     print(markdown(report))
 
 
@@ -415,6 +430,8 @@ class _Parser(argparse.ArgumentParser):
         self.exit(2, f"{self.prog}: error: {message} (see '{self.prog} -h')\n")
 
 
+POSES = ("input", "network")  # runtime.stylizer.POSES, here without importing numba
+POSE_HELP = "what the output's poses are built on: input (default), the input's own pose plus the style's change, which keeps any action; network, the network's pose (the paper's output)"
 MODEL_HELP = "a model file, or a model name in $STYLEERD_MODELS or among the shipped ones (default: styleerd-bandai2)"
 GROUPS = {
     "use": ("transfer", "styles", "info", "resample", "export-onnx", "demo"),
@@ -508,6 +525,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--backend", default="numpy", choices=["torch", "numpy", "numba", "onnx", "onnx-plain"], help="network step backend (default numpy; torch is the reference; numba is the fastest)")
     p.add_argument("--no-cleanup", action="store_true", help="leave the feet as the network outputs them (default: pin planted feet)")
     p.add_argument("--root-speed", action="store_true", help="the root's ground speed in the target style too (from the network; default: the input's root path as it is)")
+    p.add_argument("--pose", choices=POSES, default="input", help=POSE_HELP)
     p.add_argument("--joint-map", help="JSON object {model joint: input joint} completing or overriding the automatic mapping")
     p.add_argument("--model", help=MODEL_HELP)
     p.add_argument("-o", "--output", required=True, help="OUT.bvh (the input's skeleton and channel layout), OUT.glb, OUT.fbx, or from a glTF input OUT.glb/.vrm (the input file, animation replaced); a folder for several inputs")
@@ -547,6 +565,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--data", help="data folder")
     p.add_argument("--json", help="also write the figures into this JSON file, under the model's name (other entries kept)")
     p.add_argument("--as-name", help="the entry's name in --json (default: the model's file name, or shipped)")
+    p.add_argument("--pose", choices=POSES, default="network", help="the transfers' poses: " + POSE_HELP + " (default network: the network judged)")
     p.set_defaults(func=_eval_quality)
     p = ev.add_parser("streamed", help="whole test clips streamed as `transfer` runs them: styled -> neutral, neutral -> each style, labels given and inferred, judged as played")
     p.add_argument("--model", help=MODEL_HELP)
@@ -565,6 +584,12 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--out", default="docs/rotations.md", help="Markdown table (a .json beside it); empty: print only")
     p.add_argument("--data", help="data folder")
     p.set_defaults(func=_eval_rotations)
+    p = ev.add_parser("actions", help="held-out actions of other performers and skeletons (kicks, dances, swims ...): the action kept, the style's change, the feet")
+    p.add_argument("--model", help=MODEL_HELP)
+    p.add_argument("--out", default="docs/actions.md", help="Markdown tables (a .json beside it)")
+    p.add_argument("--no-feet", action="store_true", help="only the action table")
+    p.add_argument("--data", help="data folder")
+    p.set_defaults(func=_eval_actions)
     p = ev.add_parser("ablations", help="train what is missing at the shipped run's budget (resumable) and tabulate the paper's ablations")
     p.add_argument("--threads", type=_whole(1), default=1)
     p.add_argument("--runs", help="run folders (checkpoints; default models/ablations/training, kept in git between sessions)")

@@ -95,9 +95,11 @@ def responsiveness(model: StyleERD, s: Setup, style_rec, fmd: MotionAutoencoder,
     }
 
 
-def evaluate_model(model: StyleERD, data_dir: str | None = None, split: str = "test") -> dict:
+def evaluate_model(model: StyleERD, data_dir: str | None = None, split: str = "test", pose: str = "network") -> dict:
     """Every quality figure of one generator on the test split (the ablation table's row), or on
-    the validation split (``split="val"``: for choosing between models without the test set)."""
+    the validation split (``split="val"``: for choosing between models without the test set).
+    ``pose``: the transfers' poses, the network's or the input's plus the style's change
+    (``validation.transfers``)."""
     from styleerd.model import checkpoint as ckpt
     from styleerd.train.trainer import windows
     from styleerd.train.validation import realism_margin, validate
@@ -108,7 +110,7 @@ def evaluate_model(model: StyleERD, data_dir: str | None = None, split: str = "t
     fmd, _ = ckpt.load_fmd()
     rec = validate(model, s.data, ws)
     out = {"rec_deg": round(rec["rec_deg"], 3), "rec_cm": round(rec["rec_cm"], 3)}
-    out.update(transfer_quality(model, s.data, ws, style_rec, content_rec, fmd))
+    out.update(transfer_quality(model, s.data, ws, style_rec, content_rec, fmd, pose=pose))
     out.update(realism_margin(out))
     out.update(responsiveness(model, s, style_rec, fmd, split=split))
     return out

@@ -22,6 +22,15 @@ def mul(a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
     )
 
 
+def inv(q: torch.Tensor) -> torch.Tensor:
+    return q * q.new_tensor([1.0, -1.0, -1.0, -1.0])
+
+
+def add_change(given: torch.Tensor, same: torch.Tensor, styled: torch.Tensor) -> torch.Tensor:
+    """``given * inv(same) * styled`` per joint: the twin of ``runtime.stylizer.add_change``."""
+    return normalize(mul(normalize(given), mul(inv(same), styled)))
+
+
 def mul_vec(q: torch.Tensor, v: torch.Tensor) -> torch.Tensor:
     w, u = q[..., :1], q[..., 1:]
     t = 2.0 * torch.linalg.cross(u, v, dim=-1)

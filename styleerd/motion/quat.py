@@ -107,9 +107,10 @@ def to_angle_axis(q: np.ndarray, eps: float = 1e-12) -> tuple[np.ndarray, np.nda
 
 
 def angle_between(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """Rotation angle (radians, in [0, pi]) of ``inv(a) * b``."""
-    d = np.abs(np.sum(a * b, axis=-1))
-    return 2.0 * np.arccos(np.clip(d, 0.0, 1.0))
+    """Rotation angle (radians, in [0, pi]) of ``inv(a) * b``; from the half angle's sine and
+    cosine, which keeps small angles exact (arccos of the cosine alone loses them below 1e-7)."""
+    d = mul(inv(a), b)
+    return 2.0 * np.arctan2(np.linalg.norm(d[..., 1:], axis=-1), np.abs(d[..., 0]))
 
 
 def swing_twist(q: np.ndarray, axis: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

@@ -2,7 +2,9 @@
 
 Contacts come from the input (a foot is planted while the input's ankle moves slower than
 ``contact_speed`` leg lengths per second: the same causal rule as the features). When a
-contact begins, the output ankle's position at that frame becomes the anchor; while the
+contact begins, the output ankle's ground position at that frame, at the input ankle's height,
+becomes the anchor (a style that bends the legs would otherwise plant feet in or above the
+input's floor); while the
 contact lasts, two-bone IK (hip, knee) holds the output ankle on it; when it ends, the target
 slides from the anchor back to the raw ankle over ``release_frames`` frames, so nothing pops.
 Frame t uses frames <= t only. Works on any skeleton with named legs (BodyRoles).
@@ -91,8 +93,9 @@ def _foot_lock_kernel(positions, in_rot, in_pos, state, parents, legs, across_l,
         started[r] = True
         forward_pose(out[i], positions[i], parents, g_rot, g_pos)
         for side in range(2):
-            if now[side] and not planted[r, side]:  # a contact begins: hold the output ankle here
+            if now[side] and not planted[r, side]:  # a contact begins: hold the output ankle here, at the input's height
                 anchor[r, side] = g_pos[legs[side, 2]]
+                anchor[r, side, 1] = previous[r, side, 1]
             since = 0 if now[side] else (1 if planted[r, side] else min(since_release[r, side] + 1, release))
             planted[r, side], since_release[r, side] = now[side], since
             weight[side] = 1.0 if now[side] else 1.0 - since / release

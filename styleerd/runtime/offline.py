@@ -62,6 +62,7 @@ class TransferOptions:
     mesh: bool = False
     parts: str | dict | None = None  # body parts with their own target (``stylizer.part_targets``)
     root_speed: bool = False  # the root's ground speed from the network (``StreamStylizer``), not the input's
+    pose: str = "input"  # the input's pose plus the style's change, or "network": the network's pose (``StreamStylizer``)
 
 
 @dataclass
@@ -87,7 +88,7 @@ def _stylised_stream(
     jm = map_skeleton(header.skeleton, model, o.explicit_map, str(header.path), first_pose)
     if report:
         report(f"joint mapping (model <- input):\n{jm.describe()}")
-    stylizer = StreamStylizer(model, o.input_style, o.content, o.target, fps=fps, backend=o.backend, parts=o.parts, root_speed=o.root_speed)
+    stylizer = StreamStylizer(model, o.input_style, o.content, o.target, fps=fps, backend=o.backend, parts=o.parts, root_speed=o.root_speed, pose=o.pose)
     lock = FootLock(header.skeleton, 1, header.fps, legs=jm.source_legs()) if o.cleanup else None
     return _checked(_stylised_rows(header, itertools.chain([first], chunks), jm, stylizer, lock, fps), header.path), stylizer
 

@@ -3,7 +3,12 @@
 Frames are poses on the model's skeleton: local joint rotations ``[N, J, 4]`` and local
 translations ``[N, J, 3]`` (N streams). Output frame t depends on input frames <= t only.
 The output keeps the input's root trajectory (root position and facing) and joint
-translations; the network replaces the joint rotations.
+translations. Its joint rotations are, by default (``pose="input"``), the input's own with the
+style's change added: per joint, the change from the network's output in the input's own style
+(the identity transfer, a second pass with its own recurrent state) to its output in the target,
+so a pose the network never learnt (a kick, a dance) passes through and only the style's change
+is the network's. ``pose="network"`` takes the network's rotations themselves (the paper's
+output), which rebuilds every pose from the actions it was trained on.
 
 Changing the target (style, intensity, mixture) mid-stream blends the target weights
 linearly over ``blend_frames`` frames, so the output does not pop.
@@ -44,6 +49,7 @@ MAX_FEATURE = 1e6
 # instead (``data.parallel``: no GIL, no pool handoffs; 1,000 streams 1.09x the frames/s of
 # these shards, medians of 5 alternating rounds of benchmarks/bench_engine.py).
 SHARD_FROM = {"onnx": 128, "onnx-plain": 128}  # per backend; numpy 600
+POSES = ("input", "network")  # what a stylised pose is built on (module docstring)
 OWN_THREADS = ("torch", "numba")  # backends whose steps run on threads of their own (torch's pool, numba's parallel loops), never on the stylizer's pool
 _ALL = slice(None)  # every stream (state rows as views)
 
@@ -179,7 +185,10 @@ class StreamStylizer:
         threads: int = 1,
         parts: str | dict | None = None,
         root_speed: bool = False,
+        pose: str = "input",
     ):
+        if pose not in POSES:
+            raise StyleERDError(f"pose must be one of {', '.join(POSES)}, got {pose!r}")
         self.model = model = generator_weights(model)  # a torch StyleERD is read as its arrays
         # body parts with their own target (``part_targets``): one more network pass per
         # distinct target, each with its own recurrent state (rows p*N .. p*N + N - 1 of the
@@ -206,6 +215,9 @@ class StreamStylizer:
         self.kernel_threads = max(1, threads) if backend == "numba" else 1
         self.shard_from = SHARD_FROM.get(backend, 600)
         self.backend = make_backend(backend, model, n_streams * (1 + len(self.part_passes)), threads=max(1, threads) // self.threads)
+        # pose "input": the identity transfer's pass, whose output the style's change is taken from
+        self.pose = pose
+        self.identity = make_backend(backend, model, n_streams, threads=max(1, threads) // self.threads) if pose == "input" else None
         self._pool: ThreadPoolExecutor | None = None
         self._sharded_step = threading.Lock()  # steps from several threads take turns: the barrier needs all of one step's shards running
         self.skeleton = model.skeleton
@@ -264,6 +276,8 @@ class StreamStylizer:
         (learned initial states)."""
         rows = slice(None) if streams is None else np.asarray(streams, dtype=int)
         self.backend.reset(rows if streams is None else np.concatenate([rows + p * self.n for p in range(1 + len(self.part_passes))]))
+        if self.identity is not None:
+            self.identity.reset(None if streams is None else rows)
         self.started[rows] = False
         self.root_offset[rows], self.speed_ratio[rows] = 0.0, 1.0
         if self.labeller is not None:
@@ -377,6 +391,15 @@ class StreamStylizer:
             rot[:, joints] = self.backend.step(x, style, content, np.broadcast_to(w, weights.shape), self._pass_rows(sel, p))[0][:, joints]
         return rot, vel
 
+    def _on_heading(self, rot: np.ndarray, traj: np.ndarray, out: np.ndarray) -> np.ndarray:
+        """``_root_on_heading`` into ``out``, on the kernel threads from ``PARALLEL_FROM`` streams."""
+        shards = kernel_threads(self.kernel_threads, len(out))
+        if shards > 1:
+            _root_on_heading_on_shards(shards, np.ascontiguousarray(rot), traj, out)
+        else:
+            _root_on_heading(np.ascontiguousarray(rot), traj, out)
+        return out
+
     def _stylised_root(self, sel, x: np.ndarray, velocities: np.ndarray, positions: np.ndarray) -> np.ndarray:
         """``positions`` with the root moved by the offset the root speed makes: each frame's
         ground step of the input root is scaled by the network's root speed over the
@@ -412,11 +435,12 @@ class StreamStylizer:
         rot, vel = self._network(sel, x, style, content, weights[sel])
         if self.root_speed:
             positions = self._stylised_root(sel, x, vel, positions)
-        shards = kernel_threads(self.kernel_threads, len(out))
-        if shards > 1:
-            _root_on_heading_on_shards(shards, np.ascontiguousarray(rot), traj, out)
-        else:
-            _root_on_heading(np.ascontiguousarray(rot), traj, out)
+        self._on_heading(rot, traj, out)
+        if self.identity is not None:
+            identity = np.zeros_like(weights[sel])
+            identity[:, : style.shape[1]] = style  # the input's own style, given or inferred
+            same = self._on_heading(self.identity.step(x, style, content, identity, None if sel is _ALL else sel)[0], traj, np.empty_like(out))
+            out[:] = add_change(rotations, same, out)
         if len(self.input_joints):  # parts that keep the input's own motion
             out[:, self.input_joints] = quat.normalize(rotations[:, self.input_joints])
         if self.labeller is not None:
@@ -425,6 +449,14 @@ class StreamStylizer:
         self.labels[0][sel], self.labels[1][sel] = style, content
         self.blend.frame[sel] += 1
         return out, positions
+
+
+def add_change(given: np.ndarray, same: np.ndarray, styled: np.ndarray) -> np.ndarray:
+    """Per joint, ``given`` (local rotations, the root's in the world) turned by the change from
+    ``same`` to ``styled`` in the joint's own frame: given * inv(same) * styled. Where the input is
+    the network's identity output (``given == same``) this is ``styled``; at the identity target
+    (``styled == same``) it is ``given``."""
+    return quat.normalize(quat.mul(quat.normalize(given), quat.mul(quat.inv(same), styled)))
 
 
 def _slices(n: int, parts: int) -> list[slice]:

@@ -67,14 +67,21 @@ def validate(
 
 
 @torch.no_grad()
-def transfers(model: StyleERD, data: TrainingData, ws: WindowSet, batch: int = 512):
+def transfers(model: StyleERD, data: TrainingData, ws: WindowSet, batch: int = 512, pose: str = "network"):
     """The transfer tasks of ``ws`` in batches: (window rows, targets, rotations, velocities,
-    normalised motion channels)."""
+    normalised motion channels). ``pose``: "network", the network's output (what training
+    judges); "input", the input's pose and velocities plus the style's change (the identity
+    transfer's output to the target's: what ``StreamStylizer`` gives users by default)."""
     rows, targets = transfer_targets(ws.style, model.config.neutral_index, len(data.styles))
     for i in range(0, len(rows), batch):
         r, t = rows[i : i + batch], targets[i : i + batch]
         x = data.gather(ws.starts[r])
-        rot, vel, _ = model(x, data.onehot_style(ws.style[r]), data.onehot_content(ws.content[r]), data.onehot_style(t))
+        style, content = data.onehot_style(ws.style[r]), data.onehot_content(ws.content[r])
+        rot, vel, _ = model(x, style, content, data.onehot_style(t))
+        if pose == "input":
+            same_rot, same_vel, _ = model(x, style, content, style)
+            rot = torch_quat.add_change(model.raw_rotations(x), same_rot, rot)
+            vel = x[..., model.layout.velocities] + vel - same_vel
         yield r, t, rot, vel, model.motion_channels(rot, vel)
 
 
@@ -108,7 +115,8 @@ def bootstrap_spread(n: int, statistic, resamples: int = 200, seed: int = 0) -> 
 
 
 @torch.no_grad()
-def transfer_quality(model: StyleERD, data: TrainingData, test: WindowSet, style_rec: WindowClassifier, content_rec: WindowClassifier, fmd: MotionAutoencoder, batch: int = 256, resamples: int = 200) -> dict:
+def transfer_quality(model: StyleERD, data: TrainingData, test: WindowSet, style_rec: WindowClassifier, content_rec: WindowClassifier, fmd: MotionAutoencoder, batch: int = 256, resamples: int = 200,
+                     pose: str = "network") -> dict:  # fmt: skip
     """Every quality figure of the transfers of ``test``'s windows (see ``styleerd.eval.metrics``);
     ``resamples`` 0 leaves out the bootstrap spreads (model selection during training)."""
     model.eval()
@@ -116,7 +124,7 @@ def transfer_quality(model: StyleERD, data: TrainingData, test: WindowSet, style
     # the content recogniser on each real window once (a neutral window is the input of several transfers)
     read_in = np.concatenate([content_rec(data.gather(test.starts[i : i + batch])).argmax(-1).numpy() for i in range(0, len(test.starts), batch)])
     feats, ok_s, ok_c, ok_in, jerk_fake, all_targets = [], [], [], [], [], []
-    for r, t, rot, _, ch in transfers(model, data, test, batch):
+    for r, t, rot, _, ch in transfers(model, data, test, batch, pose):
         ok_s.append(style_rec(ch).argmax(-1).numpy() == t)
         ok_c.append(content_rec(ch).argmax(-1).numpy() == test.content[r])
         ok_in.append(read_in[r] == test.content[r])  # the input itself

@@ -2,6 +2,9 @@
 // exported LSTM-op graph; StyleHost computes each frame's features from a pose on the model's
 // skeleton, as examples/onnx_host.py and docs/ONNX.md describe, and keeps the stream's state.
 // A web avatar app retargets its avatar to the model's skeleton and calls host.step(pose).
+// Each frame runs the graph twice, each run with its own state: into the target and into the
+// input's own style; the output is the input's pose turned by the change from the second to the
+// first (input * inv(identity) * target), so any action passes through, as on the server.
 import * as ort from "/static/vendor/ort.wasm.min.mjs";
 
 ort.env.wasm.wasmPaths = "/static/vendor/";
@@ -52,11 +55,13 @@ export class StyleHost {
     this.style = this.oneHot(this.side.input_styles || this.side.styles, { [inputStyle]: 1 });
     this.content = this.oneHot(this.side.contents, { [content]: 1 });
     this.target = this.oneHot(this.side.styles, target);
+    this.identity = new Float32Array(this.side.styles.length);
+    this.identity.set(this.style); // the input's own style, among the targets
   }
 
   reset() {
-    this.h = new Float32Array(this.S * this.H);
-    this.c = new Float32Array(this.S * this.H);
+    const zeros = () => ({ h: new Float32Array(this.S * this.H), c: new Float32Array(this.S * this.H) });
+    this.state = { target: zeros(), identity: zeros() };
     this.previous = null;
     this.facing = [0, 0, 1];
   }
@@ -98,16 +103,22 @@ export class StyleHost {
     const first = this.previous === null ? 1 : 0;
     const { x, heading } = this.features(rot, pos, fps);
     const J = this.parents.length, t = (data, dims) => new ort.Tensor("float32", data, dims);
-    const out = await this.session.run({
-      features: t(x, [1, x.length]), style: t(this.style, [1, this.style.length]), content: t(this.content, [1, this.content.length]),
-      target: t(this.target, [1, this.target.length]), first_frame: t(new Float32Array([first]), [1, 1]),
-      h: t(this.h, [this.S, 1, this.H]), c: t(this.c, [this.S, 1, this.H]),
-    });
-    this.h = out.h_out.data; this.c = out.c_out.data;
-    const r = out.rotations.data, q = [];
-    for (let j = 0; j < J; j++) q.push([r[4 * j], r[4 * j + 1], r[4 * j + 2], r[4 * j + 3]]);
-    q[0] = qmul(heading, q[0]);
-    return q.map(normalize);
+    const poses = {};
+    for (const [key, target] of [["target", this.target], ["identity", this.identity]]) {
+      const s = this.state[key];
+      const out = await this.session.run({
+        features: t(x, [1, x.length]), style: t(this.style, [1, this.style.length]), content: t(this.content, [1, this.content.length]),
+        target: t(target, [1, target.length]), first_frame: t(new Float32Array([first]), [1, 1]),
+        h: t(s.h, [this.S, 1, this.H]), c: t(s.c, [this.S, 1, this.H]),
+      });
+      this.state[key] = { h: out.h_out.data, c: out.c_out.data };
+      const r = out.rotations.data, q = [];
+      for (let j = 0; j < J; j++) q.push([r[4 * j], r[4 * j + 1], r[4 * j + 2], r[4 * j + 3]]);
+      q[0] = qmul(heading, q[0]);
+      poses[key] = q.map(normalize);
+    }
+    const inverse = (q) => [q[0], -q[1], -q[2], -q[3]];
+    return rot.map((given, j) => normalize(qmul(normalize(given), qmul(inverse(poses.identity[j]), poses.target[j]))));
   }
 }
 

@@ -1,0 +1,372 @@
+"""Any action, any performer: does the output keep the input's action on motion the model never
+trained on, does the style still show there, and do the feet stay on the floor?
+
+``styleerd eval actions`` streams held-out clips of other performers, skeletons and actions
+(``HELD_OUT``: CMU subjects 2 and 126 from cmu-sample, Bandai-Namco-1's neutral actions that
+Bandai-Namco-2 lacks, the xia-sample jump and punch) through ``transfer`` as users run it, on
+their own skeletons, and measures per clip:
+
+- identity (target = the input's own style): the root-relative joint error (cm, scaled to a
+  170 cm body) and the correlation of the hands' and feet's root-relative velocities between
+  input and output (1 = the same action);
+- into each style: that correlation, and the style's change (output minus the identity output,
+  root-relative, in the body's heading frame, per joint, averaged over the clip) against the same
+  change on Bandai-Namco-2 test walks: cosine of the two and the ratio of their sizes.
+
+The feet (``feet_figures``): on walks and runs of other performers and a generated walk in place
+(the root fixed, as game libraries ship them), how far the output's feet go below the input's
+floor, how fast planted feet slide (cm/s at the clip's own rate, where the input's foot is
+planted), and the stride (the feet's largest horizontal gap, 95th percentile).
+
+These clips are kept out of every training run (``held_out``): the figures are on motion the
+model has never seen.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import numpy as np
+from tqdm import tqdm
+
+from styleerd.data.datasets import Clip, data_root, find_clips, load_motion, unpack
+from styleerd.data.windows import split_takes
+from styleerd.model.stored import GeneratorWeights
+from styleerd.motion import bvh, quat
+from styleerd.motion.kinematics import facing_directions, forward_positions, heading_rotations
+from styleerd.motion.motion import Motion
+from styleerd.motion.procedural import walk
+from styleerd.motion.resample import resample
+from styleerd.motion.retarget import JointMap
+from styleerd.runtime.offline import TransferOptions, map_skeleton, transfer_motion
+
+BODY_CM = 170.0
+SECONDS = 12.0  # of each clip, from its start: long enough for several steps or moves
+# Joint maps (model joint -> the rig's joint) for the two rig families of cmu-sample, which the
+# automatic mapping does not know yet (Character Creator, CMU ASF names)
+RIG_MAPS = {
+    "cc-base": {"Hips": "CC_Base_Hip", "Spine": "CC_Base_Spine01", "Chest": "CC_Base_Spine02", "Neck": "CC_Base_NeckTwist01", "Head": "CC_Base_Head",
+                **{f"{m}_{s}": f"CC_Base_{s}_{c}" for s in "LR" for m, c in (("Shoulder", "Clavicle"), ("UpperArm", "Upperarm"), ("LowerArm", "Forearm"),
+                                                                             ("Hand", "Hand"), ("UpperLeg", "Thigh"), ("LowerLeg", "Calf"),
+                                                                             ("Foot", "Foot"), ("Toes", "ToeBase"))}},
+    "cmu-asf": {"Spine": "lowerback", "Chest": "Chest2", "Neck": "Neck",
+                **{f"{m}_{s}": f"{side}{c}" for s, side in (("L", "Left"), ("R", "Right")) for m, c in (("Shoulder", "Collar"), ("UpperArm", "Shoulder"),
+                                                                                                          ("LowerArm", "Elbow"), ("Hand", "Wrist"),
+                                                                                                          ("UpperLeg", "Hip"), ("LowerLeg", "Knee"),
+                                                                                                          ("Foot", "Ankle"), ("Toes", "Toe"))}},
+}  # fmt: skip
+# Held out of every training run, whole subjects or whole actions: (source, file stems)
+CMU_HELD_OUT = {"iclone": ("002_",), "asf-names": ("126_",)}
+CMU_REPORTED_SWIMS = ("126_01", "126_05", "126_09")  # three of subject 126's thirteen strokes, so swimming does not outweigh the rest
+BANDAI1_ACTIONS = ("call", "dance-long", "dance-short", "kick", "punch", "respond", "slash")
+XIA_ACTIONS = {"16": "jump", "18": "punch"}
+# CMU subject 2's takes (the database's own descriptions)
+CMU_ACTIONS = {"002_01": "walk", "002_02": "walk", "002_03": "run", "002_04": "jump, balance", "002_05": "punch, strike", "002_06": "punch, strike",
+               "002_07": "swordplay", "002_08": "swordplay", "002_09": "wash self", "002_10": "wash self"}  # fmt: skip
+HANDS_FEET = ("Hand_L", "Hand_R", "Foot_L", "Foot_R")
+
+
+@dataclass(frozen=True)
+class ActionClip:
+    name: str
+    action: str
+    source: str  # dataset and rig
+    motion: Motion
+    input_style: str | None  # None: inferred
+    joint_map: dict[str, str] | None = None
+
+
+def held_out(clip_name: str, dataset: str, content: str = "", style: str = "") -> bool:
+    """Whether a clip is in the held-out set every training run leaves out."""
+    if dataset == "cmu-sample":
+        return any(clip_name.startswith(p) for prefixes in CMU_HELD_OUT.values() for p in prefixes)
+    if dataset == "bandai-namco-1":
+        return style == "normal" and content in BANDAI1_ACTIONS
+    return dataset == "xia-sample"
+
+
+def _trimmed(m: Motion) -> Motion:
+    return m[: int(round(SECONDS * m.fps))]
+
+
+def held_out_clips(data_dir: str | None = None) -> list[ActionClip]:
+    """Every held-out action clip, cut to ``SECONDS``."""
+    root = data_root(data_dir)
+    out = []
+    cmu = unpack(root / "cmu-sample.tar.xz") / "cmu-sample"
+    for folder, prefixes in CMU_HELD_OUT.items():
+        for path in sorted(p for p in (cmu / folder).glob("*.bvh") if p.stem.startswith(prefixes) and (folder != "asf-names" or p.stem in CMU_REPORTED_SWIMS)):
+            action = CMU_ACTIONS.get(path.stem, "swim" if folder == "asf-names" else "other")
+            out.append(ActionClip(f"cmu {path.stem}", action, f"cmu-sample/{folder}", _trimmed(bvh.read(path)), "normal",
+                                  RIG_MAPS["cc-base" if folder == "iclone" else "cmu-asf"]))  # fmt: skip
+    for c in find_clips(root, "bandai-namco-1"):
+        if held_out(c.name, c.dataset, c.content, c.style):
+            out.append(ActionClip(c.name.removeprefix("dataset-1_"), c.content, "bandai-namco-1", _trimmed(load_motion(c)), "normal"))
+    for c in find_clips(root, "xia-sample"):
+        cid = c.name.rsplit("_", 2)[1]
+        if cid in XIA_ACTIONS:
+            out.append(ActionClip(f"xia {c.name}", XIA_ACTIONS[cid], "xia-sample", _trimmed(load_motion(c)), "normal" if c.name.startswith("neutral") else None))
+    return out
+
+
+def bandai2_test_walks(data_dir: str | None = None, n: int = 8) -> list[ActionClip]:
+    """The first ``n`` neutral walks of Bandai-Namco-2's test split: the reference."""
+    clips = find_clips(data_root(data_dir), "bandai-namco-2")
+    split = split_takes({c.name: (c.dataset, c.style, c.content) for c in clips})
+    walks: list[Clip] = [c for c in clips if split[c.name] == "test" and c.style == "normal" and c.content == "walk"][:n]
+    return [ActionClip(c.name.removeprefix("dataset-2_"), "walk", "bandai-namco-2 test", _trimmed(load_motion(c)), "normal") for c in walks]
+
+
+def _map(clip: ActionClip, model: GeneratorWeights) -> JointMap:
+    return map_skeleton(clip.motion.skeleton, model, clip.joint_map, clip.name, clip.motion.rotations[0])
+
+
+def _body_scale(skeleton, jm: JointMap) -> float:
+    """cm of a 170 cm body per unit of this skeleton: the foot-to-head bone length (ankle to hip to
+    hips to head, which leaves out the foot's height and the crown) is 0.9 of the body's height."""
+    source = {jm.target.names[t]: s for t, s in jm.pairs}
+
+    def chain(top: int, joint: int) -> float:
+        length = 0.0
+        while joint != top and joint >= 0:
+            length += float(np.linalg.norm(skeleton.offsets[joint]))
+            joint = int(skeleton.parents[joint])
+        return length
+
+    height = chain(source["Hips"], source["Foot_L"]) + chain(source["Hips"], source["Head"])
+    return 0.9 * BODY_CM / height
+
+
+def _root_relative(m: Motion, jm: JointMap) -> tuple[np.ndarray, list[str]]:
+    """Global positions of the mapped joints minus the root's ``[T, K, 3]``, and their model names."""
+    g = forward_positions(m.rotations, m.positions, m.skeleton.parents)
+    names = [jm.target.names[t] for t, _ in jm.pairs]
+    source = [s for _, s in jm.pairs]
+    root = source[names.index("Hips")]
+    return g[:, source] - g[:, root : root + 1], names
+
+
+def _heading(m: Motion, jm: JointMap) -> np.ndarray:
+    """Per frame, the inverse of the body's heading (from hips and shoulders): world -> body."""
+    g = forward_positions(m.rotations, m.positions, m.skeleton.parents)
+    source = {jm.target.names[t]: s for t, s in jm.pairs}
+    left, right = (source["UpperLeg_L"], source["UpperArm_L"]), (source["UpperLeg_R"], source["UpperArm_R"])
+    return quat.inv(heading_rotations(facing_directions(g, left, right)))
+
+
+def action_kept(given: Motion, output: Motion, jm: JointMap, scale: float) -> tuple[float, float]:
+    """(root-relative joint error in cm of a 170 cm body, correlation of the hands' and feet's
+    root-relative velocities) between an input and its output."""
+    a, names = _root_relative(given, jm)
+    b, _ = _root_relative(output, jm)
+    error = float(np.linalg.norm(a - b, axis=-1).mean() * scale)
+    ends = [names.index(n) for n in HANDS_FEET]
+    va, vb = np.diff(a[:, ends], axis=0).ravel(), np.diff(b[:, ends], axis=0).ravel()
+    corr = float(np.corrcoef(va, vb)[0, 1]) if va.std() > 0 and vb.std() > 0 else 0.0
+    return error, corr
+
+
+def style_change(given: Motion, styled: Motion, identity: Motion, jm: JointMap, scale: float) -> dict[str, np.ndarray]:
+    """Per model joint, the clip's mean of (styled - identity output) root-relative position in
+    the body's heading frame (cm of a 170 cm body)."""
+    a, names = _root_relative(styled, jm)
+    b, _ = _root_relative(identity, jm)
+    body = quat.mul_vec(_heading(given, jm)[:, None], a - b).mean(0) * scale
+    return dict(zip(names, body))
+
+
+def _compare(change: dict[str, np.ndarray], reference: dict[str, np.ndarray]) -> tuple[float, float]:
+    """(cosine, size ratio) of a clip's style change against the walks', over their common joints."""
+    common = [k for k in reference if k in change and k != "Hips"]
+    a, b = np.concatenate([change[k] for k in common]), np.concatenate([reference[k] for k in common])
+    na, nb = np.linalg.norm(a), np.linalg.norm(b)
+    return (float(a @ b / (na * nb)) if na > 0 and nb > 0 else 0.0), float(na / nb) if nb > 0 else 0.0
+
+
+def _transfers(clip: ActionClip, model: GeneratorWeights, targets: list[str], pose: str) -> tuple[Motion, dict[str, Motion]]:
+    """The identity output and each target's output of a clip (``transfer`` as users run it)."""
+    m, identity_target = clip.motion, clip.input_style or model.config.neutral_style
+
+    def run(target: str, input_style: str | None) -> Motion:
+        return transfer_motion(m, model, 30.0, TransferOptions({target: 1.0}, input_style, None, clip.joint_map, pose=pose), where=clip.name)
+
+    identity = run(identity_target, clip.input_style or identity_target)
+    return identity, {t: run(t, clip.input_style) for t in targets}
+
+
+def evaluate_actions(model: GeneratorWeights, data_dir: str | None = None, poses: tuple[str, ...] = ("input", "network"), walks: int = 8,
+                     progress: Callable[[str], None] | None = None) -> dict:  # fmt: skip
+    """The action table: per held-out clip and pose path, identity error and correlation, and per
+    style its correlation and change against the walks' (cosine, size ratio); the same figures on
+    Bandai-Namco-2 test walks beside them."""
+    neutral = model.config.neutral_style
+    styles = [s for s in model.config.styles if s != neutral]
+    out: dict = {"body_cm": BODY_CM, "seconds": SECONDS, "styles": styles, "poses": {}}
+    reference_clips, action_clips = bandai2_test_walks(data_dir, walks), held_out_clips(data_dir)
+    for pose in poses:
+        rows: dict[str, dict] = {}
+        changes: dict[str, list[dict]] = {s: [] for s in styles}
+        for group, clips in (("walks", reference_clips), ("actions", action_clips)):
+            for clip in tqdm(clips, desc=f"{group}, pose {pose}", leave=False):
+                jm = _map(clip, model)
+                scale = _body_scale(clip.motion.skeleton, jm)
+                identity, styled = _transfers(clip, model, styles, pose)
+                err, corr = action_kept(clip.motion, identity, jm, scale)
+                row = {"group": group, "action": clip.action, "source": clip.source, "frames": clip.motion.n_frames, "fps": round(clip.motion.fps, 3),
+                       "identity": {"error_cm": round(err, 2), "correlation": round(corr, 3)}, "styles": {}}  # fmt: skip
+                for s, m in styled.items():
+                    change = style_change(clip.motion, m, identity, jm, scale)
+                    if group == "walks":
+                        changes[s].append(change)
+                    row["styles"][s] = {"correlation": round(action_kept(clip.motion, m, jm, scale)[1], 3), "change": change}
+                rows[clip.name] = row
+        walk_change = {s: {k: np.mean([c[k] for c in changes[s]], 0) for k in changes[s][0]} for s in styles}
+        for row in rows.values():
+            for s, r in row["styles"].items():
+                cos, ratio = _compare(r.pop("change"), walk_change[s])
+                r.update(cosine=round(cos, 3), size_ratio=round(ratio, 3))
+        out["poses"][pose] = {"clips": rows, "summary": _summary(rows, styles)}
+        if progress:
+            progress(f"pose {pose}: {json_summary(out['poses'][pose]['summary'])}")
+    return out
+
+
+def _summary(rows: dict[str, dict], styles: list[str]) -> dict:
+    """Walks against held-out actions: mean and worst of each figure."""
+    out = {}
+    for group in ("walks", "actions"):
+        rs = [r for r in rows.values() if r["group"] == group]
+        ids = np.array([(r["identity"]["error_cm"], r["identity"]["correlation"]) for r in rs])
+        g = {"clips": len(rs), "identity_error_cm": {"mean": round(float(ids[:, 0].mean()), 2), "worst": round(float(ids[:, 0].max()), 2)},
+             "identity_correlation": {"mean": round(float(ids[:, 1].mean()), 3), "worst": round(float(ids[:, 1].min()), 3)}, "styles": {}}  # fmt: skip
+        for s in styles:
+            v = np.array([(r["styles"][s]["correlation"], r["styles"][s]["cosine"], r["styles"][s]["size_ratio"]) for r in rs])
+            g["styles"][s] = {"correlation": round(float(v[:, 0].mean()), 3), "correlation_worst": round(float(v[:, 0].min()), 3),
+                              "cosine": round(float(v[:, 1].mean()), 3), "cosine_worst": round(float(v[:, 1].min()), 3),
+                              "size_ratio": round(float(v[:, 2].mean()), 3), "size_ratio_worst": round(float(v[:, 2].min()), 3)}  # fmt: skip
+        out[group] = g
+    return out
+
+
+def json_summary(summary: dict) -> str:
+    a, w = summary["actions"], summary["walks"]
+    return (f"held-out actions: identity {a['identity_error_cm']['mean']} cm, correlation {a['identity_correlation']['mean']} "
+            f"(worst {a['identity_correlation']['worst']}); walks: {w['identity_error_cm']['mean']} cm, {w['identity_correlation']['mean']}")  # fmt: skip
+
+
+# ---------------------------------------------------------------- feet and pace
+
+
+def in_place(m: Motion) -> Motion:
+    """The motion with its root's ground path removed (height kept), as game libraries ship walks."""
+    positions = m.positions.copy()
+    positions[:, 0, [0, 2]] = positions[:1, 0, [0, 2]]
+    return Motion(m.skeleton, m.rotations, positions, m.fps)
+
+
+def walk_clips(data_dir: str | None = None) -> list[ActionClip]:
+    """Walks and runs of other performers: xia-sample's neutral walk, CMU subject 2's walks and
+    run, and a generated walk in place (and the xia walk in place)."""
+    root = data_root(data_dir)
+    out = []
+    xia = next(c for c in find_clips(root, "xia-sample") if c.name.startswith("neutral_01"))
+    out.append(ActionClip("xia neutral walk", "walk", "xia-sample", _trimmed(load_motion(xia)), "normal"))
+    cmu = unpack(root / "cmu-sample.tar.xz") / "cmu-sample" / "iclone"
+    for stem in ("002_01", "002_02", "002_03"):
+        out.append(ActionClip(f"cmu {stem}", CMU_ACTIONS[stem], "cmu-sample/iclone", _trimmed(bvh.read(cmu / f"{stem}.bvh")), "normal", RIG_MAPS["cc-base"]))
+    generated = resample(walk(SECONDS, fps=60.0, turn_degrees_per_second=0.0), 30.0)
+    out.append(ActionClip("generated walk in place", "walk in place", "procedural", in_place(generated), "normal"))
+    out.append(ActionClip("xia neutral walk in place", "walk in place", "xia-sample", in_place(out[0].motion), "normal"))
+    return out
+
+
+def _feet(m: Motion, jm: JointMap) -> tuple[np.ndarray, np.ndarray]:
+    """Global positions of the feet's lowest joints ``[T, 2, 2, 3]`` (side, ankle/toe) and of the ankles."""
+    g = forward_positions(m.rotations, m.positions, m.skeleton.parents)
+    source = {jm.target.names[t]: s for t, s in jm.pairs}
+    joints = [[source[f"{p}_{s}"] for p in ("Foot", "Toes") if f"{p}_{s}" in source] for s in "LR"]
+    return g[:, [j for side in joints for j in side]], g[:, [side[0] for side in joints]]
+
+
+def feet_figures(given: Motion, output: Motion, jm: JointMap, scale: float) -> dict:
+    """Below the floor (cm under the input's lowest foot point over the clip), planted feet's
+    slide (median cm/s where the input's ankle moves under 15 % of a leg length per second),
+    and the stride (95th percentile of the ankles' horizontal gap), input and output."""
+    fin, ain = _feet(given, jm)
+    fout, aout = _feet(output, jm)
+    floor = fin[..., 1].min()
+    below = max(0.0, float(floor - fout[..., 1].min())) * scale
+    speed = lambda a: np.linalg.norm(np.diff(a[..., [0, 2]], axis=0), axis=-1) * given.fps * scale  # noqa: E731  [T-1, 2] cm/s
+    s_in, s_out = speed(ain), speed(aout)
+    planted = s_in < 0.15 * 0.45 * BODY_CM  # a leg is about 0.45 of the body
+    gap = lambda a: np.percentile(np.linalg.norm(a[:, 0, [0, 2]] - a[:, 1, [0, 2]], axis=-1), 95) * scale  # noqa: E731
+    return {"below_floor_cm": round(below, 2), "slide_cm_s": {"input": round(float(np.median(s_in[planted])), 2) if planted.any() else None,
+            "output": round(float(np.median(s_out[planted])), 2) if planted.any() else None},
+            "stride_cm": {"input": round(float(gap(ain)), 1), "output": round(float(gap(aout)), 1)}}  # fmt: skip
+
+
+def evaluate_feet(model: GeneratorWeights, data_dir: str | None = None, poses: tuple[str, ...] = ("input", "network"), root_speed: tuple[bool, ...] = (False, True)) -> dict:
+    """``feet_figures`` of every walk clip into every style (and identity), per pose path and with
+    and without ``--root-speed``; the labeller's read of each walk (with inferred labels)."""
+    neutral = model.config.neutral_style
+    out: dict = {}
+    for clip in tqdm(walk_clips(data_dir), desc="feet", leave=False):
+        jm = _map(clip, model)
+        scale = _body_scale(clip.motion.skeleton, jm)
+        row: dict = {"action": clip.action, "source": clip.source}
+        labels: list = []
+        transfer_motion(clip.motion, model, 30.0, TransferOptions({neutral: 1.0}, None, None, clip.joint_map), labels=labels, where=clip.name)
+        row["labeller_reads"] = list(labels[0]) if labels else None
+        for pose in poses:
+            for rs in root_speed:
+                key = f"pose {pose}" + (", root speed" if rs else "")
+                row[key] = {}
+                for style in model.config.styles:
+                    o = TransferOptions({style: 1.0}, clip.input_style, None, clip.joint_map, root_speed=rs, pose=pose)
+                    row[key][style] = feet_figures(clip.motion, transfer_motion(clip.motion, model, 30.0, o, where=clip.name), jm, scale)
+        out[clip.name] = row
+    return out
+
+
+# ---------------------------------------------------------------- report
+
+
+def markdown(report: dict) -> str:
+    """The action table (per clip: identity error and correlation, per style correlation, cosine
+    and size ratio of its change against the walks') per pose path, and the feet table."""
+    styles = report["styles"]
+    lines = [f"Clips cut to {report['seconds']:g} s; errors in cm of a {report['body_cm']:g} cm body; per style: velocity correlation / "
+             "cosine of the style's change against the walks' / its size over the walks'.", ""]  # fmt: skip
+    for pose, r in report["poses"].items():
+        lines += [f"### Pose `{pose}`", "", "| clip | action | identity cm | identity corr | " + " | ".join(styles) + " |",
+                  "|---|---|---:|---:|" + "---:|" * len(styles)]  # fmt: skip
+        for name, row in r["clips"].items():
+            cells = [f"{row['styles'][s]['correlation']:.2f} / {row['styles'][s]['cosine']:.2f} / {row['styles'][s]['size_ratio']:.2f}" for s in styles]
+            lines.append(f"| {name} | {row['action']} | {row['identity']['error_cm']:.1f} | {row['identity']['correlation']:.2f} | " + " | ".join(cells) + " |")
+        for group, g in r["summary"].items():
+            cells = [f"{g['styles'][s]['correlation']:.2f} / {g['styles'][s]['cosine']:.2f} / {g['styles'][s]['size_ratio']:.2f}" for s in styles]
+            lines.append(f"| **{group}: mean** | {g['clips']} clips | {g['identity_error_cm']['mean']:.1f} | {g['identity_correlation']['mean']:.2f} | " + " | ".join(cells) + " |")
+            cells = [f"{g['styles'][s]['correlation_worst']:.2f} / {g['styles'][s]['cosine_worst']:.2f} / {g['styles'][s]['size_ratio_worst']:.2f}" for s in styles]
+            lines.append(f"| **{group}: worst** | | {g['identity_error_cm']['worst']:.1f} | {g['identity_correlation']['worst']:.2f} | " + " | ".join(cells) + " |")
+        lines.append("")
+    if report.get("feet"):
+        keys = [k for k in next(iter(report["feet"].values())) if k.startswith("pose")]
+        lines += ["### Feet and pace", "", "Worst over the target styles: cm below the input's floor; planted feet's slide (cm/s, input's in brackets); "
+                  "stride (cm, input's in brackets), smallest over the styles; what the labeller reads.", "",
+                  "| clip | labeller reads | " + " | ".join(keys) + " |", "|---|---|" + "---|" * len(keys)]  # fmt: skip
+        for name, row in report["feet"].items():
+            cells = []
+            for k in keys:
+                f = row[k].values()
+                below = max(x["below_floor_cm"] for x in f)
+                slides = [x["slide_cm_s"]["output"] for x in f if x["slide_cm_s"]["output"] is not None]
+                slide_in = next(iter(row[k].values()))["slide_cm_s"]["input"]
+                stride = min(x["stride_cm"]["output"] for x in f)
+                stride_in = next(iter(row[k].values()))["stride_cm"]["input"]
+                cells.append(f"{below:.1f} cm; slide {max(slides):.1f} ({slide_in}); stride {stride:.0f} ({stride_in:.0f})" if slides
+                             else f"{below:.1f} cm; stride {stride:.0f} ({stride_in:.0f})")  # fmt: skip
+            reads = "/".join(row["labeller_reads"]) if row["labeller_reads"] else "(given)"
+            lines.append(f"| {name} | {reads} | " + " | ".join(cells) + " |")
+        lines.append("")
+    return "\n".join(lines)
