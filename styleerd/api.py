@@ -92,6 +92,7 @@ class Model:
         backend: str = "numpy",
         parts: str | dict | None = None,
         root_speed: bool = False,
+        pose: str = "input",
     ) -> Stylizer:
         """A live stylizer for frames on ``skeleton`` (a ``Skeleton``, a ``Motion``, or a BVH
         or glTF file whose skeleton to use; default the model's) at ``fps`` (default: the
@@ -99,7 +100,9 @@ class Model:
         model joints -> your joints where the names do not say; ``cleanup`` pins planted feet;
         ``parts`` gives body parts targets of their own (``{"legs": "elderly", "arms": "input"}``
         or ``"legs=elderly,arms=input"``; ``runtime.stylizer.part_targets``); ``root_speed``
-        moves the root at the target style's pace (default: the input's root path)."""
+        moves the root at the target style's pace (default: the input's root path); ``pose``
+        "input" (default) turns the input's own pose by the style's change, "network" gives the
+        network's pose (``runtime.stylizer``)."""
         if skeleton is None:
             skeleton = self.skeleton
         elif isinstance(skeleton, (str, os.PathLike)):
@@ -108,7 +111,7 @@ class Model:
             fps = fps or skeleton.fps
             skeleton = skeleton.skeleton
         channels = ChannelStylizer(self.weights, skeleton, self.target(style, intensity, mix), input_style, content, fps or self.fps,
-                                   explicit_map=joint_map, cleanup=cleanup, backend=backend, parts=parts, root_speed=root_speed)  # fmt: skip
+                                   explicit_map=joint_map, cleanup=cleanup, backend=backend, parts=parts, root_speed=root_speed, pose=pose)  # fmt: skip
         return Stylizer(self, channels)
 
     def transfer(
@@ -126,12 +129,14 @@ class Model:
         backend: str = "numpy",
         parts: str | dict | None = None,
         root_speed: bool = False,
+        pose: str = "input",
     ) -> Motion:
         """A whole motion (a ``Motion`` or a BVH/glTF/GLB/VRM file) in the target style, on its
         own skeleton, same frames and fps; also written to ``output`` (.bvh, .glb, .vrm) when
         given (atomically: nothing is written unless the transfer succeeded). ``root_speed``:
-        the root's ground speed in the target style too (else the input's root path)."""
-        options = TransferOptions(self.target(style, intensity, mix), input_style, content, joint_map, cleanup, backend, parts=part_targets(self.weights, parts) or None, root_speed=root_speed)
+        the root's ground speed in the target style too (else the input's root path); ``pose``: as
+        for ``stylizer``."""
+        options = TransferOptions(self.target(style, intensity, mix), input_style, content, joint_map, cleanup, backend, parts=part_targets(self.weights, parts) or None, root_speed=root_speed, pose=pose)
         if output is not None and not isinstance(source, Motion):
             transfer_file(source, output, self.weights, self.fps, options)
             return read_motion(output)

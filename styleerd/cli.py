@@ -243,7 +243,7 @@ def _eval_streamed(args: argparse.Namespace) -> None:
         check_output(args.json)
     model, _ = ckpt.load_generator(args.model)
     style_rec, content_rec, _ = ckpt.load_recognisers()
-    report = runtime_transfers(model, ckpt.load_labeller()[0], style_rec, content_rec, args.data, root_speed=args.root_speed)
+    report = runtime_transfers(model, ckpt.load_labeller()[0], style_rec, content_rec, args.data, root_speed=args.root_speed, pose=args.pose)
     report["summary"] = neutralisation(report, model.config.neutral_style)
     report["root_speed_by_content_and_style"] = root_speeds(data_dir=args.data)  # the pace of each style in the training clips
     print(json.dumps(report, indent=1))
@@ -282,7 +282,7 @@ def _eval_rotations(args: argparse.Namespace) -> None:
 
 def _eval_actions(args: argparse.Namespace) -> None:
     from styleerd.atomic import atomic_write_text
-    from styleerd.eval.actions import evaluate_actions, evaluate_feet, markdown
+    from styleerd.eval.actions import action_filmstrips, evaluate_actions, evaluate_feet, markdown
     from styleerd.model.stored import load_generator_weights
 
     out = check_output(args.out)
@@ -293,6 +293,8 @@ def _eval_actions(args: argparse.Namespace) -> None:
     atomic_write_text(out.with_suffix(".json"), json.dumps(report, indent=1) + "\n")
     atomic_write_text(out.with_suffix(".md"), markdown(report) + "\n")
     print(markdown(report))
+    for path in action_filmstrips(model, out.parent, args.data):
+        print(f"wrote {path}")
 
 
 def _eval_ablations(args: argparse.Namespace) -> None:
@@ -570,6 +572,7 @@ def build_parser() -> argparse.ArgumentParser:
     p = ev.add_parser("streamed", help="whole test clips streamed as `transfer` runs them: styled -> neutral, neutral -> each style, labels given and inferred, judged as played")
     p.add_argument("--model", help=MODEL_HELP)
     p.add_argument("--root-speed", action="store_true", help="stream with the root's speed stylised (transfer --root-speed)")
+    p.add_argument("--pose", choices=POSES, default="input", help=POSE_HELP)
     p.add_argument("--json", help="also write the figures to this JSON file")
     p.add_argument("--data", help="data folder")
     p.set_defaults(func=_eval_streamed)

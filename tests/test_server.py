@@ -159,6 +159,24 @@ def test_root_speed_in_the_hello_moves_the_root_at_the_styles_pace(server, clip)
     assert not 0.97 < ratio < 1.03, ratio  # an elderly pace is not the input's
 
 
+def test_pose_in_the_hello_is_the_local_stylizers(server, clip):
+    """``pose`` in the hello: each stream gets a local ChannelStylizer's frames with that pose; the
+    input's pose (default) and the network's differ; anything else is refused in one line."""
+    url, _ = server
+    m, values = clip
+    streams = {pose: open_stream(url, m, input_style="normal", content="walk", cleanup=False, **({"pose": pose} if pose else {})) for pose in (None, "network")}
+    assert streams[None][1]["pose"] == "input" and streams["network"][1]["pose"] == "network"
+    got = dict(zip(streams, side_by_side([ws for ws, _ in streams.values()], values, 30)))
+    for pose in streams:
+        local = ChannelStylizer(load_generator()[0], m.skeleton, {"elderly": 1.0}, "normal", "walk", fps=30.0, cleanup=False, pose=pose or "input")
+        assert np.abs(got[pose] - np.stack([local.step(values[i].astype(np.float64))[0] for i in range(30)])).max() < 1e-2, pose
+    assert np.abs(got[None] - got["network"]).max() > 1.0  # degrees: the two poses are not the same
+    ws = connect(url, open_timeout=20, legacy=True)
+    ws.send(json.dumps({**hello(m, 30.0, "elderly", 1.0, None, None), "pose": "paper"}))
+    code, texts = closed_with(ws)
+    assert code == 1008 and "'pose' must be one of input, network" in texts[0]["message"]
+
+
 def test_json_frames_positions_and_style_change_midway(server, clip):
     url, _ = server
     m, values = clip
@@ -177,6 +195,7 @@ def test_json_frames_positions_and_style_change_midway(server, clip):
             targets.append(msg["weights"])
         assert msg["type"] == "frame" and msg["seq"] == i
         assert len(msg["values"]) == values.shape[1] and len(msg["input_positions"]) == len(msg["output_positions"]) == J
+        assert 0.0 <= msg["unfamiliar"] <= 1.0
         out.append(msg)
     assert targets == [{"exhausted": 0.4, "feminine": 0.4, "normal": 0.2}]
     ws.send(json.dumps({"type": "stats"}))

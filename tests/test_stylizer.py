@@ -43,13 +43,18 @@ def test_offline_equals_streaming_and_keeps_the_root_trajectory(model):
 
 @pytest.mark.parametrize("backend", ["numpy", "numba"])
 @pytest.mark.parametrize("pose", ["network", "input"])
-def test_stream_equals_the_generator_forward_on_whole_clip_features(model, backend, pose):
+def test_stream_equals_the_generator_forward_on_whole_clip_features(model, backend, pose, monkeypatch):
     """The compiled streaming path (features, normalisation, root put back on its heading)
     against the training-side path: motion_features + FeatureStats.normalize, the torch
-    generator over the whole window, quat.mul for the root. Pose "input": the input's rotations
-    turned by the change from the generator's identity output (target = the input's style) to
-    its styled one, composed here by scipy."""
-    from scipy.spatial.transform import Rotation
+    generator over the whole window, quat.mul for the root. Pose "input", composed here by
+    scipy: the generator's identity output (target = the input's style) against the input gives
+    each frame's unfamiliarity (mean joint angle, rising at once, falling by RELEASE a frame), which
+    slerps from the styled output to the input's rotations turned by the change from the identity
+    output to the styled one; the thresholds are put inside this random network's range, so the
+    frames span the blend."""
+    from scipy.spatial.transform import Rotation, Slerp
+
+    from styleerd.runtime import stylizer
 
     m = walking_motion(30)
     f, traj = motion_features(m)
@@ -66,8 +71,18 @@ def test_stream_equals_the_generator_forward_on_whole_clip_features(model, backe
     want = generator(2)
     if pose == "input":
         scipy = lambda q: Rotation.from_quat(q.reshape(-1, 4), scalar_first=True)  # noqa: E731
-        turned = scipy(m.rotations) * scipy(generator(1)).inv() * scipy(want)
-        want = turned.as_quat(scalar_first=True).reshape(want.shape)
+        same = generator(1)
+        angles = np.degrees((scipy(same).inv() * scipy(m.rotations)).magnitude()).reshape(30, -1).mean(-1)
+        low, high = np.percentile(angles, [30, 70])
+        monkeypatch.setattr(stylizer, "FAMILIAR", low)
+        monkeypatch.setattr(stylizer, "UNFAMILIAR", high)
+        weight = np.clip((angles - low) / (high - low), 0, 1)
+        for t in range(1, 30):
+            weight[t] = max(weight[t], weight[t - 1] - stylizer.RELEASE)
+        assert 0 < weight.mean() < 1 and ((weight > 0) & (weight < 1)).any()
+        turned = (scipy(m.rotations) * scipy(same).inv() * scipy(want)).as_quat(scalar_first=True).reshape(want.shape)
+        want = np.stack([np.stack([Slerp([0, 1], scipy(np.stack([want[t, j], turned[t, j]])))(weight[t]).as_quat(scalar_first=True)
+                                   for j in range(want.shape[1])]) for t in range(30)])  # fmt: skip
     s = StreamStylizer(model, "normal", "walk", {"old": 1.0}, backend=backend, pose=pose)
     got = np.stack([s.step(m.rotations[t], m.positions[t])[0][0] for t in range(30)])
     if pose == "network":

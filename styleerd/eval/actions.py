@@ -26,6 +26,7 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import dataclass
+from pathlib import Path
 
 import numpy as np
 from tqdm import tqdm
@@ -111,11 +112,11 @@ def held_out_clips(data_dir: str | None = None) -> list[ActionClip]:
 
 
 def bandai2_test_walks(data_dir: str | None = None, n: int = 8) -> list[ActionClip]:
-    """The first ``n`` neutral walks of Bandai-Namco-2's test split: the reference."""
+    """The first ``n`` neutral walks (straight and turning) of Bandai-Namco-2's test split: the reference."""
     clips = find_clips(data_root(data_dir), "bandai-namco-2")
     split = split_takes({c.name: (c.dataset, c.style, c.content) for c in clips})
-    walks: list[Clip] = [c for c in clips if split[c.name] == "test" and c.style == "normal" and c.content == "walk"][:n]
-    return [ActionClip(c.name.removeprefix("dataset-2_"), "walk", "bandai-namco-2 test", _trimmed(load_motion(c)), "normal") for c in walks]
+    walks: list[Clip] = [c for c in clips if split[c.name] == "test" and c.style == "normal" and c.content.startswith("walk")][:n]
+    return [ActionClip(c.name.removeprefix("dataset-2_"), c.content, "bandai-namco-2 test", _trimmed(load_motion(c)), "normal") for c in walks]
 
 
 def _map(clip: ActionClip, model: GeneratorWeights) -> JointMap:
@@ -370,3 +371,21 @@ def markdown(report: dict) -> str:
             lines.append(f"| {name} | {reads} | " + " | ".join(cells) + " |")
         lines.append("")
     return "\n".join(lines)
+
+
+def action_filmstrips(model: GeneratorWeights, folder: Path, data_dir: str | None = None, names: tuple[str, ...] = ("dance-short_normal_001", "kick_normal_001"),
+                      styles: tuple[str, str] = ("elderly", "exhausted")) -> list[Path]:  # fmt: skip
+    """Per clip (Bandai-Namco-1's dance and kick), a filmstrip: the input, the identity transfer and
+    two styles with each pose path (``docs/actions-*.png``)."""
+    from styleerd.eval.plots import filmstrip  # matplotlib: only for the pictures
+
+    paths = []
+    for clip in [c for c in held_out_clips(data_dir) if c.name in names]:
+        rows: list[tuple[str, Motion]] = [(f"input: Bandai-Namco-1 {clip.name} (held out)", clip.motion)]
+        for pose in ("network", "input"):
+            identity, styled = _transfers(clip, model, list(styles), pose)
+            rows += [(f"pose {pose}: identity (-> {clip.input_style})", identity)] + [(f"pose {pose}: -> {s}", m) for s, m in styled.items()]
+        path = folder / f"actions-{clip.action}.png"
+        filmstrip(rows, path, frames=8, title=f"{clip.action}: the paper's output (pose network) against the input's pose plus the style's change (pose input)")
+        paths.append(path)
+    return paths

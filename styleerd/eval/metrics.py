@@ -272,7 +272,7 @@ def played_channels(model: StyleERD, rotations: np.ndarray, positions: np.ndarra
 
 @torch.no_grad()
 def runtime_transfers(model: StyleERD, labeller, style_rec, content_rec, data_dir: str | None = None, dataset: str = "bandai-namco-2",
-                      window: int = 24, stride: int = 12, split: str = "test", root_speed: bool = False) -> dict:  # fmt: skip
+                      window: int = 24, stride: int = 12, split: str = "test", root_speed: bool = False, pose: str = "input") -> dict:  # fmt: skip
     """Every ``split`` clip streamed frame by frame through ``StreamStylizer`` (what
     ``transfer`` runs): styled clips back to neutral, neutral clips into every other style;
     each with its labels given and with its labels inferred online by ``labeller``. The
@@ -281,7 +281,7 @@ def runtime_transfers(model: StyleERD, labeller, style_rec, content_rec, data_di
     "inferred": {sra, cra}, "windows": n, "missed_read_as": {style: windows}} (what the windows
     not read as the target were read as, labels given); also the labeller's style read at each
     clip's end.
-    ``root_speed``: the stylizer's option (the root's ground speed from the network)."""
+    ``root_speed``, ``pose``: the stylizer's options."""
     fs, c = prepare(dataset, data_dir, progress=False), model.config
     neutral = c.neutral_style
     hits: dict[tuple[str, str], np.ndarray] = {}  # (source, target) -> [given s, given c, inferred s, inferred c, windows]
@@ -295,7 +295,7 @@ def runtime_transfers(model: StyleERD, labeller, style_rec, content_rec, data_di
         style, content = str(fs.styles[clip]), str(fs.contents[clip])
         targets = [t for t in c.input_styles if t != neutral] if style == neutral else [neutral]
         n = len(targets)
-        st = StreamStylizer(model, [style] * n + [None] * n, [content] * n + [None] * n, [{t: 1.0} for t in targets * 2], n_streams=2 * n, labeller=labeller, root_speed=root_speed)
+        st = StreamStylizer(model, [style] * n + [None] * n, [content] * n + [None] * n, [{t: 1.0} for t in targets * 2], n_streams=2 * n, labeller=labeller, root_speed=root_speed, pose=pose)
         rot = np.empty((2 * n, motion.n_frames, c.n_joints, 4))
         pos = np.empty((2 * n, motion.n_frames, c.n_joints, 3))
         for t in range(motion.n_frames):

@@ -31,6 +31,24 @@ def add_change(given: torch.Tensor, same: torch.Tensor, styled: torch.Tensor) ->
     return normalize(mul(normalize(given), mul(inv(same), styled)))
 
 
+def slerp(a: torch.Tensor, b: torch.Tensor, t: torch.Tensor) -> torch.Tensor:
+    """Spherical interpolation from ``a`` (t=0) to ``b`` (t=1) along the shorter arc; ``t [...]``."""
+    d = (a * b).sum(-1, keepdim=True)
+    b = torch.where(d < 0, -b, b)
+    theta = torch.arccos(d.abs().clamp(max=1.0))
+    s, t = torch.sin(theta), t[..., None]
+    near = s < 1e-6
+    wa = torch.where(near, 1 - t, torch.sin((1 - t) * theta) / torch.where(near, 1.0, s))
+    wb = torch.where(near, t, torch.sin(t * theta) / torch.where(near, 1.0, s))
+    return normalize(wa * a + wb * b)
+
+
+def angle(a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
+    """Rotation angle (radians) of ``inv(a) * b``, exact for small angles."""
+    d = mul(inv(a), b)
+    return 2.0 * torch.atan2(d[..., 1:].norm(dim=-1), d[..., 0].abs())
+
+
 def mul_vec(q: torch.Tensor, v: torch.Tensor) -> torch.Tensor:
     w, u = q[..., :1], q[..., 1:]
     t = 2.0 * torch.linalg.cross(u, v, dim=-1)

@@ -155,7 +155,11 @@ def transfer_file(
 
 def _inferred_labels(stylizer: StreamStylizer, report: Callable[[str], None] | None) -> tuple[str, str] | None:
     """The (style, content) the labeller inferred at the last frame, reported; None when both
-    labels were given."""
+    labels were given. Also reported: how unfamiliar the motion was to the network (pose "input")."""
+    if report and stylizer.pose == "input" and stylizer.frames[0]:
+        share = stylizer.unfamiliar_sum[0] / stylizer.frames[0]
+        report(f"unfamiliar to the network: {100 * share:.0f} % (0: its own pose, as on motion like its training data; "
+               "100: the input's pose turned by the style's change, as on actions it never learnt)")
     if stylizer.labeller is None:
         return None
     labels = stylizer.inferred_labels()[0]

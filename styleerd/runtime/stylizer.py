@@ -3,12 +3,14 @@
 Frames are poses on the model's skeleton: local joint rotations ``[N, J, 4]`` and local
 translations ``[N, J, 3]`` (N streams). Output frame t depends on input frames <= t only.
 The output keeps the input's root trajectory (root position and facing) and joint
-translations. Its joint rotations are, by default (``pose="input"``), the input's own with the
-style's change added: per joint, the change from the network's output in the input's own style
-(the identity transfer, a second pass with its own recurrent state) to its output in the target,
-so a pose the network never learnt (a kick, a dance) passes through and only the style's change
-is the network's. ``pose="network"`` takes the network's rotations themselves (the paper's
-output), which rebuilds every pose from the actions it was trained on.
+translations. ``pose="network"`` takes the network's joint rotations (the paper's output), which
+rebuilds every pose from the actions it was trained on: a kick comes back as standing. So by
+default (``pose="input"``) a second pass, with its own recurrent state, gives the network's output
+in the input's own style (the identity transfer), and how far that is from the input says how
+unfamiliar the input is (``unfamiliar``, per stream and frame, 0..1). Where the network rebuilds
+the input well, the output is the network's; where it does not, the input's own pose turned, joint
+by joint, by the change from the identity output to the target's (``add_change``), so a pose the
+network never learnt passes through with the style's change on it; in between, a blend of the two.
 
 Changing the target (style, intensity, mixture) mid-stream blends the target weights
 linearly over ``blend_frames`` frames, so the output does not pop.
@@ -31,6 +33,7 @@ import numpy as np
 from styleerd.data.features import FeatureLayout, stream_features
 from styleerd.data.parallel import kernel_threads
 from styleerd.errors import StyleERDError
+from styleerd.model.config import FAMILIAR, RELEASE, UNFAMILIAR
 from styleerd.model.stored import GeneratorWeights, LabellerWeights, generator_weights, labeller_stem, labeller_weights, load_labeller_weights, toward_neutral
 from styleerd.motion import quat
 from styleerd.motion.retarget import BODY_PARTS, part_joints
@@ -218,6 +221,8 @@ class StreamStylizer:
         # pose "input": the identity transfer's pass, whose output the style's change is taken from
         self.pose = pose
         self.identity = make_backend(backend, model, n_streams, threads=max(1, threads) // self.threads) if pose == "input" else None
+        self.unfamiliar = np.zeros(n_streams)  # per stream, of its last frame (pose "input")
+        self.unfamiliar_sum, self.frames = np.zeros(n_streams), np.zeros(n_streams, np.int64)  # since the stream's reset
         self._pool: ThreadPoolExecutor | None = None
         self._sharded_step = threading.Lock()  # steps from several threads take turns: the barrier needs all of one step's shards running
         self.skeleton = model.skeleton
@@ -278,6 +283,7 @@ class StreamStylizer:
         self.backend.reset(rows if streams is None else np.concatenate([rows + p * self.n for p in range(1 + len(self.part_passes))]))
         if self.identity is not None:
             self.identity.reset(None if streams is None else rows)
+        self.unfamiliar[rows] = self.unfamiliar_sum[rows] = self.frames[rows] = 0
         self.started[rows] = False
         self.root_offset[rows], self.speed_ratio[rows] = 0.0, 1.0
         if self.labeller is not None:
@@ -440,7 +446,12 @@ class StreamStylizer:
             identity = np.zeros_like(weights[sel])
             identity[:, : style.shape[1]] = style  # the input's own style, given or inferred
             same = self._on_heading(self.identity.step(x, style, content, identity, None if sel is _ALL else sel)[0], traj, np.empty_like(out))
-            out[:] = add_change(rotations, same, out)
+            given = quat.normalize(rotations)
+            seen = np.where(self.started[sel], self.unfamiliar[sel] - RELEASE, 0.0)
+            now = np.clip((np.degrees(quat.angle_between(same, given).mean(-1)) - FAMILIAR) / (UNFAMILIAR - FAMILIAR), 0.0, 1.0)
+            self.unfamiliar[sel] = weight = np.maximum(now, seen)
+            self.unfamiliar_sum[sel] += weight
+            out[:] = quat.slerp(out, add_change(given, same, out), np.broadcast_to(weight[:, None], out.shape[:2]))
         if len(self.input_joints):  # parts that keep the input's own motion
             out[:, self.input_joints] = quat.normalize(rotations[:, self.input_joints])
         if self.labeller is not None:
@@ -448,6 +459,7 @@ class StreamStylizer:
         self.previous[sel], self.facing[sel], self.started[sel] = g, facing, True
         self.labels[0][sel], self.labels[1][sel] = style, content
         self.blend.frame[sel] += 1
+        self.frames[sel] += 1
         return out, positions
 
 

@@ -49,7 +49,7 @@ from styleerd.motion import bvh, quat
 from styleerd.motion.kinematics import bone_fronts, forward_kinematics
 from styleerd.motion.skeleton import Skeleton
 from styleerd.runtime.channels import ChannelStylizer
-from styleerd.runtime.stylizer import label_vector, part_targets, target_weights
+from styleerd.runtime.stylizer import POSES, label_vector, part_targets, target_weights
 from styleerd.runtime.onnx_export import sidecar, step_graph
 from styleerd.serve.clips import DemoClips, reference_clip
 
@@ -126,14 +126,14 @@ class Pool:
     targets: a slot each in one ChannelStylizer, stepped together."""
 
     def __init__(self, model: GeneratorWeights, skeleton: Skeleton, fps: float, cleanup: bool, capacity: int, backend: str, key: tuple, parts: dict | None = None,
-                 root_speed: bool = False):  # fmt: skip
+                 root_speed: bool = False, pose: str = "input"):  # fmt: skip
         neutral = model.config.neutral_style
-        self.stylizer = ChannelStylizer(model, skeleton, {neutral: 1.0}, neutral, model.config.contents[0], fps, capacity, cleanup=cleanup, backend=backend, parts=parts, root_speed=root_speed)
+        self.stylizer = ChannelStylizer(model, skeleton, {neutral: 1.0}, neutral, model.config.contents[0], fps, capacity, cleanup=cleanup, backend=backend, parts=parts, root_speed=root_speed, pose=pose)
         self.skeleton, self.parts = skeleton, parts or {}
         self.fronts = bone_fronts(skeleton)  # rest fronts of the bones, for viewers that show their roll
         self.free = list(range(capacity - 1, -1, -1))
         self.streams: dict[int, Stream] = {}
-        self.key = key  # (skeleton header, fps, cleanup, parts, root speed): streams that share all five share the pool
+        self.key = key  # (skeleton header, fps, cleanup, parts, root speed, pose): streams that share all six share the pool
 
 
 def _skeleton_from_text(text: str, fps: float, max_joints: int) -> Skeleton:
@@ -222,12 +222,15 @@ class StyleServer:
         root_speed = msg.get("root_speed", False)
         if not isinstance(root_speed, bool):
             raise ClientError(POLICY, f"'root_speed' must be true or false, got {root_speed!r}")
+        pose = msg.get("pose", "input")
+        if pose not in POSES:
+            raise ClientError(POLICY, f"'pose' must be one of {', '.join(POSES)}, got {pose!r}"[:300])
         try:  # body parts with targets of their own: fixed for the stream (its pool's)
             parts = part_targets(self.model, msg.get("parts"))
         except StyleERDError as e:
             raise ClientError(POLICY, str(e)) from None
         async with self.setup:  # the worker thread shares the interpreter with the stepping: one at a time
-            pool = await asyncio.to_thread(self._pool, msg.get("skeleton") if msg.get("preset") != "model" else None, fps, cleanup, parts, root_speed)
+            pool = await asyncio.to_thread(self._pool, msg.get("skeleton") if msg.get("preset") != "model" else None, fps, cleanup, parts, root_speed, pose)
         if len(self.streams) >= self.config.max_streams:  # others came in while this one was set up
             raise ClientError(TRY_LATER, f"the server is full ({self.config.max_streams} streams); try again later")
         pool = self.pools.setdefault(pool.key, pool)  # registered here, on the event loop
@@ -251,16 +254,16 @@ class StyleServer:
         log.info("stream %d %r opened: %d joints, %g fps, target %s", stream.id, stream.name, pool.skeleton.n_joints, fps, target)
         return stream
 
-    def _pool(self, text: str | None, fps: float, cleanup: bool, parts: dict, root_speed: bool) -> Pool:
+    def _pool(self, text: str | None, fps: float, cleanup: bool, parts: dict, root_speed: bool, pose: str) -> Pool:
         """The pool of a hello's skeleton: the existing one, or a new one (not yet registered).
         Runs in a worker thread: reads ``self.pools``, never changes it."""
         try:
             skeleton = self.model.skeleton if text is None else _skeleton_from_text(text, fps, self.config.max_joints)
-            key = (bvh.format_header(skeleton, 0, fps), fps, cleanup, json.dumps(parts, sort_keys=True), root_speed)
+            key = (bvh.format_header(skeleton, 0, fps), fps, cleanup, json.dumps(parts, sort_keys=True), root_speed, pose)
             existing = self.pools.get(key)
             if existing is not None:
                 return existing
-            return Pool(self.model, skeleton, fps, cleanup, self.config.max_streams, self.config.backend, key, parts, root_speed)
+            return Pool(self.model, skeleton, fps, cleanup, self.config.max_streams, self.config.backend, key, parts, root_speed, pose)
         except StyleERDError as e:
             raise ClientError(POLICY, str(e)) from None
 
@@ -282,7 +285,7 @@ class StyleServer:
         return {"type": "ready", "stream": stream.name, "id": stream.id, **private, "channels": stream.pool.stylizer.n_channels,
                 "fps": stream.pool.stylizer.fps, "joints": list(sk.names), "parents": [int(p) for p in sk.parents],
                 "styles": list(c.styles), "input_styles": list(c.input_styles), "contents": list(c.contents), "neutral": c.neutral_style,
-                "target": self._weights(stream), "parts": stream.pool.parts, "root_speed": stream.pool.stylizer.stylizer.root_speed, "mapping": stream.pool.stylizer.map.describe(), "queue": self.config.queue}  # fmt: skip
+                "target": self._weights(stream), "parts": stream.pool.parts, "root_speed": stream.pool.stylizer.stylizer.root_speed, "pose": stream.pool.stylizer.stylizer.pose, "mapping": stream.pool.stylizer.map.describe(), "queue": self.config.queue}  # fmt: skip
 
     def _weights(self, stream: Stream) -> dict[str, float]:
         w = stream.pool.stylizer.stylizer.blend.end[stream.row]
@@ -438,6 +441,8 @@ class StyleServer:
                 message = b"".join(parts)
             else:
                 reply = {"type": "frame", "seq": seq, "values": np.round(out[i], 6).tolist()}
+                if pool.stylizer.stylizer.pose == "input":  # how far the network's own pose was left for the input's (0..1)
+                    reply["unfamiliar"] = round(float(pool.stylizer.stylizer.unfamiliar[stream.row]), 3)
                 if stream.positions:
                     reply["input_positions"], reply["output_positions"] = np.round(pos[0], 4).tolist(), np.round(pos[1], 4).tolist()
                     if stream.fronts:

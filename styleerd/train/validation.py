@@ -10,6 +10,7 @@ import torch
 
 from styleerd.model import torch_quat
 from styleerd.model.classifiers import WindowClassifier
+from styleerd.model.config import FAMILIAR, RELEASE, UNFAMILIAR
 from styleerd.model.fmd import MotionAutoencoder, fmd_features
 from styleerd.model.generator import StyleERD
 from styleerd.train.batches import TrainingData, WindowSet, window_rotations
@@ -70,18 +71,24 @@ def validate(
 def transfers(model: StyleERD, data: TrainingData, ws: WindowSet, batch: int = 512, pose: str = "network"):
     """The transfer tasks of ``ws`` in batches: (window rows, targets, rotations, velocities,
     normalised motion channels). ``pose``: "network", the network's output (what training
-    judges); "input", the input's pose and velocities plus the style's change (the identity
-    transfer's output to the target's: what ``StreamStylizer`` gives users by default)."""
+    judges); "input", what ``StreamStylizer`` gives users by default: towards the input's pose and
+    velocities plus the style's change (the identity transfer's output to the target's) as far
+    as the input is unfamiliar."""
     rows, targets = transfer_targets(ws.style, model.config.neutral_index, len(data.styles))
     for i in range(0, len(rows), batch):
         r, t = rows[i : i + batch], targets[i : i + batch]
         x = data.gather(ws.starts[r])
         style, content = data.onehot_style(ws.style[r]), data.onehot_content(ws.content[r])
         rot, vel, _ = model(x, style, content, data.onehot_style(t))
-        if pose == "input":
+        if pose == "input":  # as runtime.stylizer does it, frame by frame
             same_rot, same_vel, _ = model(x, style, content, style)
-            rot = torch_quat.add_change(model.raw_rotations(x), same_rot, rot)
-            vel = x[..., model.layout.velocities] + vel - same_vel
+            given = model.raw_rotations(x)
+            now = ((torch.rad2deg(torch_quat.angle(same_rot, given)).mean(-1) - FAMILIAR) / (UNFAMILIAR - FAMILIAR)).clamp(0.0, 1.0)  # [B, T]
+            weight = now.clone()
+            for t in range(1, now.shape[1]):
+                weight[:, t] = torch.maximum(now[:, t], weight[:, t - 1] - RELEASE)
+            rot = torch_quat.slerp(rot, torch_quat.add_change(given, same_rot, rot), weight[..., None].expand(rot.shape[:-1]))
+            vel = vel + weight[..., None] * (x[..., model.layout.velocities] - same_vel)
         yield r, t, rot, vel, model.motion_channels(rot, vel)
 
 
