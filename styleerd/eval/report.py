@@ -119,6 +119,7 @@ split; every figure is printed by its own command as well (named in each section
 
 {online_section(runtime)}
 {rotations_section(rotations)}
+{actions_section(docs)}
 {recipes_section(docs)}
 {added_styles_section(docs)}
 ## Pictures
@@ -190,6 +191,58 @@ def _training_runs(r: dict) -> str:
     return (f" The kept models' whole runs at these step times: `{b['model']}` {b['epochs_trained']} epochs, "
             f"{b['training_min']:.1f} min; `{a['model']}` {a['epochs_trained']} epochs, {a['training_min']:.1f} min: "
             f"{r['training_ratio']:.2f} of the time.")
+
+
+def actions_section(docs: Path) -> str:
+    """Issue 35's section: the held-out action table (``styleerd eval actions``: docs/actions.*),
+    and the shipped model on Bandai-Namco-2 with each pose path (``eval quality --pose``,
+    ``eval streamed --pose``: docs/pose-quality.json, docs/pose-streamed.json), where they exist."""
+    actions, quality, streamed = docs / "actions.md", docs / "pose-quality.json", docs / "pose-streamed.json"
+    if not actions.is_file():
+        return ""
+    text = """## Any action, any performer: the input's pose plus the style's change (`styleerd eval actions`)
+
+Held-out clips of other performers, skeletons and actions, none of them in any training run (CMU
+subjects 2 and 126 from cmu-sample on their Character Creator and ASF rigs, Bandai-Namco-1's
+neutral actions, xia-sample's jump and punch), streamed through `transfer` as users run it, on their
+own skeletons, beside Bandai-Namco-2 test walks. Pose `network` is the network's own pose (the
+paper's output, and this project's until now); pose `input` (the default) keeps the network's pose
+where it rebuilds the input and otherwise turns the input's own pose by the style's change (README,
+"Any action"). Correlation: of the hands' and feet's root-relative velocities, input against
+output (1 = the same action). Cosine and size: the style's change (styled output minus identity
+output, per joint, in the body's frame, averaged over the clip) against the same on the walks.
+
+![a dance](actions-dance-short.png)
+
+![a kick](actions-kick.png)
+
+"""
+    text += actions.read_text()
+    if quality.is_file() and streamed.is_file():
+        q, st = json.loads(quality.read_text()), json.loads(streamed.read_text())
+        rows = ["| figure | pose network | pose input |", "| --- | ---: | ---: |"]
+        for label, key, scale in (("SRA", "sra", 100), ("CRA", "cra", 100), ("FMD", "fmd", 1), ("FMD / floor, worst style", "worst_fmd_over_floor", 1),
+                                  ("CRA / ceiling, worst style", "worst_cra_of_ceiling", 100), ("jitter ratio", "jitter_ratio", 1)):  # fmt: skip
+            rows.append(f"| {label} | {scale * q['network'][key]:.3g} | {scale * q['input'][key]:.3g} |")
+        for style in q["network"]["sra_per_style"]:
+            rows.append(f"| {style}: SRA / CRA / FMD (floor {q['network']['fmd_floor_per_style'][style]:.3f}) | "
+                        + " | ".join(f"{100 * q[p]['sra_per_style'][style]:.1f} / {100 * q[p]['cra_per_style'][style]:.1f} / {q[p]['fmd_per_style'][style]:.3f}" for p in ("network", "input")) + " |")  # fmt: skip
+        for what in ("to_neutral_mean", "into_styles_mean"):
+            rows.append(f"| streamed, {what.replace('_', ' ')} (labels given / inferred) | "
+                        + " | ".join(f"{100 * st[p][what]['given']:.1f} / {100 * st[p][what]['inferred']:.1f}" for p in ("network", "input")) + " |")  # fmt: skip
+        for source, r in st["network"]["to_neutral"].items():
+            rows.append(f"| streamed, {source} -> normal (given / inferred) | "
+                        + " | ".join(f"{100 * st[p]['to_neutral'][source]['given']:.1f} / {100 * st[p]['to_neutral'][source]['inferred']:.1f}" for p in ("network", "input")) + " |")  # fmt: skip
+        text += """
+### The same model on Bandai-Namco-2's test split, each pose path
+
+`styleerd eval quality --pose network|input` (24-frame test windows from fresh states: percentages,
+FMD) and `styleerd eval streamed --pose network|input` (whole test clips streamed as `transfer` runs
+them: the share of windows read as the target), kept in `docs/pose-quality.json` and
+`docs/pose-streamed.json`.
+
+""" + "\n".join(rows) + "\n"
+    return text
 
 
 def recipes_section(docs: Path) -> str:

@@ -171,6 +171,9 @@ for _side in ("left", "right"):
     VRM_PARTS.update({f"{_side}Shoulder": f"{_side}_collar", f"{_side}UpperArm": f"{_side}_shoulder", f"{_side}LowerArm": f"{_side}_elbow",
                       f"{_side}Hand": f"{_side}_hand", f"{_side}UpperLeg": f"{_side}_hip", f"{_side}LowerLeg": f"{_side}_knee",
                       f"{_side}Foot": f"{_side}_foot", f"{_side}Toes": f"{_side}_toe"})  # fmt: skip
+MAX_SECONDS = 3600.0  # of an animation: an hour (a key time of 1e7 s would ask for 197 GiB)
+MAX_DEPTH = 256  # of a node tree, as the BVH reader's
+MAX_VALUES = 20_000_000  # joint frames of one animation (an hour of 150 joints at 30 fps; 0.6 GB as float64 quaternions)
 _COMPONENTS = {5120: np.int8, 5121: np.uint8, 5122: np.int16, 5123: np.uint16, 5125: np.uint32, 5126: np.float32}
 _WIDTH = {"SCALAR": 1, "VEC2": 2, "VEC3": 3, "VEC4": 4, "MAT4": 16}
 
@@ -191,22 +194,55 @@ class GltfMotion:
     animated_translation: np.ndarray  # [J] bool
 
 
+def _whole(value, what: str, low: int = 0, high: int = 1 << 40) -> int:
+    """``value`` as an integer in [low, high], or a ValueError naming ``what``."""
+    if isinstance(value, bool) or not isinstance(value, int) or not low <= value <= high:
+        raise ValueError(f"{what} must be an integer in [{low}, {high}], got {value!r}"[:200])
+    return value
+
+
 def _accessor(doc: gl.GLTF2, blob: bytes, index: int) -> np.ndarray:
+    """An accessor's elements ``[count, width]`` as float64, every field checked against the
+    glTF 2.0 rules and the buffer's length first (elements gathered by index: no view reaches
+    outside the buffer whatever the file says)."""
+    index = _whole(index, "an accessor index", 0, len(doc.accessors) - 1)
     a = doc.accessors[index]
     if a.sparse is not None or a.bufferView is None:
         raise ValueError(f"accessor {index}: sparse or empty accessors are not supported")
-    view = doc.bufferViews[a.bufferView]
+    if a.componentType not in _COMPONENTS or a.type not in _WIDTH:
+        raise ValueError(f"accessor {index}: component type {a.componentType!r} or type {a.type!r} is not a glTF 2.0 one"[:200])
+    view = doc.bufferViews[_whole(a.bufferView, f"accessor {index}'s bufferView", 0, len(doc.bufferViews) - 1)]
     dtype = np.dtype(_COMPONENTS[a.componentType])
-    width = _WIDTH[a.type]
-    stride = view.byteStride or dtype.itemsize * width
-    start = (view.byteOffset or 0) + (a.byteOffset or 0)
-    if start + stride * (a.count - 1) + dtype.itemsize * width > len(blob):
-        raise ValueError(f"accessor {index} reaches past the end of the buffer")
-    raw = np.lib.stride_tricks.as_strided(np.frombuffer(blob, dtype=np.uint8, offset=start), (a.count, dtype.itemsize * width), (stride, 1))
-    out = np.ascontiguousarray(raw).view(dtype).reshape(a.count, width).astype(np.float64)
+    element = dtype.itemsize * _WIDTH[a.type]
+    count = _whole(a.count, f"accessor {index}'s count", 1, len(blob))
+    view_start = _whole(view.byteOffset or 0, f"buffer view {a.bufferView}'s byteOffset")
+    view_length = _whole(view.byteLength, f"buffer view {a.bufferView}'s byteLength", 1)
+    stride = element if view.byteStride is None else _whole(view.byteStride, f"buffer view {a.bufferView}'s byteStride", 4, 252)
+    offset = _whole(a.byteOffset or 0, f"accessor {index}'s byteOffset")
+    if stride < element or offset % dtype.itemsize:
+        raise ValueError(f"accessor {index}: a stride of {stride} bytes for {element}-byte elements, or an unaligned offset")
+    if view_start + view_length > len(blob) or offset + stride * (count - 1) + element > view_length:
+        raise ValueError(f"accessor {index} reaches past the end of its buffer view or buffer")
+    at = view_start + offset + stride * np.arange(count)[:, None] + np.arange(element)[None]
+    out = np.frombuffer(blob, dtype=np.uint8)[at].view(dtype).reshape(count, _WIDTH[a.type]).astype(np.float64)
     if a.normalized and dtype.kind in "iu":
         out = np.maximum(out / np.iinfo(dtype).max, -1.0)
     return out
+
+
+def _outside(path: Path, uri: str) -> bool:
+    """Whether a buffer or image URI of the .gltf ``path`` names a file outside its own folder
+    (an absolute path, ``..``, another scheme); data: URIs are inside the file."""
+    from urllib.parse import unquote, urlparse
+
+    if uri.startswith("data:"):
+        return False
+    parsed = urlparse(uri)
+    if parsed.scheme or parsed.netloc:
+        return True
+    folder = path.resolve().parent
+    target = (folder / unquote(parsed.path)).resolve()
+    return not target.is_relative_to(folder)
 
 
 def _load(path: Path) -> tuple[gl.GLTF2, bytes]:
@@ -215,23 +251,42 @@ def _load(path: Path) -> tuple[gl.GLTF2, bytes]:
             doc = gl.GLTF2().load_json(str(path))
             if len(doc.buffers) != 1:
                 raise ValueError(f"{len(doc.buffers)} buffers (one is supported)")
+            uri = doc.buffers[0].uri
+            if isinstance(uri, str) and _outside(path, uri):
+                raise StyleERDError(f"{path}: its buffer {uri[:100]!r} is outside the file's own folder; not read")
             doc.convert_buffers(gl.BufferFormat.BINARYBLOB)
         else:
             doc = gl.GLTF2().load_binary(str(path))
         blob = doc.binary_blob() or b""
+    except StyleERDError:
+        raise
     except Exception as e:  # pygltflib raises whatever its parser meets
-        raise StyleERDError(f"{path}: not a readable glTF file ({type(e).__name__}: {e})") from None
+        raise StyleERDError(f"{path}: not a readable glTF file ({type(e).__name__}: {str(e)[:200]})") from None
     return doc, blob
 
 
-def _node_trs(node: gl.Node) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """(rotation wxyz, translation, scale) of a node."""
+def _node_trs(node: gl.Node, n: int = 0) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(rotation wxyz, translation, scale) of node ``n``, every number finite and of the right count."""
+    try:
+        if node.matrix is not None:
+            m = np.array(node.matrix, dtype=np.float64).reshape(4, 4).T
+            values = [m]
+        else:
+            r = np.array(node.rotation if node.rotation is not None else [0, 0, 0, 1.0], dtype=np.float64).reshape(4)[[3, 0, 1, 2]]
+            t, s = np.array(node.translation or [0, 0, 0.0], dtype=np.float64).reshape(3), np.array(node.scale or [1, 1, 1.0], dtype=np.float64).reshape(3)
+            values = [r, t, s]
+    except (TypeError, ValueError):
+        raise ValueError(f"node {n} ({node.name!r}): its matrix, rotation, translation or scale is not a list of numbers of the right length"[:200]) from None
+    if not all(np.isfinite(v).all() for v in values):
+        raise ValueError(f"node {n} ({node.name!r}): its transform has a NaN or infinite value"[:200])
     if node.matrix is not None:
-        m = np.array(node.matrix, dtype=np.float64).reshape(4, 4).T
         scale = np.linalg.norm(m[:3, :3], axis=0)
+        if (scale < 1e-12).any():
+            raise ValueError(f"node {n} ({node.name!r}): its matrix has a zero scale"[:200])
         return quat.from_xform(m[:3, :3] / scale), m[:3, 3].copy(), scale
-    r = np.array(node.rotation if node.rotation is not None else [0, 0, 0, 1.0], dtype=np.float64)[[3, 0, 1, 2]]
-    return quat.normalize(r), np.array(node.translation or [0, 0, 0.0]), np.array(node.scale or [1, 1, 1.0])
+    if np.linalg.norm(r) < 1e-12:
+        raise ValueError(f"node {n} ({node.name!r}): its rotation is zero"[:200])
+    return quat.normalize(r), t, s
 
 
 def _vrm_parts(doc: gl.GLTF2) -> dict[str, int]:
@@ -250,6 +305,33 @@ def _vrm_parts(doc: gl.GLTF2) -> dict[str, int]:
     return parts
 
 
+def _tree(doc: gl.GLTF2) -> dict[int, int]:
+    """Node -> its parent, checked to be a forest (no node its own child, none with two parents,
+    no cycle) no deeper than ``MAX_DEPTH``; node indices in range."""
+    parent: dict[int, int] = {}
+    for i, node in enumerate(doc.nodes):
+        for c in node.children or []:
+            c = _whole(c, f"node {i}'s child", 0, len(doc.nodes) - 1)
+            if c == i or c in parent:
+                raise ValueError(f"node {c} is {'its own child' if c == i else f'a child of both node {parent[c]} and node {i}'}: the nodes must form a tree")
+            parent[c] = i
+    depth: dict[int, int] = {}
+    for n in range(len(doc.nodes)):
+        path = []
+        while n not in depth and n in parent:
+            path.append(n)
+            n = parent[n]
+            if len(path) > MAX_DEPTH:
+                raise ValueError(f"the node tree is deeper than {MAX_DEPTH} or has a cycle (through node {n})")
+        d = depth.get(n, 0)
+        for m in reversed(path):
+            d += 1
+            depth[m] = d
+            if d > MAX_DEPTH:
+                raise ValueError(f"the node tree is deeper than {MAX_DEPTH} (node {m})")
+    return parent
+
+
 def read_gltf(path: str | Path, animation: int = 0, fps: float | None = None) -> GltfMotion:
     """A glTF/GLB/VRM file's skeleton (its first skin) and animation, sampled at ``fps`` (by
     default the animation's own key rate, within 10-120)."""
@@ -257,8 +339,8 @@ def read_gltf(path: str | Path, animation: int = 0, fps: float | None = None) ->
     doc, blob = _load(path)
     try:
         return _read(doc, blob, animation, fps)
-    except (ValueError, KeyError, IndexError, TypeError) as e:
-        raise StyleERDError(f"{path}: {e}") from None
+    except (ValueError, KeyError, IndexError, TypeError, AttributeError) as e:
+        raise StyleERDError(f"{path}: {str(e)[:300]}") from None
 
 
 def _read(doc: gl.GLTF2, blob: bytes, animation: int, fps: float | None) -> GltfMotion:
@@ -266,7 +348,7 @@ def _read(doc: gl.GLTF2, blob: bytes, animation: int, fps: float | None) -> Gltf
         raise ValueError("no skin: the file has no skeleton to stylise")
     if not doc.animations or animation >= len(doc.animations):
         raise ValueError("no animation to stylise")
-    parent = {c: i for i, n in enumerate(doc.nodes) for c in (n.children or [])}
+    parent = _tree(doc)
 
     def chain(n: int) -> list[int]:
         out = [n]
@@ -274,7 +356,9 @@ def _read(doc: gl.GLTF2, blob: bytes, animation: int, fps: float | None) -> Gltf
             out.append(parent[out[-1]])
         return out
 
-    joints = set(doc.skins[0].joints)
+    joints = {_whole(j, "a skin joint", 0, len(doc.nodes) - 1) for j in doc.skins[0].joints or []}
+    if not joints:
+        raise ValueError("the skin has no joints")
     chains = [chain(j) for j in joints]
     common = set(chains[0]).intersection(*map(set, chains[1:]))
     if not common:
@@ -290,7 +374,7 @@ def _read(doc: gl.GLTF2, blob: bytes, animation: int, fps: float | None) -> Gltf
     index = {n: k for k, n in enumerate(order)}
     J = len(order)
     parents = np.array([-1] + [index[parent[n]] for n in order[1:]])
-    trs = [_node_trs(doc.nodes[n]) for n in order]
+    trs = [_node_trs(doc.nodes[n], n) for n in order]
     rest_local = np.stack([r for r, _, _ in trs])
     rest_t = np.stack([t for _, t, _ in trs])
     if any(not np.allclose(s, 1.0, rtol=1e-4) for _, _, s in trs[1:]):
@@ -298,7 +382,7 @@ def _read(doc: gl.GLTF2, blob: bytes, animation: int, fps: float | None) -> Gltf
     # the root's ancestors: their rotation and translation, and a uniform scale (units)
     a_rot, a_pos, a_scale = quat.identity(), np.zeros(3), float(np.mean(trs[0][2]))
     for n in chain(root)[1:]:
-        r, t, s = _node_trs(doc.nodes[n])
+        r, t, s = _node_trs(doc.nodes[n], n)
         a_pos = t + float(np.mean(s)) * quat.mul_vec(r, a_pos)
         a_rot, a_scale = quat.mul(r, a_rot), a_scale * float(np.mean(s))
     rest_local[0] = quat.mul(a_rot, rest_local[0])
@@ -309,8 +393,12 @@ def _read(doc: gl.GLTF2, blob: bytes, animation: int, fps: float | None) -> Gltf
     steps = []
     for ch in anim.channels:
         if ch.target.node in index and ch.target.path in ("rotation", "translation"):
-            sampler = anim.samplers[ch.sampler]
+            sampler = anim.samplers[_whole(ch.sampler, "a channel's sampler", 0, len(anim.samplers) - 1)]
             times, values = _accessor(doc, blob, sampler.input)[:, 0], _accessor(doc, blob, sampler.output)
+            if not (np.isfinite(times).all() and np.isfinite(values).all()):
+                raise ValueError(f"animation channel of node {ch.target.node}: a key time or value is NaN or infinite")
+            if times[0] < 0 or times[-1] > MAX_SECONDS or (np.diff(times) < 0).any():
+                raise ValueError(f"animation channel of node {ch.target.node}: key times must rise from 0 to at most {MAX_SECONDS:g} s")
             if sampler.interpolation == "CUBICSPLINE":
                 values = values[1::3]  # (in-tangent, value, out-tangent): the values, linearly
             if len(times) != len(values) or len(times) == 0:
@@ -325,6 +413,8 @@ def _read(doc: gl.GLTF2, blob: bytes, animation: int, fps: float | None) -> Gltf
         dt = dt[dt > 1e-6]
         fps = float(np.clip(round(1.0 / np.median(dt)) if len(dt) else 30.0, 10, 120))
     T = int(np.floor(end * fps + 1e-6)) + 1
+    if T * J > MAX_VALUES:
+        raise ValueError(f"{T} frames of {J} joints is more than this reader takes ({MAX_VALUES:,} joint frames)")
     t = np.arange(T) / fps
     local = np.broadcast_to(rest_local, (T, J, 4)).copy()
     local[:, 0] = trs[0][0]  # the root's own rotation; its ancestors go on below

@@ -85,8 +85,8 @@ def transfers(model: StyleERD, data: TrainingData, ws: WindowSet, batch: int = 5
             given = model.raw_rotations(x)
             now = ((torch.rad2deg(torch_quat.angle(same_rot, given)).mean(-1) - FAMILIAR) / (UNFAMILIAR - FAMILIAR)).clamp(0.0, 1.0)  # [B, T]
             weight = now.clone()
-            for t in range(1, now.shape[1]):
-                weight[:, t] = torch.maximum(now[:, t], weight[:, t - 1] - RELEASE)
+            for frame in range(1, now.shape[1]):
+                weight[:, frame] = torch.maximum(now[:, frame], weight[:, frame - 1] - RELEASE)
             rot = torch_quat.slerp(rot, torch_quat.add_change(given, same_rot, rot), weight[..., None].expand(rot.shape[:-1]))
             vel = vel + weight[..., None] * (x[..., model.layout.velocities] - same_vel)
         yield r, t, rot, vel, model.motion_channels(rot, vel)
