@@ -358,7 +358,7 @@ def _filmstrip(args: argparse.Namespace) -> None:
 def _serve(args: argparse.Namespace) -> None:
     from styleerd.serve.server import ServeConfig, serve_forever
 
-    config = ServeConfig(host=args.host, port=args.port, max_streams=args.max_streams, max_message=args.max_message, queue=args.queue,
+    config = ServeConfig(host=args.host, port=args.port, max_streams=args.max_streams, max_watchers=args.max_watchers, max_message=args.max_message, queue=args.queue,
                          backend=args.backend, data=args.data, max_joints=args.max_joints, origins=tuple(args.allow_origin),
                          hosts=tuple(args.allow_host), model=args.model)  # fmt: skip
     serve_forever(config, args.workers)
@@ -633,6 +633,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--port", type=_port, default=8765)
     p.add_argument("--workers", type=_whole(1), default=1, help="processes sharing the port (SO_REUSEPORT), e.g. one per core")
     p.add_argument("--max-streams", type=_whole(1), default=256, help="open streams per worker")
+    p.add_argument("--max-watchers", type=_whole(1), default=64, help="live viewers at once per worker")
     p.add_argument("--max-message", type=_whole(1024), default=1 << 20, help="largest message in bytes (larger: closed with 1009)")
     p.add_argument("--queue", type=_whole(1), default=64, help="per stream: frames waiting, and stylised frames unsent")
     p.add_argument("--backend", default="numpy", choices=["numpy", "numba", "onnx"])

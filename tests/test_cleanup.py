@@ -101,3 +101,24 @@ def test_batched_foot_lock_equals_single_streams():
         r = lock.step(np.stack([o1.rotations[t], o2.rotations[t]]), np.stack([o1.positions[t], o2.positions[t]]),
                       np.stack([i1.rotations[t], i2.rotations[t]]), np.stack([i1.positions[t], i2.positions[t]]))
         assert np.allclose(r[0], singles[0][t], atol=1e-12) and np.allclose(r[1], singles[1][t], atol=1e-12)
+
+
+def test_no_foot_goes_below_the_inputs_floor():
+    """An output whose legs bend the feet 8 cm into the ground (hips kept): after the lock, no ankle
+    and no toe is lower than the input's own have been up to that frame (causal running minimum)."""
+    m = walking_motion(40)
+    sk = m.skeleton
+    rot = m.rotations.copy()
+    for side in "LR":  # bend each hip forward and the knee back: the foot drops
+        hip, knee = sk.index(f"UpperLeg_{side}"), sk.index(f"LowerLeg_{side}")
+        rot[:, hip] = quat.mul(rot[:, hip], quat.from_angle_axis(np.array([-0.5]), np.array([1.0, 0.0, 0.0])))
+        rot[:, knee] = quat.mul(rot[:, knee], quat.from_angle_axis(np.array([1.0]), np.array([1.0, 0.0, 0.0])))
+    lowered = Motion(sk, rot, m.positions - [0.0, 8.0, 0.0] * (np.arange(sk.n_joints) == 0)[:, None], m.fps)
+    cleaned = clean_feet(lowered, m)
+    feet = [sk.index(n) for n in ("Foot_L", "Toes_L", "Foot_R", "Toes_R")]
+    g_in = forward_kinematics(m.rotations, m.positions, sk.parents)[1][:, feet, 1]
+    g_raw = forward_kinematics(lowered.rotations, lowered.positions, sk.parents)[1][:, feet, 1]
+    g_out = forward_kinematics(cleaned.rotations, cleaned.positions, sk.parents)[1][:, feet, 1]
+    floor = np.minimum.accumulate(g_in, axis=0)
+    assert (g_raw < floor - 3.0).any()  # the raw output is in the ground
+    assert (g_out >= floor - 0.5).all(), (floor - g_out).max()  # the toe follows its ankle's lift to within a few millimetres

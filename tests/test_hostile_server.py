@@ -24,13 +24,13 @@ from styleerd.serve.loadtest import free_port, server_log, start_server, stop_se
 
 from test_server import RawClient, closed_with, frame, replies
 
-MAX_JOINTS, QUEUE, PROBE_FRAMES = 120, 8, 40
+MAX_JOINTS, QUEUE, PROBE_FRAMES, MAX_WATCHERS = 120, 8, 40, 8
 
 
 @pytest.fixture(scope="module")
 def server():
     port = free_port()
-    proc = start_server(port, "--max-streams", "40", "--queue", str(QUEUE), "--max-message", "1048576", "--max-joints", str(MAX_JOINTS))
+    proc = start_server(port, "--max-streams", "40", "--max-watchers", str(MAX_WATCHERS), "--queue", str(QUEUE), "--max-message", "1048576", "--max-joints", str(MAX_JOINTS))
     yield f"ws://127.0.0.1:{port}/", port, proc
     log = server_log(proc)
     assert stop_server(proc) == 0
@@ -172,11 +172,20 @@ def test_all_zero_frames_on_the_models_skeleton_are_stylised(server, clip):
     probe(url, clip)
 
 
-def _http(port: int, path: str, headers: dict | None = None) -> tuple[int, bytes]:
+def _http(port: int, path: str, headers: dict | None = None, method: str = "GET") -> tuple[int, bytes]:
     c = http.client.HTTPConnection("127.0.0.1", port, timeout=10)
-    c.request("GET", path, headers=headers or {})
+    c.request(method, path, headers=headers or {})
     r = c.getresponse()
     return r.status, r.read()
+
+
+def test_head_has_the_gets_headers_and_no_body_and_other_methods_are_refused(server):
+    port = server[1]
+    c = http.client.HTTPConnection("127.0.0.1", port, timeout=10)
+    c.request("HEAD", "/")
+    r = c.getresponse()
+    assert r.status == 200 and r.read() == b"" and int(r.getheader("Content-Length")) == len(_http(port, "/")[1]) > 0
+    assert _http(port, "/", method="POST")[0] == 405 and _http(port, "/streams", method="DELETE")[0] == 405
 
 
 def test_http_abuse_is_answered_without_a_server_error(server, clip):
@@ -430,3 +439,46 @@ def test_fuzzed_watcher_tokens_never_keep_a_stream(style_server):
         assert not server.streams and not server.pools and not server.watchers
 
     run()
+
+
+def test_a_watcher_flood_is_capped_and_the_probe_goes_on(server, clip):
+    """Issue 36: 1,000 idle watchers slowed every stream 17x. Past ``--max-watchers`` a watcher is
+    told to come back later (1013); those in are released when they go, and the probe is untouched."""
+    url = server[0]
+    watchers, refused = [], 0
+    for _ in range(3 * MAX_WATCHERS):
+        ws = connect(url, open_timeout=20, legacy=True)
+        ws.send(json.dumps({"type": "watch", "stream": "nobody"}))
+        first = json.loads(ws.recv(timeout=20))
+        if first.get("type") == "waiting":
+            watchers.append(ws)
+        else:
+            code, _ = closed_with(ws)
+            refused += code == 1013
+    assert len(watchers) <= MAX_WATCHERS and refused == 3 * MAX_WATCHERS - len(watchers) >= 2 * MAX_WATCHERS
+    probe(url, clip)
+    for ws in watchers:
+        ws.close()
+    deadline = time.time() + 10
+    while time.time() < deadline:  # the slots come back
+        ws = connect(url, open_timeout=20, legacy=True)
+        ws.send(json.dumps({"type": "watch", "stream": "nobody"}))
+        ok = json.loads(ws.recv(timeout=20)).get("type") == "waiting"
+        ws.close()
+        if ok:
+            break
+        time.sleep(0.2)
+    assert ok
+
+
+def test_stats_count_no_private_stream_but_the_askers_own(server, clip):
+    url = server[0]
+    m, values, _ = clip
+    secret = connect(url, open_timeout=20, legacy=True)
+    secret.send(json.dumps({**hello(m, 30.0, "elderly", 1.0, None, "hidden"), "private": True}))
+    assert json.loads(secret.recv(timeout=20))["type"] == "ready"
+    secret.send(json.dumps({"type": "stats"}))
+    assert next(json.loads(x) for x in iter(lambda: secret.recv(timeout=20), None) if isinstance(x, str))["streams"] >= 1
+    _, stats = probe(url, clip)
+    assert stats["streams"] == 1, stats  # the probe's own, not the private one
+    secret.close()

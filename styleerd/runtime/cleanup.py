@@ -7,6 +7,8 @@ becomes the anchor (a style that bends the legs would otherwise plant feet in or
 input's floor); while the
 contact lasts, two-bone IK (hip, knee) holds the output ankle on it; when it ends, the target
 slides from the anchor back to the raw ankle over ``release_frames`` frames, so nothing pops.
+The floor: no output ankle, and no toe (the ankle's first child), goes lower than the input's own
+ankle and toe have been so far (their running minimum); a foot that would is lifted by the same IK.
 Frame t uses frames <= t only. Works on any skeleton with named legs (BodyRoles).
 """
 
@@ -42,6 +44,7 @@ class FootLock:
         self.legs = np.array(legs)
         self.across = (self.legs[0, 0], self.legs[1, 0])
         parents = skeleton.parents
+        self.toes = np.array([next(iter(skeleton.children(a)), -1) for _, _, a in self.legs], np.int64)  # -1: a foot without a toe joint
         # IK sets hip and knee rotations directly: the leg must be one hip-knee-ankle chain
         self.enabled = all(parents[k] == h and parents[a] == k for h, k, a in self.legs)
         P = forward_positions(quat.identity((skeleton.n_joints,)), skeleton.offsets, skeleton.parents)
@@ -53,6 +56,7 @@ class FootLock:
         self.since_release = np.full((n_streams, 2), self.release_frames)  # frames since a contact ended
         self.planted = np.zeros((n_streams, 2), dtype=bool)
         self.started = np.zeros(n_streams, dtype=bool)
+        self.floor = np.zeros((n_streams, 2, 2))  # per side, the lowest the input's ankle and toe have been
 
     def reset(self, streams=None) -> None:
         """Forget the past of some (default all) streams."""
@@ -66,18 +70,18 @@ class FootLock:
         f64 = lambda a: np.ascontiguousarray(a, dtype=np.float64)  # noqa: E731
         out = f64(rotations).copy()
         state = np.arange(self.n)[slice(None) if rows is None else np.asarray(rows, dtype=int)]
-        _foot_lock_kernel(f64(positions), f64(input_rotations), f64(input_positions), state, self.skeleton.parents, self.legs, self.across[0], self.across[1],
+        _foot_lock_kernel(f64(positions), f64(input_rotations), f64(input_positions), state, self.skeleton.parents, self.legs, self.toes, self.across[0], self.across[1],
                           float(self.fps), float(self.max_speed), int(self.release_frames), bool(self.enabled),
-                          self.previous, self.anchor, self.since_release, self.planted, self.started, out)  # fmt: skip
+                          self.previous, self.anchor, self.since_release, self.planted, self.started, self.floor, out)  # fmt: skip
         return out
 
 
 @nb.njit(cache=True)
-def _foot_lock_kernel(positions, in_rot, in_pos, state, parents, legs, across_l, across_r, fps, max_speed, release, enabled,
-                      previous, anchor, since_release, planted, started, out):  # fmt: skip
+def _foot_lock_kernel(positions, in_rot, in_pos, state, parents, legs, toes, across_l, across_r, fps, max_speed, release, enabled,
+                      previous, anchor, since_release, planted, started, floor, out):  # fmt: skip
     """Per stream (row ``state[i]`` of the state arrays): contacts from the input's ankles,
-    anchors and release weights, then IK of each leg with a weight (``out``: local rotations,
-    cleaned in place)."""
+    anchors and release weights, the input's floor, then IK of each leg with a weight and a lift
+    (``out``: local rotations, cleaned in place)."""
     J = out.shape[1]
     g_rot, g_pos = np.empty((J, 4)), np.empty((J, 3))
     hip_g, knee_g, target, left = np.empty(4), np.empty(4), np.empty(3), np.empty(3)
@@ -90,6 +94,9 @@ def _foot_lock_kernel(positions, in_rot, in_pos, state, parents, legs, across_l,
             before = previous[r, side].copy() if started[r] else ankle
             now[side] = np.sqrt(np.sum((ankle - before) ** 2)) * fps < max_speed
             previous[r, side] = ankle
+            toe_y = g_pos[toes[side], 1] if toes[side] >= 0 else ankle[1]
+            floor[r, side, 0] = min(floor[r, side, 0], ankle[1]) if started[r] else ankle[1]
+            floor[r, side, 1] = min(floor[r, side, 1], toe_y) if started[r] else toe_y
         started[r] = True
         forward_pose(out[i], positions[i], parents, g_rot, g_pos)
         for side in range(2):
@@ -102,20 +109,33 @@ def _foot_lock_kernel(positions, in_rot, in_pos, state, parents, legs, across_l,
         if not enabled:
             continue
         left[:] = g_pos[across_l] - g_pos[across_r]
-        for side in range(2):
-            if weight[side] <= 0.0:
-                continue
-            hip, knee, ankle = legs[side, 0], legs[side, 1], legs[side, 2]
-            target[:] = g_pos[ankle] + weight[side] * (anchor[r, side] - g_pos[ankle])
-            limb_ik(g_pos[hip], g_pos[knee], g_pos[ankle], target, g_rot[hip], g_rot[knee], left, 1e-4, hip_g, knee_g)
-            p = parents[hip]
-            if p < 0:
-                out[i, hip] = hip_g
-            else:
-                out[i, hip, 0], out[i, hip, 1], out[i, hip, 2], out[i, hip, 3] = quat.mul_scalars(
-                    g_rot[p, 0], -g_rot[p, 1], -g_rot[p, 2], -g_rot[p, 3], hip_g[0], hip_g[1], hip_g[2], hip_g[3])
-            out[i, knee, 0], out[i, knee, 1], out[i, knee, 2], out[i, knee, 3] = quat.mul_scalars(
-                hip_g[0], -hip_g[1], -hip_g[2], -hip_g[3], knee_g[0], knee_g[1], knee_g[2], knee_g[3])
+        for side in range(2):  # the planted feet on their anchors
+            if weight[side] > 0.0:
+                ankle = legs[side, 2]
+                target[:] = g_pos[ankle] + weight[side] * (anchor[r, side] - g_pos[ankle])
+                _leg_to(out[i], parents, legs[side], g_pos, g_rot, target, left, hip_g, knee_g)
+        for _ in range(2):  # then above the floor: a second pass corrects the toe, which turns with the shin
+            forward_pose(out[i], positions[i], parents, g_rot, g_pos)
+            for side in range(2):
+                ankle, toe = legs[side, 2], toes[side]
+                lift = max(0.0, floor[r, side, 0] - g_pos[ankle, 1], floor[r, side, 1] - g_pos[toe, 1] if toe >= 0 else 0.0)
+                if lift > 1e-9:
+                    target[:] = g_pos[ankle]
+                    target[1] += lift
+                    _leg_to(out[i], parents, legs[side], g_pos, g_rot, target, left, hip_g, knee_g)
+
+
+@nb.njit(cache=True)
+def _leg_to(out, parents, leg, g_pos, g_rot, target, left, hip_g, knee_g):
+    """Two-bone IK of one leg (hip, knee, ankle) towards ``target``: its hip and knee local rotations in ``out``."""
+    hip, knee, ankle = leg[0], leg[1], leg[2]
+    limb_ik(g_pos[hip], g_pos[knee], g_pos[ankle], target, g_rot[hip], g_rot[knee], left, 1e-4, hip_g, knee_g)
+    p = parents[hip]
+    if p < 0:
+        out[hip] = hip_g
+    else:
+        out[hip, 0], out[hip, 1], out[hip, 2], out[hip, 3] = quat.mul_scalars(g_rot[p, 0], -g_rot[p, 1], -g_rot[p, 2], -g_rot[p, 3], hip_g[0], hip_g[1], hip_g[2], hip_g[3])
+    out[knee, 0], out[knee, 1], out[knee, 2], out[knee, 3] = quat.mul_scalars(hip_g[0], -hip_g[1], -hip_g[2], -hip_g[3], knee_g[0], knee_g[1], knee_g[2], knee_g[3])
 
 
 def clean_feet(output: Motion, source: Motion) -> Motion:

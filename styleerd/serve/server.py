@@ -70,6 +70,7 @@ class ServeConfig:
     host: str = "127.0.0.1"
     port: int = 8765
     max_streams: int = 256  # open streams, all pools together
+    max_watchers: int = 64  # live viewers at once (each costs every stream it follows a copy of its frames)
     max_message: int = 1 << 20  # bytes; a larger message closes its connection with 1009
     queue: int = 64  # per stream: frames waiting to be stylised, and stylised frames unsent
     batch_wait: float = 0.004  # seconds a frame may wait for other streams' frames to share its step
@@ -347,7 +348,7 @@ class StyleServer:
             stream.pool.stylizer.reset([stream.row])
             _offer(stream.outbox, json.dumps({"type": "reset"}))
         elif kind == "stats":
-            _offer(stream.outbox, json.dumps(self.stats()))
+            _offer(stream.outbox, json.dumps(self.stats(stream)))
         else:
             raise ClientError(POLICY, f"unknown message type {kind!r}; valid: frame, set, reset, stats")
 
@@ -368,8 +369,11 @@ class StyleServer:
         stream.frames += 1
         self.due.set()
 
-    def stats(self) -> dict:
-        return {"type": "stats", "streams": len(self.streams), "frames": self.frames, "steps": self.steps,
+    def stats(self, asking: Stream | None = None) -> dict:
+        """The server's figures; private streams other than the asker's own are not counted (their
+        number is nobody else's business)."""
+        streams = sum(1 for s in self.streams.values() if not s.private or s is asking)
+        return {"type": "stats", "streams": streams, "frames": self.frames, "steps": self.steps,
                 "cpu_seconds": time.process_time(), "pools": len(self.pools)}  # fmt: skip
 
     # ---- stepping ----
@@ -484,6 +488,8 @@ class StyleServer:
 
     async def _watch(self, ws: ServerConnection, msg: dict) -> None:
         name, token = msg.get("stream"), msg.get("token", "")
+        if len(self.watchers) >= self.config.max_watchers:
+            raise ClientError(TRY_LATER, f"this server has its {self.config.max_watchers} live viewers; try again later")
         if not isinstance(token, str) or len(token) > MAX_TOKEN:
             raise ClientError(POLICY, f"'token' must be the text a private stream's 'ready' carried (at most {MAX_TOKEN} characters)")
         watcher = Watcher(ws, name if isinstance(name, str) else None, asyncio.Queue(self.config.queue), fronts=bool(msg.get("fronts", False)), token=token)
@@ -527,13 +533,18 @@ class StyleServer:
             return None  # a WebSocket handshake
         if len(request.path) > 2048:
             return _response(HTTPStatus.REQUEST_URI_TOO_LONG, b"the path is too long", "text/plain")
+        if request.method not in ("GET", "HEAD"):
+            return _response(HTTPStatus.METHOD_NOT_ALLOWED, b"GET or HEAD only", "text/plain")
         try:
             path, _, query = request.path.partition("?")
             # in a worker thread: reading a 14 MB file or making the browser step's graph and
             # reference clip (up to a second) must not stall the streams' stepping loop
-            return await asyncio.to_thread(self._page, path, parse_qs(query))
+            response = await asyncio.to_thread(self._page, path, parse_qs(query))
         except (OSError, StyleERDError, ValueError) as e:  # a name the file system refuses, a clip that cannot be read
-            return _response(HTTPStatus.NOT_FOUND, f"not found: {e}".encode(errors="replace"), "text/plain")
+            response = _response(HTTPStatus.NOT_FOUND, f"not found: {e}".encode(errors="replace"), "text/plain")
+        if request.method == "HEAD":  # the GET's headers, Content-Length included, and no body
+            return Response(response.status_code, response.reason_phrase, response.headers, b"")
+        return response
 
     def _engine_file(self, name: str, query: dict[str, list[str]]) -> bytes | None:
         """The files the in-browser step (static/engine.html) reads: the step graph and its
