@@ -171,7 +171,11 @@ def test_bridge_rejects_bad_frames_and_datagrams(model):
         bundle.add_content(d if d.params[:1] != ["Hips"] else b.build())
     before = bridge.frames
     bridge.feed(bundle.build().dgram)
-    assert bridge.rejected == 1 and bridge.frames == before
+    assert bridge.malformed == 2 and bridge.frames == before  # the NaN bone is dropped: never kept, never sent
+    for datagrams in frames[6:9]:
+        for d in datagrams:
+            bridge.feed(d)
+    assert bridge.frames == before + 3  # the next frames go on
 
 
 def test_vmc_command_over_udp():
@@ -209,3 +213,149 @@ def test_vmc_command_over_udp():
         proc.terminate()
         proc.communicate(timeout=10)
         rx.close()
+
+
+def _osc(address, *args) -> bytes:
+    b = OscMessageBuilder(address)
+    for v in args:
+        b.add_arg(v)
+    return b.build().dgram
+
+
+def _double(address, name, *numbers) -> bytes:
+    """A message whose numbers are OSC doubles ('d'): values float32 cannot hold."""
+    b = OscMessageBuilder(address)
+    b.add_arg(name)
+    for v in numbers:
+        b.add_arg(v, "d")
+    return b.build().dgram
+
+
+def _nested(depth: int) -> bytes:
+    """A bundle inside a bundle, ``depth`` deep (raw bytes: the builder would recurse as deep)."""
+    import struct
+
+    inner = _osc("/VMC/Ext/OK", 1)
+    for _ in range(depth):
+        inner = b"#bundle\0" + struct.pack(">Q", 1) + struct.pack(">i", len(inner)) + inner
+    return inner
+
+
+GOOD_BONE = ["Hips", 0.0, 1.0, 0.0, 0.0, 0.0, 0.0, 1.0]
+# the bad datagrams of issue 36's VMC list, and more of each kind
+BAD_DATAGRAMS = {
+    "empty": b"",
+    "not OSC": b"not osc at all",
+    "truncated message": _osc(BONE, *GOOD_BONE)[:13],
+    "a string where a float belongs": _osc(BONE, "Hips", "1.0", 1.0, 0.0, 0.0, 0.0, 0.0, 1.0),
+    "the bone name as a number": _osc(BONE, 5, 0.0, 1.0, 0.0, 0.0, 0.0, 0.0, 1.0),
+    "the bone name as an OSC array": _osc(BONE, ["Hips"], 0.0, 1.0, 0.0, 0.0, 0.0, 0.0, 1.0),
+    "a position as an array": _osc(BONE, "Hips", [0.0, 1.0, 0.0], 0.0, 0.0, 0.0, 1.0),
+    "too few arguments": _osc(BONE, "Hips", 0.0, 1.0),
+    "a root with too few arguments": _osc(ROOT, "root", 0.0),
+    "NaN position": _osc(BONE, "Hips", float("nan"), 1.0, 0.0, 0.0, 0.0, 0.0, 1.0),
+    "infinite rotation": _osc(BONE, "Hips", 0.0, 1.0, 0.0, float("inf"), 0.0, 0.0, 1.0),
+    "a double that overflows float32": _double(BONE, "Hips", 1e39, 1.0, 0.0, 0.0, 0.0, 0.0, 1.0),
+    "a double of 1e308": _double(BONE, "Hips", 0.0, 1.0, 0.0, 1e308, 0.0, 0.0, 1.0),
+    "a position of 1e30 (garbage)": _osc(BONE, "Hips", 1e30, 1.0, 0.0, 0.0, 0.0, 0.0, 1.0),
+    "a zero quaternion": _osc(BONE, "Hips", 0.0, 1.0, 0.0, 0.0, 0.0, 0.0, 0.0),
+    "booleans for numbers": _osc(BONE, "Hips", True, False, True, False, True, False, True),
+    "a blob argument": _osc(BONE, "Hips", b"\x00\x01", 1.0, 0.0, 0.0, 0.0, 0.0, 1.0),
+    "a timetag argument": b"/VMC/Ext/Bone/Pos\0\0\0,st\0Hips\0\0\0\0" + bytes(8),
+    "an unknown type tag": b"/VMC/Ext/Bone/Pos\0\0\0,sz\0Hips\0\0\0\0",
+    "a non-UTF-8 address": b"/VMC/\xff\xfe\0\0,\0\0\0",
+    "a non-UTF-8 bone name": b"/VMC/Ext/Bone/Pos\0\0\0,s\0\0\xff\xfe\0\0",
+    "1,500 nested bundles": _nested(1500),
+    "a bundle whose size lies": b"#bundle\0" + bytes(8) + b"\x7f\xff\xff\xff" + _osc("/x", 1),
+    "a bone name of 10,000 characters": _osc(BONE, "H" * 10_000, 0.0, 1.0, 0.0, 0.0, 0.0, 0.0, 1.0),
+    "an unknown bone": _osc(BONE, "Tail", 0.0, 1.0, 0.0, 0.0, 0.0, 0.0, 1.0),
+    "64 KB of junk": bytes(range(256)) * 256,
+}
+
+
+@pytest.mark.parametrize("kind", BAD_DATAGRAMS)
+def test_a_bad_datagram_is_dropped_and_the_stream_goes_on(model, kind):
+    """Before and after the skeleton is set up: no exception, nothing non-finite sent, and the
+    next good frames are stylised."""
+    m, names, frames = _unity_frames(0.5)
+    bridge = VMCBridge(model, {"elderly": 1.0}, report=lambda _: None)
+    sent = bridge.feed(BAD_DATAGRAMS[kind])
+    for t, datagrams in enumerate(frames):
+        for d in datagrams:
+            sent += bridge.feed(d)
+        if t == 5:
+            sent += bridge.feed(BAD_DATAGRAMS[kind])
+    got, _ = _decode(sent)
+    assert len(got) >= len(frames) - 2 and all(np.isfinite(np.concatenate([np.concatenate(v) for v in f.values()])).all() for f in got)
+
+
+def test_fuzzed_datagrams_never_stop_the_bridge(model):
+    from hypothesis import HealthCheck, given, settings
+    from hypothesis import strategies as st
+
+    m, names, frames = _unity_frames(0.3)
+    bridge = VMCBridge(model, {"elderly": 1.0}, report=lambda _: None)
+    for datagrams in frames:
+        for d in datagrams:
+            bridge.feed(d)
+    args = st.one_of(st.floats(allow_nan=True, allow_infinity=True, width=32), st.integers(-(2**31), 2**31 - 1), st.text(max_size=8),
+                     st.booleans(), st.binary(min_size=1, max_size=8), st.sampled_from(names))  # fmt: skip
+    def built(address, xs) -> bytes:
+        try:
+            return _osc(address, *xs)
+        except Exception:  # python-osc cannot build it (it re-parses what it built): not something a sender sends
+            return b""
+
+    messages = st.builds(built, st.sampled_from([ROOT, BONE, "/VMC/Ext/OK"]), st.lists(args, max_size=10))
+
+    @settings(max_examples=300, deadline=None, suppress_health_check=list(HealthCheck), derandomize=True)
+    @given(st.one_of(messages, st.binary(max_size=200)))
+    def run(datagram):
+        for out in bridge.feed(datagram):
+            for x in OscPacket(out).messages:
+                assert all(np.isfinite(v) for v in x.message.params if isinstance(v, float))
+
+    run()
+    before = bridge.frames
+    for datagrams in frames:
+        for d in datagrams:
+            bridge.feed(d)
+    assert bridge.frames > before
+
+
+def test_a_first_frame_without_hips_waits_and_a_new_avatar_is_mapped_again(model):
+    """A first frame without Hips is dropped (it stopped the bridge); after the performer switches to
+    an avatar without UpperChest (no frame was sent again), the new bones are mapped after a few
+    frames and frames flow again."""
+    m, names, frames = _unity_frames(1.0)
+    reports = []
+    bridge = VMCBridge(model, {"elderly": 1.0}, report=reports.append)
+    no_hips = [_osc(ROOT, "root", 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0), _osc(BONE, "Spine", 0.0, 0.1, 0.0, 0.0, 0.0, 0.0, 1.0)]
+    for d in no_hips + no_hips:
+        assert bridge.feed(d) == [] or True
+    assert any("no 'Hips' bone" in r for r in reports)
+    sent = []
+    for datagrams in frames[:10]:
+        for d in datagrams:
+            sent += bridge.feed(d)
+    first = len(_decode(sent)[0])
+    assert first >= 8
+    # the new avatar: no UpperChest (its children hang from Chest)
+    without = []
+    for datagrams in frames[10:]:
+        msgs = [x.message for d in datagrams for x in OscPacket(d).messages]
+        bundle = OscBundleBuilder(IMMEDIATELY)
+        for msg in msgs:
+            if msg.params[:1] != ["UpperChest"]:
+                bundle.add_content(msg)
+        without.append(bundle.build().dgram)
+    sent = [out for d in without for out in bridge.feed(d)]
+    got, _ = _decode(sent)
+    assert bridge.remapped == 1 and any("bones changed" in r for r in reports)
+    assert len(got) >= len(without) - 5 and "UpperChest" not in got[-1] and "Chest" in got[-1]
+
+
+def test_vmc_refuses_to_send_where_it_listens():
+    done = subprocess.run([sys.executable, "-m", "styleerd.cli", "vmc", "--listen", "39539", "--send", "39539", "--style", "elderly"],
+                          capture_output=True, text=True, timeout=120)  # fmt: skip
+    assert done.returncode == 2 and "would receive what it sends" in done.stderr and "Traceback" not in done.stderr

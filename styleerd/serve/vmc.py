@@ -15,13 +15,21 @@ is passed on unchanged.
 
 Frames: the first frame is known complete when the next ``Root/Pos`` arrives (that fixes the
 bone set); after that a frame is stylised as soon as all its bones have arrived, so a sender
-that bundles a frame (the usual case) gets each frame back with no delay.
+that bundles a frame (the usual case) gets each frame back with no delay. When the performer
+switches to an avatar with other bones, frames stop completing: after ``REMAP_AFTER`` such
+frames the bridge maps the new bone set.
+
+Bad input never stops the bridge: a datagram that is not OSC, or a Root/Bone message whose
+arguments are not a name and seven finite numbers, is counted and dropped (one summary line per
+interval); a first frame that makes no humanoid (no Hips, orphan bones) is dropped and the next
+one tried; ``run_bridge`` keeps at most ``BACKLOG`` datagrams waiting, dropping the oldest.
 """
 
 from __future__ import annotations
 
 import socket
 import time
+from collections import deque
 
 import numpy as np
 from pythonosc.osc_bundle_builder import IMMEDIATELY, OscBundleBuilder
@@ -37,6 +45,9 @@ from styleerd.runtime.channels import ChannelStylizer
 from styleerd.runtime.stylizer import part_targets, target_weights
 
 ROOT, BONE = "/VMC/Ext/Root/Pos", "/VMC/Ext/Bone/Pos"
+REMAP_AFTER = 3  # incomplete frames in a row (an avatar with other bones) before the bones are mapped again
+BACKLOG = 512  # datagrams waiting to be read, at most: the oldest go first
+LIMIT = 1e6  # metres or quaternion components: anything larger is garbage
 
 # Unity HumanBodyBones -> possible parents, nearest first (optional bones may be absent)
 _TORSO = {
@@ -113,7 +124,8 @@ class VMCBridge:
         self.skeleton: Skeleton | None = None
         self.root: list | None = None  # the last Root/Pos arguments
         self.bones: dict[str, tuple] = {}  # bone -> (position xyz, rotation xyzw) received for this frame
-        self.frames = self.rejected = self.malformed = 0
+        self.frames = self.rejected = self.malformed = self.remapped = 0
+        self.incomplete = 0  # frames in a row whose bones did not match the skeleton's
 
     def set_target(self, target: dict[str, float]) -> None:
         self.target = target
@@ -124,20 +136,22 @@ class VMCBridge:
         """One received datagram -> the datagrams to send on."""
         try:
             messages = [m.message for m in OscPacket(datagram).messages]
-        except ParseError:
+        except (ParseError, RecursionError, ValueError, TypeError, OverflowError, IndexError, UnicodeError):  # python-osc meets any of these in junk
             self.malformed += 1
             return []
         passed, frames = [], []
         for msg in messages:
-            params = list(msg.params)
-            if msg.address == ROOT and len(params) >= 8:
-                if self.skeleton is None and self.bones and self.root is not None:
-                    frames += self._start()
-                self.root = params
-            elif msg.address == BONE and len(params) >= 8 and params[0] in UNITY_PARENTS:
-                self.bones[params[0]] = (np.array(params[1:4], float), np.array(params[4:8], float))
-                if self.skeleton is not None and len(self.bones) >= len(self.skeleton.names) and all(b in self.bones for b in self.skeleton.names):
-                    frames += self._frame()
+            if msg.address in (ROOT, BONE):
+                params = _pose_params(msg.params)
+                if params is None:
+                    self.malformed += 1
+                elif msg.address == ROOT:
+                    frames += self._frame_boundary()
+                    self.root = params
+                elif params[0] in UNITY_PARENTS:
+                    self.bones[params[0]] = (np.array(params[1:4], float), np.array(params[4:8], float))
+                    if self.skeleton is not None and len(self.bones) >= len(self.skeleton.names) and all(b in self.bones for b in self.skeleton.names):
+                        frames += self._frame()
             else:
                 passed.append(msg)
         out = []
@@ -148,10 +162,33 @@ class VMCBridge:
             out.append(bundle.build().dgram)
         return out + frames
 
+    def _frame_boundary(self) -> list[bytes]:
+        """A Root/Pos starts a frame: the bones gathered since the last one are the first frame
+        (which fixes the skeleton), or an incomplete frame (counted: an avatar with other bones
+        is mapped afresh after ``REMAP_AFTER`` of them)."""
+        if not self.bones or self.root is None:
+            return []
+        if self.skeleton is not None:
+            self.incomplete += 1
+            if self.incomplete < REMAP_AFTER:
+                self.bones = {}
+                return []
+            self.remapped += 1
+            self.report(f"VMC: the avatar's bones changed ({len(self.bones)} bones now); mapping them again")
+        return self._start()
+
     def _start(self) -> list[bytes]:
-        """The first frame fixes the bone set and the skeleton."""
-        self.skeleton = humanoid_skeleton({b: unity_position(p) for b, (p, _) in self.bones.items()})
-        self.stylizer = ChannelStylizer(self.model, self.skeleton, self.target, fps=self.fps, cleanup=self.cleanup, parts=self.parts, root_speed=self.root_speed)
+        """The first frame fixes the bone set and the skeleton; one that makes no humanoid (or
+        cannot be mapped) is dropped, and the next frame is tried."""
+        try:
+            skeleton = humanoid_skeleton({b: unity_position(p) for b, (p, _) in self.bones.items()})
+            stylizer = ChannelStylizer(self.model, skeleton, self.target, fps=self.fps, cleanup=self.cleanup, parts=self.parts, root_speed=self.root_speed)
+        except StyleERDError as e:
+            self.rejected += 1
+            self.report(f"{e}; waiting for the next frame")
+            self.bones, self.skeleton, self.stylizer = {}, None, None
+            return []
+        self.skeleton, self.stylizer, self.incomplete = skeleton, stylizer, 0
         self.report(f"VMC: {len(self.skeleton.names)} bones; joint mapping (model <- avatar):\n{self.stylizer.map.describe()}")
         return self._frame()
 
@@ -161,7 +198,7 @@ class VMCBridge:
         rot = quat.normalize(np.stack([unity_rotation(self.bones[b][1]) for b in sk.names]))
         local = sk.offsets.copy()
         local[0] = pos[0]
-        self.bones = {}
+        self.bones, self.incomplete = {}, 0
         try:
             out = self.stylizer.step_pose(Motion(sk, rot[None], local[None], self.fps))
         except StyleERDError:
@@ -177,6 +214,22 @@ class VMCBridge:
         return [bundle.build().dgram]
 
 
+def _pose_params(params) -> list | None:
+    """A Root/Bone message's arguments checked: a name and seven finite numbers of sane size
+    (position xyz, rotation xyzw; extra arguments are kept as they came), else None."""
+    params = list(params)
+    if len(params) < 8 or not isinstance(params[0], str) or len(params[0]) > 64:
+        return None
+    numbers = params[1:8]
+    if not all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in numbers):
+        return None
+    if not all(np.isfinite(v) and abs(v) < LIMIT for v in map(float, numbers)):
+        return None
+    if sum(float(v) ** 2 for v in numbers[3:]) < 1e-12:  # a zero quaternion is no rotation
+        return None
+    return params
+
+
 def _message(address: str, params: list):
     builder = OscMessageBuilder(address)
     for value in params:
@@ -187,6 +240,11 @@ def _message(address: str, params: list):
 def run_bridge(listen: int, send: int, style: str | None, intensity: float, mix: dict[str, float] | None, host: str = "127.0.0.1", fps: float = 30.0,
                parts: str | None = None, model_name: str | None = None, root_speed: bool = False) -> None:  # fmt: skip
     """``styleerd vmc``: receive on ``host:listen``, send the stylised stream to ``host:send``."""
+    if listen == send:
+        raise StyleERDError(f"VMC: --send {send} is --listen {listen}: the bridge would receive what it sends, forever")
+    import logging
+
+    logging.getLogger("pythonosc").setLevel(logging.ERROR)  # junk is counted, not printed line by line
     model = load_generator_weights(model_name)
     target = target_weights(model, style, intensity, mix)
     bridge = VMCBridge(model, target, fps, report=lambda text: print(text, flush=True), parts=parts, root_speed=root_speed)
@@ -198,15 +256,26 @@ def run_bridge(listen: int, send: int, style: str | None, intensity: float, mix:
         raise StyleERDError(f"VMC: cannot listen on {host}:{listen} ({e.strerror})") from None
     tx = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
     print(f"styleerd vmc: receiving VMC on {host}:{listen}, sending the stylised stream to {host}:{send}, target {target}", flush=True)
-    last = time.time()
+    last, dropped, waiting = time.time(), 0, deque(maxlen=BACKLOG)
     try:
         while True:
-            data, _ = rx.recvfrom(65536)
-            for out in bridge.feed(data):
-                tx.sendto(out, (host, send))
+            rx.setblocking(True)
+            waiting.append(rx.recvfrom(65536)[0])
+            rx.setblocking(False)
+            try:  # everything that has arrived meanwhile, the oldest dropped past BACKLOG
+                while True:
+                    if len(waiting) == BACKLOG:
+                        dropped += 1
+                    waiting.append(rx.recvfrom(65536)[0])
+            except BlockingIOError:
+                pass
+            while waiting:
+                for out in bridge.feed(waiting.popleft()):
+                    tx.sendto(out, (host, send))
             if time.time() - last > 5:
                 last = time.time()
-                print(f"frames {bridge.frames}, rejected {bridge.rejected}, malformed datagrams {bridge.malformed}", flush=True)
+                print(f"frames {bridge.frames}, rejected {bridge.rejected}, malformed {bridge.malformed}, remapped {bridge.remapped}, "
+                      f"dropped (backlog over {BACKLOG}) {dropped}", flush=True)  # fmt: skip
     finally:
         rx.close()
         tx.close()
