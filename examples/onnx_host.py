@@ -11,9 +11,10 @@ with styleerd's own stylizer.
 ``positions [T, J, 3]`` (local translations; the root's is its world position), ``fps``;
 ``out.npz`` gets the stylised ``rotations`` (same layout; root position and translations are
 the input's). Each frame runs the graph twice, each run with its own recurrent state: into the
-target, and into the input's own style (the identity transfer); the output is the input's pose
-turned, joint by joint, by the change from the second to the first (input * inv(identity) *
-target), so any action passes through with the style's change on it, as styleerd's stylizer does.
+target, and into the input's own style (the identity transfer). Where the identity output is near
+the input (the network knows this motion) the output is the network's; where it is far (an action
+it never learnt) the input's pose turned, joint by joint, by the change from the identity output to
+the target's (input * inv(identity) * target); in between a blend: as styleerd's stylizer does.
 """
 
 from __future__ import annotations
@@ -38,6 +39,25 @@ def qrot(q: np.ndarray, v: np.ndarray) -> np.ndarray:
     u, w = q[..., 1:], q[..., :1]
     t = 2.0 * np.cross(u, v)
     return v + w * t + np.cross(u, t)
+
+
+FAMILIAR, UNFAMILIAR, RELEASE = 10.0, 16.0, 0.1  # degrees, degrees, a frame: styleerd.model.config's
+
+
+def qinv(q: np.ndarray) -> np.ndarray:
+    return q * [1, -1, -1, -1]
+
+
+def slerp(a: np.ndarray, b: np.ndarray, t: float) -> np.ndarray:
+    """From ``a`` (t=0) to ``b`` (t=1) along the shorter arc, per row."""
+    b = np.where((a * b).sum(-1, keepdims=True) < 0, -b, b)
+    theta = np.arccos(np.clip((a * b).sum(-1, keepdims=True), -1.0, 1.0))
+    s = np.sin(theta)
+    near = s < 1e-6
+    wa = np.where(near, 1 - t, np.sin((1 - t) * theta) / np.where(near, 1.0, s))
+    wb = np.where(near, t, np.sin(t * theta) / np.where(near, 1.0, s))
+    out = wa * a + wb * b
+    return out / np.linalg.norm(out, axis=-1, keepdims=True)
 
 
 def forward_kinematics(rot: np.ndarray, pos: np.ndarray, parents: list[int]) -> np.ndarray:
@@ -74,6 +94,7 @@ class Host:
         rows, _, width = s["state_shapes"]["h"]  # [1, N, S H] (LSTM form) or [S, N, H] (plain); N = 1 here
         self.state = {k: [np.zeros((rows, 1, width), np.float32), np.zeros((rows, 1, width), np.float32)] for k in ("target", "identity")}
         self.previous: np.ndarray | None = None  # global joint positions of the last frame
+        self.unfamiliar = 0.0  # 0: the network's pose, 1: the input's pose turned by the style's change
         self.facing = np.array([0.0, 0.0, 1.0])
 
     def features(self, rot: np.ndarray, pos: np.ndarray, fps: float) -> tuple[np.ndarray, np.ndarray]:
@@ -116,9 +137,12 @@ class Host:
             out[0] = qmul(heading, out[0])  # the root back from the heading frame
             poses[key] = out / np.linalg.norm(out, axis=-1, keepdims=True)
         given = rot / np.linalg.norm(rot, axis=-1, keepdims=True)
-        inverse = poses["identity"] * [1, -1, -1, -1]
-        out = qmul(given, qmul(inverse, poses["target"]))
-        return out / np.linalg.norm(out, axis=-1, keepdims=True)
+        d = qmul(qinv(poses["identity"]), given)
+        degrees = np.degrees(2 * np.arctan2(np.linalg.norm(d[:, 1:], axis=-1), np.abs(d[:, 0]))).mean()
+        now = float(np.clip((degrees - FAMILIAR) / (UNFAMILIAR - FAMILIAR), 0.0, 1.0))
+        self.unfamiliar = now if first[0, 0] else max(now, self.unfamiliar - RELEASE)
+        turned = qmul(given, qmul(qinv(poses["identity"]), poses["target"]))
+        return slerp(poses["target"], turned / np.linalg.norm(turned, axis=-1, keepdims=True), self.unfamiliar)
 
 
 def main() -> None:

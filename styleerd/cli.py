@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 import os
 import sys
 from pathlib import Path
@@ -121,7 +122,13 @@ def _transfer(args: argparse.Namespace) -> None:
             raise
         print(f"wrote {output}: {done.frames} frames at {done.fps:.6g} fps, target {target}")
         return
-    failed = transfer_batch(pairs, args.model, options, args.jobs)
+    if not (0 < args.timeout < math.inf) or (args.max_memory is not None and not 0 < args.max_memory < math.inf):
+        raise StyleERDError(f"--timeout {args.timeout:g} and --max-memory {args.max_memory} must be positive numbers")
+    try:
+        failed = transfer_batch(pairs, args.model, options, args.jobs, args.timeout, args.max_memory, args.resume)
+    except KeyboardInterrupt:
+        print("stopped: every worker ended, no partial file left; --resume goes on where this stopped", file=sys.stderr)
+        sys.exit(130)
     print(f"wrote {len(pairs) - len(failed)} of {len(pairs)} files to {out}/, target {target}")
     if failed:
         raise StyleERDError(f"{len(failed)} of {len(pairs)} files skipped: " + "; ".join(f"{src.name}: {why}" for src, why in failed[:3]) + (" ..." if len(failed) > 3 else ""))
@@ -532,6 +539,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--model", help=MODEL_HELP)
     p.add_argument("-o", "--output", required=True, help="OUT.bvh (the input's skeleton and channel layout), OUT.glb, OUT.fbx, or from a glTF input OUT.glb/.vrm (the input file, animation replaced); a folder for several inputs")
     p.add_argument("--jobs", type=_whole(1), help="with several inputs: worker processes (default: one per core)")
+    p.add_argument("--timeout", type=float, default=600.0, help="with several inputs: seconds a file may take before it is skipped (default 600)")
+    p.add_argument("--max-memory", type=float, help="with several inputs: GiB a worker may use before its file is skipped (default: no limit)")
+    p.add_argument("--resume", action="store_true", help="with several inputs: skip the outputs already written (writes are atomic: they are complete)")
     p.add_argument("--to", choices=["bvh", "glb", "fbx"], help="with several inputs: the outputs' kind (default: each input's own)")
     p.add_argument("--mesh", action="store_true", help=".glb: add a simple skinned body (a prism per bone, its front marked) so the file shows in any viewer")
     p.set_defaults(func=_transfer)

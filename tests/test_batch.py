@@ -72,3 +72,70 @@ def test_one_file_into_a_folder_takes_its_name_and_reports_like_a_single_transfe
     assert done.returncode == 0 and (tmp_path / "new/walk.bvh").is_file()
     done = _cli("transfer", "walk.bvh", "--style", "nope", "-o", "other/", cwd=tmp_path)
     assert done.returncode == 2 and not (tmp_path / "other").exists()
+
+
+def _walks(folder: Path, n: int, seconds: float = 1.0) -> None:
+    folder.mkdir(parents=True, exist_ok=True)
+    for k in range(n):
+        bvh.write(folder / f"w{k}.bvh", procedural.walk(seconds=seconds, speed=80.0 + k))
+
+
+def test_a_file_over_the_time_limit_fails_alone_and_resume_skips_what_is_done(tmp_path):
+    """``--timeout``: a long file is stopped and skipped, its worker replaced, no partial file left;
+    the rest are written. ``--resume`` then transfers only what is missing."""
+    _walks(tmp_path / "in", 3)
+    bvh.write(tmp_path / "in/long.bvh", procedural.walk(seconds=400.0))
+    done = _cli("transfer", "in", "--style", "elderly", "--jobs", 2, "--timeout", 4, "-o", "out", cwd=tmp_path)
+    assert done.returncode == 2 and "long.bvh: took longer than --timeout 4 s" in done.stderr, done.stderr[-2000:]
+    assert "Traceback" not in done.stderr and "wrote 3 of 4 files" in done.stdout
+    assert sorted(p.name for p in (tmp_path / "out").iterdir()) == ["w0.bvh", "w1.bvh", "w2.bvh"]  # no .tmp of the stopped one
+    (tmp_path / "out/w1.bvh").unlink()
+    before = (tmp_path / "out/w0.bvh").stat().st_mtime_ns
+    again = _cli("transfer", "in", "--style", "elderly", "--jobs", 2, "--timeout", 4, "--resume", "-o", "out", cwd=tmp_path)
+    log = again.stdout + again.stderr
+    assert "w1.bvh -> " in log and "w0.bvh -> " not in log and "long.bvh: took longer" in again.stderr
+    assert (tmp_path / "out/w1.bvh").is_file() and (tmp_path / "out/w0.bvh").stat().st_mtime_ns == before
+    bad = _cli("transfer", "in", "--style", "elderly", "--timeout", "-1", "-o", "out", cwd=tmp_path)
+    assert bad.returncode == 2 and "--timeout -1" in bad.stderr and len(bad.stderr.strip().splitlines()) == 1
+
+
+def _children(pid: int) -> list[int]:
+    out = subprocess.run(["pgrep", "-P", str(pid)], capture_output=True, text=True).stdout.split()
+    return [int(p) for p in out]
+
+
+def test_a_killed_worker_costs_its_file_and_sigterm_stops_everything_cleanly(tmp_path):
+    """A worker killed mid-file (what a crash does) fails that file only and is replaced; SIGTERM
+    to the batch ends every worker at once and leaves no partial file and no orphan process."""
+    import os
+    import signal
+    import time
+
+    _walks(tmp_path / "in", 6, seconds=90.0)
+    proc = subprocess.Popen([*CLI, "transfer", "in", "--style", "elderly", "--jobs", "2", "-o", "out"], cwd=tmp_path,
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)  # fmt: skip
+    deadline = time.time() + 120
+    while time.time() < deadline and not (tmp_path / "out").is_dir():  # the workers are at work
+        time.sleep(0.2)
+    time.sleep(1.0)
+    workers = [p for p in _children(proc.pid) if "spawn_main" in Path(f"/proc/{p}/cmdline").read_text(errors="replace")]  # not the resource tracker
+    assert workers, "no worker process found"
+    os.kill(workers[0], signal.SIGKILL)
+    out, err = proc.communicate(timeout=600)
+    assert "its worker stopped (exit code -9)" in out + err and "Traceback" not in err, err[-2000:]
+    assert "wrote 5 of 6 files" in out
+    assert not [p for p in (tmp_path / "out").iterdir() if p.suffix != ".bvh"]
+
+    proc = subprocess.Popen([*CLI, "transfer", "in", "--style", "exhausted", "--jobs", "2", "-o", "out2"], cwd=tmp_path,
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)  # fmt: skip
+    while time.time() < deadline + 120 and not (tmp_path / "out2").is_dir():
+        time.sleep(0.2)
+    time.sleep(1.0)
+    workers = _children(proc.pid)
+    started = time.time()
+    proc.send_signal(signal.SIGTERM)
+    proc.communicate(timeout=60)
+    assert time.time() - started < 10 and proc.returncode != 0
+    time.sleep(1.0)
+    assert not [p for p in workers if Path(f"/proc/{p}").exists() and "zombie" not in Path(f"/proc/{p}/status").read_text().lower()]
+    assert not [p for p in (tmp_path / "out2").iterdir() if p.suffix != ".bvh"]

@@ -38,3 +38,16 @@ def test_reference_host_loop_equals_the_stylizer(tmp_path, form):
     assert host.shape == ours.shape
     assert np.degrees(quat.angle_between(host, ours)).max() < 1e-2
     assert np.degrees(quat.angle_between(host, on_model.rotations)).max() > 5.0  # stylised, not the input
+
+
+def test_the_hosts_blend_with_the_stylizers_thresholds():
+    """The two standalone hosts (no styleerd import) carry the unfamiliarity thresholds as numbers:
+    they are the stylizer's."""
+    import re
+
+    from styleerd.model.config import FAMILIAR, RELEASE, UNFAMILIAR
+
+    root = Path(__file__).resolve().parents[1]
+    for path in (HOST, root / "styleerd/serve/static/engine.js"):
+        found = re.search(r"FAMILIAR, UNFAMILIAR, RELEASE\]? = \[?([\d.]+), ([\d.]+), ([\d.]+)", path.read_text())
+        assert found and tuple(map(float, found.groups())) == (FAMILIAR, UNFAMILIAR, RELEASE), path

@@ -1,15 +1,15 @@
 """Many files at once: ``styleerd transfer a.bvh b.fbx folder/ -o OUT_DIR``.
 
 Each file goes through the same transfer as a single one (``transfer_one``: BVH, glTF/GLB/VRM,
-FBX through Blender), in a pool of worker processes (one per core by default, each loading the
-model once). A file that fails is reported with its reason and skipped; the others are written.
+FBX through Blender), on worker processes (one per core by default, each loading the model
+once). A file that fails, runs too long, needs too much memory or crashes its worker is reported
+with its reason and skipped; the others are written.
 """
 
 from __future__ import annotations
 
 import os
 from collections.abc import Callable
-from concurrent.futures import ProcessPoolExecutor, as_completed
 from multiprocessing import get_context
 from pathlib import Path
 
@@ -59,38 +59,139 @@ def batch_pairs(inputs: list[str | Path], output_dir: str | Path, suffix: str | 
     return pairs
 
 
-_worker_model: GeneratorWeights | None = None
+def _orphan_guard() -> None:
+    """A worker ends itself when the batch's process is gone (killed with -9: no orphan goes on
+    writing files)."""
+    import threading
+    import time
+
+    parent = os.getppid()
+
+    def watch() -> None:
+        while os.getppid() == parent:
+            time.sleep(0.5)
+        os._exit(1)
+
+    threading.Thread(target=watch, daemon=True).start()
 
 
-def _start_worker(model_name: str | None) -> None:
-    global _worker_model
+def _serve(conn, model_name: str | None, memory_bytes: int | None) -> None:
+    """A worker: load the model once, then transfer each (source, output, options) it is sent,
+    answering (ok, message). Memory beyond ``memory_bytes`` fails its file, not the machine."""
+    import resource
+    import signal
+
+    signal.signal(signal.SIGINT, signal.SIG_IGN)  # the batch decides when its workers stop
+    _orphan_guard()
     os.environ.setdefault("OMP_NUM_THREADS", "1")
-    _worker_model = load_generator_weights(model_name)
+    if memory_bytes:
+        resource.setrlimit(resource.RLIMIT_AS, (memory_bytes, memory_bytes))
+    model = load_generator_weights(model_name)
+    conn.send((True, "ready"))
+    while True:
+        try:
+            source, output, options = conn.recv()
+        except EOFError:
+            return
+        try:
+            output.parent.mkdir(parents=True, exist_ok=True)
+            done = transfer_one(source, output, model, options)
+            conn.send((True, f"{done.frames} frames at {done.fps:.6g} fps"))
+        except StyleERDError as e:
+            conn.send((False, str(e)))
+        except MemoryError:
+            conn.send((False, f"more memory than --max-memory {memory_bytes / 2**30:g} GiB"))
+        except Exception as e:  # a bug costs its file only
+            conn.send((False, f"{type(e).__name__}: {e}"))
 
 
-def _work(source: Path, output: Path, options: TransferOptions) -> str:
-    output.parent.mkdir(parents=True, exist_ok=True)
-    done = transfer_one(source, output, _worker_model, options)
-    return f"{done.frames} frames at {done.fps:.6g} fps"
+class _Worker:
+    def __init__(self, ctx, model_name: str | None, memory_bytes: int | None):
+        self.conn, child = ctx.Pipe()
+        self.process = ctx.Process(target=_serve, args=(child, model_name, memory_bytes), daemon=True)
+        self.process.start()
+        child.close()
+        self.ready, self.task, self.since = False, None, 0.0
+
+    def stop(self) -> None:
+        if self.process.is_alive():
+            self.process.kill()
+        self.process.join(10)
+        self.conn.close()
 
 
-def transfer_batch(pairs: list[tuple[Path, Path]], model_name: str | None, options: TransferOptions, workers: int | None = None) -> list[tuple[Path, str]]:
-    """Every (input, output) pair through ``transfer_one`` on a process pool, with a progress
-    bar; -> the (input, reason) of the files that failed (the others are written)."""
+def _remove_partial(output: Path, pid: int | None) -> None:
+    """The temporary file a killed worker left beside ``output`` (``atomic_write`` names it by pid)."""
+    for tmp in output.parent.glob(f".{output.name}.{pid}.*"):
+        tmp.unlink(missing_ok=True)
+
+
+def transfer_batch(pairs: list[tuple[Path, Path]], model_name: str | None, options: TransferOptions, workers: int | None = None,
+                   timeout: float = 600.0, max_memory_gb: float | None = None, resume: bool = False) -> list[tuple[Path, str]]:  # fmt: skip
+    """Every (input, output) pair through ``transfer_one`` on worker processes, with a progress
+    bar; -> the (input, reason) of the files that failed (the others are written). A file that
+    takes longer than ``timeout`` seconds, needs more than ``max_memory_gb``, or crashes its worker
+    fails alone: its worker is replaced. ``resume``: outputs already there are complete (writes are
+    atomic) and skipped. Ctrl-C and SIGTERM stop every worker at once and leave no partial file."""
+    import signal
+    import time
+    from multiprocessing.connection import wait
+
+    if resume:
+        pairs = [(src, out) for src, out in pairs if not out.exists()]
+    if not pairs:
+        return []
     workers = max(1, min(workers or os.cpu_count() or 1, len(pairs)))
-    failed: list[tuple[Path, str]] = []
-    with ProcessPoolExecutor(workers, mp_context=get_context("spawn"), initializer=_start_worker, initargs=(model_name,)) as pool:
-        futures = {pool.submit(_work, src, out, options): (src, out) for src, out in pairs}
+    ctx = get_context("spawn")
+    memory = int(max_memory_gb * 2**30) if max_memory_gb else None
+    todo, failed, pool = list(reversed(pairs)), [], []
+
+    def terminate(signum, frame):
+        raise KeyboardInterrupt
+
+    previous = signal.signal(signal.SIGTERM, terminate)
+    try:
+        pool = [_Worker(ctx, model_name, memory) for _ in range(workers)]
         with tqdm(total=len(pairs), unit="file", desc="transfer") as bar:
-            for future in as_completed(futures):
-                src, out = futures[future]
-                try:
-                    bar.write(f"{src} -> {out}: {future.result()}")
-                except StyleERDError as e:
-                    failed.append((src, str(e)))
-                    bar.write(f"{src}: skipped: {e}")
-                except Exception as e:  # a worker's unexpected failure costs its file only
-                    failed.append((src, f"{type(e).__name__}: {e}"))
-                    bar.write(f"{src}: skipped: {type(e).__name__}: {e}")
-                bar.update()
+            while todo or any(w.task for w in pool):
+                for w in pool:
+                    if w.ready and w.task is None and todo:
+                        w.task, w.since = todo.pop(), time.monotonic()
+                        w.conn.send((*w.task, options))
+                for conn in wait([w.conn for w in pool], timeout=0.2):
+                    w = next(w for w in pool if w.conn is conn)
+                    try:
+                        ok, message = conn.recv()
+                    except (EOFError, OSError):  # the worker died: noticed below
+                        continue
+                    if not w.ready:
+                        w.ready = True
+                        continue
+                    (src, out), w.task = w.task, None
+                    bar.write(f"{src} -> {out}: {message}" if ok else f"{src}: skipped: {message}")
+                    if not ok:
+                        failed.append((src, message))
+                    bar.update()
+                for k, w in enumerate(pool):
+                    late = w.task is not None and time.monotonic() - w.since > timeout
+                    if late or not w.process.is_alive():
+                        why = f"took longer than --timeout {timeout:g} s" if late else f"its worker stopped (exit code {w.process.exitcode})"
+                        pid = w.process.pid
+                        w.stop()
+                        if w.task is not None:
+                            src, out = w.task
+                            _remove_partial(out, pid)
+                            failed.append((src, why))
+                            bar.write(f"{src}: skipped: {why}")
+                            bar.update()
+                        elif not w.ready:
+                            raise StyleERDError(f"a transfer worker could not start ({why})")
+                        pool[k] = _Worker(ctx, model_name, memory)
+    finally:
+        signal.signal(signal.SIGTERM, previous)
+        for w in pool:
+            pid, task = w.process.pid, w.task
+            w.stop()
+            if task is not None:
+                _remove_partial(task[1], pid)
     return failed

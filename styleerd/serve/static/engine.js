@@ -3,8 +3,9 @@
 // skeleton, as examples/onnx_host.py and docs/ONNX.md describe, and keeps the stream's state.
 // A web avatar app retargets its avatar to the model's skeleton and calls host.step(pose).
 // Each frame runs the graph twice, each run with its own state: into the target and into the
-// input's own style; the output is the input's pose turned by the change from the second to the
-// first (input * inv(identity) * target), so any action passes through, as on the server.
+// input's own style (the identity transfer). Where the identity output is near the input the
+// output is the network's; where it is far (an action the network never learnt) the input's pose
+// turned by the change from the identity output to the target's; in between a blend: as the server.
 import * as ort from "/static/vendor/ort.wasm.min.mjs";
 
 ort.env.wasm.wasmPaths = "/static/vendor/";
@@ -22,6 +23,15 @@ function qrot(q, v) { // v + w t + u x t, t = 2 u x v
   return [0, 1, 2].map((k) => v[k] + q[0] * t[k] + ut[k]);
 }
 const normalize = (q) => { const n = Math.hypot(...q) || 1; return q.map((x) => x / n); };
+const inverse = (q) => [q[0], -q[1], -q[2], -q[3]];
+const [FAMILIAR, UNFAMILIAR, RELEASE] = [10.0, 16.0, 0.1]; // degrees, degrees, a frame: styleerd.model.config's
+function slerp(a, b, t) { // from a (t = 0) to b (t = 1) along the shorter arc
+  let d = a.reduce((s, x, k) => s + x * b[k], 0);
+  if (d < 0) { b = b.map((x) => -x); d = -d; }
+  const theta = Math.acos(Math.min(1, d)), s = Math.sin(theta);
+  const [wa, wb] = s < 1e-6 ? [1 - t, t] : [Math.sin((1 - t) * theta) / s, Math.sin(t * theta) / s];
+  return normalize(a.map((x, k) => wa * x + wb * b[k]));
+}
 
 export class StyleHost {
   static async create(base = "/onnx/stylizer") {
@@ -62,6 +72,7 @@ export class StyleHost {
   reset() {
     const zeros = () => ({ h: new Float32Array(this.S * this.H), c: new Float32Array(this.S * this.H) });
     this.state = { target: zeros(), identity: zeros() };
+    this.unfamiliar = 0; // 0: the network's pose, 1: the input's pose turned by the style's change
     this.previous = null;
     this.facing = [0, 0, 1];
   }
@@ -117,8 +128,14 @@ export class StyleHost {
       q[0] = qmul(heading, q[0]);
       poses[key] = q.map(normalize);
     }
-    const inverse = (q) => [q[0], -q[1], -q[2], -q[3]];
-    return rot.map((given, j) => normalize(qmul(normalize(given), qmul(inverse(poses.identity[j]), poses.target[j]))));
+    const given = rot.map(normalize);
+    const degrees = given.reduce((sum, q, j) => {
+      const d = qmul(inverse(poses.identity[j]), q);
+      return sum + (360 / Math.PI) * Math.atan2(Math.hypot(d[1], d[2], d[3]), Math.abs(d[0]));
+    }, 0) / J;
+    const now = Math.min(1, Math.max(0, (degrees - FAMILIAR) / (UNFAMILIAR - FAMILIAR)));
+    this.unfamiliar = first ? now : Math.max(now, this.unfamiliar - RELEASE);
+    return given.map((q, j) => slerp(poses.target[j], normalize(qmul(q, qmul(inverse(poses.identity[j]), poses.target[j]))), this.unfamiliar));
   }
 }
 
