@@ -88,10 +88,10 @@ def network_step(model: StyleERD, backend: str, steps: int, every_branch: bool =
     return _percentiles(times[50:])
 
 
-def end_to_end(model: StyleERD, backend: str, steps: int) -> dict:
+def end_to_end(model: StyleERD, backend: str, steps: int, pose: str = "input") -> dict:
     source = walk(seconds=steps / 30.0 + 2.0, fps=30.0)
     values = bvh.channel_values(source)
-    stream = ChannelStylizer(model, source.skeleton, {"elderly": 1.0}, "normal", "walk", fps=30.0, backend=backend)
+    stream = ChannelStylizer(model, source.skeleton, {"elderly": 1.0}, "normal", "walk", fps=30.0, backend=backend, pose=pose)
     times = []
     for t in range(len(values)):
         t0 = time.perf_counter()
@@ -117,11 +117,11 @@ def whole_clip_ms(model: StyleERD, backend: str, length: int, repeats: int = 3) 
     return round(best * 1e3, 2)
 
 
-def throughput(model: StyleERD, backend: str, n_streams: int, seconds: float = 1.5, threads: int = 2, windows: int = 1) -> float:
+def throughput(model: StyleERD, backend: str, n_streams: int, seconds: float = 1.5, threads: int = 2, windows: int = 1, pose: str = "input") -> float:
     """Frames/s of one StreamStylizer stepping ``n_streams`` streams on ``threads`` threads
     (the caller sets the thread pools: ``set_threads``)."""
     m = _model_walk(model, 4.0)
-    st = StreamStylizer(model, "normal", "walk", {"elderly": 1.0}, n_streams=n_streams, backend=backend, threads=threads)
+    st = StreamStylizer(model, "normal", "walk", {"elderly": 1.0}, n_streams=n_streams, backend=backend, threads=threads, pose=pose)
     rot = np.repeat(m.rotations[:, None], n_streams, 1)
     pos = np.repeat(m.positions[:, None], n_streams, 1)
     frame = itertools.count()
