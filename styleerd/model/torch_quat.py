@@ -27,7 +27,7 @@ def inv(q: torch.Tensor) -> torch.Tensor:
 
 
 def add_change(given: torch.Tensor, same: torch.Tensor, styled: torch.Tensor) -> torch.Tensor:
-    """``given * inv(same) * styled`` per joint: the twin of ``runtime.stylizer.add_change``."""
+    """``given * inv(same) * styled`` per joint: the input turned by the style's change (``runtime.stylizer``)."""
     return normalize(mul(normalize(given), mul(inv(same), styled)))
 
 

@@ -9,7 +9,7 @@ default (``pose="input"``) a second pass, with its own recurrent state, gives th
 in the input's own style (the identity transfer), and how far that is from the input says how
 unfamiliar the input is (``unfamiliar``, per stream and frame, 0..1). Where the network rebuilds
 the input well, the output is the network's; where it does not, the input's own pose turned, joint
-by joint, by the change from the identity output to the target's (``add_change``), so a pose the
+by joint, by the change from the identity output to the target's (``_towards_the_input``), so a pose the
 network never learnt passes through with the style's change on it; in between, a blend of the two.
 
 Changing the target (style, intensity, mixture) mid-stream blends the target weights
@@ -446,12 +446,11 @@ class StreamStylizer:
             identity = np.zeros_like(weights[sel])
             identity[:, : style.shape[1]] = style  # the input's own style, given or inferred
             same = self._on_heading(self.identity.step(x, style, content, identity, None if sel is _ALL else sel)[0], traj, np.empty_like(out))
-            given = quat.normalize(rotations)
             seen = np.where(self.started[sel], self.unfamiliar[sel] - RELEASE, 0.0)
-            now = np.clip((np.degrees(quat.angle_between(same, given).mean(-1)) - FAMILIAR) / (UNFAMILIAR - FAMILIAR), 0.0, 1.0)
-            self.unfamiliar[sel] = weight = np.maximum(now, seen)
+            weight = np.empty(len(out))
+            _towards_the_input(np.ascontiguousarray(rotations), same, out, seen, FAMILIAR, UNFAMILIAR, weight)
+            self.unfamiliar[sel] = weight
             self.unfamiliar_sum[sel] += weight
-            out[:] = quat.slerp(out, add_change(given, same, out), np.broadcast_to(weight[:, None], out.shape[:2]))
         if len(self.input_joints):  # parts that keep the input's own motion
             out[:, self.input_joints] = quat.normalize(rotations[:, self.input_joints])
         if self.labeller is not None:
@@ -463,12 +462,40 @@ class StreamStylizer:
         return out, positions
 
 
-def add_change(given: np.ndarray, same: np.ndarray, styled: np.ndarray) -> np.ndarray:
-    """Per joint, ``given`` (local rotations, the root's in the world) turned by the change from
-    ``same`` to ``styled`` in the joint's own frame: given * inv(same) * styled. Where the input is
-    the network's identity output (``given == same``) this is ``styled``; at the identity target
-    (``styled == same``) it is ``given``."""
-    return quat.normalize(quat.mul(quat.normalize(given), quat.mul(quat.inv(same), styled)))
+@nb.njit(cache=True, nogil=True)
+def _towards_the_input(given, same, styled, seen, familiar, unfamiliar, weight):
+    """Per stream (``[N, J, 4]`` each): its unfamiliarity ``weight`` (the identity output ``same``'s
+    mean joint angle to the input ``given``, degrees, from ``familiar`` (0) to ``unfamiliar`` (1),
+    at least ``seen``), and ``styled`` slerped by it towards the input turned by the style's change,
+    given * inv(same) * styled per joint (local rotations, the roots' in the world; at the identity
+    target, ``styled == same``, that is ``given``), in place; one pass, no temporaries."""
+    N, J = given.shape[0], given.shape[1]
+    for n in range(N):
+        total = 0.0
+        for j in range(J):
+            gw, gx, gy, gz = given[n, j, 0], given[n, j, 1], given[n, j, 2], given[n, j, 3]
+            d = 1.0 / max(np.sqrt(gw * gw + gx * gx + gy * gy + gz * gz), 1e-12)
+            w, x, y, z = quat.mul_scalars(same[n, j, 0], -same[n, j, 1], -same[n, j, 2], -same[n, j, 3], gw * d, gx * d, gy * d, gz * d)
+            total += 2.0 * np.arctan2(np.sqrt(x * x + y * y + z * z), abs(w))
+        u = min(1.0, max(0.0, (np.degrees(total / J) - familiar) / (unfamiliar - familiar)))
+        weight[n] = u = max(u, seen[n])
+        if u <= 0.0:
+            continue
+        for j in range(J):
+            sw, sx, sy, sz = styled[n, j, 0], styled[n, j, 1], styled[n, j, 2], styled[n, j, 3]
+            gw, gx, gy, gz = given[n, j, 0], given[n, j, 1], given[n, j, 2], given[n, j, 3]
+            d = 1.0 / max(np.sqrt(gw * gw + gx * gx + gy * gy + gz * gz), 1e-12)
+            cw, cx, cy, cz = quat.mul_scalars(same[n, j, 0], -same[n, j, 1], -same[n, j, 2], -same[n, j, 3], sw, sx, sy, sz)
+            tw, tx, ty, tz = quat.mul_scalars(gw * d, gx * d, gy * d, gz * d, cw, cx, cy, cz)  # add_change
+            dot = sw * tw + sx * tx + sy * ty + sz * tz
+            if dot < 0.0:  # the shorter arc
+                tw, tx, ty, tz, dot = -tw, -tx, -ty, -tz, -dot
+            theta = np.arccos(min(1.0, dot))
+            s = np.sin(theta)
+            a, b = (1.0 - u, u) if s < 1e-6 else (np.sin((1.0 - u) * theta) / s, np.sin(u * theta) / s)
+            w, x, y, z = a * sw + b * tw, a * sx + b * tx, a * sy + b * ty, a * sz + b * tz
+            d = 1.0 / max(np.sqrt(w * w + x * x + y * y + z * z), 1e-12)
+            styled[n, j, 0], styled[n, j, 1], styled[n, j, 2], styled[n, j, 3] = w * d, x * d, y * d, z * d
 
 
 def _slices(n: int, parts: int) -> list[slice]:
