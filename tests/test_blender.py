@@ -81,11 +81,22 @@ def test_addon_writes_a_new_action_matching_the_bvh_run(blender_venv, character)
     assert result["frames"] == 120 and result["max_error_deg"] < TOLERANCE_DEG, result
 
 
-def test_fbx_errors_are_one_line(blender_venv, tmp_path):
+def test_fbx_errors_are_one_line(blender_venv, character, tmp_path):
+    """Junk, and a real FBX cut short at several lengths, an ASCII FBX of garbage, an empty file:
+    each is one line on stderr (Blender's importer prints its own traceback, which must not reach
+    the user), naming the file, and nothing is written."""
+    good = (character / "walk.fbx").read_bytes()
     (tmp_path / "junk.fbx").write_bytes(b"Kaydara FBX Binary  \x00" + bytes(64))
-    for args, message in ((["junk.fbx", "-o", "x.fbx"], "junk.fbx"), (["junk.fbx", "-o", "x.vrm"], "must be .fbx, .bvh or .glb")):
+    broken = {f"cut{k}.fbx": good[: len(good) * k // 8] for k in (1, 3, 5, 7)}
+    broken |= {"ascii.fbx": b"; FBX 7.4.0 project file\nFBXHeaderExtension:  {\n garbage", "empty.fbx": b""}
+    for name, data in broken.items():
+        (tmp_path / name).write_bytes(data)
+    cases = [(["junk.fbx", "-o", "x.fbx"], "junk.fbx"), (["junk.fbx", "-o", "x.vrm"], "must be .fbx, .bvh or .glb")]
+    cases += [([name, "-o", "x.bvh"], name) for name in broken]
+    for args, message in cases:
         done = subprocess.run([blender_venv / "bin/styleerd", "transfer", *args, "--style", "elderly"], cwd=tmp_path, capture_output=True, text=True, timeout=300)
         assert done.returncode == 2 and message in done.stderr and "Traceback" not in done.stderr, done.stderr
+        assert len(done.stderr.strip().splitlines()) == 1 and "Location:" not in done.stderr, (args, done.stderr[-3000:])
         assert not list(tmp_path.glob("x.*"))
 
 

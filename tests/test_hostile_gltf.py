@@ -144,9 +144,11 @@ def test_a_gltf_buffer_in_its_own_folder_is_read(good, tmp_path):
     assert read_gltf(path).motion.n_frames == 30
 
 
-def test_fuzzed_gltf_documents_read_or_fail_with_the_readers_own_error(good, tmp_path):
+@pytest.mark.parametrize("examples", [150, pytest.param(3000, marks=pytest.mark.slow, id="long")])
+def test_fuzzed_gltf_documents_read_or_fail_with_the_readers_own_error(good, tmp_path, examples):
     """Structured fuzzing of the JSON: any field of accessors, buffer views, nodes, skins, samplers
-    and channels set to any JSON value; the reader reads the file or raises StyleERDError."""
+    and channels set to any JSON value; the reader reads the file or raises StyleERDError. The long
+    run (3,000 documents) is marked slow; CI runs it."""
     from hypothesis import HealthCheck, given, settings
     from hypothesis import strategies as st
 
@@ -160,7 +162,7 @@ def test_fuzzed_gltf_documents_read_or_fail_with_the_readers_own_error(good, tmp
     blob = good.binary_blob()
     path = tmp_path / "fuzz.glb"
 
-    @settings(max_examples=150, deadline=None, suppress_health_check=list(HealthCheck), derandomize=True)
+    @settings(max_examples=examples, deadline=None, suppress_health_check=list(HealthCheck), derandomize=True)
     @given(st.lists(st.tuples(fields, st.integers(0, 40), values), min_size=1, max_size=3))
     def run(changes):
         d = copy.deepcopy(base)

@@ -289,7 +289,10 @@ def test_a_bad_datagram_is_dropped_and_the_stream_goes_on(model, kind):
     assert len(got) >= len(frames) - 2 and all(np.isfinite(np.concatenate([np.concatenate(v) for v in f.values()])).all() for f in got)
 
 
-def test_fuzzed_datagrams_never_stop_the_bridge(model):
+@pytest.mark.parametrize("examples", [300, pytest.param(10_000, marks=pytest.mark.slow, id="long")])
+def test_fuzzed_datagrams_never_stop_the_bridge(model, examples):
+    """Random OSC messages (any argument types on the VMC addresses) and random bytes; the long run
+    (10,000 datagrams) is marked slow; CI runs it."""
     from hypothesis import HealthCheck, given, settings
     from hypothesis import strategies as st
 
@@ -308,12 +311,13 @@ def test_fuzzed_datagrams_never_stop_the_bridge(model):
 
     messages = st.builds(built, st.sampled_from([ROOT, BONE, "/VMC/Ext/OK"]), st.lists(args, max_size=10))
 
-    @settings(max_examples=300, deadline=None, suppress_health_check=list(HealthCheck), derandomize=True)
+    @settings(max_examples=examples, deadline=None, suppress_health_check=list(HealthCheck), derandomize=True)
     @given(st.one_of(messages, st.binary(max_size=200)))
     def run(datagram):
         for out in bridge.feed(datagram):
             for x in OscPacket(out).messages:
-                assert all(np.isfinite(v) for v in x.message.params if isinstance(v, float))
+                if x.message.address in (ROOT, BONE):  # other messages pass on as they came
+                    assert all(np.isfinite(v) for v in x.message.params if isinstance(v, float))
 
     run()
     before = bridge.frames

@@ -11,6 +11,10 @@ character is driven without twist. Root locations are kept from the input.
 
 from __future__ import annotations
 
+import contextlib
+import os
+import sys
+import tempfile
 from pathlib import Path
 
 import numpy as np
@@ -177,14 +181,42 @@ def _new_scene(bpy) -> None:
     bpy.ops.wm.read_factory_settings(use_empty=True)
 
 
+@contextlib.contextmanager
+def _blender_output_kept():
+    """Blender's own prints (its importer's traceback on a broken file, progress lines) go to a
+    temporary file, not the user's terminal: file descriptors 1 and 2 themselves, which Blender's C
+    code writes to. Yields the file, read back where a message is needed."""
+    sys.stdout.flush()
+    sys.stderr.flush()
+    saved = [os.dup(1), os.dup(2)]
+    with tempfile.TemporaryFile("w+b") as kept:
+        try:
+            os.dup2(kept.fileno(), 1)
+            os.dup2(kept.fileno(), 2)
+            yield kept
+        finally:
+            os.dup2(saved[0], 1)
+            os.dup2(saved[1], 2)
+            for fd in saved:
+                os.close(fd)
+
+
+def _reason(error: Exception) -> str:
+    """The line of a Blender operator's error that says what is wrong (not its traceback's
+    ``Location: .../bpy/ops.py:109``)."""
+    lines = [line.strip() for line in str(error).splitlines() if line.strip() and not line.strip().startswith(("Location:", "Traceback", "File "))]
+    return (lines[-1] if lines else type(error).__name__).removeprefix("Error: ")[:300]
+
+
 def import_fbx(path: Path):
     """(armature, frames, fps) of an FBX file imported into an empty scene."""
     bpy = blender()
     _new_scene(bpy)
     try:
-        bpy.ops.import_scene.fbx(filepath=str(path), anim_offset=0.0)  # FBX time 0 is frame 0: a round trip keeps frame numbers
+        with _blender_output_kept():
+            bpy.ops.import_scene.fbx(filepath=str(path), anim_offset=0.0)  # FBX time 0 is frame 0: a round trip keeps frame numbers
     except RuntimeError as e:
-        raise StyleERDError(f"{path}: Blender cannot import this FBX: {str(e).strip().splitlines()[-1]}") from None
+        raise StyleERDError(f"{path}: Blender cannot import this FBX: {_reason(e)}") from None
     arm = single_armature(bpy.context.scene.objects, str(path))
     scene = bpy.context.scene
     action = arm.animation_data.action if arm.animation_data else None
