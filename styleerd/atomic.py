@@ -40,9 +40,10 @@ def _pid_alive(pid: int) -> bool:
     return True
 
 
-def _remove_orphans(path: Path, suffix: str) -> None:
-    """Temporary files of ``path`` whose writer process is gone."""
-    for tmp in path.parent.glob(f".{path.name}.*{suffix}"):
+def remove_orphans(path: str | os.PathLike) -> None:
+    """Temporary files of ``path`` (any suffix) whose writer process is gone."""
+    path = Path(path)
+    for tmp in path.parent.glob(f".{path.name}.*"):
         pid = tmp.name[len(path.name) + 2 :].split(".", 1)[0]
         if pid.isdigit() and int(pid) != os.getpid() and not _pid_alive(int(pid)):
             tmp.unlink(missing_ok=True)
@@ -63,7 +64,7 @@ def atomic_write(path: str | os.PathLike, write: Callable[[str], None], suffix: 
     path = Path(path)
     tmp = None
     try:
-        _remove_orphans(path, suffix)
+        remove_orphans(path)
         fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.{os.getpid()}.", suffix=suffix)
         os.close(fd)
         write(tmp)

@@ -11,7 +11,7 @@ from styleerd.motion import quat
 from styleerd.motion.kinematics import forward_kinematics
 from styleerd.motion.motion import Motion
 from styleerd.runtime.offline import stylise_motion
-from styleerd.runtime.stylizer import StreamStylizer, target_weights
+from styleerd.runtime.stylizer import POSES, StreamStylizer, target_weights
 
 STYLES = ("angry", "normal", "old")
 CONTENTS = ("walk", "run")
@@ -415,3 +415,10 @@ def test_without_a_thread_safe_layer_the_kernels_stay_on_one_thread(model, monke
         monkeypatch.undo()
         parallel._threadsafe_layer.cache_clear()
     assert parallel.kernel_threads(2, 1000) == min(2, numba.config.NUMBA_NUM_THREADS)
+
+
+def test_the_command_line_offers_the_stylizers_poses():
+    """cli.py names the poses without importing the stylizer (numba): the same ones."""
+    from styleerd.cli import POSES as CLI_POSES
+
+    assert CLI_POSES == POSES

@@ -15,6 +15,7 @@ from pathlib import Path
 
 from tqdm import tqdm
 
+from styleerd.atomic import remove_orphans
 from styleerd.errors import StyleERDError
 from styleerd.model.stored import GeneratorWeights, load_generator_weights
 from styleerd.motion.gltf import GLTF_INPUTS
@@ -120,12 +121,6 @@ class _Worker:
         self.conn.close()
 
 
-def _remove_partial(output: Path, pid: int | None) -> None:
-    """The temporary file a killed worker left beside ``output`` (``atomic_write`` names it by pid)."""
-    for tmp in output.parent.glob(f".{output.name}.{pid}.*"):
-        tmp.unlink(missing_ok=True)
-
-
 def transfer_batch(pairs: list[tuple[Path, Path]], model_name: str | None, options: TransferOptions, workers: int | None = None,
                    timeout: float = 600.0, max_memory_gb: float | None = None, resume: bool = False) -> list[tuple[Path, str]]:  # fmt: skip
     """Every (input, output) pair through ``transfer_one`` on worker processes, with a progress
@@ -176,11 +171,10 @@ def transfer_batch(pairs: list[tuple[Path, Path]], model_name: str | None, optio
                     late = w.task is not None and time.monotonic() - w.since > timeout
                     if late or not w.process.is_alive():
                         why = f"took longer than --timeout {timeout:g} s" if late else f"its worker stopped (exit code {w.process.exitcode})"
-                        pid = w.process.pid
                         w.stop()
                         if w.task is not None:
                             src, out = w.task
-                            _remove_partial(out, pid)
+                            remove_orphans(out)  # the stopped worker's temporary file
                             failed.append((src, why))
                             bar.write(f"{src}: skipped: {why}")
                             bar.update()
@@ -190,8 +184,7 @@ def transfer_batch(pairs: list[tuple[Path, Path]], model_name: str | None, optio
     finally:
         signal.signal(signal.SIGTERM, previous)
         for w in pool:
-            pid, task = w.process.pid, w.task
             w.stop()
-            if task is not None:
-                _remove_partial(task[1], pid)
+            if w.task is not None:
+                remove_orphans(w.task[1])
     return failed

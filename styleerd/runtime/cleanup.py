@@ -116,6 +116,7 @@ def _foot_lock_kernel(positions, in_rot, in_pos, state, parents, legs, toes, acr
                 _leg_to(out[i], parents, legs[side], g_pos, g_rot, target, left, hip_g, knee_g)
         for _ in range(2):  # then above the floor: a second pass corrects the toe, which turns with the shin
             forward_pose(out[i], positions[i], parents, g_rot, g_pos)
+            lifted = False
             for side in range(2):
                 ankle, toe = legs[side, 2], toes[side]
                 lift = max(0.0, floor[r, side, 0] - g_pos[ankle, 1], floor[r, side, 1] - g_pos[toe, 1] if toe >= 0 else 0.0)
@@ -123,6 +124,9 @@ def _foot_lock_kernel(positions, in_rot, in_pos, state, parents, legs, toes, acr
                     target[:] = g_pos[ankle]
                     target[1] += lift
                     _leg_to(out[i], parents, legs[side], g_pos, g_rot, target, left, hip_g, knee_g)
+                    lifted = True
+            if not lifted:  # nothing moved: a second pass would find the same
+                break
 
 
 @nb.njit(cache=True)
