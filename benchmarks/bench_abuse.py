@@ -46,7 +46,11 @@ async def probe(url: str, frames: int = 300) -> dict:
                 if isinstance(reply, bytes) and SEQ.unpack_from(reply)[0] == i:
                     break
             latency.append(1000 * (time.perf_counter() - sent))
-    return {"p50_ms": round(float(np.median(latency)), 2), "p99_ms": round(float(np.percentile(latency, 99)), 2), "max_ms": round(max(latency), 2)}
+    return {
+        "p50_ms": round(float(np.median(latency)), 2),
+        "p99_ms": round(float(np.percentile(latency, 99)), 2),
+        "max_ms": round(max(latency), 2),
+    }
 
 
 async def watchers(url: str, n: int, hold: asyncio.Event) -> dict:

@@ -47,10 +47,16 @@ def measure(steps: int) -> dict:
     model = load_generator_weights()
     set_threads(1)
     out = {"step_us numba": network_step(model, "numba", steps)["p50_us"]}
-    by_itself = "every_branch" in inspect.signature(network_step).parameters  # the backend picks the target's graph itself
+    by_itself = (
+        "every_branch" in inspect.signature(network_step).parameters
+    )  # the backend picks the target's graph itself
     for form in ("onnx", "onnx-plain"):
-        out[f"step_us {form}"] = network_step(model, form, steps, **({"every_branch": True} if by_itself else {}))["p50_us"]
-        out[f"step_us {form} one style"] = network_step(model, form, steps, **({} if by_itself else {"one_style": True}))["p50_us"]
+        out[f"step_us {form}"] = network_step(model, form, steps, **({"every_branch": True} if by_itself else {}))[
+            "p50_us"
+        ]
+        out[f"step_us {form} one style"] = network_step(
+            model, form, steps, **({} if by_itself else {"one_style": True})
+        )["p50_us"]
     for backend in ("numba", "numpy"):
         out[f"end_to_end_us {backend}"] = end_to_end(model, backend, steps)["p50_us"]
     peak = matmul_peak(2)
@@ -70,13 +76,25 @@ def measure(steps: int) -> dict:
         for backend in ("numpy", "onnx"):
             out[f"frames_per_s 1000 streams {backend}, network alone"] = round(bench.network_throughput(model, backend))
     if hasattr(bench, "products_alone"):  # the ceiling: the numba step's matrix products alone
-        out["fraction_of_peak 1000 streams numba, products alone"] = round(bench.products_alone(model) * flops_per_frame(model) / peak, 4)
+        out["fraction_of_peak 1000 streams numba, products alone"] = round(
+            bench.products_alone(model) * flops_per_frame(model) / peak, 4
+        )
     out["matmul_peak_gflops"] = round(peak / 1e9, 1)
     out.update({f"stage_us {k}": v for k, v in stages(steps).items()})
     return out
 
 
-STAGES = ("check values", "channels to motion", "retarget to the model", "features", "network", "stylizer bookkeeping", "retarget back", "foot cleanup", "motion to channels")
+STAGES = (
+    "check values",
+    "channels to motion",
+    "retarget to the model",
+    "features",
+    "network",
+    "stylizer bookkeeping",
+    "retarget back",
+    "foot cleanup",
+    "motion to channels",
+)
 
 
 def stages(steps: int) -> dict:
@@ -141,7 +159,10 @@ def summary(rounds: dict[str, list[dict]]) -> tuple[dict, dict]:
     the machine was busy, flatters the round: it once made products 1.16x "the peak")."""
     peak = max(m["matmul_peak_gflops"] for ms in rounds.values() for m in ms)
     achieved = lambda m, k: m[k] * m["matmul_peak_gflops"] / peak if k.startswith("fraction") else m[k]  # noqa: E731
-    median = {name: {k: round(float(np.median([achieved(m, k) for m in ms])), 4) for k in ms[0]} for name, ms in rounds.items()}
+    median = {
+        name: {k: round(float(np.median([achieved(m, k) for m in ms])), 4) for k in ms[0]}
+        for name, ms in rounds.items()
+    }
     best = {name: {k: round(float((max if k.startswith(("frames", "fraction", "matmul")) else min)(achieved(m, k) for m in ms)), 4) for k in ms[0]}
             for name, ms in rounds.items()}  # fmt: skip
     return median, best
@@ -155,7 +176,11 @@ def main() -> None:
     args = parser.parse_args()
     with tempfile.TemporaryDirectory() as tmp:
         before = Path(tmp) / "before"
-        subprocess.run(["git", "-C", str(ROOT), "worktree", "add", "--detach", str(before), args.before], check=True, capture_output=True)
+        subprocess.run(
+            ["git", "-C", str(ROOT), "worktree", "add", "--detach", str(before), args.before],
+            check=True,
+            capture_output=True,
+        )
         try:
             trees = {f"before ({args.before})": before, "now": ROOT}
             for tree in trees.values():  # compile the numba caches outside the timed rounds
@@ -168,22 +193,35 @@ def main() -> None:
         finally:
             subprocess.run(["git", "-C", str(ROOT), "worktree", "remove", "--force", str(before)], check=False)
     median, best = summary(rounds)
-    report = {"rounds": args.rounds, "steps": args.steps, "cpu_count": os.cpu_count(), "median": median, "best": best, "each_round": rounds}
+    report = {
+        "rounds": args.rounds,
+        "steps": args.steps,
+        "cpu_count": os.cpu_count(),
+        "median": median,
+        "best": best,
+        "each_round": rounds,
+    }
     out = ROOT / "docs" / "engine-bench.json"
     out.write_text(json.dumps(report, indent=1) + "\n")
     b, a = median.values()
     bb, ab = best.values()
-    print(f"\n| figure ({args.rounds} alternating rounds) | {' | '.join(median)}: median | speed-up | best round: {' | '.join(best)} | speed-up |\n| --- | --- | --- | --- | --- | --- | --- |")
+    print(
+        f"\n| figure ({args.rounds} alternating rounds) | {' | '.join(median)}: median | speed-up | best round: {' | '.join(best)} | speed-up |\n| --- | --- | --- | --- | --- | --- | --- |"
+    )
     for k in FIGURES:
         if k not in b or k not in a:
             continue
         up = k.startswith(("frames", "fraction"))
-        print(f"| {k} | {b[k]:,} | {a[k]:,} | {(a[k] / b[k] if up else b[k] / a[k]):.2f}x | {bb[k]:,} | {ab[k]:,} | {(ab[k] / bb[k] if up else bb[k] / ab[k]):.2f}x |")
+        print(
+            f"| {k} | {b[k]:,} | {a[k]:,} | {(a[k] / b[k] if up else b[k] / a[k]):.2f}x | {bb[k]:,} | {ab[k]:,} | {(ab[k] / bb[k] if up else bb[k] / ab[k]):.2f}x |"
+        )
     print(f"matmul peak (GFLOP/s, 2 threads): {b['matmul_peak_gflops']} / {a['matmul_peak_gflops']}")
     print(f"\n| end to end, batch 1, numba: stage (us, median of rounds) | {' | '.join(median)} |\n| --- | --- | --- |")
     for k in STAGES:
         print(f"| {k} | {b['stage_us ' + k]:.1f} | {a['stage_us ' + k]:.1f} |")
-    print(f"| sum of the stages | {sum(b['stage_us ' + k] for k in STAGES):.1f} | {sum(a['stage_us ' + k] for k in STAGES):.1f} |\nwrote {out}")
+    print(
+        f"| sum of the stages | {sum(b['stage_us ' + k] for k in STAGES):.1f} | {sum(a['stage_us ' + k] for k in STAGES):.1f} |\nwrote {out}"
+    )
 
 
 if __name__ == "__main__":

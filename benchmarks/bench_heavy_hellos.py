@@ -42,7 +42,13 @@ async def stream_with(url: str, seconds: float, texts: list[str]) -> tuple[dict,
     answers = await asyncio.gather(*(heavy_hello(url, t) for t in texts))
     result = await player
     lat = np.array(result.latencies_ms)
-    return {"p50": np.percentile(lat, 50), "p99": np.percentile(lat, 99), "max": lat.max(), "received": result.received, "sent": result.sent}, answers
+    return {
+        "p50": np.percentile(lat, 50),
+        "p99": np.percentile(lat, 99),
+        "max": lat.max(),
+        "received": result.received,
+        "sent": result.sent,
+    }, answers
 
 
 def main() -> None:
@@ -56,7 +62,9 @@ def main() -> None:
     try:
         rows = [("alone", *asyncio.run(stream_with(url, args.seconds, [])))]
         for joints in args.joints:
-            text = bvh.format_header(with_extra_joints(walk(0.2, fps=30.0).skeleton, joints), 0, 30.0).replace("\t", "")  # fits in 1 MB
+            text = bvh.format_header(with_extra_joints(walk(0.2, fps=30.0).skeleton, joints), 0, 30.0).replace(
+                "\t", ""
+            )  # fits in 1 MB
             rows.append((f"10 hellos of +{joints} joints", *asyncio.run(stream_with(url, args.seconds, [text] * 10))))
     finally:
         stop_server(server)

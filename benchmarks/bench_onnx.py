@@ -42,13 +42,21 @@ BEFORE = "bc2080d"  # the LSTM-op export as it stood before the batched graphs
 def graph_at(commit: str, model, *args) -> bytes | None:
     """The step graph as the code at ``commit`` exported it (``args``: form, styles); None,
     said, when that code cannot read today's model (its weights' layout has moved on since)."""
-    source = subprocess.run(["git", "-C", str(ROOT), "show", f"{commit}:styleerd/runtime/onnx_export.py"], capture_output=True, text=True, check=True).stdout
+    source = subprocess.run(
+        ["git", "-C", str(ROOT), "show", f"{commit}:styleerd/runtime/onnx_export.py"],
+        capture_output=True,
+        text=True,
+        check=True,
+    ).stdout
     module = types.ModuleType("onnx_export_before")
     exec(compile(source, f"{commit}:onnx_export.py", "exec"), module.__dict__)
     try:
         return module.step_graph(model, *args).SerializeToString()
     except Exception as e:  # old code on today's weights: leave that graph out, say why
-        print(f"left out: the export at {commit} {args or ''} cannot read today's model ({type(e).__name__}: {e})", flush=True)
+        print(
+            f"left out: the export at {commit} {args or ''} cannot read today's model ({type(e).__name__}: {e})",
+            flush=True,
+        )
         return None
 
 
@@ -78,7 +86,13 @@ def latencies(steps: dict, n: int = 2000, warm: int = 200) -> dict:
             t0 = time.perf_counter()
             step()
             times[name].append(time.perf_counter() - t0)
-    return {name: {"p50_us": round(float(np.percentile(us, 50)) * 1e6, 1), "p99_us": round(float(np.percentile(us, 99)) * 1e6, 1)} for name, us in times.items()}
+    return {
+        name: {
+            "p50_us": round(float(np.percentile(us, 50)) * 1e6, 1),
+            "p99_us": round(float(np.percentile(us, 99)) * 1e6, 1),
+        }
+        for name, us in times.items()
+    }
 
 
 def bound(session: ort.InferenceSession, feeds: dict):
@@ -119,7 +133,11 @@ def main() -> None:
     for when in (f"before ({args.before})", "now"):
         for form, label in (("lstm", "LSTM op"), ("plain", "plain")):
             for styles, which in ((None, "all styles"), (one, f"one style ({one[0]})")):
-                graphs[f"{label}, {which}, {when}"] = graph_at(args.before, model, form, styles) if when != "now" else step_graph(model, form, styles).SerializeToString()
+                graphs[f"{label}, {which}, {when}"] = (
+                    graph_at(args.before, model, form, styles)
+                    if when != "now"
+                    else step_graph(model, form, styles).SerializeToString()
+                )
     graphs = {name: graph for name, graph in graphs.items() if graph is not None}
     report: dict = {"graphs": {}, "backends": {}}
     steps = {}
@@ -140,10 +158,17 @@ def main() -> None:
         for name in ("numpy", "numba"):
             b1, b1000 = make_backend(name, model, 1), make_backend(name, model, 1000)
             steps[(name, "backend")] = lambda b1=b1: b1.step(x1, *labels(1))
-            report["backends"][name] = {"frames_per_s_1000_streams_1_thread": rate(lambda: b1000.step(x1000, *labels(1000)), 1000)}
+            report["backends"][name] = {
+                "frames_per_s_1000_streams_1_thread": rate(lambda: b1000.step(x1000, *labels(1000)), 1000)
+            }
         timed = {}
         for how in ("run", "bound"):
-            for kind in ("LSTM op, all styles", f"LSTM op, one style ({one[0]})", "plain, all styles", f"plain, one style ({one[0]})"):
+            for kind in (
+                "LSTM op, all styles",
+                f"LSTM op, one style ({one[0]})",
+                "plain, all styles",
+                f"plain, one style ({one[0]})",
+            ):
                 timed.update(latencies({k: steps[k] for k in steps if k[1] == how and k[0].startswith(kind)}))
             timed.update(latencies({k: steps[k] for k in steps if k[1] == how and k[0].startswith("plain, first")}))
         timed.update(latencies({k: steps[k] for k in steps if k[1] == "backend"}))
@@ -151,12 +176,16 @@ def main() -> None:
         (report["graphs"] if how != "backend" else report["backends"])[name][f"batch_1_{how}"] = t
     out = ROOT / "docs" / "onnx-bench.json"
     out.write_text(json.dumps(report, indent=1) + "\n")
-    print(f"\n| graph (onnxruntime {ort.__version__}) | nodes | batch 1 p50 / p99 (us, 1 thread): session.run | I/O binding | 1,000 streams, frames/s (1 thread / 2 threads) |\n| --- | --- | --- | --- | --- |")
+    print(
+        f"\n| graph (onnxruntime {ort.__version__}) | nodes | batch 1 p50 / p99 (us, 1 thread): session.run | I/O binding | 1,000 streams, frames/s (1 thread / 2 threads) |\n| --- | --- | --- | --- | --- |"
+    )
     for name, r in report["graphs"].items():
         print(f"| {name} | {r['nodes']} | {r['batch_1_run']['p50_us']:.0f} / {r['batch_1_run']['p99_us']:.0f} | {r['batch_1_bound']['p50_us']:.0f} / {r['batch_1_bound']['p99_us']:.0f} "
               f"| {r['frames_per_s_1000_streams_1_thread']:,} / {r['frames_per_s_1000_streams_2_threads']:,} |")  # fmt: skip
     for name, r in report["backends"].items():
-        print(f"| {name} backend (network step) | | {r['batch_1_backend']['p50_us']:.0f} / {r['batch_1_backend']['p99_us']:.0f} | | {r['frames_per_s_1000_streams_1_thread']:,} / |")
+        print(
+            f"| {name} backend (network step) | | {r['batch_1_backend']['p50_us']:.0f} / {r['batch_1_backend']['p99_us']:.0f} | | {r['frames_per_s_1000_streams_1_thread']:,} / |"
+        )
     print(f"wrote {out}")
 
 

@@ -27,15 +27,25 @@ def main() -> None:
     parser.add_argument("--json", type=Path)
     args = parser.parse_args()
     model = load_generator_weights()
-    rows: dict[str, dict[str, list[float]]] = {pose: {"end_to_end_p50_us": [], "frames_per_s_1000_streams": []} for pose in ("network", "input")}
+    rows: dict[str, dict[str, list[float]]] = {
+        pose: {"end_to_end_p50_us": [], "frames_per_s_1000_streams": []} for pose in ("network", "input")
+    }
     for _ in range(args.rounds):
         for pose in rows:
             set_threads(1)
             rows[pose]["end_to_end_p50_us"].append(end_to_end(model, "numba", args.steps, pose=pose)["p50_us"])
             set_threads(2)
             rows[pose]["frames_per_s_1000_streams"].append(throughput(model, "numba", 1000, seconds=1.0, pose=pose))
-    cpu = next((line.split(":", 1)[1].strip() for line in open("/proc/cpuinfo") if line.startswith("model name")), platform.processor())
-    out = {"cpu": cpu, "rounds": args.rounds, "median": {p: {k: round(float(np.median(v)), 1) for k, v in r.items()} for p, r in rows.items()}, "runs": rows}
+    cpu = next(
+        (line.split(":", 1)[1].strip() for line in open("/proc/cpuinfo") if line.startswith("model name")),
+        platform.processor(),
+    )
+    out = {
+        "cpu": cpu,
+        "rounds": args.rounds,
+        "median": {p: {k: round(float(np.median(v)), 1) for k, v in r.items()} for p, r in rows.items()},
+        "runs": rows,
+    }
     for k in ("end_to_end_p50_us", "frames_per_s_1000_streams"):
         a, b = out["median"]["network"][k], out["median"]["input"][k]
         print(f"{k}: pose network {a:,.1f}, pose input {b:,.1f} ({b / a:.2f}x)")

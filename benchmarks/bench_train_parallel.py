@@ -56,7 +56,9 @@ def epoch_seconds(config: dict, processes: int, threads: int, work: Path, data: 
         raise SystemExit(f"training failed ({processes} x {threads}):\n{p.stdout[-2000:]}{p.stderr[-2000:]}")
     rows = list(csv.DictReader(open(out / "metrics.csv")))
     later = len(rows) - 1
-    return 60 * (float(rows[-1]["minutes"]) - float(rows[0]["minutes"])) / later, (int(rows[-1]["steps"]) - int(rows[0]["steps"])) // later
+    return 60 * (float(rows[-1]["minutes"]) - float(rows[0]["minutes"])) / later, (
+        int(rows[-1]["steps"]) - int(rows[0]["steps"])
+    ) // later
 
 
 def main() -> None:
@@ -70,7 +72,16 @@ def main() -> None:
     recipe = yaml.safe_load(Path(args.config).read_text())
     # the recipe's step, from scratch on fewer clips; the classifier the perceptual loss needs is
     # trained for one epoch only (its time is not in the epoch's)
-    config = {**recipe, "init_from": "", "epochs": 3, "max_minutes": 0, "max_train_clips": args.clips, "val_every": 1000, "val_windows": 64, "classifier_epochs": 1}
+    config = {
+        **recipe,
+        "init_from": "",
+        "epochs": 3,
+        "max_minutes": 0,
+        "max_train_clips": args.clips,
+        "val_every": 1000,
+        "val_windows": 64,
+        "classifier_epochs": 1,
+    }
     times: dict[str, list[float]] = {name: [] for name in FORMS}
     steps = {}
     for r in range(args.rounds):
@@ -86,7 +97,12 @@ def main() -> None:
     for name, ts in times.items():
         seconds = float(np.median(ts))
         windows = steps[name] * batch
-        report["forms"][name] = {"epoch_s": round(seconds, 3), "steps": steps[name], "windows_per_minute": round(60 * windows / seconds), "speedup": round(base / seconds, 3)}
+        report["forms"][name] = {
+            "epoch_s": round(seconds, 3),
+            "steps": steps[name],
+            "windows_per_minute": round(60 * windows / seconds),
+            "speedup": round(base / seconds, 3),
+        }
         print(f"  {name:36s} {seconds:7.2f} s/epoch  {60 * windows / seconds:8.0f} windows/min  {base / seconds:.2f}x")
     if args.json:
         atomic_write_text(Path(args.json), json.dumps(report, indent=1) + "\n")

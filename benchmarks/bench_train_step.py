@@ -55,7 +55,17 @@ def worker(config_path: str, threads: int, batch: int | None) -> None:
                 torch.optim.Adam(D.parameters(), lr=config.lr_d, betas=(0.5, 0.999)))  # fmt: skip
     rng = np.random.default_rng(0)  # the same batches in both processes
     times: dict[str, float] = {}
-    print(json.dumps({"code": str(Path(styleerd.__file__).parent), "name": config.name, "batch": config.batch_size, "windows": len(s.train.starts)}), flush=True)
+    print(
+        json.dumps(
+            {
+                "code": str(Path(styleerd.__file__).parent),
+                "name": config.name,
+                "batch": config.batch_size,
+                "windows": len(s.train.starts),
+            }
+        ),
+        flush=True,
+    )
     i = 0
     for line in sys.stdin:
         if line.strip() == "report":
@@ -78,7 +88,9 @@ def worker(config_path: str, threads: int, batch: int | None) -> None:
 
 def code_at(commit: str, into: Path) -> Path:
     """The package ``styleerd`` as it was at ``commit``, unpacked under ``into``."""
-    archive = subprocess.run(["git", "-C", str(ROOT), "archive", "--format=tar", commit, "styleerd"], capture_output=True, check=True).stdout
+    archive = subprocess.run(
+        ["git", "-C", str(ROOT), "archive", "--format=tar", commit, "styleerd"], capture_output=True, check=True
+    ).stdout
     with tarfile.open(fileobj=__import__("io").BytesIO(archive)) as tar:
         tar.extractall(into, filter="data")
     return into
@@ -90,7 +102,9 @@ def main() -> None:
     ap.add_argument("--batch", type=int, help="the batch size of both recipes (default: each config's own)")
     ap.add_argument("--threads", type=int, default=1)
     ap.add_argument("--before", default="configs/bandai2-content.yaml")
-    ap.add_argument("--before-code", help="the git commit whose trainer runs the before recipe (default: the working tree's)")
+    ap.add_argument(
+        "--before-code", help="the git commit whose trainer runs the before recipe (default: the working tree's)"
+    )
     ap.add_argument("--after", default="configs/bandai2-quick.yaml")
     ap.add_argument("--json", help="also write the figures to this JSON file")
     ap.add_argument("--worker", help=argparse.SUPPRESS)
@@ -104,10 +118,19 @@ def main() -> None:
             env = dict(os.environ)
             if name == "before" and args.before_code:
                 env["PYTHONPATH"] = str(code_at(args.before_code, Path(tmp)))
-            cmd = [sys.executable, __file__, "--worker", getattr(args, name), "--threads", str(args.threads)] + (["--batch", str(args.batch)] if args.batch else [])
-            procs[name] = subprocess.Popen(cmd, stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True, env=env, cwd=ROOT)
-            info[name] = json.loads(procs[name].stdout.readline() or "null") or sys.exit(f"the {name} recipe's process failed")
-        expected = {"before": Path(tmp) / "styleerd" if args.before_code else ROOT / "styleerd", "after": ROOT / "styleerd"}
+            cmd = [sys.executable, __file__, "--worker", getattr(args, name), "--threads", str(args.threads)] + (
+                ["--batch", str(args.batch)] if args.batch else []
+            )
+            procs[name] = subprocess.Popen(
+                cmd, stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True, env=env, cwd=ROOT
+            )
+            info[name] = json.loads(procs[name].stdout.readline() or "null") or sys.exit(
+                f"the {name} recipe's process failed"
+            )
+        expected = {
+            "before": Path(tmp) / "styleerd" if args.before_code else ROOT / "styleerd",
+            "after": ROOT / "styleerd",
+        }
         for name, p in procs.items():
             if Path(info[name]["code"]).resolve() != expected[name].resolve():
                 sys.exit(f"the {name} recipe ran the trainer at {info[name]['code']}, not {expected[name]}")
@@ -143,10 +166,18 @@ def main() -> None:
         kept = ROOT / "models" / "recipes" / f"{info[name]['name']}.json"
         if kept.is_file():
             epochs = json.loads(kept.read_text())["training"]["epochs_trained"]
-            report[name] |= {"model": str(kept.relative_to(ROOT).with_suffix("")), "epochs_trained": epochs, "training_min": round(epochs * epoch[name] / 60, 2)}
-            print(f"  its kept model {report[name]['model']}: {epochs} epochs -> {report[name]['training_min']:.1f} min of training steps here")
+            report[name] |= {
+                "model": str(kept.relative_to(ROOT).with_suffix("")),
+                "epochs_trained": epochs,
+                "training_min": round(epochs * epoch[name] / 60, 2),
+            }
+            print(
+                f"  its kept model {report[name]['model']}: {epochs} epochs -> {report[name]['training_min']:.1f} min of training steps here"
+            )
     report["speedup"] = round(epoch["before"] / epoch["after"], 3)
-    print(f"after / before epoch time: {epoch['after'] / epoch['before']:.3f} ({report['speedup']:.2f}x the training windows per minute)")
+    print(
+        f"after / before epoch time: {epoch['after'] / epoch['before']:.3f} ({report['speedup']:.2f}x the training windows per minute)"
+    )
     if "training_min" in report["before"] and "training_min" in report["after"]:
         report["training_ratio"] = round(report["after"]["training_min"] / report["before"]["training_min"], 3)
         print(f"after / before training run: {report['training_ratio']:.3f}")

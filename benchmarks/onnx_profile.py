@@ -77,8 +77,15 @@ def profile(graph: bytes, inputs: dict, steps: int) -> dict:
         "kernels_us": round(kernels, 1),
         # the profiler's own cost inflates short kernels: "us" is its time, "of_step_us" the
         # op type's share of the kernel time applied to the unprofiled step time
-        "per_op": {op: {"us": round(t / runs, 1), "share": round(t / sum(per_op.values()), 3), "of_step_us": round(t / sum(per_op.values()) * p50, 1),
-                        "nodes": nodes[op] // runs} for op, t in per_op.most_common()},
+        "per_op": {
+            op: {
+                "us": round(t / runs, 1),
+                "share": round(t / sum(per_op.values()), 3),
+                "of_step_us": round(t / sum(per_op.values()) * p50, 1),
+                "nodes": nodes[op] // runs,
+            }
+            for op, t in per_op.most_common()
+        },
     }
 
 
@@ -96,8 +103,13 @@ def main() -> None:
         for n in args.streams:
             r = profile(graph, feeds(model, form, styles, n), args.steps if n == 1 else max(10, args.steps // 10))
             report[f"{name}, {n} streams"] = r
-            top = ", ".join(f"{op} {100 * v['share']:.0f} % ({v['nodes']} nodes)" for op, v in list(r["per_op"].items())[:5])
-            print(f"{name:14s} {n:5d} streams: step p50 {r['step_p50_us']:.0f} us; kernel time by op type: {top}", flush=True)
+            top = ", ".join(
+                f"{op} {100 * v['share']:.0f} % ({v['nodes']} nodes)" for op, v in list(r["per_op"].items())[:5]
+            )
+            print(
+                f"{name:14s} {n:5d} streams: step p50 {r['step_p50_us']:.0f} us; kernel time by op type: {top}",
+                flush=True,
+            )
     atomic_write_text(Path(args.out), json.dumps(report, indent=1) + "\n")
     print(f"wrote {args.out}")
 

@@ -34,7 +34,9 @@ def main() -> None:
     walk = _model_walk(model, 4.0)
     N = args.streams
     rot, pos = np.repeat(walk.rotations[:, None], N, 1), np.repeat(walk.positions[:, None], N, 1)
-    st = stylizer.StreamStylizer(model, "normal", "walk", {"elderly": 1.0}, n_streams=N, backend="numba", threads=args.threads)
+    st = stylizer.StreamStylizer(
+        model, "normal", "walk", {"elderly": 1.0}, n_streams=N, backend="numba", threads=args.threads
+    )
     spent: dict[str, float] = {}
 
     def timed(module, name: str, label: str) -> None:
@@ -59,7 +61,9 @@ def main() -> None:
     peak = matmul_peak(args.threads)
     print(f"{N:,} streams, {args.threads} threads; matmul peak {peak / 1e9:.1f} GFLOP/s")
     rounds = []
-    print("| round | step (us) | features | network | root on heading | the rest | frames/s | fraction of peak |\n| --- | --- | --- | --- | --- | --- | --- | --- |")
+    print(
+        "| round | step (us) | features | network | root on heading | the rest | frames/s | fraction of peak |\n| --- | --- | --- | --- | --- | --- | --- | --- |"
+    )
     for r in range(args.rounds):
         spent.clear()
         t0 = time.perf_counter()
@@ -69,12 +73,22 @@ def main() -> None:
         parts = {k: v / args.steps * 1e6 for k, v in spent.items()}
         rest = total - sum(parts.values())
         fps = N / total * 1e6
-        cells = " | ".join(f"{parts[k]:.0f} ({100 * parts[k] / total:.0f} %)" for k in ("features", "network", "root_on_heading"))
-        print(f"| {r + 1} | {total:.0f} | {cells} | {rest:.0f} ({100 * rest / total:.0f} %) | {fps:,.0f} | {fps * flops_per_frame(model) / peak:.3f} |")
+        cells = " | ".join(
+            f"{parts[k]:.0f} ({100 * parts[k] / total:.0f} %)" for k in ("features", "network", "root_on_heading")
+        )
+        print(
+            f"| {r + 1} | {total:.0f} | {cells} | {rest:.0f} ({100 * rest / total:.0f} %) | {fps:,.0f} | {fps * flops_per_frame(model) / peak:.3f} |"
+        )
         rounds.append({"step_us": round(total, 1), **{f"{k}_us": round(v, 1) for k, v in parts.items()}, "rest_us": round(rest, 1),
                        "frames_per_s": round(fps), "fraction_of_peak": round(fps * flops_per_frame(model) / peak, 4)})  # fmt: skip
     if args.json:
-        report = {"streams": N, "threads": args.threads, "steps": args.steps, "matmul_peak_gflops": round(peak / 1e9, 1), "rounds": rounds}
+        report = {
+            "streams": N,
+            "threads": args.threads,
+            "steps": args.steps,
+            "matmul_peak_gflops": round(peak / 1e9, 1),
+            "rounds": rounds,
+        }
         Path(args.json).write_text(json.dumps(report, indent=1) + "\n")
         print(f"wrote {args.json}")
 

@@ -49,7 +49,13 @@ from styleerd.train.validation import frechet_distance
 
 UNSEEN = ("happy", "sad", "angry", "proud", "not-confident", "childish", "musical", "giant", "chimpira")
 KEPT_BACK = ("walk-back", "dash", "byebye", "guide")  # and the second walk take
-TRAINED_IN_BOTH = {"active": "active", "elderly": "old", "exhausted": "tired", "feminine": "feminine", "masculine": "masculinity"}
+TRAINED_IN_BOTH = {
+    "active": "active",
+    "elderly": "old",
+    "exhausted": "tired",
+    "feminine": "feminine",
+    "masculine": "masculinity",
+}
 LOCOMOTION = ("walk", "walk-back", "dash", "run", "walk-left", "walk-right")  # FMD compares like with like
 
 
@@ -61,7 +67,13 @@ def bandai1(model, data_dir: str | None, window: int):
     """Bandai-1 normalised as the model's inputs, and per clip whether it is kept back."""
     fs = prepare("bandai-namco-1", data_dir)
     stats = model.stats()
-    data = TrainingData(torch.from_numpy(stats.normalize(fs.features).astype(np.float32)), sorted(set(fs.styles.tolist())), sorted(set(fs.contents.tolist())), window, stats)
+    data = TrainingData(
+        torch.from_numpy(stats.normalize(fs.features).astype(np.float32)),
+        sorted(set(fs.styles.tolist())),
+        sorted(set(fs.contents.tolist())),
+        window,
+        stats,
+    )
     held = np.array([kept_back(n, c) for n, c in zip(fs.names, fs.contents)])
     return fs, data, held
 
@@ -69,7 +81,12 @@ def bandai1(model, data_dir: str | None, window: int):
 def windows_of(fs, data: TrainingData, clips: np.ndarray, stride: int) -> WindowSet:
     starts = window_starts(fs.clip_start, clips, data.window, stride)
     clip = np.searchsorted(fs.clip_start, starts, side="right") - 1
-    return WindowSet(starts, np.array([data.styles.index(s) for s in fs.styles[clip]]), np.array([data.contents.index(c) for c in fs.contents[clip]]), clip)
+    return WindowSet(
+        starts,
+        np.array([data.styles.index(s) for s in fs.styles[clip]]),
+        np.array([data.contents.index(c) for c in fs.contents[clip]]),
+        clip,
+    )
 
 
 def played(model, rot: torch.Tensor, trajectory: np.ndarray, fps: float) -> torch.Tensor:
@@ -87,7 +104,21 @@ def played(model, rot: torch.Tensor, trajectory: np.ndarray, fps: float) -> torc
 
 
 @torch.no_grad()
-def judged(model, x, style_in, content, target, trajectory, recogniser, content_rec, fmd, reference, real_feats, style_index, content_labels):
+def judged(
+    model,
+    x,
+    style_in,
+    content,
+    target,
+    trajectory,
+    recogniser,
+    content_rec,
+    fmd,
+    reference,
+    real_feats,
+    style_index,
+    content_labels,
+):
     """SRA, CRA and FMD of ``model``'s transfers of windows ``x`` (target None: the input as is),
     read from the network's channels (as training validates) and from the motion as played."""
     if target is None:
@@ -96,10 +127,23 @@ def judged(model, x, style_in, content, target, trajectory, recogniser, content_
         rot, vel, _ = model(x, style_in, content, target)
         ch = model.motion_channels(rot, vel)
     channels = {"": ch, "_played": played(model, rot, trajectory, 30.0)}
-    return scores(rot, channels, model.config.contents, recogniser, content_rec, fmd, reference, real_feats, style_index, content_labels)
+    return scores(
+        rot,
+        channels,
+        model.config.contents,
+        recogniser,
+        content_rec,
+        fmd,
+        reference,
+        real_feats,
+        style_index,
+        content_labels,
+    )
 
 
-def scores(rot, channels: dict, contents, recogniser, content_rec, fmd, reference, real_feats, style_index, content_labels) -> dict:
+def scores(
+    rot, channels: dict, contents, recogniser, content_rec, fmd, reference, real_feats, style_index, content_labels
+) -> dict:
     out = {"fmd": round(frechet_distance(fmd_features(fmd, rot, reference), real_feats), 3)}
     for suffix, ch in channels.items():
         read = content_rec(ch).argmax(-1).numpy()
@@ -110,7 +154,9 @@ def scores(rot, channels: dict, contents, recogniser, content_rec, fmd, referenc
 
 
 @torch.no_grad()
-def judged_from_start(model, base, style, x, content_labels, trajectory, recogniser, content_rec, fmd, reference, real_feats, style_index) -> dict:
+def judged_from_start(
+    model, base, style, x, content_labels, trajectory, recogniser, content_rec, fmd, reference, real_feats, style_index
+) -> dict:
     """The same figures for a model trained with ``style`` from the start (its own labels and
     normalisation; read as played, in the judges' normalisation)."""
     c, n = model.config, len(x)
@@ -122,7 +168,18 @@ def judged_from_start(model, base, style, x, content_labels, trajectory, recogni
     target = torch.zeros(n, len(c.styles))
     target[:, c.styles.index(style)] = 1.0
     rot, _, _ = model(x2, style_in, content, target)
-    return scores(rot, {"_played": played(base, rot, trajectory, 30.0)}, base.config.contents, recogniser, content_rec, fmd, reference, real_feats, style_index, content_labels)
+    return scores(
+        rot,
+        {"_played": played(base, rot, trajectory, 30.0)},
+        base.config.contents,
+        recogniser,
+        content_rec,
+        fmd,
+        reference,
+        real_feats,
+        style_index,
+        content_labels,
+    )
 
 
 def main() -> None:
@@ -131,11 +188,21 @@ def main() -> None:
     ap.add_argument("--styles", nargs="+", default=list(UNSEEN))
     ap.add_argument("--steps", type=int, default=AddStyleConfig.steps)
     ap.add_argument("--threads", type=int, default=2)
-    ap.add_argument("--critic-positions-only", action="store_true", help="the added styles' critic reads positions and velocities only (default: as the model's own critic)")
+    ap.add_argument(
+        "--critic-positions-only",
+        action="store_true",
+        help="the added styles' critic reads positions and velocities only (default: as the model's own critic)",
+    )
     ap.add_argument("--runs", default="runs/unseen-styles")
     ap.add_argument("--out", default="docs/unseen-styles.json")
-    ap.add_argument("--from-start", default="styleerd/models/styleerd-bandai12", help="a model trained with the styles from the start (configs/bandai12.yaml), judged beside")
-    ap.add_argument("--filmstrip", default="docs/added-styles.png", help="picture of one walk in added styles ('' for none)")
+    ap.add_argument(
+        "--from-start",
+        default="styleerd/models/styleerd-bandai12",
+        help="a model trained with the styles from the start (configs/bandai12.yaml), judged beside",
+    )
+    ap.add_argument(
+        "--filmstrip", default="docs/added-styles.png", help="picture of one walk in added styles ('' for none)"
+    )
     ap.add_argument("--filmstrip-styles", nargs=3, default=["happy", "sad", "angry"])
     args = ap.parse_args()
     torch.set_num_threads(args.threads)
@@ -153,7 +220,23 @@ def main() -> None:
     visible = slice(L.positions.start, L.velocities.stop)
     torch.manual_seed(0)
     recogniser, _ = train_classifier(data, held_ws, held_ws, "style", False, visible, 12, 1e-3, 0)
-    ceiling = {s: round(accuracy(recogniser, data, WindowSet(*(a[adapt_ws.style == data.styles.index(s)] for a in (adapt_ws.starts, adapt_ws.style, adapt_ws.content, adapt_ws.clip))), "style"), 4) for s in args.styles}
+    ceiling = {
+        s: round(
+            accuracy(
+                recogniser,
+                data,
+                WindowSet(
+                    *(
+                        a[adapt_ws.style == data.styles.index(s)]
+                        for a in (adapt_ws.starts, adapt_ws.style, adapt_ws.content, adapt_ws.clip)
+                    )
+                ),
+                "style",
+            ),
+            4,
+        )
+        for s in args.styles
+    }
     report["recogniser"] = {"trained_on": "the kept-back Bandai-1 clips of all 15 styles", "windows": len(held_ws.starts),
                             "accuracy_on_adaptation_clips_overall": round(accuracy(recogniser, data, adapt_ws, "style"), 4)}  # fmt: skip
     _, content_rec, _ = ckpt.load_recognisers()
@@ -168,14 +251,20 @@ def main() -> None:
     # the content: neutral Bandai-2 test windows of walk and run
     s = setup(replace(config, stride=config.window), args.data, progress=False)
     test = windows(s.fs, s.data, "test", 4)
-    pick = (test.style == s.data.styles.index(base.config.neutral_style)) & np.isin(test.content, [s.data.contents.index("walk"), s.data.contents.index("run")])
+    pick = (test.style == s.data.styles.index(base.config.neutral_style)) & np.isin(
+        test.content, [s.data.contents.index("walk"), s.data.contents.index("run")]
+    )
     x = s.data.gather(test.starts[pick])
     style_in = s.data.onehot_style(test.style[pick])
     content = s.data.onehot_content(test.content[pick])
     content_labels = test.content[pick]
     trajectory = s.fs.trajectory[test.starts[pick][:, None] + np.arange(config.window)]
     content_ceiling = round(float((content_rec(x).argmax(-1).numpy() == content_labels).mean()), 4)
-    report["content"] = {"windows": int(pick.sum()), "contents": ["walk", "run"], "content_recogniser_ceiling": content_ceiling}
+    report["content"] = {
+        "windows": int(pick.sum()),
+        "contents": ["walk", "run"],
+        "content_recogniser_ceiling": content_ceiling,
+    }
     # what fully trained styles reach with the same judge: the shipped model's styles that
     # Bandai-1 has too, under Bandai-1's names
     report["trained_styles"] = {}
@@ -184,7 +273,21 @@ def main() -> None:
         target[:, base.config.styles.index(ours)] = 1.0
         k = data.styles.index(theirs)
         real_feats = moving_feats(held_ws, k)
-        report["trained_styles"][f"{ours} (Bandai-1: {theirs})"] = judged(base, x, style_in, content, target, trajectory, recogniser, content_rec, fmd, reference, real_feats, k, content_labels)
+        report["trained_styles"][f"{ours} (Bandai-1: {theirs})"] = judged(
+            base,
+            x,
+            style_in,
+            content,
+            target,
+            trajectory,
+            recogniser,
+            content_rec,
+            fmd,
+            reference,
+            real_feats,
+            k,
+            content_labels,
+        )
 
     paths = {c.name: c.path for c in find_clips(data_root(args.data), "bandai-namco-1")}
     runs = Path(args.runs)
@@ -195,7 +298,19 @@ def main() -> None:
             continue
         clips = [paths[n] for n in fs.names[(fs.styles == style) & ~held]]
         if not (runs / f"{style}.safetensors").is_file():  # trained before, not yet judged: judge it
-            add_style(None, style, clips, runs / style, config=AddStyleConfig(steps=args.steps, threads=args.threads, critic_rotations=False if args.critic_positions_only else None), data_dir=args.data, progress=True)
+            add_style(
+                None,
+                style,
+                clips,
+                runs / style,
+                config=AddStyleConfig(
+                    steps=args.steps,
+                    threads=args.threads,
+                    critic_rotations=False if args.critic_positions_only else None,
+                ),
+                data_dir=args.data,
+                progress=True,
+            )
         G2, meta2 = ckpt.load_generator(runs / style)
         added = meta2["added_styles"][-1]
         target = torch.zeros(len(x), len(G2.config.styles))
@@ -221,9 +336,25 @@ def main() -> None:
         model, _ = ckpt.load_generator(args.from_start)
         for style, row in report["styles"].items():
             k = data.styles.index(style)
-            row["from_start"] = judged_from_start(model, base, style, x, content_labels, trajectory, recogniser, content_rec, fmd, reference, moving_feats(held_ws, k), k)
+            row["from_start"] = judged_from_start(
+                model,
+                base,
+                style,
+                x,
+                content_labels,
+                trajectory,
+                recogniser,
+                content_rec,
+                fmd,
+                reference,
+                moving_feats(held_ws, k),
+                k,
+            )
             print(style, "from the start:", json.dumps(row["from_start"]), flush=True)
-        report["from_start_model"] = {"model": args.from_start, "training_minutes": ckpt.load_generator(args.from_start)[1]["training"].get("wall_minutes")}
+        report["from_start_model"] = {
+            "model": args.from_start,
+            "training_minutes": ckpt.load_generator(args.from_start)[1]["training"].get("wall_minutes"),
+        }
         atomic_write_text(out_path, json.dumps(report, indent=1) + "\n")
     if args.filmstrip:
         picture(args.data, runs, args.filmstrip_styles, args.filmstrip)
@@ -243,7 +374,12 @@ def picture(data_dir: str | None, runs: Path, styles: list[str], path: str) -> N
     rows = [(f"input: {clip.name} (normal, walk; Bandai-Namco-2 test split)", motion)]
     for style in styles:
         model = load_generator_weights(runs / style)
-        rows.append((f"-> {style} (added from 6 Bandai-Namco-1 clips; {model.meta['added_styles'][-1]['minutes']:.1f} min)", stylise_motion(model, motion, "normal", "walk", {style: 1.0})))
+        rows.append(
+            (
+                f"-> {style} (added from 6 Bandai-Namco-1 clips; {model.meta['added_styles'][-1]['minutes']:.1f} min)",
+                stylise_motion(model, motion, "normal", "walk", {style: 1.0}),
+            )
+        )
     filmstrip(rows, path, title="styles the shipped model never saw, added with styleerd add-style")
     print(f"wrote {path}")
 

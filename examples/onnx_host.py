@@ -87,12 +87,18 @@ class Host:
         self.left, self.right, self.feet = r["left"], r["right"], r["feet"]
         self.max_foot_speed = s["contact_speed_leg_lengths"] * r["leg_length"]
         one_hot = lambda names, name: np.eye(len(names), dtype=np.float32)[[names.index(name)]]  # noqa: E731
-        self.style, self.content = one_hot(s.get("input_styles", s["styles"]), input_style), one_hot(s["contents"], content)
+        self.style, self.content = (
+            one_hot(s.get("input_styles", s["styles"]), input_style),
+            one_hot(s["contents"], content),
+        )
         self.target = one_hot(s["styles"], style)
         self.identity = np.zeros_like(self.target)
         self.identity[:, : self.style.shape[1]] = self.style  # the input's own style, among the targets
         rows, _, width = s["state_shapes"]["h"]  # [1, N, S H] (LSTM form) or [S, N, H] (plain); N = 1 here
-        self.state = {k: [np.zeros((rows, 1, width), np.float32), np.zeros((rows, 1, width), np.float32)] for k in ("target", "identity")}
+        self.state = {
+            k: [np.zeros((rows, 1, width), np.float32), np.zeros((rows, 1, width), np.float32)]
+            for k in ("target", "identity")
+        }
         self.previous: np.ndarray | None = None  # global joint positions of the last frame
         self.unfamiliar = 0.0  # 0: the network's pose, 1: the input's pose turned by the style's change
         self.facing = np.array([0.0, 0.0, 1.0])
@@ -112,7 +118,9 @@ class Host:
         local = rot.copy()
         local[0] = qmul(inverse, rot[0])
         local *= np.where(local[:, :1] < 0, -1.0, 1.0)  # w >= 0 ...
-        local *= np.where((local * self.reference).sum(-1, keepdims=True) < 0, -1.0, 1.0)  # ... then the reference's hemisphere
+        local *= np.where(
+            (local * self.reference).sum(-1, keepdims=True) < 0, -1.0, 1.0
+        )  # ... then the reference's hemisphere
         moved = self.previous is not None
         previous = self.previous if moved else g
         relative = qrot(inverse, g - g[0])

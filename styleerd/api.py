@@ -44,7 +44,9 @@ class Stylizer:
         """Channel values ``[n_channels]`` of this frame -> the stylised frame's values."""
         return self.channels.step(np.asarray(frame, dtype=np.float64).reshape(1, self.n_channels))[0]
 
-    def set_style(self, style: str | None = None, *, intensity: float = 1.0, mix: dict[str, float] | None = None) -> None:
+    def set_style(
+        self, style: str | None = None, *, intensity: float = 1.0, mix: dict[str, float] | None = None
+    ) -> None:
         self.channels.stylizer.set_target(self.model.target(style, intensity, mix))
 
     def reset(self) -> None:
@@ -70,7 +72,9 @@ class Model:
     def __repr__(self) -> str:
         return f"<styleerd model: styles {', '.join(self.styles)}; {len(self.contents)} contents; {self.skeleton.n_joints} joints at {self.fps:g} fps>"
 
-    def target(self, style: str | None = None, intensity: float = 1.0, mix: dict[str, float] | None = None) -> dict[str, float]:
+    def target(
+        self, style: str | None = None, intensity: float = 1.0, mix: dict[str, float] | None = None
+    ) -> dict[str, float]:
         """Target weights of a style (or a mixture ``{style: weight}``) at an intensity (0 =
         neutral, 1 = the style, up to 2 exaggerates); unknown styles are refused."""
         weights = target_weights(self.weights, style, intensity, mix)
@@ -136,7 +140,17 @@ class Model:
         given (atomically: nothing is written unless the transfer succeeded). ``root_speed``:
         the root's ground speed in the target style too (else the input's root path); ``pose``: as
         for ``stylizer``."""
-        options = TransferOptions(self.target(style, intensity, mix), input_style, content, joint_map, cleanup, backend, parts=part_targets(self.weights, parts) or None, root_speed=root_speed, pose=pose)
+        options = TransferOptions(
+            self.target(style, intensity, mix),
+            input_style,
+            content,
+            joint_map,
+            cleanup,
+            backend,
+            parts=part_targets(self.weights, parts) or None,
+            root_speed=root_speed,
+            pose=pose,
+        )
         if output is not None and not isinstance(source, Motion):
             transfer_file(source, output, self.weights, self.fps, options)
             return read_motion(output)
@@ -144,7 +158,9 @@ class Model:
         out = transfer_motion(motion, self.weights, self.fps, options)
         if output is not None:
             if Path(output).suffix.lower() != ".bvh":
-                raise StyleERDError(f"{output}: a motion in memory is written as .bvh; give a file as the source for .glb or .vrm")
+                raise StyleERDError(
+                    f"{output}: a motion in memory is written as .bvh; give a file as the source for .glb or .vrm"
+                )
             bvh.write(output, out)
         return out
 

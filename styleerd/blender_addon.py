@@ -39,7 +39,9 @@ def _model(name: str = ""):
 
 
 def _items(names: tuple[str, ...], infer: bool = False) -> list[tuple[str, str, str]]:
-    return ([(INFER, "infer from the motion", "inferred online from the frames")] if infer else []) + [(n, n, n) for n in names]
+    return ([(INFER, "infer from the motion", "inferred online from the frames")] if infer else []) + [
+        (n, n, n) for n in names
+    ]
 
 
 # enum items must stay referenced while Blender shows them
@@ -59,10 +61,16 @@ def _parse_mix(text: str) -> dict[str, float] | None:
 
 class StyleERDSettings(bpy.types.PropertyGroup):
     style: bpy.props.EnumProperty(name="Style", items=_STYLES, description="the target style")
-    intensity: bpy.props.FloatProperty(name="Intensity", default=1.0, min=0.0, max=2.0, description="0 = neutral, 1 = the style, up to 2 exaggerates")
-    mix: bpy.props.StringProperty(name="Mix", default="", description="a mixture instead of the style, e.g. elderly=0.5,feminine=0.5")
+    intensity: bpy.props.FloatProperty(
+        name="Intensity", default=1.0, min=0.0, max=2.0, description="0 = neutral, 1 = the style, up to 2 exaggerates"
+    )
+    mix: bpy.props.StringProperty(
+        name="Mix", default="", description="a mixture instead of the style, e.g. elderly=0.5,feminine=0.5"
+    )
     input_style: bpy.props.EnumProperty(name="Input style", items=_INPUT_STYLES, description="the action's own style")
-    content: bpy.props.EnumProperty(name="Content", items=_CONTENTS, description="what the action does (walk, run, ...)")
+    content: bpy.props.EnumProperty(
+        name="Content", items=_CONTENTS, description="what the action does (walk, run, ...)"
+    )
     cleanup: bpy.props.BoolProperty(name="Pin planted feet", default=True)
 
 
@@ -76,7 +84,12 @@ class STYLEERD_OT_stylise_action(bpy.types.Operator):
     @classmethod
     def poll(cls, context) -> bool:
         arm = context.active_object
-        return arm is not None and arm.type == "ARMATURE" and arm.animation_data is not None and arm.animation_data.action is not None
+        return (
+            arm is not None
+            and arm.type == "ARMATURE"
+            and arm.animation_data is not None
+            and arm.animation_data.action is not None
+        )
 
     def execute(self, context):
         arm, s, scene = context.active_object, context.active_object.styleerd, context.scene
@@ -87,7 +100,12 @@ class STYLEERD_OT_stylise_action(bpy.types.Operator):
             first, last = (int(round(x)) for x in source.frame_range)
             frames = range(first, last + 1)
             motion = read_armature(arm, frames, scene.render.fps / scene.render.fps_base)
-            options = TransferOptions(target, None if s.input_style == INFER else s.input_style, None if s.content == INFER else s.content, cleanup=s.cleanup)
+            options = TransferOptions(
+                target,
+                None if s.input_style == INFER else s.input_style,
+                None if s.content == INFER else s.content,
+                cleanup=s.cleanup,
+            )
             out = transfer_motion(motion, model, model.meta["data"]["fps"], options, where=arm.name)
         except StyleERDError as e:
             self.report({"ERROR"}, str(e))

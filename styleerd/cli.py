@@ -18,7 +18,9 @@ def _data_prepare(args: argparse.Namespace) -> None:
     from styleerd.data.datasets import DATASETS
 
     for dataset in args.datasets or DATASETS:
-        fs = prepare(dataset, args.data, FeatureParams(fps=args.fps), Path(args.cache) if args.cache else None, args.workers)
+        fs = prepare(
+            dataset, args.data, FeatureParams(fps=args.fps), Path(args.cache) if args.cache else None, args.workers
+        )
         print(summary(fs))
         print(f"cache: {fs.path}\n")
 
@@ -29,8 +31,10 @@ def _info(args: argparse.Namespace) -> None:
     header, frames = bvh.stream(args.file)
     n_frames = sum(len(chunk) for chunk in frames)  # every frame checked, in bounded memory
     sk, fps = header.skeleton, header.fps
-    print(f"{args.file}: {n_frames} frames at {fps:.6g} fps ({n_frames / fps:.2f} s), {sk.n_joints} joints, "
-          f"{sum(len(c) for c in sk.channels)} channels")
+    print(
+        f"{args.file}: {n_frames} frames at {fps:.6g} fps ({n_frames / fps:.2f} s), {sk.n_joints} joints, "
+        f"{sum(len(c) for c in sk.channels)} channels"
+    )
     for j, name in enumerate(sk.names):
         depth, p = 0, sk.parents[j]
         while p >= 0:
@@ -62,9 +66,21 @@ def _train(args: argparse.Namespace) -> None:
 
 # Small models trained beside the generator: command -> (help, default output, trainer).
 HELPER_MODELS = {
-    "train-recognisers": ("train the evaluation style/content recognisers", "recognisers-bandai2", "styleerd.train.trainer:train_recognisers"),
-    "train-labeller": ("train the online style/content labeller (labels inferred when not given)", "labeller-bandai2", "styleerd.train.labeller:train_and_save"),
-    "train-fmd": ("train the FMD feature extractor (denoising autoencoder on joint rotations)", "fmd-bandai2", "styleerd.train.fmd:train_and_save"),
+    "train-recognisers": (
+        "train the evaluation style/content recognisers",
+        "recognisers-bandai2",
+        "styleerd.train.trainer:train_recognisers",
+    ),
+    "train-labeller": (
+        "train the online style/content labeller (labels inferred when not given)",
+        "labeller-bandai2",
+        "styleerd.train.labeller:train_and_save",
+    ),
+    "train-fmd": (
+        "train the FMD feature extractor (denoising autoencoder on joint rotations)",
+        "fmd-bandai2",
+        "styleerd.train.fmd:train_and_save",
+    ),
 }
 
 
@@ -94,13 +110,27 @@ def _transfer(args: argparse.Namespace) -> None:
 
     model = load_generator_weights(args.model)
     c = model.config
-    for value, names, what in ((args.input_style, c.input_styles, "--input-style"), (args.content, c.contents, "--content")):
+    for value, names, what in (
+        (args.input_style, c.input_styles, "--input-style"),
+        (args.content, c.contents, "--content"),
+    ):
         if value is not None and value not in names:
             raise StyleERDError(f"{what} {value!r} is not one of: {', '.join(names)}")
     target = target_weights(model, args.style, args.intensity, _parse_mix(args.mix) if args.mix else None)
     explicit = _read_joint_map(args.joint_map) if args.joint_map else None
     parts = part_targets(model, args.parts)  # checked once here, not once per file
-    options = TransferOptions(target, args.input_style, args.content, explicit, not args.no_cleanup, args.backend, args.mesh, parts or None, args.root_speed, args.pose)
+    options = TransferOptions(
+        target,
+        args.input_style,
+        args.content,
+        explicit,
+        not args.no_cleanup,
+        args.backend,
+        args.mesh,
+        parts or None,
+        args.root_speed,
+        args.pose,
+    )
     out = Path(args.output)
     into_folder = len(args.input) > 1 or Path(args.input[0]).is_dir() or out.is_dir() or args.output.endswith(os.sep)
     if not into_folder:
@@ -131,7 +161,11 @@ def _transfer(args: argparse.Namespace) -> None:
         sys.exit(130)
     print(f"wrote {len(pairs) - len(failed)} of {len(pairs)} files to {out}/, target {target}")
     if failed:
-        raise StyleERDError(f"{len(failed)} of {len(pairs)} files skipped: " + "; ".join(f"{src.name}: {why}" for src, why in failed[:3]) + (" ..." if len(failed) > 3 else ""))
+        raise StyleERDError(
+            f"{len(failed)} of {len(pairs)} files skipped: "
+            + "; ".join(f"{src.name}: {why}" for src, why in failed[:3])
+            + (" ..." if len(failed) > 3 else "")
+        )
 
 
 def _read_joint_map(path: str) -> dict[str, str]:
@@ -152,7 +186,9 @@ def _export_onnx(args: argparse.Namespace) -> None:
     model = load_generator_weights(args.model)
     styles = tuple(s.strip() for s in args.styles.split(",")) if args.styles else None
     export(model, args.output, "plain" if args.plain else "lstm", styles)
-    print(f"wrote {args.output} and {Path(args.output).with_suffix('.json')} (inputs, outputs and features: docs/ONNX.md)")
+    print(
+        f"wrote {args.output} and {Path(args.output).with_suffix('.json')} (inputs, outputs and features: docs/ONNX.md)"
+    )
 
 
 def _soup(args: argparse.Namespace) -> None:
@@ -173,8 +209,10 @@ def _add_style(args: argparse.Namespace) -> None:
     config = AddStyleConfig(steps=args.steps, max_minutes=args.minutes)
     explicit = _read_joint_map(args.joint_map) if args.joint_map else None
     added = add_style(args.model, args.name, args.clips, out, args.content, args.like, config, args.data, explicit)
-    print(f"added {added['name']} from {len(added['clips'])} clips ({added['frames']} frames, starting like {added['started_like']}): "
-          f"{added['steps']} steps, {added['minutes']:.1f} min; wrote {out}.safetensors")
+    print(
+        f"added {added['name']} from {len(added['clips'])} clips ({added['frames']} frames, starting like {added['started_like']}): "
+        f"{added['steps']} steps, {added['minutes']:.1f} min; wrote {out}.safetensors"
+    )
 
 
 def _styles(args: argparse.Namespace) -> None:
@@ -182,7 +220,14 @@ def _styles(args: argparse.Namespace) -> None:
 
     if args.model:
         return _model_styles(args.model)
-    shipped = sorted((p.with_suffix("") for p in MODELS_DIR.glob("*.json") if json.loads(p.read_text()).get("kind") == "styleerd-generator"), key=lambda p: (p.name != DEFAULT_MODEL, p.name))
+    shipped = sorted(
+        (
+            p.with_suffix("")
+            for p in MODELS_DIR.glob("*.json")
+            if json.loads(p.read_text()).get("kind") == "styleerd-generator"
+        ),
+        key=lambda p: (p.name != DEFAULT_MODEL, p.name),
+    )
     for i, stem in enumerate(shipped):  # the default model first
         if i:
             print()
@@ -199,9 +244,13 @@ def _model_styles(name: str | None) -> None:
     c = model.config
     print(f"styles:   {', '.join(c.styles)} (neutral: {c.neutral_style})")
     for added in meta.get("added_styles", []):
-        print(f"added:    {added['name']} (a target only), from {len(added['clips'])} clips ({added['frames']} frames) in {added['minutes']:.1f} min")
+        print(
+            f"added:    {added['name']} (a target only), from {len(added['clips'])} clips ({added['frames']} frames) in {added['minutes']:.1f} min"
+        )
     print(f"contents: {', '.join(model.config.contents)}")
-    print(f"skeleton: {model.skeleton.n_joints} joints, trained at {meta['data']['fps']:g} fps on {meta['data']['dataset']}")
+    print(
+        f"skeleton: {model.skeleton.n_joints} joints, trained at {meta['data']['fps']:g} fps on {meta['data']['dataset']}"
+    )
     print(f"licence:  {meta.get('licence', LICENCE)}")
 
 
@@ -210,7 +259,12 @@ def _evaluate(args: argparse.Namespace) -> None:
 
     if args.json:
         check_output(args.json)
-    report = evaluate(Path(args.model) if args.model else None, args.data, args.split, recognisers=Path(args.recognisers) if args.recognisers else None)
+    report = evaluate(
+        Path(args.model) if args.model else None,
+        args.data,
+        args.split,
+        recognisers=Path(args.recognisers) if args.recognisers else None,
+    )
     print(json.dumps(report, indent=1))
     if args.json:
         from styleerd.atomic import atomic_write_text
@@ -250,9 +304,13 @@ def _eval_streamed(args: argparse.Namespace) -> None:
         check_output(args.json)
     model, _ = ckpt.load_generator(args.model)
     style_rec, content_rec, _ = ckpt.load_recognisers()
-    report = runtime_transfers(model, ckpt.load_labeller()[0], style_rec, content_rec, args.data, root_speed=args.root_speed, pose=args.pose)
+    report = runtime_transfers(
+        model, ckpt.load_labeller()[0], style_rec, content_rec, args.data, root_speed=args.root_speed, pose=args.pose
+    )
     report["summary"] = neutralisation(report, model.config.neutral_style)
-    report["root_speed_by_content_and_style"] = root_speeds(data_dir=args.data)  # the pace of each style in the training clips
+    report["root_speed_by_content_and_style"] = root_speeds(
+        data_dir=args.data
+    )  # the pace of each style in the training clips
     print(json.dumps(report, indent=1))
     if args.json:
         from styleerd.atomic import atomic_write_text
@@ -355,7 +413,11 @@ def _filmstrip(args: argparse.Namespace) -> None:
     if args.clip:
         chosen = [c for c in clips if c.name == args.clip]
     else:
-        chosen = [c for c in clips if split[c.name] == "test" and c.style == model.config.neutral_style and c.content == args.content]
+        chosen = [
+            c
+            for c in clips
+            if split[c.name] == "test" and c.style == model.config.neutral_style and c.content == args.content
+        ]
     if not chosen:
         raise StyleERDError(f"no clip {args.clip or f'(neutral {args.content} test clip)'} in bandai-namco-2")
     style_filmstrip(model, chosen[0], args.output, cards=args.cards)
@@ -379,7 +441,20 @@ def _stream_bvh(args: argparse.Namespace) -> None:
         raise StyleERDError("give --style or --mix")
     if args.output:
         check_output(args.output, args.input)
-    print(stream_bvh(args.input, args.to, args.style, args.intensity, mix, args.output, args.input_style, args.content, not args.fast, args.root_speed))
+    print(
+        stream_bvh(
+            args.input,
+            args.to,
+            args.style,
+            args.intensity,
+            mix,
+            args.output,
+            args.input_style,
+            args.content,
+            not args.fast,
+            args.root_speed,
+        )
+    )
 
 
 def _load_test(args: argparse.Namespace) -> None:
@@ -391,7 +466,18 @@ def _load_test(args: argparse.Namespace) -> None:
 def _vmc(args: argparse.Namespace) -> None:
     from styleerd.serve.vmc import run_bridge
 
-    run_bridge(args.listen, args.send, args.style, args.intensity, _parse_mix(args.mix) if args.mix else None, args.host, args.fps, args.parts, args.model, args.root_speed)
+    run_bridge(
+        args.listen,
+        args.send,
+        args.style,
+        args.intensity,
+        _parse_mix(args.mix) if args.mix else None,
+        args.host,
+        args.fps,
+        args.parts,
+        args.model,
+        args.root_speed,
+    )
 
 
 def _demo(args: argparse.Namespace) -> None:
@@ -445,7 +531,15 @@ MODEL_HELP = "a model file, or a model name in $STYLEERD_MODELS or among the shi
 GROUPS = {
     "use": ("transfer", "styles", "info", "resample", "export-onnx", "demo"),
     "live": ("serve", "stream-bvh", "vmc", "load-test"),
-    "train (styleerd[train])": ("data", "train", "add-style", "soup", "train-labeller", "train-recognisers", "train-fmd"),
+    "train (styleerd[train])": (
+        "data",
+        "train",
+        "add-style",
+        "soup",
+        "train-labeller",
+        "train-recognisers",
+        "train-fmd",
+    ),
     "evaluate (styleerd[train])": ("evaluate", "eval", "eval-runtime", "bench", "report", "filmstrip"),
 }
 
@@ -461,7 +555,11 @@ def _grouped(helps: dict[str, str]) -> str:
 def build_parser() -> argparse.ArgumentParser:
     from styleerd.models import LICENCE, shipped_styles
 
-    parser = _Parser(prog="styleerd", description="Online motion style transfer (Style-ERD), frame by frame, on a CPU.", formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser = _Parser(
+        prog="styleerd",
+        description="Online motion style transfer (Style-ERD), frame by frame, on a CPU.",
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND", help="one of the commands below")
     helps: dict[str, str] = {}
 
@@ -493,18 +591,37 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--out", help="run folder (default runs/<name>)")
     p.add_argument("--data", help="data folder")
     p.add_argument("--export", help="also write the best generator to this model path (no suffix)")
-    p.add_argument("--device", help="train on this torch device (e.g. cuda) instead of the config's; a run may resume on another")
+    p.add_argument(
+        "--device", help="train on this torch device (e.g. cuda) instead of the config's; a run may resume on another"
+    )
     p.set_defaults(func=_train)
 
-    p = command("add-style", "a new style from 1 to 20 clips of it, on any skeleton: trains one more branch, every old style unchanged")
+    p = command(
+        "add-style",
+        "a new style from 1 to 20 clips of it, on any skeleton: trains one more branch, every old style unchanged",
+    )
     p.add_argument("name", help="the new style's name (lower case, e.g. sneaky)")
-    p.add_argument("clips", nargs="+", help="BVH or glTF/VRM clips of the style (any humanoid skeleton and frame rate, retargeted as transfer does)")
-    p.add_argument("-o", "--output", required=True, help="the new model file (e.g. models/mine): the old model plus the new style")
+    p.add_argument(
+        "clips",
+        nargs="+",
+        help="BVH or glTF/VRM clips of the style (any humanoid skeleton and frame rate, retargeted as transfer does)",
+    )
+    p.add_argument(
+        "-o", "--output", required=True, help="the new model file (e.g. models/mine): the old model plus the new style"
+    )
     p.add_argument("--model", help=MODEL_HELP)
-    p.add_argument("--content", nargs="+", help="the clips' content, e.g. walk (one for all, or one per clip; default: inferred online)")
-    p.add_argument("--like", help="start the new branch from this style's (default: the style the labeller finds closest)")
+    p.add_argument(
+        "--content",
+        nargs="+",
+        help="the clips' content, e.g. walk (one for all, or one per clip; default: inferred online)",
+    )
+    p.add_argument(
+        "--like", help="start the new branch from this style's (default: the style the labeller finds closest)"
+    )
     p.add_argument("--steps", type=_whole(1), default=1200, help="training steps (default 1200)")
-    p.add_argument("--minutes", type=_positive, default=8.0, help="stop after this many minutes of training (default 8)")
+    p.add_argument(
+        "--minutes", type=_positive, default=8.0, help="stop after this many minutes of training (default 8)"
+    )
     p.add_argument("--joint-map", help="JSON object {model joint: clip joint} completing the automatic mapping")
     p.add_argument("--data", help="data folder (the neutral clips of the model's dataset are the content to stylise)")
     p.set_defaults(func=_add_style)
@@ -522,35 +639,95 @@ def build_parser() -> argparse.ArgumentParser:
         p.add_argument("--data", help="data folder")
         p.set_defaults(func=_train_helper)
 
-    p = command("transfer", "stylise BVH, glTF/VRM or FBX motion on any humanoid skeleton; several files or folders at once")
-    p.add_argument("input", nargs="+", help="IN.bvh, IN.glb / .gltf / .vrm (its first skin and animation; written back as the same file) or IN.fbx (through Blender: styleerd[blender]); several files or folders with -o DIR")
-    p.add_argument("--style", help=f"target style; the shipped model's: {', '.join(shipped_styles())} ('styleerd styles --model M' for another)")
+    p = command(
+        "transfer", "stylise BVH, glTF/VRM or FBX motion on any humanoid skeleton; several files or folders at once"
+    )
+    p.add_argument(
+        "input",
+        nargs="+",
+        help="IN.bvh, IN.glb / .gltf / .vrm (its first skin and animation; written back as the same file) or IN.fbx (through Blender: styleerd[blender]); several files or folders with -o DIR",
+    )
+    p.add_argument(
+        "--style",
+        help=f"target style; the shipped model's: {', '.join(shipped_styles())} ('styleerd styles --model M' for another)",
+    )
     p.add_argument("--intensity", type=float, default=1.0, help="0 = neutral, 1 = full style, up to 2")
     p.add_argument("--mix", help="a mixture instead of --style, e.g. elderly=0.5,feminine=0.5 (scaled by --intensity)")
-    p.add_argument("--parts", help="body parts with targets of their own, the others following --style/--mix: PART=STYLE[:INTENSITY] or PART=input (its own motion), "
-                   "parts legs, torso, head, arms; e.g. legs=elderly,torso=exhausted:0.5,arms=input")
+    p.add_argument(
+        "--parts",
+        help="body parts with targets of their own, the others following --style/--mix: PART=STYLE[:INTENSITY] or PART=input (its own motion), "
+        "parts legs, torso, head, arms; e.g. legs=elderly,torso=exhausted:0.5,arms=input",
+    )
     p.add_argument("--input-style", help="the input's style (default: inferred online from the frames)")
     p.add_argument("--content", help="the input's content, e.g. walk (default: inferred online)")
-    p.add_argument("--backend", default="numpy", choices=["torch", "numpy", "numba", "onnx", "onnx-plain"], help="network step backend (default numpy; torch is the reference; numba is the fastest)")
-    p.add_argument("--no-cleanup", action="store_true", help="leave the feet as the network outputs them (default: pin planted feet)")
-    p.add_argument("--root-speed", action="store_true", help="the root's ground speed in the target style too (from the network; default: the input's root path as it is)")
+    p.add_argument(
+        "--backend",
+        default="numpy",
+        choices=["torch", "numpy", "numba", "onnx", "onnx-plain"],
+        help="network step backend (default numpy; torch is the reference; numba is the fastest)",
+    )
+    p.add_argument(
+        "--no-cleanup",
+        action="store_true",
+        help="leave the feet as the network outputs them (default: pin planted feet)",
+    )
+    p.add_argument(
+        "--root-speed",
+        action="store_true",
+        help="the root's ground speed in the target style too (from the network; default: the input's root path as it is)",
+    )
     p.add_argument("--pose", choices=POSES, default="input", help=POSE_HELP)
-    p.add_argument("--joint-map", help="JSON object {model joint: input joint} completing or overriding the automatic mapping")
+    p.add_argument(
+        "--joint-map", help="JSON object {model joint: input joint} completing or overriding the automatic mapping"
+    )
     p.add_argument("--model", help=MODEL_HELP)
-    p.add_argument("-o", "--output", required=True, help="OUT.bvh (the input's skeleton and channel layout), OUT.glb, OUT.fbx, or from a glTF input OUT.glb/.vrm (the input file, animation replaced); a folder for several inputs")
+    p.add_argument(
+        "-o",
+        "--output",
+        required=True,
+        help="OUT.bvh (the input's skeleton and channel layout), OUT.glb, OUT.fbx, or from a glTF input OUT.glb/.vrm (the input file, animation replaced); a folder for several inputs",
+    )
     p.add_argument("--jobs", type=_whole(1), help="with several inputs: worker processes (default: one per core)")
-    p.add_argument("--timeout", type=float, default=600.0, help="with several inputs: seconds a file may take before it is skipped (default 600)")
-    p.add_argument("--max-memory", type=float, help="with several inputs: GiB a worker may use before its file is skipped (default: no limit)")
-    p.add_argument("--resume", action="store_true", help="with several inputs: skip the outputs already written (writes are atomic: they are complete)")
-    p.add_argument("--to", choices=["bvh", "glb", "fbx"], help="with several inputs: the outputs' kind (default: each input's own)")
-    p.add_argument("--mesh", action="store_true", help=".glb: add a simple skinned body (a prism per bone, its front marked) so the file shows in any viewer")
+    p.add_argument(
+        "--timeout",
+        type=float,
+        default=600.0,
+        help="with several inputs: seconds a file may take before it is skipped (default 600)",
+    )
+    p.add_argument(
+        "--max-memory",
+        type=float,
+        help="with several inputs: GiB a worker may use before its file is skipped (default: no limit)",
+    )
+    p.add_argument(
+        "--resume",
+        action="store_true",
+        help="with several inputs: skip the outputs already written (writes are atomic: they are complete)",
+    )
+    p.add_argument(
+        "--to", choices=["bvh", "glb", "fbx"], help="with several inputs: the outputs' kind (default: each input's own)"
+    )
+    p.add_argument(
+        "--mesh",
+        action="store_true",
+        help=".glb: add a simple skinned body (a prism per bone, its front marked) so the file shows in any viewer",
+    )
     p.set_defaults(func=_transfer)
 
-    p = command("export-onnx", "the network step as an ONNX graph (LSTM ops, opset 15) with explicit state, for engines")
+    p = command(
+        "export-onnx", "the network step as an ONNX graph (LSTM ops, opset 15) with explicit state, for engines"
+    )
     p.add_argument("--model", help=MODEL_HELP)
     p.add_argument("-o", "--output", default="stylizer.onnx")
-    p.add_argument("--styles", help="only these styles' branches, e.g. elderly,feminine: a smaller, faster graph (default: every style)")
-    p.add_argument("--plain", action="store_true", help="the LSTM cells written out as MatMul/Sigmoid/Tanh (for runtimes without the LSTM op)")
+    p.add_argument(
+        "--styles",
+        help="only these styles' branches, e.g. elderly,feminine: a smaller, faster graph (default: every style)",
+    )
+    p.add_argument(
+        "--plain",
+        action="store_true",
+        help="the LSTM cells written out as MatMul/Sigmoid/Tanh (for runtimes without the LSTM op)",
+    )
     p.set_defaults(func=_export_onnx)
 
     p = command("styles", "styles and contents of each shipped model (or of --model)")
@@ -565,50 +742,97 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--json", help="also write the figures to this JSON file")
     p.set_defaults(func=_evaluate)
 
-    p = command("eval-runtime", "label inference accuracy, foot skate before/after cleanup, pop at a style switch (test split)")
+    p = command(
+        "eval-runtime", "label inference accuracy, foot skate before/after cleanup, pop at a style switch (test split)"
+    )
     p.add_argument("--model", help=MODEL_HELP)
     p.add_argument("--data", help="data folder")
     p.set_defaults(func=_eval_runtime)
 
-    ev = command("eval", "quality figures: FMD, SRA, CRA, responsiveness, ablations").add_subparsers(dest="eval_command", required=True)
-    p = ev.add_parser("quality", help="FMD (and its floor), SRA, CRA, responsiveness, jitter, reconstruction of one model")
+    ev = command("eval", "quality figures: FMD, SRA, CRA, responsiveness, ablations").add_subparsers(
+        dest="eval_command", required=True
+    )
+    p = ev.add_parser(
+        "quality", help="FMD (and its floor), SRA, CRA, responsiveness, jitter, reconstruction of one model"
+    )
     p.add_argument("--model", help=MODEL_HELP)
-    p.add_argument("--split", choices=("test", "val"), default="test", help="val: to choose between models without looking at the test set")
+    p.add_argument(
+        "--split",
+        choices=("test", "val"),
+        default="test",
+        help="val: to choose between models without looking at the test set",
+    )
     p.add_argument("--data", help="data folder")
-    p.add_argument("--json", help="also write the figures into this JSON file, under the model's name (other entries kept)")
+    p.add_argument(
+        "--json", help="also write the figures into this JSON file, under the model's name (other entries kept)"
+    )
     p.add_argument("--as-name", help="the entry's name in --json (default: the model's file name, or shipped)")
-    p.add_argument("--pose", choices=POSES, default="network", help="the transfers' poses: " + POSE_HELP + " (default network: the network judged)")
+    p.add_argument(
+        "--pose",
+        choices=POSES,
+        default="network",
+        help="the transfers' poses: " + POSE_HELP + " (default network: the network judged)",
+    )
     p.set_defaults(func=_eval_quality)
-    p = ev.add_parser("streamed", help="whole test clips streamed as `transfer` runs them: styled -> neutral, neutral -> each style, labels given and inferred, judged as played")
+    p = ev.add_parser(
+        "streamed",
+        help="whole test clips streamed as `transfer` runs them: styled -> neutral, neutral -> each style, labels given and inferred, judged as played",
+    )
     p.add_argument("--model", help=MODEL_HELP)
-    p.add_argument("--root-speed", action="store_true", help="stream with the root's speed stylised (transfer --root-speed)")
+    p.add_argument(
+        "--root-speed", action="store_true", help="stream with the root's speed stylised (transfer --root-speed)"
+    )
     p.add_argument("--pose", choices=POSES, default="input", help=POSE_HELP)
     p.add_argument("--json", help="also write the figures to this JSON file")
     p.add_argument("--data", help="data folder")
     p.set_defaults(func=_eval_streamed)
-    p = ev.add_parser("recipes", help="every kept model (shipped, models/recipes, ablations) side by side: FMD vs CRA per style, back to neutral; JSON, table, trade-off plot")
+    p = ev.add_parser(
+        "recipes",
+        help="every kept model (shipped, models/recipes, ablations) side by side: FMD vs CRA per style, back to neutral; JSON, table, trade-off plot",
+    )
     p.add_argument("--out", default="docs/recipes.md", help="Markdown table (a .json and the .png plot beside it)")
-    p.add_argument("--only", nargs="*", help="evaluate only these names (as listed in the table); the other rows are kept from the existing JSON")
+    p.add_argument(
+        "--only",
+        nargs="*",
+        help="evaluate only these names (as listed in the table); the other rows are kept from the existing JSON",
+    )
     p.add_argument("--data", help="data folder")
     p.set_defaults(func=_eval_recipes)
-    p = ev.add_parser("rotations", help="joint rotations on other skeletons, swing and twist: round trip at intensity 0, and the change a style makes")
+    p = ev.add_parser(
+        "rotations",
+        help="joint rotations on other skeletons, swing and twist: round trip at intensity 0, and the change a style makes",
+    )
     p.add_argument("--model", help=MODEL_HELP)
     p.add_argument("--style", default="elderly", help="the style whose change is measured (default elderly)")
     p.add_argument("--out", default="docs/rotations.md", help="Markdown table (a .json beside it); empty: print only")
     p.add_argument("--data", help="data folder")
     p.set_defaults(func=_eval_rotations)
-    p = ev.add_parser("actions", help="held-out actions of other performers and skeletons (kicks, dances, swims ...): the action kept, the style's change, the feet")
+    p = ev.add_parser(
+        "actions",
+        help="held-out actions of other performers and skeletons (kicks, dances, swims ...): the action kept, the style's change, the feet",
+    )
     p.add_argument("--model", help=MODEL_HELP)
     p.add_argument("--out", default="docs/actions.md", help="Markdown tables (a .json beside it)")
     p.add_argument("--no-feet", action="store_true", help="only the action table")
     p.add_argument("--data", help="data folder")
     p.set_defaults(func=_eval_actions)
-    p = ev.add_parser("ablations", help="train what is missing at the shipped run's budget (resumable) and tabulate the paper's ablations")
+    p = ev.add_parser(
+        "ablations",
+        help="train what is missing at the shipped run's budget (resumable) and tabulate the paper's ablations",
+    )
     p.add_argument("--threads", type=_whole(1), default=1)
-    p.add_argument("--runs", help="run folders (checkpoints; default models/ablations/training, kept in git between sessions)")
-    p.add_argument("--device", default="cpu", help="train on this torch device (e.g. cuda); a run may resume on another")
+    p.add_argument(
+        "--runs", help="run folders (checkpoints; default models/ablations/training, kept in git between sessions)"
+    )
+    p.add_argument(
+        "--device", default="cpu", help="train on this torch device (e.g. cuda); a run may resume on another"
+    )
     p.add_argument("--no-train", action="store_true", help="only evaluate the models in models/ablations/")
-    p.add_argument("--only", nargs="*", help="evaluate only these rows (e.g. 'rec only' full); the others are kept from the existing JSON")
+    p.add_argument(
+        "--only",
+        nargs="*",
+        help="evaluate only these rows (e.g. 'rec only' full); the others are kept from the existing JSON",
+    )
     p.add_argument("--out", default="docs/ablations.md", help="Markdown table (a .json beside it)")
     p.add_argument("--data", help="data folder")
     p.set_defaults(func=_eval_ablations)
@@ -616,7 +840,9 @@ def build_parser() -> argparse.ArgumentParser:
     p = command("bench", "runtime table: latency per backend, whole clips, throughput curve, FLOPs, memory")
     p.add_argument("--model", help=MODEL_HELP)
     p.add_argument("--steps", type=_whole(1), default=2000, help="frames timed per latency figure")
-    p.add_argument("--streams", type=_whole(1), nargs="+", help="concurrent streams of the throughput curve (default 1 .. 4096)")
+    p.add_argument(
+        "--streams", type=_whole(1), nargs="+", help="concurrent streams of the throughput curve (default 1 .. 4096)"
+    )
     p.add_argument("--json", default="docs/bench.json")
     p.add_argument("--plot", default="docs/throughput.png")
     p.set_defaults(func=_bench)
@@ -624,8 +850,13 @@ def build_parser() -> argparse.ArgumentParser:
     p = command("report", "regenerate docs/RESULTS.md: quality, ablations, runtime, online figures, pictures")
     p.add_argument("--docs", default="docs")
     p.add_argument("--steps", type=_whole(1), default=2000, help="frames timed per latency figure")
-    p.add_argument("--keep", nargs="*", default=[], choices=["ablations", "bench"],
-                   help="read these parts from their JSON in --docs, not measured again (their models and code unchanged since)")
+    p.add_argument(
+        "--keep",
+        nargs="*",
+        default=[],
+        choices=["ablations", "bench"],
+        help="read these parts from their JSON in --docs, not measured again (their models and code unchanged since)",
+    )
     p.add_argument("--data", help="data folder")
     p.set_defaults(func=_report)
 
@@ -641,19 +872,33 @@ def build_parser() -> argparse.ArgumentParser:
     p = command("serve", "the real-time style server (WebSocket, docs/PROTOCOL.md) and its browser viewer")
     p.add_argument("--host", default="127.0.0.1", help="address to bind (default loopback only)")
     p.add_argument("--port", type=_port, default=8765)
-    p.add_argument("--workers", type=_whole(1), default=1, help="processes sharing the port (SO_REUSEPORT), e.g. one per core")
+    p.add_argument(
+        "--workers", type=_whole(1), default=1, help="processes sharing the port (SO_REUSEPORT), e.g. one per core"
+    )
     p.add_argument("--max-streams", type=_whole(1), default=256, help="open streams per worker")
     p.add_argument("--max-watchers", type=_whole(1), default=64, help="live viewers at once per worker")
-    p.add_argument("--max-message", type=_whole(1024), default=1 << 20, help="largest message in bytes (larger: closed with 1009)")
+    p.add_argument(
+        "--max-message", type=_whole(1024), default=1 << 20, help="largest message in bytes (larger: closed with 1009)"
+    )
     p.add_argument("--queue", type=_whole(1), default=64, help="per stream: frames waiting, and stylised frames unsent")
     p.add_argument("--backend", default="numpy", choices=["numpy", "numba", "onnx"])
     p.add_argument("--model", help=MODEL_HELP)
     p.add_argument("--data", help="data folder for the viewer's real demo clips (optional)")
     p.add_argument("--max-joints", type=_whole(1), default=512, help="joints of a stream's skeleton (default 512)")
-    p.add_argument("--allow-origin", action="append", default=[], metavar="ORIGIN",
-                   help="a web page origin (e.g. https://app.example) that may open streams besides the server's own; '*': any")
-    p.add_argument("--allow-host", action="append", default=[], metavar="NAME",
-                   help="a host name the server answers to (default: its address, and localhost names on loopback)")
+    p.add_argument(
+        "--allow-origin",
+        action="append",
+        default=[],
+        metavar="ORIGIN",
+        help="a web page origin (e.g. https://app.example) that may open streams besides the server's own; '*': any",
+    )
+    p.add_argument(
+        "--allow-host",
+        action="append",
+        default=[],
+        metavar="NAME",
+        help="a host name the server answers to (default: its address, and localhost names on loopback)",
+    )
     p.set_defaults(func=_serve)
 
     p = command("stream-bvh", "play a BVH to a style server in real time, as a mocap source")
@@ -665,15 +910,27 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--input-style")
     p.add_argument("--content")
     p.add_argument("--fast", action="store_true", help="send as fast as replies come, not in real time")
-    p.add_argument("--root-speed", action="store_true", help="the root's ground speed in the target style too (the hello's root_speed)")
+    p.add_argument(
+        "--root-speed",
+        action="store_true",
+        help="the root's ground speed in the target style too (the hello's root_speed)",
+    )
     p.add_argument("-o", "--output", help="write the stylised stream as BVH")
     p.set_defaults(func=_stream_bvh)
 
-    p = command("load-test", "N real-time stream-bvh clients against a fresh server: latency, drops, CPU (with --faulty: a soak test)")
+    p = command(
+        "load-test",
+        "N real-time stream-bvh clients against a fresh server: latency, drops, CPU (with --faulty: a soak test)",
+    )
     p.add_argument("--clients", type=_whole(1), default=200)
     p.add_argument("--seconds", type=_positive, default=60.0)
     p.add_argument("--workers", type=_whole(1), default=1, help="server workers")
-    p.add_argument("--faulty", type=_whole(0), default=0, help="soak test: this many more clients misbehave in turn (malformed frames, slow readers, vanishing, bad hellos)")
+    p.add_argument(
+        "--faulty",
+        type=_whole(0),
+        default=0,
+        help="soak test: this many more clients misbehave in turn (malformed frames, slow readers, vanishing, bad hellos)",
+    )
     p.add_argument("-o", "--output", help="write the figures as JSON")
     p.set_defaults(func=_load_test)
 
@@ -685,8 +942,15 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--intensity", type=float, default=1.0)
     p.add_argument("--mix")
     p.add_argument("--fps", type=_positive, default=30.0, help="the sender's frame rate (velocities are per second)")
-    p.add_argument("--parts", help="body parts with targets of their own, as for transfer: e.g. arms=input (tracked hands keep their own motion)")
-    p.add_argument("--root-speed", action="store_true", help="the hips move at the style's pace, as transfer --root-speed (their path drifts from the performer's)")
+    p.add_argument(
+        "--parts",
+        help="body parts with targets of their own, as for transfer: e.g. arms=input (tracked hands keep their own motion)",
+    )
+    p.add_argument(
+        "--root-speed",
+        action="store_true",
+        help="the hips move at the style's pace, as transfer --root-speed (their path drifts from the performer's)",
+    )
     p.add_argument("--model", help=MODEL_HELP)
     p.set_defaults(func=_vmc)
 

@@ -69,7 +69,9 @@ def make(work: Path) -> dict:
     bones = []
     for j, name in enumerate(sk.names):
         kids = sk.children(j)
-        direction = sk.offsets[kids[0]] if kids else np.array([0.0, 8.0, 0.0]) if "Head" in name else sk.offsets[j] * 0.5
+        direction = (
+            sk.offsets[kids[0]] if kids else np.array([0.0, 8.0, 0.0]) if "Head" in name else sk.offsets[j] * 0.5
+        )
         eb = data.edit_bones.new(f"mixamorig:{name}")
         eb.head = Y_UP_TO_BLENDER @ Vector(heads[j] * SCALE)
         eb.tail = Y_UP_TO_BLENDER @ Vector((heads[j] + direction) * SCALE)
@@ -89,7 +91,10 @@ def make(work: Path) -> dict:
         for end in (h, t):
             for s1, s2 in ((1, 1), (1, -1), (-1, -1), (-1, 1)):
                 verts.append(end + side * s1 + up * s2)
-        faces += [(base + a, base + b_, base + c, base + d) for a, b_, c, d in ((0, 1, 2, 3), (4, 7, 6, 5), (0, 4, 5, 1), (1, 5, 6, 2), (2, 6, 7, 3), (3, 7, 4, 0))]
+        faces += [
+            (base + a, base + b_, base + c, base + d)
+            for a, b_, c, d in ((0, 1, 2, 3), (4, 7, 6, 5), (0, 4, 5, 1), (1, 5, 6, 2), (2, 6, 7, 3), (3, 7, 4, 0))
+        ]
         groups.append((b.name, range(base, base + 8)))
     mesh = bpy.data.meshes.new("Body")
     mesh.from_pydata([tuple(v) for v in verts], [], faces)
@@ -115,7 +120,9 @@ def make(work: Path) -> dict:
             pb.keyframe_insert("rotation_quaternion", frame=t + 1)
             if j == 0:
                 pb.keyframe_insert("location", frame=t + 1)
-    bpy.ops.export_scene.fbx(filepath=str(work / "walk.fbx"), bake_anim=True, bake_anim_simplify_factor=0.0, add_leaf_bones=False)
+    bpy.ops.export_scene.fbx(
+        filepath=str(work / "walk.fbx"), bake_anim=True, bake_anim_simplify_factor=0.0, add_leaf_bones=False
+    )
     names, made = world_rest_relative(arm, range(1, walk.n_frames + 1))
     _, truth = bvh_world(work / "walk.bvh")
     # the character as made moves like the BVH (checks this script's own keying)
@@ -156,7 +163,12 @@ def main() -> None:
         source, _, source_meshes = imported(work / "walk.fbx")
         source_bones = sorted(b.name for b in source.data.bones)
         arm, frames, meshes = imported(work / "out.fbx")
-        result = {**compare(work, arm, frames), "meshes": meshes, "source_meshes": source_meshes, "source_bones": source_bones}
+        result = {
+            **compare(work, arm, frames),
+            "meshes": meshes,
+            "source_meshes": source_meshes,
+            "source_bones": source_bones,
+        }
     else:
         import styleerd.blender_addon as addon
 

@@ -32,7 +32,9 @@ def test_the_measures_on_hand_made_cases(demo_walk):
     frozen = Motion(m.skeleton, np.broadcast_to(m.rotations[:1], m.rotations.shape).copy(), m.positions, m.fps)
     error, corr = A.action_kept(m, frozen, jm, scale)
     assert error > 5.0 and abs(corr) < 0.05
-    lowered = Motion(m.skeleton, m.rotations, m.positions - [0.0, 5.0, 0.0] * (np.arange(m.skeleton.n_joints) == 0)[:, None], m.fps)
+    lowered = Motion(
+        m.skeleton, m.rotations, m.positions - [0.0, 5.0, 0.0] * (np.arange(m.skeleton.n_joints) == 0)[:, None], m.fps
+    )
     f = A.feet_figures(m, lowered, jm, scale)
     assert f["below_floor_cm"] == pytest.approx(5.0 * scale, abs=0.01)
     assert f["stride_cm"]["input"] == f["stride_cm"]["output"] > 30.0
@@ -49,7 +51,9 @@ def test_the_measures_on_hand_made_cases(demo_walk):
         return Motion(m.skeleton, rot, m.positions, m.fps)
 
     turned = Motion(m.skeleton, m.rotations.copy(), m.positions, m.fps)
-    turned.rotations[:, 0] = quat.mul(quat.from_angle_axis(np.array([1.2]), np.array([0.0, 1.0, 0.0])), m.rotations[:, 0])
+    turned.rotations[:, 0] = quat.mul(
+        quat.from_angle_axis(np.array([1.2]), np.array([0.0, 1.0, 0.0])), m.rotations[:, 0]
+    )
     a, b = A.style_change(m, bent(m), m, jm, scale), A.style_change(turned, bent(turned), turned, jm, scale)
     assert np.linalg.norm(a["Hand_L"]) > 1.0 and all(np.allclose(a[k], b[k], atol=1e-6) for k in a)
     assert np.abs(a["Head"]).max() == 0.0  # nothing else moved
@@ -59,7 +63,9 @@ def test_the_measures_on_hand_made_cases(demo_walk):
 def test_in_place_keeps_the_root_where_it_started():
     m = walk(2.0, fps=30.0)
     still = A.in_place(m)
-    assert np.ptp(still.positions[:, 0, [0, 2]], axis=0).max() == 0.0 and np.array_equal(still.positions[:, 0, 1], m.positions[:, 0, 1])
+    assert np.ptp(still.positions[:, 0, [0, 2]], axis=0).max() == 0.0 and np.array_equal(
+        still.positions[:, 0, 1], m.positions[:, 0, 1]
+    )
 
 
 @pytest.mark.slow
@@ -70,7 +76,9 @@ def test_held_out_actions_keep_their_action_with_the_input_pose(shared_data, mod
     Bandai-Namco-1's neutral actions are held out."""
     clips = {c.name: c for c in A.held_out_clips(str(shared_data))}
     assert all(A.held_out(n.removeprefix("cmu "), "cmu-sample") for n in clips if n.startswith("cmu "))
-    assert A.held_out("dataset-1_kick_normal_001", "bandai-namco-1", "kick", "normal") and not A.held_out("x", "bandai-namco-1", "walk", "normal")
+    assert A.held_out("dataset-1_kick_normal_001", "bandai-namco-1", "kick", "normal") and not A.held_out(
+        "x", "bandai-namco-1", "walk", "normal"
+    )
     for name in ("kick_normal_001", "cmu 002_05"):
         clip = clips[name]
         jm = A._map(clip, model)
@@ -78,7 +86,10 @@ def test_held_out_actions_keep_their_action_with_the_input_pose(shared_data, mod
         kept = {}
         for pose in ("input", "network"):
             identity, styled = A._transfers(clip, model, ["elderly"], pose)
-            kept[pose] = A.action_kept(clip.motion, identity, jm, scale), A.action_kept(clip.motion, styled["elderly"], jm, scale)
+            kept[pose] = (
+                A.action_kept(clip.motion, identity, jm, scale),
+                A.action_kept(clip.motion, styled["elderly"], jm, scale),
+            )
         (error, corr), (_, styled_corr) = kept["input"]
         assert error <= 5.0 and corr >= 0.9 and styled_corr >= 0.8, (name, kept)
         assert kept["network"][0][1] < 0.6 and kept["network"][1][1] < 0.6, (name, kept)

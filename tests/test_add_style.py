@@ -62,7 +62,9 @@ def test_old_targets_are_bit_identical_on_every_backend(models, backend):
     n_old = len(base.config.styles)
     targets = {
         "one style each": np.eye(n_old, dtype=np.float32)[[1, 2, 5]],
-        "a mixture and an intensity": np.array([[0.5, 0.5, 0, 0, 0, 0, 0], [0, 1.7, 0, 0, 0, 0, 0], [0, 0, 0.3, 0.3, 0, 0.4, 0]], np.float32),
+        "a mixture and an intensity": np.array(
+            [[0.5, 0.5, 0, 0, 0, 0, 0], [0, 1.7, 0, 0, 0, 0, 0], [0, 0, 0.3, 0.3, 0, 0.4, 0]], np.float32
+        ),
     }
     for name, t in targets.items():
         before = _run(base, backend, x, style, content, t)
@@ -94,7 +96,9 @@ def test_many_streams_take_the_numba_backends_blas_path_with_the_added_style(mod
     x, style, content = _frames(added, n=6, streams=n)
     t = np.eye(len(added.config.styles), dtype=np.float32)[np.arange(n) % len(added.config.styles)]
     t[::3, -1] += 0.5  # some mixtures with the added style
-    np.testing.assert_allclose(_run(added, "numba", x, style, content, t), _run(added, "numpy", x, style, content, t), atol=1e-5)
+    np.testing.assert_allclose(
+        _run(added, "numba", x, style, content, t), _run(added, "numpy", x, style, content, t), atol=1e-5
+    )
 
 
 def test_onnx_graph_of_the_added_style_alone(models):
@@ -108,20 +112,52 @@ def test_onnx_graph_of_the_added_style_alone(models):
 def test_saved_model_works_where_a_model_is_used(models, tmp_path):
     _, added, meta = models
     stem = tmp_path / "mine"
-    ckpt.save_tensors(stem, ckpt.prefixed("generator", added), {**meta, "config": added.config.to_dict(), "added_styles": [{"name": "sneaky", "clips": ["a.bvh"], "frames": 100, "minutes": 1.0}]})
+    ckpt.save_tensors(
+        stem,
+        ckpt.prefixed("generator", added),
+        {
+            **meta,
+            "config": added.config.to_dict(),
+            "added_styles": [{"name": "sneaky", "clips": ["a.bvh"], "frames": 100, "minutes": 1.0}],
+        },
+    )
     w = load_generator_weights(stem)
     assert w.config.styles[-1] == "sneaky" and w.config.input_styles == ckpt.load_generator()[0].config.styles
     src = tmp_path / "in.bvh"
     bvh.write(src, rig_variants(walk(2.0, fps=30.0))["Blender names and proportions, metres"])
     out = tmp_path / "out.bvh"
-    r = subprocess.run([*CLI, "transfer", str(src), "--style", "sneaky", "--model", str(stem), "-o", str(out)], capture_output=True, text=True)
+    r = subprocess.run(
+        [*CLI, "transfer", str(src), "--style", "sneaky", "--model", str(stem), "-o", str(out)],
+        capture_output=True,
+        text=True,
+    )
     assert r.returncode == 0, r.stderr
     assert bvh.read(out).n_frames == bvh.read(src).n_frames
-    r = subprocess.run([*CLI, "transfer", str(src), "--mix", "sneaky=1,elderly=1", "--parts", "arms=input", "--model", str(stem), "-o", str(tmp_path / "mix.bvh")], capture_output=True, text=True)
+    r = subprocess.run(
+        [
+            *CLI,
+            "transfer",
+            str(src),
+            "--mix",
+            "sneaky=1,elderly=1",
+            "--parts",
+            "arms=input",
+            "--model",
+            str(stem),
+            "-o",
+            str(tmp_path / "mix.bvh"),
+        ],
+        capture_output=True,
+        text=True,
+    )
     assert r.returncode == 0, r.stderr
     r = subprocess.run([*CLI, "styles", "--model", str(stem)], capture_output=True, text=True)
     assert "sneaky" in r.stdout and "added:    sneaky (a target only)" in r.stdout, r.stdout
-    r = subprocess.run([*CLI, "export-onnx", "--model", str(stem), "--styles", "sneaky", "-o", str(tmp_path / "s.onnx")], capture_output=True, text=True)
+    r = subprocess.run(
+        [*CLI, "export-onnx", "--model", str(stem), "--styles", "sneaky", "-o", str(tmp_path / "s.onnx")],
+        capture_output=True,
+        text=True,
+    )
     assert r.returncode == 0, r.stderr
     side = json.loads((tmp_path / "s.json").read_text())
     assert side["styles"][-1] == "sneaky" and "sneaky" not in side["input_styles"]
@@ -131,7 +167,23 @@ def test_saved_model_works_where_a_model_is_used(models, tmp_path):
     # an input cannot be labelled with a style the model only learned to produce
     with pytest.raises(StyleERDError, match="added to this model as a target only"):
         StreamStylizer(w, "sneaky", "walk", {"elderly": 1.0})
-    r = subprocess.run([*CLI, "transfer", str(src), "--style", "elderly", "--input-style", "sneaky", "--model", str(stem), "-o", str(tmp_path / "x.bvh")], capture_output=True, text=True)
+    r = subprocess.run(
+        [
+            *CLI,
+            "transfer",
+            str(src),
+            "--style",
+            "elderly",
+            "--input-style",
+            "sneaky",
+            "--model",
+            str(stem),
+            "-o",
+            str(tmp_path / "x.bvh"),
+        ],
+        capture_output=True,
+        text=True,
+    )
     assert r.returncode == 2 and "--input-style 'sneaky' is not one of" in r.stderr and "Traceback" not in r.stderr
 
 
@@ -144,13 +196,42 @@ def _clip(tmp: Path, name: str = "c.bvh", seconds: float = 2.0) -> str:
 BAD = {
     "no clip": (lambda t: ["add-style", "mine", "-o", str(t / "m")], "the following arguments are required"),
     "bad name": (lambda t: ["add-style", "My Style!", _clip(t), "-o", str(t / "m")], "style name 'My Style!'"),
-    "a style it has": (lambda t: ["add-style", "elderly", _clip(t), "-o", str(t / "m")], "already has a style 'elderly'"),
-    "21 clips": (lambda t: ["add-style", "mine", *[_clip(t, f"c{i}.bvh") for i in range(21)], "-o", str(t / "m")], "from 1 to 20 clips"),
-    "clip too short": (lambda t: ["add-style", "mine", _clip(t, seconds=0.2), "-o", str(t / "m")], "a clip needs at least 24"),
+    "a style it has": (
+        lambda t: ["add-style", "elderly", _clip(t), "-o", str(t / "m")],
+        "already has a style 'elderly'",
+    ),
+    "21 clips": (
+        lambda t: ["add-style", "mine", *[_clip(t, f"c{i}.bvh") for i in range(21)], "-o", str(t / "m")],
+        "from 1 to 20 clips",
+    ),
+    "clip too short": (
+        lambda t: ["add-style", "mine", _clip(t, seconds=0.2), "-o", str(t / "m")],
+        "a clip needs at least 24",
+    ),
     "clip missing": (lambda t: ["add-style", "mine", str(t / "none.bvh"), "-o", str(t / "m")], "No such file"),
-    "unknown content": (lambda t: ["add-style", "mine", _clip(t), "--content", "dance", "-o", str(t / "m")], "--content 'dance' is not one of"),
-    "contents do not match the clips": (lambda t: ["add-style", "mine", _clip(t), _clip(t, "d.bvh"), "--content", "walk", "run", "walk", "-o", str(t / "m")], "one --content for every clip"),
-    "like the neutral style": (lambda t: ["add-style", "mine", _clip(t), "--like", "normal", "-o", str(t / "m")], "--like 'normal' must be one of"),
+    "unknown content": (
+        lambda t: ["add-style", "mine", _clip(t), "--content", "dance", "-o", str(t / "m")],
+        "--content 'dance' is not one of",
+    ),
+    "contents do not match the clips": (
+        lambda t: [
+            "add-style",
+            "mine",
+            _clip(t),
+            _clip(t, "d.bvh"),
+            "--content",
+            "walk",
+            "run",
+            "walk",
+            "-o",
+            str(t / "m"),
+        ],
+        "one --content for every clip",
+    ),
+    "like the neutral style": (
+        lambda t: ["add-style", "mine", _clip(t), "--like", "normal", "-o", str(t / "m")],
+        "--like 'normal' must be one of",
+    ),
     "output folder missing": (lambda t: ["add-style", "mine", _clip(t), "-o", str(t / "no" / "m")], "does not exist"),
     "steps 0": (lambda t: ["add-style", "mine", _clip(t), "--steps", "0", "-o", str(t / "m")], "--steps"),
 }
@@ -189,7 +270,11 @@ def test_add_style_trains_from_clips_on_another_skeleton(tmp_path, shared_data):
     info = w.meta["added_styles"][-1]
     assert info["name"] == "stiff" and info["steps"] == 6 and info["contents"] == ["walk"]
     # its critic read what the shipped recipe's critic read: rotations too (critic_rotations)
-    assert base.meta["training"]["config"]["critic_rotations"] and info["critic_reads"] == ["rotations", "positions", "velocities"]
+    assert base.meta["training"]["config"]["critic_rotations"] and info["critic_reads"] == [
+        "rotations",
+        "positions",
+        "velocities",
+    ]
 
 
 def test_styles_added_one_after_another_keep_each_other(models):

@@ -4,7 +4,15 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from styleerd.data.augment import MIRRORED_CONTENT, mirror, other_performer, random_joint_offsets, with_joint_offsets, with_proportions, with_speed
+from styleerd.data.augment import (
+    MIRRORED_CONTENT,
+    mirror,
+    other_performer,
+    random_joint_offsets,
+    with_joint_offsets,
+    with_proportions,
+    with_speed,
+)
 from styleerd.model.checkpoint import load_generator
 from styleerd.model.stored import toward_neutral
 from styleerd.motion import quat
@@ -40,7 +48,10 @@ def test_mirror_reflects_every_joint_onto_its_counterpart(model_walk):
     assert np.abs(world(m)[:, counterpart] * [-1, 1, 1] - world(mm)).max() < 1e-2  # cm: the rig's own asymmetry
     back = mirror(mm, g.stats().reference)
     assert np.abs(quat.positive_w(back.rotations) - quat.positive_w(m.rotations)).max() < 1e-6
-    assert MIRRORED_CONTENT["wave-left-hand"] == "wave-right-hand" and MIRRORED_CONTENT["walk-turn-right"] == "walk-turn-left"
+    assert (
+        MIRRORED_CONTENT["wave-left-hand"] == "wave-right-hand"
+        and MIRRORED_CONTENT["walk-turn-right"] == "walk-turn-left"
+    )
 
 
 def test_proportions_speed_and_joint_offsets(model_walk):
@@ -57,7 +68,9 @@ def test_proportions_speed_and_joint_offsets(model_walk):
     # scipy: every global rotation turned by its offset in its own frame
     g0 = forward_kinematics(m.rotations, m.positions, m.skeleton.parents)[0]
     g1 = forward_kinematics(turned.rotations, turned.positions, m.skeleton.parents)[0]
-    a = Rotation.from_quat(g0.reshape(-1, 4), scalar_first=True) * Rotation.from_quat(np.tile(offsets, (m.n_frames, 1)), scalar_first=True)
+    a = Rotation.from_quat(g0.reshape(-1, 4), scalar_first=True) * Rotation.from_quat(
+        np.tile(offsets, (m.n_frames, 1)), scalar_first=True
+    )
     assert np.degrees((a.inv() * Rotation.from_quat(g1.reshape(-1, 4), scalar_first=True)).magnitude()).max() < 1e-6
     other, content = other_performer(m, "wave-left-hand", g.stats().reference, rng)
     assert content in ("wave-left-hand", "wave-right-hand") and np.isfinite(other.rotations).all()

@@ -50,9 +50,14 @@ def test_exported_graphs_pass_the_full_check_at_opset_15(model, form):
     assert proto.opset_import[0].version == OPSET <= 15
     kinds = {n.op_type for n in proto.graph.node}
     if form == "lstm":  # one LSTM op per layer of every branch (one per layer depth with one style), no cell arithmetic
-        assert sum(n.op_type == "LSTM" for n in proto.graph.node) == len(state_layers(model)) and not {"Sigmoid", "Tanh"} & kinds
+        assert (
+            sum(n.op_type == "LSTM" for n in proto.graph.node) == len(state_layers(model))
+            and not {"Sigmoid", "Tanh"} & kinds
+        )
         one = step_graph(model, form, ("elderly",))
-        assert sum(n.op_type == "LSTM" for n in one.graph.node) == max(model.config.neutral_layers, model.config.style_layers)
+        assert sum(n.op_type == "LSTM" for n in one.graph.node) == max(
+            model.config.neutral_layers, model.config.style_layers
+        )
     else:
         assert "LSTM" not in kinds and {"MatMul", "Sigmoid", "Tanh"} <= kinds
     assert [i.name for i in proto.graph.input] == ["features", "style", "content", "target", "first_frame", "h", "c"]
@@ -62,7 +67,9 @@ def test_exported_graphs_pass_the_full_check_at_opset_15(model, form):
     for styles in (("elderly",), ("elderly", "angry" if "angry" in model.config.styles else "feminine"), ()):
         grouped = step_graph(model, form, styles, grouped=True)
         assert [i.name for i in grouped.graph.input] == ["features", "style", "content", "target", "h", "c"]
-        assert "Where" not in {n.op_type for n in grouped.graph.node} and "Where" in {n.op_type for n in step_graph(model, form, styles).graph.node}
+        assert "Where" not in {n.op_type for n in grouped.graph.node} and "Where" in {
+            n.op_type for n in step_graph(model, form, styles).graph.node
+        }
         onnx.checker.check_model(grouped, full_check=True)
 
 
@@ -71,19 +78,39 @@ def test_exported_graphs_pass_the_full_check_at_opset_15(model, form):
 def test_a_graph_of_some_styles_equals_the_reference_on_them(model, form, styles):
     import onnxruntime as ort
 
-    session = ort.InferenceSession(step_graph(model, form, styles).SerializeToString(), providers=["CPUExecutionProvider"])
+    session = ort.InferenceSession(
+        step_graph(model, form, styles).SerializeToString(), providers=["CPUExecutionProvider"]
+    )
     reference = make_backend("torch", model, 3)
     c = model.config
     rows, _, width = state_shape(model, form, styles)
-    assert rows * width == (c.neutral_layers + len(styles) * c.style_layers) * c.hidden == len(state_layers(model, styles)) * c.hidden
+    assert (
+        rows * width
+        == (c.neutral_layers + len(styles) * c.style_layers) * c.hidden
+        == len(state_layers(model, styles)) * c.hidden
+    )
     h = cc = np.zeros((rows, 3, width), np.float32)
     for t, (x, s, content, _) in enumerate(schedule(model)):
         target = np.zeros((3, len(c.styles)), np.float32)
         target[0, c.styles.index(styles[t // 6 % len(styles)])] = 1.0  # a switch between the two
-        target[1, [c.styles.index(styles[0]), c.styles.index(styles[1]) if len(styles) > 1 else c.neutral_index]] = [0.4, 0.6]  # a mixture, an intensity
+        target[1, [c.styles.index(styles[0]), c.styles.index(styles[1]) if len(styles) > 1 else c.neutral_index]] = [
+            0.4,
+            0.6,
+        ]  # a mixture, an intensity
         target[2, c.neutral_index if t < 9 else c.styles.index(styles[0])] = 1.0  # its branch starts late
         ref_rot, ref_vel = reference.step(x, s, content, target)
-        rot, vel, h, cc = session.run(None, {"features": x, "style": s, "content": content, "target": target, "first_frame": np.full((3, 1), float(t == 0), np.float32), "h": h, "c": cc})
+        rot, vel, h, cc = session.run(
+            None,
+            {
+                "features": x,
+                "style": s,
+                "content": content,
+                "target": target,
+                "first_frame": np.full((3, 1), float(t == 0), np.float32),
+                "h": h,
+                "c": cc,
+            },
+        )
         assert np.abs(rot - ref_rot).max() <= 1e-5 and np.abs(vel - ref_vel).max() <= 1e-4, t
     with pytest.raises(StyleERDError, match="no style branch for angry"):
         step_graph(model, "lstm", ("angry",))
@@ -225,15 +252,25 @@ def test_onnx_backend_runs_many_streams_on_a_graph_of_one_op_per_layer(model):
     ref, onnx_ = make_backend("numpy", model, n), make_backend("onnx", model, n)
     rng = np.random.default_rng(2)
     one = lambda k, i: np.eye(k, dtype=np.float32)[np.full(n, i)]  # noqa: E731
-    style, content, target = one(len(c.input_styles), c.neutral_index), one(len(c.contents), 4), one(len(c.styles), c.styles.index("elderly"))
+    style, content, target = (
+        one(len(c.input_styles), c.neutral_index),
+        one(len(c.contents), 4),
+        one(len(c.styles), c.styles.index("elderly")),
+    )
     for t in range(6):
         rows = np.arange(3) if t % 2 else None  # a few streams, then all
         sel = slice(None) if rows is None else rows
         x = rng.normal(0, 1, (n, c.feature_dim)).astype(np.float32)[sel]
-        want, got = ref.step(x, style[sel], content[sel], target[sel], rows), onnx_.step(x, style[sel], content[sel], target[sel], rows)
+        want, got = (
+            ref.step(x, style[sel], content[sel], target[sel], rows),
+            onnx_.step(x, style[sel], content[sel], target[sel], rows),
+        )
         assert np.abs(got[0] - want[0]).max() <= 1e-5, t
     assert set(onnx_.graphs) == {(("elderly",), None), (("elderly",), False)}
-    counts = {fuse: sum(node.op_type == "LSTM" for node in step_graph(model, "lstm", ("elderly",), fuse).graph.node) for fuse in (True, False)}
+    counts = {
+        fuse: sum(node.op_type == "LSTM" for node in step_graph(model, "lstm", ("elderly",), fuse).graph.node)
+        for fuse in (True, False)
+    }
     assert counts == {True: max(c.neutral_layers, c.style_layers), False: c.neutral_layers + c.style_layers}
 
 
@@ -252,7 +289,9 @@ def test_a_stylizer_on_threads_runs_onnxruntime_on_them(model):
         st.backend.step = lambda *a: calls.append((threading.current_thread().name, len(a[0]))) or step(*a)
         st.step(np.zeros((300, J, 4)) + [1, 0, 0, 0], np.zeros((300, J, 3)))
         # two threads: the caller's and one of the stylizer's pool
-        assert sorted(n for _, n in calls) == [150, 150] and sorted(t.startswith("styleerd-shard") for t, _ in calls) == [False, True]
+        assert sorted(n for _, n in calls) == [150, 150] and sorted(
+            t.startswith("styleerd-shard") for t, _ in calls
+        ) == [False, True]
         assert {s.get_session_options().intra_op_num_threads for s, _ in st.backend.graphs.values()} == {1}
     assert make_backend("onnx", model, 1, threads=2).options.intra_op_num_threads == 2
 
@@ -287,7 +326,9 @@ def test_onnx_backend_runs_each_group_of_streams_on_the_graph_of_its_styles(mode
         for b in (grouped, every):
             rot, vel = b.step(x, style[sel], content[sel], target[sel], rows)
             assert np.abs(rot - want[0]).max() <= 1e-5 and np.abs(vel - want[1]).max() <= 1e-4, (t, b.every_branch)
-    assert {styles for styles, _ in grouped.graphs} == {("elderly",), ("elderly", "youthful"), ("youthful",), ()} and {s for s, _ in every.graphs} == {None}
+    assert {styles for styles, _ in grouped.graphs} == {("elderly",), ("elderly", "youthful"), ("youthful",), ()} and {
+        s for s, _ in every.graphs
+    } == {None}
     assert np.abs(grouped.h - every.h).max() <= 1e-5 and np.abs(grouped.c - every.c).max() <= 1e-5
 
 
@@ -299,19 +340,36 @@ def test_onnx_profile_bench_accounts_for_every_node(model, tmp_path):
     import sys
 
     out = tmp_path / "profile.json"
-    done = subprocess.run([sys.executable, "benchmarks/onnx_profile.py", "--steps", "5", "--streams", "1", "3", "--out", str(out)], capture_output=True, text=True, timeout=300)
+    done = subprocess.run(
+        [sys.executable, "benchmarks/onnx_profile.py", "--steps", "5", "--streams", "1", "3", "--out", str(out)],
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
     assert done.returncode == 0, done.stderr
     report = json.loads(out.read_text())
     assert set(report) == {f"{form}, {n} streams" for form in (*FORMS, "lstm one style") for n in (1, 3)}
     for key, r in report.items():
         form = key.split(",")[0]
-        graph = step_graph(model, form.split()[0], (model.config.styles[model.config.branch_styles[0]],) if "one style" in form else None)
+        graph = step_graph(
+            model,
+            form.split()[0],
+            (model.config.styles[model.config.branch_styles[0]],) if "one style" in form else None,
+        )
         counts = {}
         for node in graph.graph.node:
             counts[node.op_type] = counts.get(node.op_type, 0) + 1
         assert abs(sum(v["share"] for v in r["per_op"].values()) - 1.0) < 0.01 and r["step_p50_us"] > 0
         if key.startswith("lstm"):  # onnxruntime fuses some plain ops (Gemm + Relu), never the LSTM op
-            assert r["per_op"]["LSTM"]["nodes"] == counts["LSTM"] == (max(model.config.neutral_layers, model.config.style_layers) if "one style" in form else len(state_layers(model)))
+            assert (
+                r["per_op"]["LSTM"]["nodes"]
+                == counts["LSTM"]
+                == (
+                    max(model.config.neutral_layers, model.config.style_layers)
+                    if "one style" in form
+                    else len(state_layers(model))
+                )
+            )
 
 
 def test_the_products_alone_are_the_numba_steps_own_and_count_its_flops(model):
@@ -331,5 +389,10 @@ def test_the_products_alone_are_the_numba_steps_own_and_count_its_flops(model):
     products(P, calls[:1], N, buffer)
     half = len(buffer) // 2
     assert n_in == model.config.feature_dim + len(model.config.input_styles) + len(model.config.contents)
-    assert np.abs(buffer[half : half + N * n_out].reshape(N, n_out) - x @ P[w : w + n_in * n_out].reshape(n_in, n_out)).max() < 1e-4
+    assert (
+        np.abs(
+            buffer[half : half + N * n_out].reshape(N, n_out) - x @ P[w : w + n_in * n_out].reshape(n_in, n_out)
+        ).max()
+        < 1e-4
+    )
     assert products_alone(model, n_streams=64, seconds=0.01) > 0

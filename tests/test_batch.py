@@ -19,7 +19,10 @@ def _cli(*args, cwd) -> subprocess.CompletedProcess:
 def test_folder_with_a_bad_file_writes_the_others_like_single_transfers(tmp_path):
     (tmp_path / "in/sub").mkdir(parents=True)
     bvh.write(tmp_path / "in/a.bvh", procedural.walk(seconds=2.0))
-    bvh.write(tmp_path / "in/sub/b.bvh", procedural.rig_variants(procedural.walk(seconds=2.5))["Blender names and proportions, metres"])
+    bvh.write(
+        tmp_path / "in/sub/b.bvh",
+        procedural.rig_variants(procedural.walk(seconds=2.5))["Blender names and proportions, metres"],
+    )
     (tmp_path / "in/sub/broken.bvh").write_text("HIERARCHY\nROOT Hips\n{\n")
     (tmp_path / "in/notes.txt").write_text("not motion")
     extra = tmp_path / "c.bvh"
@@ -28,7 +31,11 @@ def test_folder_with_a_bad_file_writes_the_others_like_single_transfers(tmp_path
     assert done.returncode == 2, done.stderr
     assert "broken.bvh" in done.stderr and "1 of 4 files skipped" in done.stderr and "Traceback" not in done.stderr
     assert "wrote 3 of 4 files" in done.stdout
-    assert sorted(p.relative_to(tmp_path / "out").as_posix() for p in (tmp_path / "out").rglob("*.bvh")) == ["a.bvh", "c.bvh", "sub/b.bvh"]
+    assert sorted(p.relative_to(tmp_path / "out").as_posix() for p in (tmp_path / "out").rglob("*.bvh")) == [
+        "a.bvh",
+        "c.bvh",
+        "sub/b.bvh",
+    ]
     assert not list((tmp_path / "out").rglob("*.tmp*"))
     for source, batch in (("in/a.bvh", "out/a.bvh"), ("in/sub/b.bvh", "out/sub/b.bvh"), ("c.bvh", "out/c.bvh")):
         single = _cli("transfer", source, "--style", "elderly", "-o", "single.bvh", cwd=tmp_path)
@@ -88,10 +95,16 @@ def test_a_file_over_the_time_limit_fails_alone_and_resume_skips_what_is_done(tm
     done = _cli("transfer", "in", "--style", "elderly", "--jobs", 2, "--timeout", 4, "-o", "out", cwd=tmp_path)
     assert done.returncode == 2 and "long.bvh: took longer than --timeout 4 s" in done.stderr, done.stderr[-2000:]
     assert "Traceback" not in done.stderr and "wrote 3 of 4 files" in done.stdout
-    assert sorted(p.name for p in (tmp_path / "out").iterdir()) == ["w0.bvh", "w1.bvh", "w2.bvh"]  # no .tmp of the stopped one
+    assert sorted(p.name for p in (tmp_path / "out").iterdir()) == [
+        "w0.bvh",
+        "w1.bvh",
+        "w2.bvh",
+    ]  # no .tmp of the stopped one
     (tmp_path / "out/w1.bvh").unlink()
     before = (tmp_path / "out/w0.bvh").stat().st_mtime_ns
-    again = _cli("transfer", "in", "--style", "elderly", "--jobs", 2, "--timeout", 4, "--resume", "-o", "out", cwd=tmp_path)
+    again = _cli(
+        "transfer", "in", "--style", "elderly", "--jobs", 2, "--timeout", 4, "--resume", "-o", "out", cwd=tmp_path
+    )
     log = again.stdout + again.stderr
     assert "w1.bvh -> " in log and "w0.bvh -> " not in log and "long.bvh: took longer" in again.stderr
     assert (tmp_path / "out/w1.bvh").is_file() and (tmp_path / "out/w0.bvh").stat().st_mtime_ns == before
@@ -126,7 +139,9 @@ def test_a_killed_worker_costs_its_file_and_sigterm_stops_everything_cleanly(tmp
     while time.time() < deadline and not (tmp_path / "out").is_dir():  # the workers are at work
         time.sleep(0.2)
     time.sleep(1.0)
-    workers = [p for p in _children(proc.pid) if "spawn_main" in Path(f"/proc/{p}/cmdline").read_text(errors="replace")]  # not the resource tracker
+    workers = [
+        p for p in _children(proc.pid) if "spawn_main" in Path(f"/proc/{p}/cmdline").read_text(errors="replace")
+    ]  # not the resource tracker
     assert workers, "no worker process found"
     os.kill(workers[0], signal.SIGKILL)
     out, err = proc.communicate(timeout=600)
@@ -145,5 +160,9 @@ def test_a_killed_worker_costs_its_file_and_sigterm_stops_everything_cleanly(tmp
     proc.communicate(timeout=60)
     assert time.time() - started < 10 and proc.returncode != 0
     time.sleep(1.0)
-    assert not [p for p in workers if Path(f"/proc/{p}").exists() and "zombie" not in Path(f"/proc/{p}/status").read_text().lower()]
+    assert not [
+        p
+        for p in workers
+        if Path(f"/proc/{p}").exists() and "zombie" not in Path(f"/proc/{p}/status").read_text().lower()
+    ]
     assert not [p for p in (tmp_path / "out2").iterdir() if p.suffix != ".bvh"]

@@ -27,10 +27,14 @@ TOLERANCE_DEG = 0.1
 @pytest.fixture(scope="module")
 def blender_venv(wheel, tmp_path_factory) -> Path:
     if sys.version_info[:2] != (3, 11) or platform.machine() not in ("x86_64", "AMD64", "arm64"):
-        pytest.skip(f"bpy 4.2-5.0 is built for Python 3.11 on x86_64 / Apple arm64 only, not Python {sys.version_info[0]}.{sys.version_info[1]} on {platform.machine()}")
+        pytest.skip(
+            f"bpy 4.2-5.0 is built for Python 3.11 on x86_64 / Apple arm64 only, not Python {sys.version_info[0]}.{sys.version_info[1]} on {platform.machine()}"
+        )
     venv = tmp_path_factory.mktemp("blender") / "venv"
     run_checked([sys.executable, "-m", "venv", venv])
-    run_checked([venv / "bin/python", "-m", "pip", "install", "--quiet", f"{wheel}[blender]"])  # bpy from PyPI (about 360 MB)
+    run_checked(
+        [venv / "bin/python", "-m", "pip", "install", "--quiet", f"{wheel}[blender]"]
+    )  # bpy from PyPI (about 360 MB)
     return venv
 
 
@@ -51,7 +55,9 @@ def character(blender_venv, tmp_path_factory) -> Path:
 
 
 def test_fbx_to_fbx_matches_the_bvh_run_and_keeps_the_character(blender_venv, character):
-    done = run_checked([blender_venv / "bin/styleerd", "transfer", "walk.fbx", "--style", "elderly", "-o", "out.fbx"], cwd=character)
+    done = run_checked(
+        [blender_venv / "bin/styleerd", "transfer", "walk.fbx", "--style", "elderly", "-o", "out.fbx"], cwd=character
+    )
     assert "wrote out.fbx: 120 frames" in done.stdout
     result = _blender(blender_venv, "compare", character)
     assert result["bones"] == result["source_bones"] and len(result["bones"]) == 22
@@ -76,7 +82,10 @@ def test_fbx_to_bvh_and_glb_and_bvh_to_fbx(blender_venv, character):
 def test_addon_writes_a_new_action_matching_the_bvh_run(blender_venv, character):
     result = _blender(blender_venv, "addon", character)
     assert result["status"] == ["FINISHED"]
-    assert result["action"] == f"{result['original']}-elderly" and sorted([result["original"], result["action"]]) == result["actions"]
+    assert (
+        result["action"] == f"{result['original']}-elderly"
+        and sorted([result["original"], result["action"]]) == result["actions"]
+    )
     assert result["original_kept"]
     assert result["frames"] == 120 and result["max_error_deg"] < TOLERANCE_DEG, result
 
@@ -94,15 +103,30 @@ def test_fbx_errors_are_one_line(blender_venv, character, tmp_path):
     cases = [(["junk.fbx", "-o", "x.fbx"], "junk.fbx"), (["junk.fbx", "-o", "x.vrm"], "must be .fbx, .bvh or .glb")]
     cases += [([name, "-o", "x.bvh"], name) for name in broken]
     for args, message in cases:
-        done = subprocess.run([blender_venv / "bin/styleerd", "transfer", *args, "--style", "elderly"], cwd=tmp_path, capture_output=True, text=True, timeout=300)
+        done = subprocess.run(
+            [blender_venv / "bin/styleerd", "transfer", *args, "--style", "elderly"],
+            cwd=tmp_path,
+            capture_output=True,
+            text=True,
+            timeout=300,
+        )
         assert done.returncode == 2 and message in done.stderr and "Traceback" not in done.stderr, done.stderr
-        assert len(done.stderr.strip().splitlines()) == 1 and "Location:" not in done.stderr, (args, done.stderr[-3000:])
+        assert len(done.stderr.strip().splitlines()) == 1 and "Location:" not in done.stderr, (
+            args,
+            done.stderr[-3000:],
+        )
         assert not list(tmp_path.glob("x.*"))
 
 
 def test_fbx_without_blender_says_how_to_get_it(tmp_path):
     (tmp_path / "a.fbx").write_bytes(b"x")
-    done = subprocess.run([sys.executable, "-m", "styleerd.cli", "transfer", "a.fbx", "--style", "elderly", "-o", "b.bvh"], cwd=tmp_path, capture_output=True, text=True, timeout=300)
+    done = subprocess.run(
+        [sys.executable, "-m", "styleerd.cli", "transfer", "a.fbx", "--style", "elderly", "-o", "b.bvh"],
+        cwd=tmp_path,
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
     if importlib.util.find_spec("bpy") is not None:
         pytest.skip("bpy is installed in this environment: the message for its absence cannot show")
     assert done.returncode == 2 and "styleerd[blender]" in done.stderr and "Traceback" not in done.stderr, done.stderr

@@ -20,7 +20,14 @@ def bvh_files(draw):
     """BVH text for a random hierarchy and channel layout, plus the channel values in it."""
     n = draw(st.integers(1, 7))
     parents = [-1] + [draw(st.integers(0, j - 1)) for j in range(1, n)]
-    names = draw(st.lists(st.text(string.ascii_letters + string.digits + "_:", min_size=1, max_size=10), min_size=n, max_size=n, unique=True))
+    names = draw(
+        st.lists(
+            st.text(string.ascii_letters + string.digits + "_:", min_size=1, max_size=10),
+            min_size=n,
+            max_size=n,
+            unique=True,
+        )
+    )
     channels = []
     for j in range(n):
         rot = [f"{a}rotation" for a in draw(st.permutations("XYZ"))][: draw(st.sampled_from([3, 3, 2, 1, 0]))]
@@ -37,7 +44,11 @@ def bvh_files(draw):
             a, b, c = draw(st.floats(-180, 180)), draw(st.floats(-89, 89)), draw(st.floats(-180, 180))
             if len(rots) == 3 and draw(st.booleans()):  # the other, equivalent triple
                 a, b, c = a + 180, 180 - b, c + 180
-            angles = iter(np.array([a, b, c]) + 360 * np.array([draw(st.integers(-1, 1)) for _ in range(3)]) if len(rots) == 3 else [a, b, c])
+            angles = iter(
+                np.array([a, b, c]) + 360 * np.array([draw(st.integers(-1, 1)) for _ in range(3)])
+                if len(rots) == 3
+                else [a, b, c]
+            )
             for ch in chans:
                 row.append(next(angles) if ch.endswith("rotation") else draw(finite))
         rows.append(row)
@@ -62,7 +73,11 @@ def bvh_files(draw):
         lines.append(f"{pad}}}")
 
     joint(0, 0)
-    lines += ["MOTION", f"Frames: {T}", f"Frame Time: {draw(st.sampled_from(['0.0333333', '0.008333', '0.1', '0.00208333']))}"]
+    lines += [
+        "MOTION",
+        f"Frames: {T}",
+        f"Frame Time: {draw(st.sampled_from(['0.0333333', '0.008333', '0.1', '0.00208333']))}",
+    ]
     lines += [" ".join(repr(float(v)) for v in row) + trailing for row in rows]
     newline = draw(st.sampled_from(["\n", "\r\n"]))
     return newline.join(lines) + newline, np.array(rows, dtype=np.float64).reshape(T, sum(len(c) for c in channels))
@@ -90,7 +105,9 @@ def test_read_write_read_is_lossless_on_random_layouts(case):
 
 def test_channel_values_without_hint_are_continuous():
     m = walking_motion(90)
-    m.rotations[:, 0] = quat.mul(quat.from_angle_axis(np.linspace(0, 6 * np.pi, 90), np.array([0, 1.0, 0])), m.rotations[:, 0])
+    m.rotations[:, 0] = quat.mul(
+        quat.from_angle_axis(np.linspace(0, 6 * np.pi, 90), np.array([0, 1.0, 0])), m.rotations[:, 0]
+    )
     values = bvh.channel_values(m)
     assert np.abs(np.diff(values[:, 3:], axis=0)).max() < 60  # no +-360 jumps
     back = bvh.parse(bvh.format_bvh(m))
@@ -148,7 +165,11 @@ BAD = {
     "wrong number of values": (GOOD.replace("11 21 31", "11 21"), 20, "8 values, the hierarchy declares 9"),
     "non-numeric token": (GOOD.replace("11 21 31", "11 abc 31"), 20, "'abc' is not a number"),
     "truncated motion": (GOOD.replace("1 90 0 0 0 0 11 21 31\n", ""), 19, "truncated MOTION section"),
-    "unknown channel": (GOOD.replace("3 Zrotation Xrotation Yrotation", "3 Zrotation Xrotation Wrotation"), 9, "unknown channel name 'Wrotation'"),
+    "unknown channel": (
+        GOOD.replace("3 Zrotation Xrotation Yrotation", "3 Zrotation Xrotation Wrotation"),
+        9,
+        "unknown channel name 'Wrotation'",
+    ),
     "duplicate joint": (GOOD.replace("JOINT Leg", "JOINT Hips"), 6, "duplicate joint name 'Hips'"),
     "nan value": (GOOD.replace("10 20 30", "10 nan 30"), 19, "'nan' of channel 7 is not finite"),
     "inf value": (GOOD.replace("11 21 31", "inf 21 31"), 20, "'inf' of channel 6 is not finite"),
@@ -171,7 +192,11 @@ def test_cli_prints_one_line_exits_2_and_writes_nothing(case, tmp_path):
     src = tmp_path / "bad.bvh"
     src.write_text(BAD[case][0])
     out = tmp_path / "out.bvh"
-    r = subprocess.run([sys.executable, "-m", "styleerd.cli", "resample", str(src), "--fps", "60", "-o", str(out)], capture_output=True, text=True)
+    r = subprocess.run(
+        [sys.executable, "-m", "styleerd.cli", "resample", str(src), "--fps", "60", "-o", str(out)],
+        capture_output=True,
+        text=True,
+    )
     assert r.returncode == 2
     assert r.stdout == "" and len(r.stderr.strip().splitlines()) == 1, r.stderr
     assert f"bad.bvh:{BAD[case][1]}:" in r.stderr

@@ -16,7 +16,9 @@ def leg_after_ik(m, target, side="L"):
     hip, knee, ankle = (sk.index(f"{n}_{side}") for n in ("UpperLeg", "LowerLeg", "Foot"))
     g_rot, g_pos = forward_kinematics(m.rotations, m.positions, sk.parents)
     left = g_pos[:, sk.index("UpperLeg_L")] - g_pos[:, sk.index("UpperLeg_R")]
-    hip_g, knee_g = two_bone_ik(g_pos[:, hip], g_pos[:, knee], g_pos[:, ankle], target, g_rot[:, hip], g_rot[:, knee], left)
+    hip_g, knee_g = two_bone_ik(
+        g_pos[:, hip], g_pos[:, knee], g_pos[:, ankle], target, g_rot[:, hip], g_rot[:, knee], left
+    )
     rot = m.rotations.copy()
     rot[:, hip] = quat.mul(quat.inv(g_rot[:, sk.parents[hip]]), hip_g)
     rot[:, knee] = quat.mul(quat.inv(hip_g), knee_g)
@@ -46,7 +48,11 @@ def test_two_bone_ik_stretches_towards_unreachable_targets_and_bends_straight_le
     _, g_new, _ = leg_after_ik(m, far)
     reach = g_new[:, ankle] - g_new[:, hip]
     assert np.allclose(np.linalg.norm(reach, axis=-1), 80.0, atol=1e-2)
-    cos = (reach * (far - g_pos[:, hip])).sum(-1) / np.linalg.norm(reach, axis=-1) / np.linalg.norm(far - g_pos[:, hip], axis=-1)
+    cos = (
+        (reach * (far - g_pos[:, hip])).sum(-1)
+        / np.linalg.norm(reach, axis=-1)
+        / np.linalg.norm(far - g_pos[:, hip], axis=-1)
+    )
     assert cos.min() > 1 - 1e-9
     straight = Motion(sk, quat.identity((1, sk.n_joints)), m.positions[:1], m.fps)  # rest: leg straight down
     g0, _, _ = leg_after_ik(straight, np.zeros((1, 3)))
@@ -98,8 +104,12 @@ def test_batched_foot_lock_equals_single_streams():
     singles = [clean_feet(o1, i1).rotations, clean_feet(o2, i2).rotations]
     lock = FootLock(o1.skeleton, 2)
     for t in range(30):
-        r = lock.step(np.stack([o1.rotations[t], o2.rotations[t]]), np.stack([o1.positions[t], o2.positions[t]]),
-                      np.stack([i1.rotations[t], i2.rotations[t]]), np.stack([i1.positions[t], i2.positions[t]]))
+        r = lock.step(
+            np.stack([o1.rotations[t], o2.rotations[t]]),
+            np.stack([o1.positions[t], o2.positions[t]]),
+            np.stack([i1.rotations[t], i2.rotations[t]]),
+            np.stack([i1.positions[t], i2.positions[t]]),
+        )
         assert np.allclose(r[0], singles[0][t], atol=1e-12) and np.allclose(r[1], singles[1][t], atol=1e-12)
 
 
@@ -121,4 +131,6 @@ def test_no_foot_goes_below_the_inputs_floor():
     g_out = forward_kinematics(cleaned.rotations, cleaned.positions, sk.parents)[1][:, feet, 1]
     floor = np.minimum.accumulate(g_in, axis=0)
     assert (g_raw < floor - 3.0).any()  # the raw output is in the ground
-    assert (g_out >= floor - 0.5).all(), (floor - g_out).max()  # the toe follows its ankle's lift to within a few millimetres
+    assert (g_out >= floor - 0.5).all(), (
+        floor - g_out
+    ).max()  # the toe follows its ankle's lift to within a few millimetres

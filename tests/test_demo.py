@@ -12,8 +12,12 @@ from styleerd.motion.procedural import walk
 
 
 def test_demo_without_data_writes_every_style_and_a_page(tmp_path):
-    r = subprocess.run([sys.executable, "-m", "styleerd.cli", "demo", "--out", str(tmp_path), "--data", str(tmp_path / "no-data")],
-                       capture_output=True, text=True, timeout=600)
+    r = subprocess.run(
+        [sys.executable, "-m", "styleerd.cli", "demo", "--out", str(tmp_path), "--data", str(tmp_path / "no-data")],
+        capture_output=True,
+        text=True,
+        timeout=600,
+    )
     assert r.returncode == 0, r.stderr
     source = bvh.read(tmp_path / "input-walk.bvh")
     assert source.n_frames == walk().n_frames
@@ -22,7 +26,9 @@ def test_demo_without_data_writes_every_style_and_a_page(tmp_path):
     for path in outputs:
         m = bvh.read(path)
         assert m.skeleton == source.skeleton and m.n_frames == source.n_frames and m.fps == source.fps
-        assert (m.positions[:, 0] == source.positions[:, 0]).all() and not np.allclose(m.rotations, source.rotations, atol=1e-3)
+        assert (m.positions[:, 0] == source.positions[:, 0]).all() and not np.allclose(
+            m.rotations, source.rotations, atol=1e-3
+        )
     page = (tmp_path / "index.html").read_text()
     data = json.loads(re.search(r"const DATA = (.*?);\n", page).group(1))
     assert len(data["motions"]) == 9 and "generated-elderly.bvh" in r.stdout

@@ -12,7 +12,9 @@ import pytest
 from styleerd.serve.loadtest import free_port, start_server, stop_server
 from test_viewer import ARGS, CHROMIUM
 
-pytestmark = pytest.mark.skipif(not Path(CHROMIUM).exists(), reason="Chromium not installed (.ci/run installs Debian's chromium)")
+pytestmark = pytest.mark.skipif(
+    not Path(CHROMIUM).exists(), reason="Chromium not installed (.ci/run installs Debian's chromium)"
+)
 
 
 @pytest.mark.parametrize("style", ["elderly", "feminine"])

@@ -2,7 +2,14 @@ import numpy as np
 import pytest
 
 from conftest import walking_motion
-from styleerd.data.features import FeatureLayout, FeatureStats, features_to_motion, motion_features, pose_features, stream_features
+from styleerd.data.features import (
+    FeatureLayout,
+    FeatureStats,
+    features_to_motion,
+    motion_features,
+    pose_features,
+    stream_features,
+)
 from styleerd.motion import quat
 from styleerd.motion.kinematics import facing_directions, forward_kinematics, heading_rotations
 from styleerd.motion.motion import Motion
@@ -42,7 +49,9 @@ def test_streaming_one_frame_at_a_time_equals_whole_clip():
         if prev is None:
             _, prev = forward_kinematics(r, p, m.skeleton.parents)
         ft, tt, prev = pose_features(r, p, prev, m.skeleton, roles, m.fps)
-        assert np.allclose(ft[0], f[t], atol=1e-9) and np.allclose(tt[0], traj[t], atol=1e-9)  # two arithmetic paths (small vs whole-clip arrays)
+        assert np.allclose(ft[0], f[t], atol=1e-9) and np.allclose(
+            tt[0], traj[t], atol=1e-9
+        )  # two arithmetic paths (small vs whole-clip arrays)
 
 
 @pytest.mark.parametrize("n_streams", [3, 70])
@@ -60,9 +69,15 @@ def test_compiled_stream_features_equal_normalised_whole_clip_features(n_streams
     stats = FeatureStats.fit(np.concatenate([f for f, _ in offline]), skeleton.n_joints)
     rot = np.stack([m.rotations for m in clips], 1) * np.random.default_rng(0).uniform(0.5, 2.0, (T, n_streams, 1, 1))
     pos = np.stack([m.positions for m in clips], 1)
-    previous, facing, started = np.zeros((n_streams, skeleton.n_joints, 3)), np.zeros((n_streams, 3)), np.zeros(n_streams, bool)
+    previous, facing, started = (
+        np.zeros((n_streams, skeleton.n_joints, 3)),
+        np.zeros((n_streams, 3)),
+        np.zeros(n_streams, bool),
+    )
     for t in range(T):
-        x, traj, previous, facing, ok = stream_features(rot[t], pos[t], previous, facing, started, skeleton, roles, clips[0].fps, stats, 1e6)
+        x, traj, previous, facing, ok = stream_features(
+            rot[t], pos[t], previous, facing, started, skeleton, roles, clips[0].fps, stats, 1e6
+        )
         started[:] = True
         assert ok.all() and x.dtype == np.float32
         for k, (f, tr) in enumerate(offline):
@@ -77,7 +92,18 @@ def test_compiled_stream_features_flag_values_past_the_limit():
     pos = np.repeat(m.positions[:1], 2, 0)
     pos[1, 0] = [0.0, 0.0, 1e9]  # a root a million km away moved there in one frame
     previous = np.repeat(m.positions[:1], 2, 0)
-    x, *_, ok = stream_features(np.repeat(m.rotations[:1], 2, 0), pos, previous, np.zeros((2, 3)), np.ones(2, bool), m.skeleton, BodyRoles.of(m.skeleton), m.fps, stats, 1e6)
+    x, *_, ok = stream_features(
+        np.repeat(m.rotations[:1], 2, 0),
+        pos,
+        previous,
+        np.zeros((2, 3)),
+        np.ones(2, bool),
+        m.skeleton,
+        BodyRoles.of(m.skeleton),
+        m.fps,
+        stats,
+        1e6,
+    )
     assert ok.tolist() == [True, False]
 
 
@@ -87,13 +113,28 @@ def test_compiled_heading_equals_the_angle_of_the_facing_all_around():
     of the identities' switch (cos 120 degrees) and exactly 180 degrees (w = 0) included."""
     m = walking_motion(1)
     skeleton, roles = m.skeleton, BodyRoles.of(m.skeleton)
-    stats = FeatureStats.fit(np.concatenate([motion_features(walking_motion(12, seed=k))[0] for k in range(2)]), skeleton.n_joints)
-    angles = np.concatenate([np.linspace(-np.pi, np.pi, 721), np.radians([119.999, 120.0, 120.001, -120.0, 180.0, -180.0])])
+    stats = FeatureStats.fit(
+        np.concatenate([motion_features(walking_motion(12, seed=k))[0] for k in range(2)]), skeleton.n_joints
+    )
+    angles = np.concatenate(
+        [np.linspace(-np.pi, np.pi, 721), np.radians([119.999, 120.0, 120.001, -120.0, 180.0, -180.0])]
+    )
     n = len(angles)
     turn = quat.from_angle_axis(angles, np.array([0.0, 1.0, 0.0]))
     rot, pos = np.repeat(m.rotations[:1], n, 0), np.repeat(m.positions[:1], n, 0)
     rot[:, 0] = quat.mul(turn, rot[:, 0])
-    _, traj, g, facing, ok = stream_features(rot, pos, np.zeros((n, skeleton.n_joints, 3)), np.zeros((n, 3)), np.zeros(n, bool), skeleton, roles, m.fps, stats, 1e6)
+    _, traj, g, facing, ok = stream_features(
+        rot,
+        pos,
+        np.zeros((n, skeleton.n_joints, 3)),
+        np.zeros((n, 3)),
+        np.zeros(n, bool),
+        skeleton,
+        roles,
+        m.fps,
+        stats,
+        1e6,
+    )
     expected = heading_rotations(facing)
     assert ok.all() and np.all(traj[:, 3] >= 0)
     assert np.abs(traj[:, 3:7] - expected).max() < 1e-12  # same sign too: w >= 0 in both

@@ -15,7 +15,9 @@ def read_accessor(doc, blob, index):
     a = doc.accessors[index]
     v = doc.bufferViews[a.bufferView]
     width = {"SCALAR": 1, "VEC3": 3, "VEC4": 4, "MAT4": 16}[a.type]
-    return np.frombuffer(blob, dtype=np.float32, count=a.count * width, offset=v.byteOffset + (a.byteOffset or 0)).reshape(a.count, width)
+    return np.frombuffer(
+        blob, dtype=np.float32, count=a.count * width, offset=v.byteOffset + (a.byteOffset or 0)
+    ).reshape(a.count, width)
 
 
 def world_positions_from_glb(path):
@@ -61,9 +63,21 @@ def test_transfer_writes_the_same_motion_as_glb_and_bvh(tmp_path):
 
     model, meta = load_generator()
     bvh.write(tmp_path / "in.bvh", walk(1.0))
-    transfer_file(tmp_path / "in.bvh", tmp_path / "out.bvh", model, 30.0, TransferOptions({"elderly": 1.0}, input_style="normal", content="walk"))
+    transfer_file(
+        tmp_path / "in.bvh",
+        tmp_path / "out.bvh",
+        model,
+        30.0,
+        TransferOptions({"elderly": 1.0}, input_style="normal", content="walk"),
+    )
     a = bvh.read(tmp_path / "out.bvh")
-    transfer_file(tmp_path / "in.bvh", tmp_path / "out.glb", model, 30.0, TransferOptions({"elderly": 1.0}, input_style="normal", content="walk"))
+    transfer_file(
+        tmp_path / "in.bvh",
+        tmp_path / "out.glb",
+        model,
+        30.0,
+        TransferOptions({"elderly": 1.0}, input_style="normal", content="walk"),
+    )
     got, _, T = world_positions_from_glb(tmp_path / "out.glb")
     _, ours = forward_kinematics(a.rotations, a.positions, a.skeleton.parents)
     assert T == a.n_frames and np.abs(got - ours * 0.01).max() < 1e-4  # the BVH went through text

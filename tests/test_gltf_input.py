@@ -2,7 +2,6 @@
 joint frames, a units node above the root, VRM humanoid bone names), stylised, and written
 back as the same file with only the animation replaced; the Khronos validator passes both."""
 
-
 import numpy as np
 import pygltflib as gl
 import pytest
@@ -17,7 +16,14 @@ from styleerd.runtime.offline import TransferOptions, transfer_file
 from test_gltf_mesh import needs_node, validate
 from test_rotations import scipy_globals
 
-VRM_BONES = {"Hips": "hips", "Spine": "spine", "Spine2": "upperChest", "Spine1": "chest", "Neck": "neck", "Head": "head"}
+VRM_BONES = {
+    "Hips": "hips",
+    "Spine": "spine",
+    "Spine2": "upperChest",
+    "Spine1": "chest",
+    "Neck": "neck",
+    "Head": "head",
+}
 for side in ("Left", "Right"):
     s = side.lower()
     VRM_BONES.update({f"{side}Shoulder": f"{s}Shoulder", f"{side}Arm": f"{s}UpperArm", f"{side}ForeArm": f"{s}LowerArm", f"{side}Hand": f"{s}Hand",
@@ -37,7 +43,9 @@ def vrm_character(path, seconds: float = 3.0, seed: int = 0):
         along = sk.offsets[kids[0]] if kids else sk.offsets[j]
         frames[j] = quat.from_angle_axis(rng.uniform(-np.pi, np.pi), along / np.linalg.norm(along))
     rolled = with_rest_frames(original, frames, tuple(f"bone_{j:02d}" for j in range(sk.n_joints)))
-    parent_frames = np.where((sk.parents >= 0)[:, None], frames[np.maximum(sk.parents, 0)], quat.identity((sk.n_joints,)))
+    parent_frames = np.where(
+        (sk.parents >= 0)[:, None], frames[np.maximum(sk.parents, 0)], quat.identity((sk.n_joints,))
+    )
     write_glb(path, rolled, mesh=True, rest_rotations=quat.mul(quat.inv(parent_frames), frames))
     doc = gl.GLTF2().load_binary(str(path))
     bones = {VRM_BONES[n]: {"node": j} for j, n in enumerate(sk.names)}
@@ -58,7 +66,9 @@ def test_reading_a_character_gives_its_movement(tmp_path):
     got = read_gltf(tmp_path / "character.vrm")
     assert got.motion.n_frames == original.n_frames and got.motion.fps == 30.0
     assert got.parts["left_knee"] == "bone_15" and got.parts["chest"] == "bone_03"  # upperChest wins over chest
-    for a, b in zip(scipy_globals(original), scipy_globals(got.motion)):  # world-aligned rest: the same rotations as the T-pose rig
+    for a, b in zip(
+        scipy_globals(original), scipy_globals(got.motion)
+    ):  # world-aligned rest: the same rotations as the T-pose rig
         assert np.degrees((a.inv() * b).magnitude()).max() < 1e-3
     g = got.motion
     from styleerd.motion.kinematics import forward_kinematics
@@ -73,12 +83,30 @@ def test_vrm_round_trip_keeps_the_file_and_the_rotations(model, tmp_path):
     g, meta = model
     vrm_character(tmp_path / "character.vrm")
     lines = []
-    transfer_file(tmp_path / "character.vrm", tmp_path / "out.vrm", g, meta["data"]["fps"], TransferOptions({"normal": 1.0}, input_style="normal", content="walk"), report=lines.append)
-    assert "first frame" not in lines[0] and "rest pose (a T- or A-pose)" in lines[0]  # the VRM's rest pose is its T-pose
-    src, out = gl.GLTF2().load_binary(str(tmp_path / "character.vrm")), gl.GLTF2().load_binary(str(tmp_path / "out.vrm"))
+    transfer_file(
+        tmp_path / "character.vrm",
+        tmp_path / "out.vrm",
+        g,
+        meta["data"]["fps"],
+        TransferOptions({"normal": 1.0}, input_style="normal", content="walk"),
+        report=lines.append,
+    )
+    assert (
+        "first frame" not in lines[0] and "rest pose (a T- or A-pose)" in lines[0]
+    )  # the VRM's rest pose is its T-pose
+    src, out = (
+        gl.GLTF2().load_binary(str(tmp_path / "character.vrm")),
+        gl.GLTF2().load_binary(str(tmp_path / "out.vrm")),
+    )
     assert [n.name for n in out.nodes] == [n.name for n in src.nodes]
-    assert [(n.rotation, n.translation, n.mesh, n.skin, n.children) for n in out.nodes] == [(n.rotation, n.translation, n.mesh, n.skin, n.children) for n in src.nodes]
-    assert len(out.meshes) == len(src.meshes) == 1 and out.skins[0].joints == src.skins[0].joints and out.extensions == src.extensions
+    assert [(n.rotation, n.translation, n.mesh, n.skin, n.children) for n in out.nodes] == [
+        (n.rotation, n.translation, n.mesh, n.skin, n.children) for n in src.nodes
+    ]
+    assert (
+        len(out.meshes) == len(src.meshes) == 1
+        and out.skins[0].joints == src.skins[0].joints
+        and out.extensions == src.extensions
+    )
     assert len(out.animations) == 1
     for path in ("character.vrm", "out.vrm"):
         issues = validate(tmp_path / path)["issues"]
@@ -87,7 +115,9 @@ def test_vrm_round_trip_keeps_the_file_and_the_rotations(model, tmp_path):
     a, b = source.motion, read_gltf(tmp_path / "out.vrm").motion
     errors = rotation_errors(a, b, sorted(a.skeleton.index(n) for n in source.parts.values()))
     assert len(errors) == 21
-    legs_and_trunk = {k: v for k, v in errors.items() if k in ("bone_00", "bone_01", "bone_14", "bone_15", "bone_18", "bone_19")}
+    legs_and_trunk = {
+        k: v for k, v in errors.items() if k in ("bone_00", "bone_01", "bone_14", "bone_15", "bone_18", "bone_19")
+    }
     assert max(v[2] for v in legs_and_trunk.values()) < 12, errors  # twist kept, as on the BVH rigs
     assert max(v[0] for v in errors.values()) < 30, errors
 
@@ -95,18 +125,42 @@ def test_vrm_round_trip_keeps_the_file_and_the_rotations(model, tmp_path):
 def test_gltf_to_bvh_and_bad_gltf_inputs(model, tmp_path):
     g, meta = model
     vrm_character(tmp_path / "c.glb", seconds=1.0)
-    transfer_file(tmp_path / "c.glb", tmp_path / "c.bvh", g, meta["data"]["fps"], TransferOptions({"elderly": 1.0}, input_style="normal", content="walk"))
+    transfer_file(
+        tmp_path / "c.glb",
+        tmp_path / "c.bvh",
+        g,
+        meta["data"]["fps"],
+        TransferOptions({"elderly": 1.0}, input_style="normal", content="walk"),
+    )
     assert bvh.read(tmp_path / "c.bvh").n_frames == 30
     (tmp_path / "junk.glb").write_bytes(b"glTF\x02\x00\x00\x00garbage")
     with pytest.raises(StyleERDError, match="junk.glb: not a readable glTF file"):
-        transfer_file(tmp_path / "junk.glb", tmp_path / "x.glb", g, 30.0, TransferOptions({"elderly": 1.0}, input_style="normal", content="walk"))
+        transfer_file(
+            tmp_path / "junk.glb",
+            tmp_path / "x.glb",
+            g,
+            30.0,
+            TransferOptions({"elderly": 1.0}, input_style="normal", content="walk"),
+        )
     doc = gl.GLTF2().load_binary(str(tmp_path / "c.glb"))
     doc.animations = []
     doc.save_binary(str(tmp_path / "still.glb"))
     with pytest.raises(StyleERDError, match="still.glb: no animation to stylise"):
-        transfer_file(tmp_path / "still.glb", tmp_path / "x.glb", g, 30.0, TransferOptions({"elderly": 1.0}, input_style="normal", content="walk"))
+        transfer_file(
+            tmp_path / "still.glb",
+            tmp_path / "x.glb",
+            g,
+            30.0,
+            TransferOptions({"elderly": 1.0}, input_style="normal", content="walk"),
+        )
     with pytest.raises(StyleERDError, match="the output must be .glb, .vrm or .bvh"):
-        transfer_file(tmp_path / "c.glb", tmp_path / "x.fbx", g, 30.0, TransferOptions({"elderly": 1.0}, input_style="normal", content="walk"))
+        transfer_file(
+            tmp_path / "c.glb",
+            tmp_path / "x.fbx",
+            g,
+            30.0,
+            TransferOptions({"elderly": 1.0}, input_style="normal", content="walk"),
+        )
     assert not (tmp_path / "x.glb").exists()
 
 

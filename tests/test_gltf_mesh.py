@@ -22,7 +22,9 @@ VALIDATOR = ROOT / "node_modules" / "gltf-validator"
 THREE = ROOT / "node_modules" / "three"
 CHROMIUM = shutil.which("chromium") or "/usr/bin/chromium"
 
-needs_node = pytest.mark.skipif(not VALIDATOR.exists() or not shutil.which("node"), reason="gltf-validator not installed (make install runs npm ci)")
+needs_node = pytest.mark.skipif(
+    not VALIDATOR.exists() or not shutil.which("node"), reason="gltf-validator not installed (make install runs npm ci)"
+)
 
 VALIDATE = """
 const fs = require('fs');
@@ -46,15 +48,26 @@ def model():
 
 
 @needs_node
-@pytest.mark.parametrize("rig", ["Mixamo T-pose, centimetres", "joint frames rolled about their bones", "Blender names and proportions, metres"])
+@pytest.mark.parametrize(
+    "rig",
+    ["Mixamo T-pose, centimetres", "joint frames rolled about their bones", "Blender names and proportions, metres"],
+)
 def test_mesh_glb_passes_the_khronos_validator(model, tmp_path, rig):
     g, meta = model
     bvh.write(tmp_path / "in.bvh", rig_variants()[rig][:90])
-    transfer_file(tmp_path / "in.bvh", tmp_path / "out.glb", g, meta["data"]["fps"], TransferOptions({"elderly": 1.0}, input_style="normal", content="walk", mesh=True))
+    transfer_file(
+        tmp_path / "in.bvh",
+        tmp_path / "out.glb",
+        g,
+        meta["data"]["fps"],
+        TransferOptions({"elderly": 1.0}, input_style="normal", content="walk", mesh=True),
+    )
     report = validate(tmp_path / "out.glb")
     issues = report["issues"]
     assert (issues["numErrors"], issues["numWarnings"]) == (0, 0), issues["messages"][:10]
-    assert report["info"]["totalVertexCount"] > 0 and report["info"]["animationCount"] == 1 and report["info"]["hasSkins"]
+    assert (
+        report["info"]["totalVertexCount"] > 0 and report["info"]["animationCount"] == 1 and report["info"]["hasSkins"]
+    )
 
 
 @needs_node
@@ -62,7 +75,13 @@ def test_mesh_glb_passes_the_khronos_validator(model, tmp_path, rig):
 def test_mesh_glb_of_real_clips_passes_the_validator(model, tmp_path, shared_data):
     g, meta = model
     for path in [shared_data / "xia-sample" / "neutral_01_000.bvh"]:
-        transfer_file(path, tmp_path / "out.glb", g, meta["data"]["fps"], TransferOptions({"feminine": 1.0}, input_style="normal", mesh=True))
+        transfer_file(
+            path,
+            tmp_path / "out.glb",
+            g,
+            meta["data"]["fps"],
+            TransferOptions({"feminine": 1.0}, input_style="normal", mesh=True),
+        )
         issues = validate(tmp_path / "out.glb")["issues"]
         assert (issues["numErrors"], issues["numWarnings"]) == (0, 0), issues["messages"][:10]
 
@@ -104,10 +123,18 @@ def test_three_gltf_loader_skins_and_plays_the_body(model, tmp_path):
     g, meta = model
     walk = rig_variants()["Mixamo T-pose, centimetres"][:120]
     bvh.write(tmp_path / "in.bvh", walk)
-    transfer_file(tmp_path / "in.bvh", tmp_path / "out.glb", g, meta["data"]["fps"], TransferOptions({"elderly": 1.0}, input_style="normal", content="walk", mesh=True))
+    transfer_file(
+        tmp_path / "in.bvh",
+        tmp_path / "out.glb",
+        g,
+        meta["data"]["fps"],
+        TransferOptions({"elderly": 1.0}, input_style="normal", content="walk", mesh=True),
+    )
     (tmp_path / "index.html").write_text(PAGE)
     os.symlink(THREE, tmp_path / "three")
-    server = http.server.ThreadingHTTPServer(("127.0.0.1", 0), functools.partial(http.server.SimpleHTTPRequestHandler, directory=str(tmp_path)))
+    server = http.server.ThreadingHTTPServer(
+        ("127.0.0.1", 0), functools.partial(http.server.SimpleHTTPRequestHandler, directory=str(tmp_path))
+    )
     threading.Thread(target=server.serve_forever, daemon=True).start()
     try:
         with sync_playwright() as p:

@@ -39,7 +39,13 @@ def _header_variant(path: Path, old: str, new: str) -> Path:
 
 
 def _deep(path: Path, depth: int = 1200) -> Path:
-    lines = ["HIERARCHY", "ROOT J0", "{", "OFFSET 0 0 0", "CHANNELS 6 Xposition Yposition Zposition Zrotation Xrotation Yrotation"]
+    lines = [
+        "HIERARCHY",
+        "ROOT J0",
+        "{",
+        "OFFSET 0 0 0",
+        "CHANNELS 6 Xposition Yposition Zposition Zrotation Xrotation Yrotation",
+    ]
     for d in range(1, depth):
         lines += [f"JOINT J{d}", "{", "OFFSET 0 1 0", "CHANNELS 3 Zrotation Xrotation Yrotation"]
     lines += ["}"] * depth + ["MOTION", "Frames: 0", "Frame Time: 0.0333333"]
@@ -50,7 +56,9 @@ def _deep(path: Path, depth: int = 1200) -> Path:
 def _zero_offsets(path: Path) -> Path:
     m = walk(1.0, fps=30.0)
     sk = m.skeleton
-    flat = type(sk)(sk.names, sk.parents, np.zeros_like(sk.offsets), sk.channels, tuple((j, np.zeros(3)) for j, _ in sk.end_sites))
+    flat = type(sk)(
+        sk.names, sk.parents, np.zeros_like(sk.offsets), sk.channels, tuple((j, np.zeros(3)) for j, _ in sk.end_sites)
+    )
     text = bvh.format_header(flat, m.n_frames, 30.0) + bvh.format_frames(bvh.channel_values(m))
     path.write_text(text)
     return path
@@ -85,7 +93,15 @@ def _transfer(make_input, *extra: str, output: str = "out.bvh"):
     def argv(tmp: Path) -> list[str]:
         source = make_input(tmp)
         out = output.replace("{in}", str(source)).replace("{tmp}", str(tmp))
-        return ["transfer", str(source), "--style", "elderly", "-o", out if out.startswith("/") else str(tmp / out), *extra]
+        return [
+            "transfer",
+            str(source),
+            "--style",
+            "elderly",
+            "-o",
+            out if out.startswith("/") else str(tmp / out),
+            *extra,
+        ]
 
     return argv
 
@@ -96,32 +112,68 @@ def _walk(tmp: Path) -> Path:
 
 # name -> (argv from a scratch folder, text the one error line must contain)
 CASES = {
-    "Frames: nan": (lambda t: ["info", str(_header_variant(t / "in.bvh", "Frames: 2", "Frames: nan"))], "is not a frame count"),
-    "Frames: inf": (lambda t: ["info", str(_header_variant(t / "in.bvh", "Frames: 2", "Frames: inf"))], "is not a frame count"),
-    "Frames: 1e400": (lambda t: ["info", str(_header_variant(t / "in.bvh", "Frames: 2", "Frames: 1e400"))], "is not a frame count"),
-    "Frames: -3": (lambda t: ["info", str(_header_variant(t / "in.bvh", "Frames: 2", "Frames: -3"))], "is not a frame count"),
-    "Frame Time: 0": (lambda t: ["info", str(_header_variant(t / "in.bvh", "Frame Time: 0.0333333", "Frame Time: 0"))], "must be a positive number"),
-    "Frame Time: nan": (lambda t: ["info", str(_header_variant(t / "in.bvh", "Frame Time: 0.0333333", "Frame Time: nan"))], "must be a positive number"),
+    "Frames: nan": (
+        lambda t: ["info", str(_header_variant(t / "in.bvh", "Frames: 2", "Frames: nan"))],
+        "is not a frame count",
+    ),
+    "Frames: inf": (
+        lambda t: ["info", str(_header_variant(t / "in.bvh", "Frames: 2", "Frames: inf"))],
+        "is not a frame count",
+    ),
+    "Frames: 1e400": (
+        lambda t: ["info", str(_header_variant(t / "in.bvh", "Frames: 2", "Frames: 1e400"))],
+        "is not a frame count",
+    ),
+    "Frames: -3": (
+        lambda t: ["info", str(_header_variant(t / "in.bvh", "Frames: 2", "Frames: -3"))],
+        "is not a frame count",
+    ),
+    "Frame Time: 0": (
+        lambda t: ["info", str(_header_variant(t / "in.bvh", "Frame Time: 0.0333333", "Frame Time: 0"))],
+        "must be a positive number",
+    ),
+    "Frame Time: nan": (
+        lambda t: ["info", str(_header_variant(t / "in.bvh", "Frame Time: 0.0333333", "Frame Time: nan"))],
+        "must be a positive number",
+    ),
     "1,200 joints deep": (lambda t: ["info", str(_deep(t / "in.bvh"))], "at most 256 are supported"),
     "deep hierarchy into transfer": (_transfer(lambda t: _deep(t / "in.bvh")), "at most 256 are supported"),
     "one endless line (/dev/zero)": (lambda t: ["info", "/dev/zero"], "line longer than"),
-    "/dev/zero into transfer": (lambda t: ["transfer", "/dev/zero", "--style", "elderly", "-o", str(t / "out.bvh")], "line longer than"),
+    "/dev/zero into transfer": (
+        lambda t: ["transfer", "/dev/zero", "--style", "elderly", "-o", str(t / "out.bvh")],
+        "line longer than",
+    ),
     "empty file": (lambda t: ["info", str(_touch(t / "in.bvh"))], "it is empty"),
     "binary file": (lambda t: ["info", str(_bytes(t / "in.bvh", b"\x89PNG\r\n\x1a\n\xff\xfe"))], "not a text file"),
     "input is a folder": (lambda t: ["info", str(t)], "Is a directory"),
     "input missing": (lambda t: ["info", str(t / "nope.bvh")], "No such file"),
     "all offsets zero": (_transfer(lambda t: _zero_offsets(t / "in.bvh")), "no length"),
-    "root X of 1e30": (_transfer(lambda t: _absurd_root(t / "in.bvh")), "frame 12: joint 'Hips' Xposition = 1e+30 is out of range"),
+    "root X of 1e30": (
+        _transfer(lambda t: _absurd_root(t / "in.bvh")),
+        "frame 12: joint 'Hips' Xposition = 1e+30 is out of range",
+    ),
     "output folder missing": (_transfer(_walk, output="{tmp}/no/such/out.bvh"), "does not exist"),
-    "output is the input's folder": (_transfer(_walk, output="{tmp}"), "the output is the input file"),  # a folder takes the input's name
+    "output is the input's folder": (
+        _transfer(_walk, output="{tmp}"),
+        "the output is the input file",
+    ),  # a folder takes the input's name
     "output not writable": (_transfer(_walk, output="/proc/out.bvh"), "/proc/out.bvh"),
     "output is the input": (_transfer(_walk, output="{in}"), "the output is the input file"),
-    "resample onto its input": (lambda t: ["resample", str(_walk(t)), "--fps", "60", "-o", str(t / "in.bvh")], "the output is the input file"),
+    "resample onto its input": (
+        lambda t: ["resample", str(_walk(t)), "--fps", "60", "-o", str(t / "in.bvh")],
+        "the output is the input file",
+    ),
     "output .txt": (_transfer(_walk, output="out.txt"), "the output must be .bvh, .glb or .fbx"),
     "truncated model": (lambda t: ["styles", "--model", _truncated_model(t)], "cannot load model"),
-    "model without its config": (lambda t: ["styles", "--model", _model_without_config(t)], "no styleerd configuration"),
+    "model without its config": (
+        lambda t: ["styles", "--model", _model_without_config(t)],
+        "no styleerd configuration",
+    ),
     "labeller given as the model": (lambda t: ["styles", "--model", _labeller_as_generator(t)], "incomplete"),
-    "model missing": (lambda t: ["transfer", str(_walk(t)), "--style", "elderly", "--model", str(t / "none"), "-o", str(t / "o.bvh")], "No such file"),
+    "model missing": (
+        lambda t: ["transfer", str(_walk(t)), "--style", "elderly", "--model", str(t / "none"), "-o", str(t / "o.bvh")],
+        "No such file",
+    ),
     "--mix weight nan": (_transfer(_walk, "--mix", "elderly=nan"), "mixture weights must be finite"),
     "--mix weight inf": (_transfer(_walk, "--mix", "elderly=inf,feminine=1"), "mixture weights must be finite"),
     "--mix negative": (_transfer(_walk, "--mix", "elderly=-1,feminine=2"), "mixture weights must be finite"),
@@ -136,10 +188,40 @@ CASES = {
     "--parts intensity text": (_transfer(_walk, "--parts", "arms=elderly:high"), "intensity 'high' is not a number"),
     "--input-style unknown": (_transfer(_walk, "--input-style", "zombie"), "--input-style 'zombie' is not one of"),
     "--joint-map missing": (_transfer(_walk, "--joint-map", "/nonexistent.json"), "--joint-map /nonexistent.json"),
-    "--joint-map not an object": (lambda t: ["transfer", str(_walk(t)), "--style", "elderly", "--joint-map", str(_bytes(t / "m.json", b"[1, 2]")), "-o", str(t / "o.bvh")], "expected a JSON object"),
-    "--joint-map to a missing joint": (lambda t: ["transfer", str(_walk(t)), "--style", "elderly", "--joint-map", str(_bytes(t / "m.json", b'{"Hips": "Nope"}')), "-o", str(t / "o.bvh")], "Nope"),
-    "resample --fps nan": (lambda t: ["resample", str(_walk(t)), "--fps", "nan", "-o", str(t / "o.bvh")], "outside [1, 1000]"),
-    "resample --fps 0": (lambda t: ["resample", str(_walk(t)), "--fps", "0", "-o", str(t / "o.bvh")], "outside [1, 1000]"),
+    "--joint-map not an object": (
+        lambda t: [
+            "transfer",
+            str(_walk(t)),
+            "--style",
+            "elderly",
+            "--joint-map",
+            str(_bytes(t / "m.json", b"[1, 2]")),
+            "-o",
+            str(t / "o.bvh"),
+        ],
+        "expected a JSON object",
+    ),
+    "--joint-map to a missing joint": (
+        lambda t: [
+            "transfer",
+            str(_walk(t)),
+            "--style",
+            "elderly",
+            "--joint-map",
+            str(_bytes(t / "m.json", b'{"Hips": "Nope"}')),
+            "-o",
+            str(t / "o.bvh"),
+        ],
+        "Nope",
+    ),
+    "resample --fps nan": (
+        lambda t: ["resample", str(_walk(t)), "--fps", "nan", "-o", str(t / "o.bvh")],
+        "outside [1, 1000]",
+    ),
+    "resample --fps 0": (
+        lambda t: ["resample", str(_walk(t)), "--fps", "0", "-o", str(t / "o.bvh")],
+        "outside [1, 1000]",
+    ),
     "serve --port 70000": (lambda t: ["serve", "--port", "70000"], "a port number is 0..65535"),
     "serve --workers 0": (lambda t: ["serve", "--workers", "0"], "at least 1"),
     "serve --queue -5": (lambda t: ["serve", "--queue", "-5"], "at least 1"),
@@ -148,8 +230,14 @@ CASES = {
     "load-test --seconds nan": (lambda t: ["load-test", "--seconds", "nan"], "a positive number"),
     "bench --steps 0": (lambda t: ["bench", "--steps", "0"], "at least 1"),
     "vmc --fps inf": (lambda t: ["vmc", "--fps", "inf"], "a positive number"),
-    "stream-bvh to nowhere": (lambda t: ["stream-bvh", str(_walk(t)), "--style", "elderly", "--to", "ws://127.0.0.1:9/"], "cannot connect"),
-    "stream-bvh -o onto its input": (lambda t: ["stream-bvh", str(_walk(t)), "--style", "elderly", "-o", str(t / "in.bvh")], "the output is the input file"),
+    "stream-bvh to nowhere": (
+        lambda t: ["stream-bvh", str(_walk(t)), "--style", "elderly", "--to", "ws://127.0.0.1:9/"],
+        "cannot connect",
+    ),
+    "stream-bvh -o onto its input": (
+        lambda t: ["stream-bvh", str(_walk(t)), "--style", "elderly", "-o", str(t / "in.bvh")],
+        "the output is the input file",
+    ),
     "export-onnx into a missing folder": (lambda t: ["export-onnx", "-o", str(t / "no" / "m.onnx")], "does not exist"),
 }
 
@@ -186,8 +274,16 @@ def test_a_file_size_limit_is_one_line_and_leaves_nothing(tmp_path):
     def limit() -> None:
         resource.setrlimit(resource.RLIMIT_FSIZE, (20_000, 20_000))
 
-    r = subprocess.run(CLI + ["transfer", str(source), "--style", "elderly", "-o", str(tmp_path / "out.bvh")], capture_output=True, text=True, preexec_fn=limit, timeout=120)
-    assert r.returncode == 2 and r.stderr.strip().splitlines() == [r.stderr.strip()] and "File too large" in r.stderr, r.stderr
+    r = subprocess.run(
+        CLI + ["transfer", str(source), "--style", "elderly", "-o", str(tmp_path / "out.bvh")],
+        capture_output=True,
+        text=True,
+        preexec_fn=limit,
+        timeout=120,
+    )
+    assert r.returncode == 2 and r.stderr.strip().splitlines() == [r.stderr.strip()] and "File too large" in r.stderr, (
+        r.stderr
+    )
     assert sorted(p.name for p in tmp_path.iterdir()) == ["in.bvh"]
 
 
@@ -204,7 +300,9 @@ def test_a_temporary_file_of_a_killed_writer_is_removed_by_the_next_write(tmp_pa
     """kill -9 during a checkpoint write leaves its temporary file; the next write of the same
     file removes it (a live writer's is left alone)."""
     script = "import sys, time; from styleerd.atomic import atomic_write; atomic_write(sys.argv[1], lambda tmp: (open(tmp, 'w').write('half'), print('writing', flush=True), time.sleep(60)))"
-    p = subprocess.Popen([sys.executable, "-c", script, str(tmp_path / "best.safetensors")], stdout=subprocess.PIPE, text=True)
+    p = subprocess.Popen(
+        [sys.executable, "-c", script, str(tmp_path / "best.safetensors")], stdout=subprocess.PIPE, text=True
+    )
     assert p.stdout.readline().strip() == "writing"
     left = [q.name for q in tmp_path.iterdir()]
     assert len(left) == 1 and left[0].startswith(".best.safetensors.") and left[0].endswith(".tmp")
@@ -229,8 +327,23 @@ def test_a_motion_of_all_zero_channels_on_the_models_skeleton_is_stylised(tmp_pa
     """Every joint at one point (no bone has length): foot cleanup once produced NaN here."""
     model, _ = load_generator()
     sk = model.skeleton
-    (tmp_path / "z.bvh").write_text(bvh.format_header(sk, 40, 30.0) + bvh.format_frames(np.zeros((40, sum(map(len, sk.channels))))))
-    r = _run(["transfer", str(tmp_path / "z.bvh"), "--style", "elderly", "--input-style", "normal", "--content", "walk", "-o", str(tmp_path / "o.bvh")])
+    (tmp_path / "z.bvh").write_text(
+        bvh.format_header(sk, 40, 30.0) + bvh.format_frames(np.zeros((40, sum(map(len, sk.channels)))))
+    )
+    r = _run(
+        [
+            "transfer",
+            str(tmp_path / "z.bvh"),
+            "--style",
+            "elderly",
+            "--input-style",
+            "normal",
+            "--content",
+            "walk",
+            "-o",
+            str(tmp_path / "o.bvh"),
+        ]
+    )
     assert r.returncode == 0, r.stderr
     assert np.isfinite(bvh.channel_values(bvh.read(tmp_path / "o.bvh"))).all()
 

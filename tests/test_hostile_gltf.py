@@ -73,21 +73,50 @@ def _key_time(doc: gl.GLTF2, value: float) -> None:
 
 # name -> (mutation of the document, text in the one-line error)
 CASES = {
-    "negative byteStride": (lambda d: setattr(d.bufferViews[d.accessors[_rotation_sampler(d).output].bufferView], "byteStride", -16), "byteStride"),
-    "byteStride 1e9": (lambda d: setattr(d.bufferViews[d.accessors[_rotation_sampler(d).output].bufferView], "byteStride", 10**9), "byteStride"),
-    "byteStride smaller than an element": (lambda d: setattr(d.bufferViews[d.accessors[_rotation_sampler(d).output].bufferView], "byteStride", 4), "stride"),
-    "negative byteOffset": (lambda d: setattr(d.accessors[_rotation_sampler(d).output], "byteOffset", -64), "byteOffset"),
+    "negative byteStride": (
+        lambda d: setattr(d.bufferViews[d.accessors[_rotation_sampler(d).output].bufferView], "byteStride", -16),
+        "byteStride",
+    ),
+    "byteStride 1e9": (
+        lambda d: setattr(d.bufferViews[d.accessors[_rotation_sampler(d).output].bufferView], "byteStride", 10**9),
+        "byteStride",
+    ),
+    "byteStride smaller than an element": (
+        lambda d: setattr(d.bufferViews[d.accessors[_rotation_sampler(d).output].bufferView], "byteStride", 4),
+        "stride",
+    ),
+    "negative byteOffset": (
+        lambda d: setattr(d.accessors[_rotation_sampler(d).output], "byteOffset", -64),
+        "byteOffset",
+    ),
     "count past the buffer": (lambda d: setattr(d.accessors[_rotation_sampler(d).output], "count", 10**6), "count"),
-    "count past its buffer view": (lambda d: setattr(d.accessors[_rotation_sampler(d).output], "count", d.accessors[_rotation_sampler(d).output].count + 1), "past the end"),
+    "count past its buffer view": (
+        lambda d: setattr(
+            d.accessors[_rotation_sampler(d).output], "count", d.accessors[_rotation_sampler(d).output].count + 1
+        ),
+        "past the end",
+    ),
     "count zero": (lambda d: setattr(d.accessors[_rotation_sampler(d).output], "count", 0), "count"),
-    "unknown component type": (lambda d: setattr(d.accessors[_rotation_sampler(d).output], "componentType", 9999), "component type"),
-    "unknown accessor type": (lambda d: setattr(d.accessors[_rotation_sampler(d).output], "type", "VEC9"), "component type"),
+    "unknown component type": (
+        lambda d: setattr(d.accessors[_rotation_sampler(d).output], "componentType", 9999),
+        "component type",
+    ),
+    "unknown accessor type": (
+        lambda d: setattr(d.accessors[_rotation_sampler(d).output], "type", "VEC9"),
+        "component type",
+    ),
     "accessor index out of range": (lambda d: setattr(_rotation_sampler(d), "output", 10**6), "accessor index"),
-    "buffer view out of range": (lambda d: setattr(d.accessors[_rotation_sampler(d).output], "bufferView", 10**6), "bufferView"),
+    "buffer view out of range": (
+        lambda d: setattr(d.accessors[_rotation_sampler(d).output], "bufferView", 10**6),
+        "bufferView",
+    ),
     "sampler index out of range": (lambda d: setattr(d.animations[0].channels[0], "sampler", 10**6), "sampler"),
     "a node its own child": (lambda d: d.nodes[1].children.append(1), "its own child"),
     "a node with two parents": (_two_parents, "a child of both"),
-    "a cycle": (lambda d: d.nodes[d.nodes[0].children[0]].children.append(0), "two parents|a child of both|cycle|deeper"),
+    "a cycle": (
+        lambda d: d.nodes[d.nodes[0].children[0]].children.append(0),
+        "two parents|a child of both|cycle|deeper",
+    ),
     "10,000 nodes deep": (lambda d: _chain(d, 10_000), "deeper than 256"),
     "a child index out of range": (lambda d: d.nodes[0].children.append(10**6), "child"),
     "a skin joint out of range": (lambda d: d.skins[0].joints.append(10**6), "skin joint"),
@@ -103,9 +132,17 @@ CASES = {
 
 def _refused(args: list, tmp_path: Path, text: str) -> None:
     out = tmp_path / "out.glb"
-    done = subprocess.run([*CLI, "transfer", *map(str, args), "--style", "elderly", "-o", str(out)], capture_output=True, text=True, timeout=120)
+    done = subprocess.run(
+        [*CLI, "transfer", *map(str, args), "--style", "elderly", "-o", str(out)],
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
     lines = done.stderr.strip().splitlines()
-    assert done.returncode == 2 and len(lines) == 1 and "Traceback" not in done.stderr, (done.returncode, done.stderr[-2000:])
+    assert done.returncode == 2 and len(lines) == 1 and "Traceback" not in done.stderr, (
+        done.returncode,
+        done.stderr[-2000:],
+    )
     assert any(t in lines[0] for t in text.split("|")), lines[0]
     assert not out.exists() and not list(tmp_path.glob("*.tmp*"))
 
@@ -121,7 +158,17 @@ def test_a_malformed_gltf_is_refused_in_one_line(good, tmp_path, case):
     _refused([path], tmp_path, text)
 
 
-@pytest.mark.parametrize("uri", ["../secret.bin", "/etc/passwd", "sub/../../secret.bin", "file:///etc/passwd", "http://example.com/x.bin", "%2e%2e/secret.bin"])
+@pytest.mark.parametrize(
+    "uri",
+    [
+        "../secret.bin",
+        "/etc/passwd",
+        "sub/../../secret.bin",
+        "file:///etc/passwd",
+        "http://example.com/x.bin",
+        "%2e%2e/secret.bin",
+    ],
+)
 def test_a_gltf_buffer_outside_its_folder_is_never_read(good, tmp_path, uri):
     """A .gltf naming a buffer outside its own folder is refused before anything is read (the
     secret beside the folder would otherwise be embedded in the output)."""

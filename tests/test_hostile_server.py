@@ -30,7 +30,19 @@ MAX_JOINTS, QUEUE, PROBE_FRAMES, MAX_WATCHERS = 120, 8, 40, 8
 @pytest.fixture(scope="module")
 def server():
     port = free_port()
-    proc = start_server(port, "--max-streams", "40", "--max-watchers", str(MAX_WATCHERS), "--queue", str(QUEUE), "--max-message", "1048576", "--max-joints", str(MAX_JOINTS))
+    proc = start_server(
+        port,
+        "--max-streams",
+        "40",
+        "--max-watchers",
+        str(MAX_WATCHERS),
+        "--queue",
+        str(QUEUE),
+        "--max-message",
+        "1048576",
+        "--max-joints",
+        str(MAX_JOINTS),
+    )
     yield f"ws://127.0.0.1:{port}/", port, proc
     log = server_log(proc)
     assert stop_server(proc) == 0
@@ -92,12 +104,28 @@ ATTACKS = {
     "binary first": ([b"\x00\x01"], 1008, "expected a JSON text message"),
     "unknown first type": ([json.dumps({"type": "dance"})], 1008, "must be a hello or a watch"),
     "hello fps as text": ([_hello(fps="30")], 1008, "'fps' must be a number"),
-    "hello fps NaN": (['{"type": "hello", "preset": "model", "style": "elderly", "fps": NaN}'], 1008, "'fps' must be a number"),
+    "hello fps NaN": (
+        ['{"type": "hello", "preset": "model", "style": "elderly", "fps": NaN}'],
+        1008,
+        "'fps' must be a number",
+    ),
     "hello fps 1e9": ([_hello(fps=1e9)], 1008, "'fps' must be a number"),
-    "hello intensity NaN": (['{"type": "hello", "preset": "model", "style": "elderly", "intensity": NaN}'], 1008, "'intensity' must be a number"),
+    "hello intensity NaN": (
+        ['{"type": "hello", "preset": "model", "style": "elderly", "intensity": NaN}'],
+        1008,
+        "'intensity' must be a number",
+    ),
     "hello intensity -1": ([_hello(intensity=-1)], 1008, "'intensity' must be a number"),
-    "hello mix NaN": (['{"type": "hello", "preset": "model", "mix": {"elderly": NaN}}'], 1008, "mixture weights must be finite"),
-    "hello mix Infinity": (['{"type": "hello", "preset": "model", "mix": {"elderly": Infinity, "feminine": 1}}'], 1008, "mixture weights must be finite"),
+    "hello mix NaN": (
+        ['{"type": "hello", "preset": "model", "mix": {"elderly": NaN}}'],
+        1008,
+        "mixture weights must be finite",
+    ),
+    "hello mix Infinity": (
+        ['{"type": "hello", "preset": "model", "mix": {"elderly": Infinity, "feminine": 1}}'],
+        1008,
+        "mixture weights must be finite",
+    ),
     "hello mix a list": ([_hello(mix=[1, 2])], 1008, "'mix' must be an object"),
     "hello mix unknown style": ([_hello(mix={"zombie": 1})], 1008, "unknown style 'zombie'"),
     "hello style a number": ([_hello(style=5)], 1008, "'style' must be a style name"),
@@ -107,26 +135,92 @@ ATTACKS = {
     "hello skeleton a number": ([_hello(skeleton=123)], 1008, "needs 'skeleton'"),
     "hello skeleton empty": ([_hello(skeleton="")], 1008, "handshake skeleton"),
     "hello skeleton garbage": ([_hello(skeleton="HIERARCHY\nROOT\n{{{{")], 1008, "handshake skeleton"),
-    "hello skeleton 1,200 deep": ([_hello(skeleton="HIERARCHY\nROOT R\n{\nOFFSET 0 0 0\n" + "JOINT J\n{\nOFFSET 0 1 0\n" * 1200)], 1008, "joints; this server takes at most"),
-    "hello 8,000 extra joints": ([_hello(skeleton=_large_skeleton(8000))], 1008, f"this server takes at most {MAX_JOINTS}"),
-    "hello without legs": ([_hello(skeleton="HIERARCHY\nROOT Hips\n{\nOFFSET 0 0 0\nCHANNELS 3 Zrotation Xrotation Yrotation\n}\n")], 1008, "input"),
-    "hello zero leg length": ([_hello(skeleton=bvh.format_header(type(V.skeleton)(V.skeleton.names, V.skeleton.parents, np.zeros_like(V.skeleton.offsets), V.skeleton.channels, ()), 0, 30.0))], 1008, "no length"),
+    "hello skeleton 1,200 deep": (
+        [_hello(skeleton="HIERARCHY\nROOT R\n{\nOFFSET 0 0 0\n" + "JOINT J\n{\nOFFSET 0 1 0\n" * 1200)],
+        1008,
+        "joints; this server takes at most",
+    ),
+    "hello 8,000 extra joints": (
+        [_hello(skeleton=_large_skeleton(8000))],
+        1008,
+        f"this server takes at most {MAX_JOINTS}",
+    ),
+    "hello without legs": (
+        [_hello(skeleton="HIERARCHY\nROOT Hips\n{\nOFFSET 0 0 0\nCHANNELS 3 Zrotation Xrotation Yrotation\n}\n")],
+        1008,
+        "input",
+    ),
+    "hello zero leg length": (
+        [
+            _hello(
+                skeleton=bvh.format_header(
+                    type(V.skeleton)(
+                        V.skeleton.names, V.skeleton.parents, np.zeros_like(V.skeleton.offsets), V.skeleton.channels, ()
+                    ),
+                    0,
+                    30.0,
+                )
+            )
+        ],
+        1008,
+        "no length",
+    ),
     "hello over 1 MB": ([_hello(name="x" * (1 << 20))], 1009, None),
     "frame of the wrong length": (_frames(VALUES, [frame(3, VALUES[0][:-1])]), 1008, "a binary frame is"),
     "frame with NaN": (_frames(VALUES, [frame(3, np.full_like(VALUES[0], np.nan))]), 1007, "is not a finite number"),
     "frame of 3e38": (_frames(VALUES, [frame(3, np.full_like(VALUES[0], 3e38))]), 1007, "is out of range"),
-    "root X of 1e30": (_frames(VALUES, [frame(3, np.where(np.arange(VALUES.shape[1]) == 0, 1e30, VALUES[0]).astype("<f4"))]), 1007, "Xposition = 1e+30 is out of range"),
-    "JSON frame seq 2^40": (_frames(VALUES, [json.dumps({"type": "frame", "seq": 2**40, "values": VALUES[0].tolist()})]), 1007, "'seq' must be an integer"),
-    "JSON frame seq -1": (_frames(VALUES, [json.dumps({"type": "frame", "seq": -1, "values": VALUES[0].tolist()})]), 1007, "'seq' must be an integer"),
-    "JSON frame values text": (_frames(VALUES, [json.dumps({"type": "frame", "values": ["1"] * VALUES.shape[1]})]), 1008, "must be a list of"),
-    "JSON frame values NaN": (_frames(VALUES, ['{"type": "frame", "values": [' + ",".join(["NaN"] * VALUES.shape[1]) + "]}"]), 1007, "is not a finite number"),
-    "frames faster than real time": (_frames(VALUES, [frame(i, VALUES[0]) for i in range(3, 400)]), 1008, "frames waiting"),
-    "set with an unknown style": (_frames(VALUES, [json.dumps({"type": "set", "style": "zombie"})]), 1008, "unknown style"),
-    "set with mix NaN": (_frames(VALUES, ['{"type": "set", "mix": {"elderly": NaN}}']), 1008, "mixture weights must be finite"),
+    "root X of 1e30": (
+        _frames(VALUES, [frame(3, np.where(np.arange(VALUES.shape[1]) == 0, 1e30, VALUES[0]).astype("<f4"))]),
+        1007,
+        "Xposition = 1e+30 is out of range",
+    ),
+    "JSON frame seq 2^40": (
+        _frames(VALUES, [json.dumps({"type": "frame", "seq": 2**40, "values": VALUES[0].tolist()})]),
+        1007,
+        "'seq' must be an integer",
+    ),
+    "JSON frame seq -1": (
+        _frames(VALUES, [json.dumps({"type": "frame", "seq": -1, "values": VALUES[0].tolist()})]),
+        1007,
+        "'seq' must be an integer",
+    ),
+    "JSON frame values text": (
+        _frames(VALUES, [json.dumps({"type": "frame", "values": ["1"] * VALUES.shape[1]})]),
+        1008,
+        "must be a list of",
+    ),
+    "JSON frame values NaN": (
+        _frames(VALUES, ['{"type": "frame", "values": [' + ",".join(["NaN"] * VALUES.shape[1]) + "]}"]),
+        1007,
+        "is not a finite number",
+    ),
+    "frames faster than real time": (
+        _frames(VALUES, [frame(i, VALUES[0]) for i in range(3, 400)]),
+        1008,
+        "frames waiting",
+    ),
+    "set with an unknown style": (
+        _frames(VALUES, [json.dumps({"type": "set", "style": "zombie"})]),
+        1008,
+        "unknown style",
+    ),
+    "set with mix NaN": (
+        _frames(VALUES, ['{"type": "set", "mix": {"elderly": NaN}}']),
+        1008,
+        "mixture weights must be finite",
+    ),
     "unknown message type": (_frames(VALUES, [json.dumps({"type": "dance"})]), 1008, "unknown message type"),
-    "a watcher that sends frames": ([json.dumps({"type": "watch"}), frame(0, VALUES[0])], 1008, "expected a JSON text message"),
+    "a watcher that sends frames": (
+        [json.dumps({"type": "watch"}), frame(0, VALUES[0])],
+        1008,
+        "expected a JSON text message",
+    ),
     "watch token a number": ([json.dumps({"type": "watch", "token": 5})], 1008, "'token' must be the text"),
-    "watch token 10,000 characters": ([json.dumps({"type": "watch", "token": "a" * 10_000})], 1008, "'token' must be the text"),
+    "watch token 10,000 characters": (
+        [json.dumps({"type": "watch", "token": "a" * 10_000})],
+        1008,
+        "'token' must be the text",
+    ),
 }
 
 
@@ -151,7 +245,9 @@ def test_an_attack_is_refused_clearly_and_the_probe_is_untouched(server, clip, a
         assert errors and text in errors[0], texts
     _, stats = probe(url, clip)
     deadline = time.time() + 10
-    while stats["streams"] != 1 and time.time() < deadline:  # the attacker's stream is gone (the probe's own is counted)
+    while (
+        stats["streams"] != 1 and time.time() < deadline
+    ):  # the attacker's stream is gone (the probe's own is counted)
         time.sleep(0.2)
         _, stats = probe(url, clip)
     assert stats["streams"] == 1, stats
@@ -284,13 +380,19 @@ def test_fast_streaming_of_a_long_clip_keeps_within_the_queue(server, tmp_path):
     from styleerd.serve.client import stream_bvh
 
     bvh.write(tmp_path / "long.bvh", walk(327 / 30, fps=30.0))
-    summary = stream_bvh(str(tmp_path / "long.bvh"), server[0], "elderly", 1.0, None, str(tmp_path / "out.bvh"), realtime=False)
+    summary = stream_bvh(
+        str(tmp_path / "long.bvh"), server[0], "elderly", 1.0, None, str(tmp_path / "out.bvh"), realtime=False
+    )
     assert "received 327" in summary and bvh.read(tmp_path / "out.bvh").n_frames == 327
 
 
 def test_raw_socket_garbage_and_half_handshakes(server, clip):
     url, port, _ = server
-    for payload in (b"\x00" * 64, b"GET / HTTP/1.1\r\n" + b"X: y\r\n" * 500 + b"\r\n", b"GET / HTTP/1.1\r\nHost: 127.0.0.1\r\nUpgrade: websocket\r\n\r\n"):
+    for payload in (
+        b"\x00" * 64,
+        b"GET / HTTP/1.1\r\n" + b"X: y\r\n" * 500 + b"\r\n",
+        b"GET / HTTP/1.1\r\nHost: 127.0.0.1\r\nUpgrade: websocket\r\n\r\n",
+    ):
         s = socket.create_connection(("127.0.0.1", port), timeout=10)
         s.sendall(payload)
         s.shutdown(socket.SHUT_WR)
@@ -311,8 +413,18 @@ def test_raw_socket_garbage_and_half_handshakes(server, clip):
 def _json_values():
     from hypothesis import strategies as st
 
-    scalars = st.none() | st.booleans() | st.integers(-(2**70), 2**70) | st.floats(allow_nan=True, allow_infinity=True) | st.text(max_size=8)
-    return st.recursive(scalars, lambda inner: st.lists(inner, max_size=3) | st.dictionaries(st.text(max_size=6), inner, max_size=3), max_leaves=6)
+    scalars = (
+        st.none()
+        | st.booleans()
+        | st.integers(-(2**70), 2**70)
+        | st.floats(allow_nan=True, allow_infinity=True)
+        | st.text(max_size=8)
+    )
+    return st.recursive(
+        scalars,
+        lambda inner: st.lists(inner, max_size=3) | st.dictionaries(st.text(max_size=6), inner, max_size=3),
+        max_leaves=6,
+    )
 
 
 @pytest.fixture(scope="module")
@@ -343,7 +455,25 @@ def test_fuzzed_hellos_open_a_stream_or_are_refused_clearly(style_server):
     from styleerd.serve.server import ClientError
 
     server, loop = style_server
-    keys = st.sampled_from(["fps", "style", "intensity", "mix", "parts", "input_style", "content", "format", "cleanup", "root_speed", "name", "private", "positions", "preset", "skeleton"])
+    keys = st.sampled_from(
+        [
+            "fps",
+            "style",
+            "intensity",
+            "mix",
+            "parts",
+            "input_style",
+            "content",
+            "format",
+            "cleanup",
+            "root_speed",
+            "name",
+            "private",
+            "positions",
+            "preset",
+            "skeleton",
+        ]
+    )
     good = json.loads(_hello())
 
     @settings(max_examples=300, deadline=None, suppress_health_check=list(HealthCheck), derandomize=True)
@@ -478,7 +608,9 @@ def test_stats_count_no_private_stream_but_the_askers_own(server, clip):
     secret.send(json.dumps({**hello(m, 30.0, "elderly", 1.0, None, "hidden"), "private": True}))
     assert json.loads(secret.recv(timeout=20))["type"] == "ready"
     secret.send(json.dumps({"type": "stats"}))
-    assert next(json.loads(x) for x in iter(lambda: secret.recv(timeout=20), None) if isinstance(x, str))["streams"] >= 1
+    assert (
+        next(json.loads(x) for x in iter(lambda: secret.recv(timeout=20), None) if isinstance(x, str))["streams"] >= 1
+    )
     _, stats = probe(url, clip)
     assert stats["streams"] == 1, stats  # the probe's own, not the private one
     secret.close()

@@ -42,10 +42,18 @@ def test_shipped_fmd_extractor_and_the_quality_figures(shared_data):
     assert q["sra_first_10"] <= q["sra_rest"] and q["jitter_ratio"] > 0
     # per target style: CRA next to the content recogniser on the same inputs; spreads
     styles = set(q["fmd_per_style"])
-    assert styles == set(q["cra_per_style"]) == set(q["content_ceiling_per_style"]) == set(q["sra_per_style"]) == set(ckpt.load_generator()[0].config.styles)
+    assert (
+        styles
+        == set(q["cra_per_style"])
+        == set(q["content_ceiling_per_style"])
+        == set(q["sra_per_style"])
+        == set(ckpt.load_generator()[0].config.styles)
+    )
     assert all(0.5 < v <= 1 for v in q["content_ceiling_per_style"].values())
     assert 0 < q["spread"]["sra"] < 0.05 and 0 < q["spread"]["cra"] < 0.05 and 0 < q["spread"]["fmd"] < q["fmd"]
-    assert q["realism_margin"] > 0 and q["worst_fmd_over_floor"] == round(max(q["fmd_per_style"][k] / q["fmd_floor_per_style"][k] for k in styles), 3)
+    assert q["realism_margin"] > 0 and q["worst_fmd_over_floor"] == round(
+        max(q["fmd_per_style"][k] / q["fmd_floor_per_style"][k] for k in styles), 3
+    )
     # the same on the validation split (choosing between models without the test set): other windows, other figures
     v = evaluate_model(ckpt.load_generator()[0], str(shared_data), split="val")
     val = windows(s.fs, s.data, "val", s.data.window)
@@ -88,7 +96,9 @@ def test_streamed_transfers_back_to_neutral_and_into_styles(shared_data, tmp_pat
             assert sum(v["missed_read_as"].values()) == round((1 - v["given"]["sra"]) * v["windows"])
     # the labeller reads each source's style by the clip's end
     pace = r["root_speed_by_content_and_style"]  # elderly performers walk and run slower than normal ones
-    assert pace["walk"]["elderly"] < 0.8 * pace["walk"]["normal"] and pace["run"]["elderly"] < 0.6 * pace["run"]["normal"]
+    assert (
+        pace["walk"]["elderly"] < 0.8 * pace["walk"]["normal"] and pace["run"]["elderly"] < 0.6 * pace["run"]["normal"]
+    )
     read = r["labeller_reads_input_as_at_end"]
     assert sum(v.get(k, 0) for k, v in read.items()) / sum(sum(v.values()) for v in read.values()) > 0.9
 
@@ -102,8 +112,14 @@ def test_cleanup_removes_skate_and_blending_removes_the_pop(shared_data):
     assert skate["cleaned_output"] < 0.2 * skate["raw_output"] and skate["cleaned_output"] <= 2 * skate["input"]
     # the root's speed stylised (transfer --root-speed): the root moves at another pace, the
     # cleanup still pins the planted feet where the moved body puts them
-    assert skate["root_speed_change"] > 0.1 and skate["root_speed_ratio_range"][0] < 0.9 < 1.1 < skate["root_speed_ratio_range"][1]
-    assert skate["cleaned_output_root_speed"] < 0.2 * skate["raw_output_root_speed"] and skate["cleaned_output_root_speed"] <= 2 * skate["input"]
+    assert (
+        skate["root_speed_change"] > 0.1
+        and skate["root_speed_ratio_range"][0] < 0.9 < 1.1 < skate["root_speed_ratio_range"][1]
+    )
+    assert (
+        skate["cleaned_output_root_speed"] < 0.2 * skate["raw_output_root_speed"]
+        and skate["cleaned_output_root_speed"] <= 2 * skate["input"]
+    )
     sw = r["style_switch"]
     assert sw["blended_cm"] < sw["unblended_cm"] and sw["blended_cm"] < sw["normal_p99_cm"]
     assert r["labels"][30]["style"] >= 0.97

@@ -88,7 +88,10 @@ def test_output_is_causal(setup):
 def test_only_needed_branches_run(setup):
     _, _, model, x = setup
     calls = []
-    hooks = [b.register_forward_hook(lambda mod, i, o, k=k: calls.append((k, i[0].shape[0]))) for k, b in enumerate(model.branches)]
+    hooks = [
+        b.register_forward_hook(lambda mod, i, o, k=k: calls.append((k, i[0].shape[0])))
+        for k, b in enumerate(model.branches)
+    ]
     s, c, _ = labels(model, [1, 1, 1, 1], [0, 0, 0, 0], None)
     target = torch.eye(4)[[1, 1, 2, 2]]  # neutral, neutral, old, old
     with torch.no_grad():
@@ -102,8 +105,14 @@ def test_only_needed_branches_run(setup):
 def test_learned_initial_state_selected_by_content(setup):
     _, _, model, x = setup
     st = model.initial_state(torch.eye(2)[[0, 1]])
-    assert torch.equal(st.neutral[0][:, 0], model.neutral_h0[0]) and torch.equal(st.neutral[0][:, 1], model.neutral_h0[1])
-    zero = StyleERD(GeneratorConfig(model.config.n_joints, STYLES, CONTENTS, learned_init=False), walking_motion(2).skeleton, setup[1])
+    assert torch.equal(st.neutral[0][:, 0], model.neutral_h0[0]) and torch.equal(
+        st.neutral[0][:, 1], model.neutral_h0[1]
+    )
+    zero = StyleERD(
+        GeneratorConfig(model.config.n_joints, STYLES, CONTENTS, learned_init=False),
+        walking_motion(2).skeleton,
+        setup[1],
+    )
     assert not zero.neutral_h0.requires_grad and not zero.branch_h0.requires_grad
 
 
@@ -146,9 +155,13 @@ def test_torch_fk_by_depth_matches_scipy_on_a_tree_in_any_order():
         expected[:, j] = 0.0 if p < 0 else expected[:, p] + glob[p] @ offsets[j]
     assert np.allclose(pos.reshape(10, 15, 3), expected, atol=1e-12)
     x = torch.tensor(q[:1, :2], requires_grad=True)
-    assert torch.autograd.gradcheck(lambda r: torch_quat.root_relative_positions(r, torch.tensor(offsets), parents), (x,))
+    assert torch.autograd.gradcheck(
+        lambda r: torch_quat.root_relative_positions(r, torch.tensor(offsets), parents), (x,)
+    )
     with pytest.raises(ValueError, match="one tree"):
-        torch_quat.root_relative_positions(torch.tensor(q), torch.tensor(offsets), [-1, 0, 3, 2] + list(range(11)))  # 2, 3: a loop
+        torch_quat.root_relative_positions(
+            torch.tensor(q), torch.tensor(offsets), [-1, 0, 3, 2] + list(range(11))
+        )  # 2, 3: a loop
 
 
 def test_discriminator_attention_and_ablation_shapes():
@@ -164,7 +177,9 @@ def test_discriminator_attention_and_ablation_shapes():
 
 def test_checkpoint_roundtrip_without_pickle(setup, tmp_path):
     m, stats, model, x = setup
-    ckpt.save_tensors(tmp_path / "g", ckpt.prefixed("generator", model), ckpt.generator_meta(model, m.skeleton, stats, note="x"))
+    ckpt.save_tensors(
+        tmp_path / "g", ckpt.prefixed("generator", model), ckpt.generator_meta(model, m.skeleton, stats, note="x")
+    )
     assert (tmp_path / "g.json").is_file() and b"pickle" not in (tmp_path / "g.safetensors").read_bytes()[:64]
     again, meta = ckpt.load_generator(tmp_path / "g")
     s, c, _ = labels(model, [0, 1, 2, 3], [0, 1, 1, 0], None)
@@ -172,7 +187,9 @@ def test_checkpoint_roundtrip_without_pickle(setup, tmp_path):
         assert torch.equal(again(x, s, c, s)[0], model(x, s, c, s)[0])
     assert meta["note"] == "x"
     cls = WindowClassifier(30, 3)
-    ckpt.save_tensors(tmp_path / "c", ckpt.prefixed("style", cls), {"style": ckpt.classifier_meta(cls, ["a", "b", "c"])})
+    ckpt.save_tensors(
+        tmp_path / "c", ckpt.prefixed("style", cls), {"style": ckpt.classifier_meta(cls, ["a", "b", "c"])}
+    )
     tensors, meta = ckpt.load_tensors(tmp_path / "c")
     rebuilt = ckpt.build_classifier(meta["style"])
     rebuilt.load_state_dict(ckpt.unprefixed("style", tensors))

@@ -34,7 +34,9 @@ def test_reference_host_loop_equals_the_stylizer(tmp_path, form):
                            "--style", "elderly", "--input-style", "normal", "--content", "walk"], capture_output=True, text=True, timeout=300)  # fmt: skip
     assert done.returncode == 0, done.stderr
     host = np.load(tmp_path / "out.npz")["rotations"]
-    ours = run_stream(StreamStylizer(model, "normal", "walk", {"elderly": 1.0}, fps=on_model.fps, backend="onnx"), on_model).rotations
+    ours = run_stream(
+        StreamStylizer(model, "normal", "walk", {"elderly": 1.0}, fps=on_model.fps, backend="onnx"), on_model
+    ).rotations
     assert host.shape == ours.shape
     assert np.degrees(quat.angle_between(host, ours)).max() < 1e-2
     assert np.degrees(quat.angle_between(host, on_model.rotations)).max() > 5.0  # stylised, not the input

@@ -34,7 +34,9 @@ def readme_example() -> str:
 def test_readme_python_example_runs_as_written(tmp_path):
     (tmp_path / "example.py").write_text(readme_example())
     env = {**os.environ, "PYTHONPATH": str(ROOT)}
-    done = subprocess.run([sys.executable, "example.py"], cwd=tmp_path, env=env, capture_output=True, text=True, timeout=600)
+    done = subprocess.run(
+        [sys.executable, "example.py"], cwd=tmp_path, env=env, capture_output=True, text=True, timeout=600
+    )
     assert done.returncode == 0, done.stderr
     assert "no torch needed" in done.stdout
     out = bvh.read(tmp_path / "walk-elderly.bvh")
@@ -53,8 +55,14 @@ def test_the_wheel_carries_the_models_and_the_viewer(wheel):
     names = set(zipfile.ZipFile(wheel).namelist())
     for stem in ("styleerd-bandai2", "labeller-bandai2", "recognisers-bandai2", "fmd-bandai2"):
         assert {f"styleerd/models/{stem}.safetensors", f"styleerd/models/{stem}.json"} <= names
-    assert {"styleerd/serve/static/index.html", "styleerd/serve/static/vendor/three.module.js", "styleerd/serve/static/vendor/three.core.js",
-            "styleerd/serve/static/engine.html", "styleerd/serve/static/vendor/ort.wasm.min.mjs", "styleerd/serve/static/vendor/ort-wasm-simd-threaded.wasm"} <= names
+    assert {
+        "styleerd/serve/static/index.html",
+        "styleerd/serve/static/vendor/three.module.js",
+        "styleerd/serve/static/vendor/three.core.js",
+        "styleerd/serve/static/engine.html",
+        "styleerd/serve/static/vendor/ort.wasm.min.mjs",
+        "styleerd/serve/static/vendor/ort-wasm-simd-threaded.wasm",
+    } <= names
     assert not any(n.startswith(("tests/", "models/ablations", "benchmarks/")) for n in names)
     metadata = next(zipfile.ZipFile(wheel).read(n).decode() for n in names if n.endswith("METADATA"))
     requires = [line for line in metadata.splitlines() if line.startswith("Requires-Dist:") and "extra ==" not in line]
@@ -80,11 +88,21 @@ def test_light_install_runs_transfer_export_and_api_without_torch(light_install,
     assert "elderly" in styles and "CC BY-NC 4.0" in styles
     _run([cli, "transfer", "walk.bvh", "--style", "elderly", "-o", "out.bvh"], cwd=tmp_path, env=env)
     assert bvh.read(tmp_path / "out.bvh").n_frames == bvh.read(tmp_path / "walk.bvh").n_frames
-    _run([cli, "transfer", "walk.bvh", "--style", "elderly", "--backend", "numba", "-o", "out-numba.bvh"], cwd=tmp_path, env=env)
+    _run(
+        [cli, "transfer", "walk.bvh", "--style", "elderly", "--backend", "numba", "-o", "out-numba.bvh"],
+        cwd=tmp_path,
+        env=env,
+    )
     a, b = bvh.read(tmp_path / "out.bvh"), bvh.read(tmp_path / "out-numba.bvh")
     assert np.abs(a.rotations - b.rotations).max() < 1e-4  # the fast backend, the same output
     for backend in ("torch", "onnx"):  # not in the light install: one line saying what to install
-        done = subprocess.run([cli, "transfer", "walk.bvh", "--style", "elderly", "--backend", backend, "-o", "x.bvh"], cwd=tmp_path, env=env, capture_output=True, text=True)
+        done = subprocess.run(
+            [cli, "transfer", "walk.bvh", "--style", "elderly", "--backend", backend, "-o", "x.bvh"],
+            cwd=tmp_path,
+            env=env,
+            capture_output=True,
+            text=True,
+        )
         assert done.returncode == 2 and "styleerd[train]" in done.stderr and "Traceback" not in done.stderr, done.stderr
     _run([cli, "export-onnx", "-o", "step.onnx"], cwd=tmp_path, env=env)
     assert json.loads((tmp_path / "step.json").read_text())["styles"]
@@ -97,14 +115,22 @@ def test_light_install_runs_transfer_export_and_api_without_torch(light_install,
 def test_light_install_serves_the_viewer(light_install, tmp_path):
     port = _free_port()
     env = {k: v for k, v in os.environ.items() if k != "PYTHONPATH"}
-    server = subprocess.Popen([light_install / "bin/styleerd", "serve", "--port", str(port)], cwd=tmp_path, env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT)
+    server = subprocess.Popen(
+        [light_install / "bin/styleerd", "serve", "--port", str(port)],
+        cwd=tmp_path,
+        env=env,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.STDOUT,
+    )
     try:
         deadline, page = time.monotonic() + 120, None
         while page is None:
             try:
                 page = urllib.request.urlopen(f"http://127.0.0.1:{port}/", timeout=5).read().decode()
             except OSError:
-                assert server.poll() is None and time.monotonic() < deadline, server.stdout.read().decode() if server.poll() is not None else "no answer"
+                assert server.poll() is None and time.monotonic() < deadline, (
+                    server.stdout.read().decode() if server.poll() is not None else "no answer"
+                )
                 time.sleep(0.5)
         assert "<canvas" in page or "viewer.js" in page
         three = urllib.request.urlopen(f"http://127.0.0.1:{port}/static/vendor/three.module.js", timeout=5).read()
@@ -124,7 +150,9 @@ def test_help_groups_every_command_and_transfer_help_lists_the_styles():
     assert sorted(grouped) == sorted(commands) and len(grouped) == len(set(grouped))
     top = parser.format_help()
     assert all(f"{group}:" in top for group in GROUPS) and "CC BY-NC 4.0" in top
-    transfer = subprocess.run([sys.executable, "-m", "styleerd.cli", "transfer", "--help"], capture_output=True, text=True, timeout=60).stdout
+    transfer = subprocess.run(
+        [sys.executable, "-m", "styleerd.cli", "transfer", "--help"], capture_output=True, text=True, timeout=60
+    ).stdout
     assert all(style in transfer for style in load_generator_weights().config.styles)
 
 
@@ -137,13 +165,29 @@ def test_models_are_found_by_path_by_name_in_styleerd_models_and_shipped(tmp_pat
         (mine / f"my-model{suffix}").write_bytes((MODELS_DIR / f"styleerd-bandai2{suffix}").read_bytes())
     env = {**os.environ, "STYLEERD_MODELS": f"{tmp_path / 'nothing-here'}{os.pathsep}{mine}"}
     for name in ("my-model", str(mine / "my-model"), str(mine / "my-model.safetensors")):
-        done = subprocess.run([sys.executable, "-m", "styleerd.cli", "styles", "--model", name], capture_output=True, text=True, timeout=60, env=env)
+        done = subprocess.run(
+            [sys.executable, "-m", "styleerd.cli", "styles", "--model", name],
+            capture_output=True,
+            text=True,
+            timeout=60,
+            env=env,
+        )
         assert done.returncode == 0 and f"model:    {mine / 'my-model.safetensors'}" in done.stdout, done.stderr
-    shipped = subprocess.run([sys.executable, "-m", "styleerd.cli", "styles"], capture_output=True, text=True, timeout=60, env=env)
-    assert f"model:    {MODELS_DIR / 'styleerd-bandai2.safetensors'}" in shipped.stdout.splitlines()[0]  # the default first
+    shipped = subprocess.run(
+        [sys.executable, "-m", "styleerd.cli", "styles"], capture_output=True, text=True, timeout=60, env=env
+    )
+    assert (
+        f"model:    {MODELS_DIR / 'styleerd-bandai2.safetensors'}" in shipped.stdout.splitlines()[0]
+    )  # the default first
     for generator in MODELS_DIR.glob("styleerd-*.safetensors"):  # then every other shipped model
         assert f"model:    {generator}" in shipped.stdout
-    missing = subprocess.run([sys.executable, "-m", "styleerd.cli", "styles", "--model", "nope"], capture_output=True, text=True, timeout=60, env=env)
+    missing = subprocess.run(
+        [sys.executable, "-m", "styleerd.cli", "styles", "--model", "nope"],
+        capture_output=True,
+        text=True,
+        timeout=60,
+        env=env,
+    )
     assert missing.returncode == 2 and "cannot load model nope.safetensors" in missing.stderr
 
 
@@ -152,13 +196,20 @@ def test_the_docs_name_only_styles_the_model_has():
 
     styles = set(load_generator_weights().config.styles)
     for doc in ("README.md", "docs/PROTOCOL.md"):
-        text = "\n".join(line for line in ROOT.joinpath(doc).read_text().splitlines() if "--model" not in line)  # another model's styles
+        text = "\n".join(
+            line for line in ROOT.joinpath(doc).read_text().splitlines() if "--model" not in line
+        )  # another model's styles
         named = set(re.findall(r'"style": "([a-z-]+)"', text)) | set(re.findall(r"--style ([a-z-]+)", text))
         named |= set(re.findall(r'\.(?:stylizer|transfer|set_style)\([^)]*?"([a-z-]+)"', text)) - {"walk.bvh"}
-        named |= {name for pair in re.findall(r"--mix ([a-z=0-9.,-]+)", text) for name in re.findall(r"([a-z-]+)=", pair)}
+        named |= {
+            name for pair in re.findall(r"--mix ([a-z=0-9.,-]+)", text) for name in re.findall(r"([a-z-]+)=", pair)
+        }
         assert named and named <= styles, f"{doc} names styles the model does not have: {named - styles}"
     for style in styles:
-        assert ROOT.joinpath("docs/styles", f"{style}.png").is_file() and f"docs/styles/{style}.png" in ROOT.joinpath("README.md").read_text()
+        assert (
+            ROOT.joinpath("docs/styles", f"{style}.png").is_file()
+            and f"docs/styles/{style}.png" in ROOT.joinpath("README.md").read_text()
+        )
     assert "numba" in ROOT.joinpath("README.md").read_text().split("[--backend ", 1)[1].split("]", 1)[0]
 
 
@@ -172,7 +223,10 @@ def test_a_model_finds_the_labeller_of_its_labels(tmp_path, monkeypatch):
 
     config = load_generator_weights().config
     assert labeller_stem(config) == MODELS_DIR / "labeller-bandai2"
-    assert labeller_stem(replace(config, styles=(*config.styles, "sneaky"), added_styles=("sneaky",))) == MODELS_DIR / "labeller-bandai2"
+    assert (
+        labeller_stem(replace(config, styles=(*config.styles, "sneaky"), added_styles=("sneaky",)))
+        == MODELS_DIR / "labeller-bandai2"
+    )
     other = replace(config, styles=("calm", "normal"), added_styles=())
     meta = json.loads((MODELS_DIR / "labeller-bandai2.json").read_text())
     (tmp_path / "labeller-calm.json").write_text(json.dumps({**meta, "styles": ["calm", "normal"]}))

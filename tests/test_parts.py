@@ -58,7 +58,9 @@ def test_each_part_is_its_targets_output_and_input_parts_are_the_input(model, wa
 
 
 def test_parts_sharing_a_target_share_a_pass_and_reset_covers_every_pass(model, walk):
-    st = StreamStylizer(model, "normal", "walk", {"active": 1.0}, n_streams=2, parts="legs=elderly,head=elderly,torso=active:0.5")
+    st = StreamStylizer(
+        model, "normal", "walk", {"active": 1.0}, n_streams=2, parts="legs=elderly,head=elderly,torso=active:0.5"
+    )
     assert len(st.part_passes) == 2 and st.backend.n == 6
     first = [st.step(np.stack([walk.rotations[t]] * 2), np.stack([walk.positions[t]] * 2))[0] for t in range(5)]
     st.reset([1])

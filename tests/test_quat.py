@@ -125,7 +125,9 @@ def test_compiled_scalar_helpers_against_the_array_functions_and_scipy():
         axes = ["xyz".index(a) for a in order]
         for row in q:
             e = np.array(quat.quat_scalars_to_euler(*row, *axes))
-            assert same_rotation(from_scipy(Rotation.from_euler(order.upper(), e)), row) and abs(e[1]) <= np.pi / 2 + 1e-12
+            assert (
+                same_rotation(from_scipy(Rotation.from_euler(order.upper(), e)), row) and abs(e[1]) <= np.pi / 2 + 1e-12
+            )
             assert same_rotation(np.array(quat.euler_scalars_to_quat(*e, *axes)), row)
             ref = e + rng.normal(0, 3, 3)
             near = np.array(quat.nearest_euler_scalars(*e, *ref))

@@ -51,7 +51,15 @@ def all_clips(shared_data):
 def test_clip_counts_and_labels(all_clips):
     b2, b1, xia = all_clips["bandai-namco-2"], all_clips["bandai-namco-1"], all_clips["xia-sample"]
     assert len(b2) == 2762 and len(b1) == 174 and len(xia) == 9
-    assert sorted({c.style for c in b2}) == ["active", "elderly", "exhausted", "feminine", "masculine", "normal", "youthful"]
+    assert sorted({c.style for c in b2}) == [
+        "active",
+        "elderly",
+        "exhausted",
+        "feminine",
+        "masculine",
+        "normal",
+        "youthful",
+    ]
     assert len({c.content for c in b2}) == 10 and len({(c.style, c.content) for c in b2}) == 70
     for c in b2:  # labels from JSON agree with the file name dataset-2_{content}_{style}_{take}
         assert c.name == f"dataset-2_{c.content}_{c.style}_{c.name.rsplit('_', 1)[1]}"
@@ -66,8 +74,10 @@ def test_every_clip_round_trips_and_reconstructs(all_clips):
         results = pool.map(check_clip, clips, chunksize=32)
     failures = [r for r in results if not (r[1] <= 1e-5 and r[2] <= 1e-4 and r[3] <= 1e-3 and r[4] <= 1e-3)]
     worst = np.max([r[1:] for r in results], axis=0)
-    print(f"\n{len(results)} clips; worst channel rel. error {worst[0]:.2e}, round-trip FK {worst[1]:.2e}, "
-          f"reconstruction FK {worst[2]:.2e}, root drop FK {worst[3]:.2e}; failures: {len(failures)}")
+    print(
+        f"\n{len(results)} clips; worst channel rel. error {worst[0]:.2e}, round-trip FK {worst[1]:.2e}, "
+        f"reconstruction FK {worst[2]:.2e}, root drop FK {worst[3]:.2e}; failures: {len(failures)}"
+    )
     assert len(results) == 2762 + 174 + 9
     assert failures == []
 

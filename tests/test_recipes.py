@@ -25,7 +25,13 @@ def streamed() -> dict:
     def cell(given, inferred):
         return {"given": {"sra": given, "cra": 0.9}, "inferred": {"sra": inferred, "cra": 0.9}, "windows": 10}
 
-    return {"transfers": {"active": {"normal": cell(0.9, 0.8)}, "elderly": {"normal": cell(0.7, 0.6)}, "normal": {"active": cell(1.0, 1.0), "elderly": cell(0.9, 0.9)}}}
+    return {
+        "transfers": {
+            "active": {"normal": cell(0.9, 0.8)},
+            "elderly": {"normal": cell(0.7, 0.6)},
+            "normal": {"active": cell(1.0, 1.0), "elderly": cell(0.9, 0.9)},
+        }
+    }
 
 
 def test_per_style_ratios_and_neutralisation_summary():
@@ -33,7 +39,10 @@ def test_per_style_ratios_and_neutralisation_summary():
     assert ps["elderly"] == {"fmd_over_floor": 5.0, "cra_of_ceiling": round(0.9 / 0.95, 4)}
     n = neutralisation(streamed(), "normal")
     assert n["to_neutral"] == {"active": {"given": 0.9, "inferred": 0.8}, "elderly": {"given": 0.7, "inferred": 0.6}}
-    assert n["to_neutral_mean"] == {"given": 0.8, "inferred": 0.7} and n["into_styles_mean"] == {"given": 0.95, "inferred": 0.95}
+    assert n["to_neutral_mean"] == {"given": 0.8, "inferred": 0.7} and n["into_styles_mean"] == {
+        "given": 0.95,
+        "inferred": 0.95,
+    }
 
 
 def test_recipe_table_and_tradeoff_plot(tmp_path):
@@ -41,11 +50,26 @@ def test_recipe_table_and_tradeoff_plot(tmp_path):
         name: {"model": name, "config": name, "minutes": 40.0, "steps": 1000, "quality": quality(s), "per_style": per_style(quality(s)), "neutralisation": neutralisation(streamed(), "normal"), "neutralisation_root_speed": neutralisation(streamed(), "normal")}
         for name, s in (("shipped", 1.0), ("older", 0.95))
     }  # fmt: skip
-    rows["ablation: rec only"] = {"model": "a", "config": "a", "minutes": 40.0, "steps": 1000, "quality": quality(0.9), "per_style": per_style(quality(0.9))}
+    rows["ablation: rec only"] = {
+        "model": "a",
+        "config": "a",
+        "minutes": 40.0,
+        "steps": 1000,
+        "quality": quality(0.9),
+        "per_style": per_style(quality(0.9)),
+    }
     text = markdown(rows)
-    assert "| shipped | shipped | 40.0 | 1000 | 2.50 (± 0.15) | 94.7 % (± 1.1) |" in text and "| 80.0 / 70.0 % | 95.0 / 95.0 % | 80.0 / 70.0 %; 95.0 / 95.0 % |" in text
-    assert "| ablation: rec only | a |" in text and text.split("| ablation: rec only |")[1].split("\n")[0].endswith("|  - | - | -  |")
-    assert "| back to neutral | 90.0 / 80.0 % | 70.0 / 60.0 % |  |" in text and "| into the style, --root-speed | 100.0 / 100.0 % | 90.0 / 90.0 % |  |" in text
+    assert (
+        "| shipped | shipped | 40.0 | 1000 | 2.50 (± 0.15) | 94.7 % (± 1.1) |" in text
+        and "| 80.0 / 70.0 % | 95.0 / 95.0 % | 80.0 / 70.0 %; 95.0 / 95.0 % |" in text
+    )
+    assert "| ablation: rec only | a |" in text and text.split("| ablation: rec only |")[1].split("\n")[0].endswith(
+        "|  - | - | -  |"
+    )
+    assert (
+        "| back to neutral | 90.0 / 80.0 % | 70.0 / 60.0 % |  |" in text
+        and "| into the style, --root-speed | 100.0 / 100.0 % | 90.0 / 90.0 % |  |" in text
+    )
     assert "**ablation: rec only** per target style" not in text  # ablations: one row each, no per-style table
     tradeoff_plot(rows, tmp_path / "t.png")
     from PIL import Image
@@ -58,12 +82,22 @@ def test_recipe_table_and_tradeoff_plot(tmp_path):
 
 
 def test_ablation_table_with_spreads_orders_only_models_at_the_budget():
-    rows = {name: {"epochs": 40 if k < 3 else 14, **quality(1.0), "fmd": 0.05 + 0.01 * k} for k, name in enumerate(ABLATIONS)}
+    rows = {
+        name: {"epochs": 40 if k < 3 else 14, **quality(1.0), "fmd": 0.05 + 0.01 * k}
+        for k, name in enumerate(ABLATIONS)
+    }
     text = ablation_markdown(rows, 40)
-    assert "| full |  | 40 | 0.050 ± 0.003 |" in text and "Not yet at the full budget (earlier models, kept until theirs are trained; `styleerd eval ablations` trains them): rec + per, no attention, zero initial states." in text
+    assert (
+        "| full |  | 40 | 0.050 ± 0.003 |" in text
+        and "Not yet at the full budget (earlier models, kept until theirs are trained; `styleerd eval ablations` trains them): rec + per, no attention, zero initial states."
+        in text
+    )
     assert "Ordering by FMD here (models at the full budget): full < rec only < rec + adv." in text
     assert "Ordering in the paper (the same models): full < rec + adv < rec only." in text
-    assert "- full 0.050 ± 0.003 vs rec only 0.060 ± 0.003: holds." in text and "- full 0.050 ± 0.003 vs rec + adv 0.070 ± 0.003: holds." in text
+    assert (
+        "- full 0.050 ± 0.003 vs rec only 0.060 ± 0.003: holds." in text
+        and "- full 0.050 ± 0.003 vs rec + adv 0.070 ± 0.003: holds." in text
+    )
 
 
 def test_results_section_from_the_recipe_table_and_the_step_timing(tmp_path):
@@ -79,7 +113,11 @@ def test_results_section_from_the_recipe_table_and_the_step_timing(tmp_path):
     (tmp_path / "train-step.json").write_text(json.dumps(step))
     text = recipes_section(tmp_path)
     assert "| shipped | 1 |" in text and "(recipes.png)" in text
-    assert "| cycle pass + loss | 40.0 | 0.0 |" in text and "| step | 300.0 | 180.0 |" in text and "1.67 x the training windows per minute" in text
+    assert (
+        "| cycle pass + loss | 40.0 | 0.0 |" in text
+        and "| step | 300.0 | 180.0 |" in text
+        and "1.67 x the training windows per minute" in text
+    )
     assert "the trainer's\ncode at the working tree" in text and "kept models' whole runs" not in text
     step["before"] |= {"code": "abc1234", "model": "models/recipes/a", "epochs_trained": 100, "training_min": 200.0}
     step["after"] |= {"model": "models/recipes/b", "epochs_trained": 50, "training_min": 60.0}
@@ -105,12 +143,17 @@ def test_parallel_ablation_trainers_take_different_ablations(tmp_path, monkeypat
         for suffix in (".safetensors", ".json"):  # a run with the perceptual loss leaves its classifier
             (out / "content_classifier").with_suffix(suffix).write_text("")
 
-    monkeypatch.setattr(ablations, "ablation_config", lambda name, threads=1, device="cpu": TrainConfig(**ABLATIONS[name]))
+    monkeypatch.setattr(
+        ablations, "ablation_config", lambda name, threads=1, device="cpu": TrainConfig(**ABLATIONS[name])
+    )
     monkeypatch.setattr(ablations, "train", fake_train)
     monkeypatch.setattr(ablations, "ABLATIONS_DIR", tmp_path / "models")
     monkeypatch.setattr(ablations, "shipped_budget", lambda: (TrainConfig(), 40))
     (tmp_path / "models").mkdir()
-    for name, epochs in (("no-attention", 14), ("zero-initial-states", 40)):  # a shorter model is trained again, one at the budget is not
+    for name, epochs in (
+        ("no-attention", 14),
+        ("zero-initial-states", 40),
+    ):  # a shorter model is trained again, one at the budget is not
         (tmp_path / "models" / f"{name}.json").write_text(json.dumps({"training": {"epochs_trained": epochs}}))
     with open(tmp_path / "rec-only.lock", "w") as held:  # another process is training "rec only"
         fcntl.flock(held, fcntl.LOCK_EX | fcntl.LOCK_NB)
@@ -132,14 +175,21 @@ def test_eval_recipes_only_remeasures_the_named_rows_and_keeps_the_others(tmp_pa
         return {"model": name, "config": name, "minutes": 40.0, "steps": 1000, "quality": quality(s), "per_style": per_style(quality(s)),
                 "neutralisation": neutralisation(streamed(), "normal"), "neutralisation_root_speed": neutralisation(streamed(), "normal")}  # fmt: skip
 
-    monkeypatch.setattr(recipes, "recipe_models", lambda: {"shipped": None, "older": tmp_path / "older", "other": tmp_path / "other"})
+    monkeypatch.setattr(
+        recipes, "recipe_models", lambda: {"shipped": None, "older": tmp_path / "older", "other": tmp_path / "other"}
+    )
     monkeypatch.setattr(recipes, "recipe_table", lambda data, names: {n: row(n, 0.97) for n in names})
     out = tmp_path / "recipes.md"
-    out.with_suffix(".json").write_text(json.dumps({"older": row("older", 0.9), "shipped": row("shipped", 0.9), "gone": row("gone", 0.9)}))
+    out.with_suffix(".json").write_text(
+        json.dumps({"older": row("older", 0.9), "shipped": row("shipped", 0.9), "gone": row("gone", 0.9)})
+    )
     assert cli.main(["eval", "recipes", "--only", "shipped", "--out", str(out)]) in (0, None)
     rows = json.loads(out.with_suffix(".json").read_text())
     assert list(rows) == ["shipped", "older"]  # in the models' order; a model no longer kept is dropped
-    assert rows["shipped"]["quality"]["cra"] == quality(0.97)["cra"] and rows["older"]["quality"]["cra"] == quality(0.9)["cra"]
+    assert (
+        rows["shipped"]["quality"]["cra"] == quality(0.97)["cra"]
+        and rows["older"]["quality"]["cra"] == quality(0.9)["cra"]
+    )
     assert out.with_suffix(".png").is_file() and "| older |" in out.read_text()
 
 

@@ -19,11 +19,20 @@ def test_report_regenerates_results_with_the_commands_figures(shared_data, tmp_p
     path = write_report(tmp_path, str(shared_data), bench_steps=100, bench_streams=(1, 16), progress=lambda *_: None)
     text = path.read_text()
     q = evaluate_model(load_generator()[0], str(shared_data))
-    assert f"| SRA (transfers: neutral -> each style, styled -> neutral; {q['transfers']:,} windows) | {100 * q['sra']:.2f} % |" in text
+    assert (
+        f"| SRA (transfers: neutral -> each style, styled -> neutral; {q['transfers']:,} windows) | {100 * q['sra']:.2f} % |"
+        in text
+    )
     assert f"{q['fmd']:.3f} ({q['fmd_floor']:.3f})" in text
     ablations = json.loads((tmp_path / "ablations.json").read_text())
     assert list(ablations) == list(ABLATIONS) and "| full |" in text and "paper, GTX 1060" in text
-    for picture in ("filmstrip-bandai2.png", "intensity-bandai2.png", "mixture-bandai2.png", "first-frames-bandai2.png", "throughput.png"):
+    for picture in (
+        "filmstrip-bandai2.png",
+        "intensity-bandai2.png",
+        "mixture-bandai2.png",
+        "first-frames-bandai2.png",
+        "throughput.png",
+    ):
         assert (tmp_path / picture).stat().st_size > 10_000 and f"({picture})" in text
 
 
@@ -52,7 +61,11 @@ def test_the_bench_table_of_a_kept_bench_json():
     text = table(json.loads((Path(__file__).parents[1] / "docs" / "bench.json").read_text()))
     assert "frames/s, 1,000 streams (2 threads)" in text
     numba = list(json.loads((Path(__file__).parents[1] / "docs" / "bench.json").read_text())["backends"]).index("numba")
-    row = next(line for line in text.splitlines() if line.startswith("| 1,000 streams (2 threads; each rate the best of 3 windows): fraction of matmul peak |"))
+    row = next(
+        line
+        for line in text.splitlines()
+        if line.startswith("| 1,000 streams (2 threads; each rate the best of 3 windows): fraction of matmul peak |")
+    )
     assert row.split(" | ")[1 + numba].endswith(" %")  # issue 18's target, for the backend it was set for
 
 
@@ -72,7 +85,10 @@ def test_the_added_styles_section_sets_the_critics_side_by_side(tmp_path):
     assert "--critic-positions-only" not in added_styles_section(tmp_path)
     shutil.copy(docs / "unseen-styles-positions-critic.json", tmp_path / "unseen-styles-positions-critic.json")
     text = added_styles_section(tmp_path)
-    ours, other = (json.loads((tmp_path / name).read_text())["styles"] for name in ("unseen-styles.json", "unseen-styles-positions-critic.json"))
+    ours, other = (
+        json.loads((tmp_path / name).read_text())["styles"]
+        for name in ("unseen-styles.json", "unseen-styles-positions-critic.json")
+    )
     fmd = lambda runs: np.mean([v["added"]["fmd"] for v in runs.values()])  # noqa: E731
     assert f"FMD {fmd(ours):.3f} against {fmd(other):.3f}" in text
     assert "its critic\nread rotations, positions, velocities" in text

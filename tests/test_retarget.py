@@ -31,7 +31,9 @@ def model_motion(sk: Skeleton, n: int = 40, seed: int = 0) -> Motion:
     sinusoids, a moving root."""
     rng = np.random.default_rng(seed)
     t = np.arange(n)[:, None, None] / 30.0
-    rotvec = rng.normal(0, 0.8, (1, sk.n_joints, 3)) + 0.4 * np.sin(2 * np.pi * rng.uniform(0.3, 1.5, (1, sk.n_joints, 3)) * t)
+    rotvec = rng.normal(0, 0.8, (1, sk.n_joints, 3)) + 0.4 * np.sin(
+        2 * np.pi * rng.uniform(0.3, 1.5, (1, sk.n_joints, 3)) * t
+    )
     rot = Rotation.from_rotvec(rotvec.reshape(-1, 3)).as_quat(scalar_first=True).reshape(n, sk.n_joints, 4)
     pos = np.broadcast_to(sk.offsets, (n, sk.n_joints, 3)).copy()
     pos[:, 0] = np.stack([30 * t[:, 0, 0], 90 + np.sin(t[:, 0, 0]), 10 * t[:, 0, 0]], -1)
@@ -78,7 +80,12 @@ def generated(motion: Motion, seed: int, scale: float) -> Motion:
     rot = np.stack(rots, 1)
     pos = np.broadcast_to(np.array(offsets) * scale, (T, len(names), 3)).copy()
     pos[:, 0] = motion.positions[:, 0] * scale
-    skel = Skeleton(tuple(names), np.array(parents), np.array(offsets) * scale, tuple(("Zrotation", "Xrotation", "Yrotation") for _ in names))
+    skel = Skeleton(
+        tuple(names),
+        np.array(parents),
+        np.array(offsets) * scale,
+        tuple(("Zrotation", "Xrotation", "Yrotation") for _ in names),
+    )
     return Motion(skel, rot, pos, motion.fps)
 
 
@@ -91,7 +98,9 @@ def test_generated_skeletons_retarget_to_the_original_movement(model_skeleton, s
     original = model_motion(model_skeleton, seed=seed)
     other = generated(original, seed, scale=0.01)  # metres instead of centimetres
     jm = joint_map(model_skeleton, other.skeleton)
-    assert {model_skeleton.names[t]: other.skeleton.names[s] for t, s in jm.pairs} == {k: "mixamorig:" + v for k, v in MIXAMO.items()}
+    assert {model_skeleton.names[t]: other.skeleton.names[s] for t, s in jm.pairs} == {
+        k: "mixamorig:" + v for k, v in MIXAMO.items()
+    }
     assert np.isclose(jm.scale, 100.0)
     on_model = to_target(other, jm)
     # every joint of the model lands where the original motion had it
@@ -109,7 +118,9 @@ def test_changed_model_motion_goes_back_as_the_same_bone_directions(model_skelet
     g_changed, g_back = world_positions(changed), world_positions(back)
     for t, s in jm.pairs:
         for t2, s2 in jm.pairs:
-            if model_skeleton.parents[t2] == t and model_skeleton.names[t] != "Spine":  # Spine->Chest spans the extra joint
+            if (
+                model_skeleton.parents[t2] == t and model_skeleton.names[t] != "Spine"
+            ):  # Spine->Chest spans the extra joint
                 a, b = g_changed[:, t2] - g_changed[:, t], g_back[:, s2] - g_back[:, s]
                 cos = (a * b).sum(-1) / np.linalg.norm(a, axis=-1) / np.linalg.norm(b, axis=-1)
                 assert cos.min() > 1 - 1e-9, (model_skeleton.names[t], model_skeleton.names[t2])
@@ -126,7 +137,9 @@ def test_missing_joints_are_named_and_an_explicit_map_fixes_them(model_skeleton)
     names[names.index("mixamorig:LeftForeArm")] = "a"
     names[names.index("mixamorig:LeftHand")] = "b"
     sk = Skeleton(tuple(names), other.skeleton.parents, other.skeleton.offsets, other.skeleton.channels)
-    with pytest.raises(ValueError, match=r"no joint found for left elbow \(model joint LowerArm_L\), left hand \(model joint Hand_L\)"):
+    with pytest.raises(
+        ValueError, match=r"no joint found for left elbow \(model joint LowerArm_L\), left hand \(model joint Hand_L\)"
+    ):
         joint_map(model_skeleton, sk)
     jm = joint_map(model_skeleton, sk, {"LowerArm_L": "a", "Hand_L": "b"})
     assert (model_skeleton.index("Hand_L"), names.index("b")) in jm.pairs
@@ -141,7 +154,13 @@ def test_xia_clips_round_trip_exactly_and_keep_limb_directions(shared_data, mode
         assert len(jm.pairs) == model_skeleton.n_joints
         on_model = to_target(src, jm)
         g_src, g_model = world_positions(src), world_positions(on_model)
-        for a, b in (("UpperArm_L", "LowerArm_L"), ("LowerArm_R", "Hand_R"), ("UpperLeg_L", "LowerLeg_L"), ("LowerLeg_R", "Foot_R"), ("Foot_L", "Toes_L")):
+        for a, b in (
+            ("UpperArm_L", "LowerArm_L"),
+            ("LowerArm_R", "Hand_R"),
+            ("UpperLeg_L", "LowerLeg_L"),
+            ("LowerLeg_R", "Foot_R"),
+            ("Foot_L", "Toes_L"),
+        ):
             ta, tb = model_skeleton.index(a), model_skeleton.index(b)
             sa, sb = dict(jm.pairs)[ta], dict(jm.pairs)[tb]
             u, v = g_model[:, tb] - g_model[:, ta], g_src[:, sb] - g_src[:, sa]
@@ -156,6 +175,8 @@ def test_xia_clips_round_trip_exactly_and_keep_limb_directions(shared_data, mode
 
 def test_a_skeleton_with_no_leg_length_is_refused_with_a_clear_error(model_skeleton):
     other = generated(model_motion(model_skeleton), 0, 1.0)
-    flat = Skeleton(other.skeleton.names, other.skeleton.parents, np.zeros_like(other.skeleton.offsets), other.skeleton.channels)
+    flat = Skeleton(
+        other.skeleton.names, other.skeleton.parents, np.zeros_like(other.skeleton.offsets), other.skeleton.channels
+    )
     with pytest.raises(ValueError, match="the input skeleton's legs have no length"):
         joint_map(model_skeleton, flat)

@@ -49,7 +49,9 @@ def test_swing_twist_matches_scipy():
     swing, twist = quat.swing_twist(q, axis)
     assert np.allclose(quat.mul(swing, twist) * np.sign(quat.mul(swing, twist)[:, :1]), quat.positive_w(q), atol=1e-12)
     for k in range(0, 500, 50):
-        total, s, t = scipy_swing_twist_degrees(Rotation.identity(1), Rotation.from_quat(q[k : k + 1], scalar_first=True), axis[k])
+        total, s, t = scipy_swing_twist_degrees(
+            Rotation.identity(1), Rotation.from_quat(q[k : k + 1], scalar_first=True), axis[k]
+        )
         assert np.isclose(np.degrees(quat.angle_between(quat.identity(), swing[k])), s[0], atol=1e-6)
         assert np.isclose(np.degrees(quat.angle_between(quat.identity(), twist[k])), t[0], atol=1e-6)
 
@@ -88,7 +90,12 @@ def test_round_trip_at_intensity_zero_keeps_rotations_on_every_rig(model):
     g, meta = model
     worst = {}
     for name, m in rig_variants().items():
-        out = transfer_motion(m, g, meta["data"]["fps"], TransferOptions({"normal": 1.0}, input_style="normal", content="walk", cleanup=False))
+        out = transfer_motion(
+            m,
+            g,
+            meta["data"]["fps"],
+            TransferOptions({"normal": 1.0}, input_style="normal", content="walk", cleanup=False),
+        )
         gi, go = scipy_globals(m), scipy_globals(out)
         axes = bone_axes(m.skeleton)
         errors = {}
@@ -98,16 +105,29 @@ def test_round_trip_at_intensity_zero_keeps_rotations_on_every_rig(model):
         ours = rotation_errors(m, out, mapped_joints(m.skeleton))  # the project's metric agrees with the oracle
         assert all(np.allclose(errors[k], ours[k], atol=1e-6) for k in errors)
         worst[name] = max(v[0] for v in errors.values())
-        legs_and_trunk = [v for k, v in errors.items() if not any(s in k.lower() for s in ("hand", "arm", "shoulder", "toe"))]
-        assert max(v[2] for v in legs_and_trunk) < 12, (name, errors)  # twist: was up to 174 degrees before bone frames were fixed
-        assert max(v[0] for v in errors.values()) < 30, (name, errors)  # the model's own worst joint on its skeleton is 10-42 (hands)
+        legs_and_trunk = [
+            v for k, v in errors.items() if not any(s in k.lower() for s in ("hand", "arm", "shoulder", "toe"))
+        ]
+        assert max(v[2] for v in legs_and_trunk) < 12, (
+            name,
+            errors,
+        )  # twist: was up to 174 degrees before bone frames were fixed
+        assert max(v[0] for v in errors.values()) < 30, (
+            name,
+            errors,
+        )  # the model's own worst joint on its skeleton is 10-42 (hands)
     assert max(worst.values()) - min(worst.values()) < 1.0, worst  # the rig does not matter
 
 
 def test_intensity_zero_on_the_demo_walk_is_nearly_the_input(model):
     g, meta = model
     m = walk(3.0)
-    out = transfer_motion(m, g, meta["data"]["fps"], TransferOptions({"elderly": 0.0, "normal": 1.0}, input_style="normal", content="walk"))
+    out = transfer_motion(
+        m,
+        g,
+        meta["data"]["fps"],
+        TransferOptions({"elderly": 0.0, "normal": 1.0}, input_style="normal", content="walk"),
+    )
     errors = rotation_errors(m, out, mapped_joints(m.skeleton))
     assert max(v[2] for v in errors.values()) < 25, errors  # was RightUpLeg 173, Spine 91, Head 86
 
@@ -122,11 +142,22 @@ def test_xia_clips_keep_their_twist(shared_data, model, tmp_path):
     g, meta = model
     for path in sorted((shared_data / "xia-sample").glob("*.bvh")):
         style = {"neutral": "normal", "old": "elderly"}.get(path.stem.split("_")[0], "normal")
-        transfer_file(path, tmp_path / "out.bvh", g, meta["data"]["fps"], TransferOptions({style: 1.0}, input_style=style, cleanup=False))
+        transfer_file(
+            path,
+            tmp_path / "out.bvh",
+            g,
+            meta["data"]["fps"],
+            TransferOptions({style: 1.0}, input_style=style, cleanup=False),
+        )
         src, out = bvh.read(path), bvh.read(tmp_path / "out.bvh")
         errors = rotation_errors(src, out, mapped_joints(src.skeleton))
-        legs_and_trunk = {k: v for k, v in errors.items() if any(s in k for s in ("UpLeg", "Leg", "Hips", "Spine", "Neck", "Head"))}
-        assert max(v[2] for v in legs_and_trunk.values()) < 60, (path.name, legs_and_trunk)  # jumps and punches: contents the model never saw
+        legs_and_trunk = {
+            k: v for k, v in errors.items() if any(s in k for s in ("UpLeg", "Leg", "Hips", "Spine", "Neck", "Head"))
+        }
+        assert max(v[2] for v in legs_and_trunk.values()) < 60, (
+            path.name,
+            legs_and_trunk,
+        )  # jumps and punches: contents the model never saw
         if path.stem.split("_")[1] in ("01", "13"):  # walks and runs: contents the model was trained on
             assert max(v[2] for v in legs_and_trunk.values()) < 30, (path.name, legs_and_trunk)
             assert max(v[2] for v in errors.values()) < 50, (path.name, errors)
@@ -145,5 +176,7 @@ def test_a_live_stream_on_a_rolled_rig_takes_its_bone_frames_from_its_first_fram
     values = bvh.channel_values(rolled)
     streamed = np.stack([live.step(values[t])[0] for t in range(rolled.n_frames)])
     assert not live.map.wants_first_frame and "first frame" in live.map.source_reference
-    whole = bvh.channel_values(transfer_motion(rolled, g, 30.0, TransferOptions({"elderly": 1.0}, input_style="normal", content="walk")))
+    whole = bvh.channel_values(
+        transfer_motion(rolled, g, 30.0, TransferOptions({"elderly": 1.0}, input_style="normal", content="walk"))
+    )
     assert np.abs(streamed - whole).max() < 1e-5

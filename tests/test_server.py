@@ -103,7 +103,11 @@ def test_stream_answers_every_frame_in_order_equal_to_local_streaming(server, cl
     url, _ = server
     m, values = clip
     ws, ready = open_stream(url, m, input_style="normal", content="walk")
-    assert ready["channels"] == values.shape[1] and ready["joints"] == list(m.skeleton.names) and "Hips" in ready["mapping"]
+    assert (
+        ready["channels"] == values.shape[1]
+        and ready["joints"] == list(m.skeleton.names)
+        and "Hips" in ready["mapping"]
+    )
     seqs, payloads = [], []
     for i in range(len(values)):
         ws.send(frame(i, values[i]))
@@ -147,7 +151,9 @@ def test_root_speed_in_the_hello_moves_the_root_at_the_styles_pace(server, clip)
     plain, plain_ready = open_stream(url, m, input_style="normal", content="walk", cleanup=False)
     assert ready["root_speed"] is True and plain_ready["root_speed"] is False
     got, plain_got = side_by_side([ws, plain], values, 60)
-    local = ChannelStylizer(load_generator()[0], m.skeleton, {"elderly": 1.0}, "normal", "walk", fps=30.0, cleanup=False, root_speed=True)
+    local = ChannelStylizer(
+        load_generator()[0], m.skeleton, {"elderly": 1.0}, "normal", "walk", fps=30.0, cleanup=False, root_speed=True
+    )
     expected = np.stack([local.step(values[i].astype(np.float64))[0] for i in range(60)])
     assert np.abs(got - expected).max() < 1e-2
     names = [c for chans in m.skeleton.channels for c in chans]
@@ -164,12 +170,28 @@ def test_pose_in_the_hello_is_the_local_stylizers(server, clip):
     input's pose (default) and the network's differ; anything else is refused in one line."""
     url, _ = server
     m, values = clip
-    streams = {pose: open_stream(url, m, input_style="normal", content="walk", cleanup=False, **({"pose": pose} if pose else {})) for pose in (None, "network")}
+    streams = {
+        pose: open_stream(
+            url, m, input_style="normal", content="walk", cleanup=False, **({"pose": pose} if pose else {})
+        )
+        for pose in (None, "network")
+    }
     assert streams[None][1]["pose"] == "input" and streams["network"][1]["pose"] == "network"
     got = dict(zip(streams, side_by_side([ws for ws, _ in streams.values()], values, 30)))
     for pose in streams:
-        local = ChannelStylizer(load_generator()[0], m.skeleton, {"elderly": 1.0}, "normal", "walk", fps=30.0, cleanup=False, pose=pose or "input")
-        assert np.abs(got[pose] - np.stack([local.step(values[i].astype(np.float64))[0] for i in range(30)])).max() < 1e-2, pose
+        local = ChannelStylizer(
+            load_generator()[0],
+            m.skeleton,
+            {"elderly": 1.0},
+            "normal",
+            "walk",
+            fps=30.0,
+            cleanup=False,
+            pose=pose or "input",
+        )
+        assert (
+            np.abs(got[pose] - np.stack([local.step(values[i].astype(np.float64))[0] for i in range(30)])).max() < 1e-2
+        ), pose
     assert np.abs(got[None] - got["network"]).max() > 1.0  # degrees: the two poses are not the same
     ws = connect(url, open_timeout=20, legacy=True)
     ws.send(json.dumps({**hello(m, 30.0, "elderly", 1.0, None, None), "pose": "paper"}))
@@ -194,7 +216,9 @@ def test_json_frames_positions_and_style_change_midway(server, clip):
                 break
             targets.append(msg["weights"])
         assert msg["type"] == "frame" and msg["seq"] == i
-        assert len(msg["values"]) == values.shape[1] and len(msg["input_positions"]) == len(msg["output_positions"]) == J
+        assert (
+            len(msg["values"]) == values.shape[1] and len(msg["input_positions"]) == len(msg["output_positions"]) == J
+        )
         assert 0.0 <= msg["unfamiliar"] <= 1.0
         out.append(msg)
     assert targets == [{"exhausted": 0.4, "feminine": 0.4, "normal": 0.2}]
@@ -235,15 +259,39 @@ FAULTS = {
     "bad JSON": (lambda ws, v: ws.send("{not json"), 1008, "bad JSON"),
     "unknown message": (lambda ws, v: ws.send(json.dumps({"type": "dance"})), 1008, "unknown message type"),
     "wrong frame length": (lambda ws, v: ws.send(frame(0, v[0][:-1])), 1008, "a binary frame is"),
-    "NaN": (lambda ws, v: ws.send(frame(0, np.where(np.arange(len(v[0])) == 5, np.nan, v[0]))), 1007, "is not a finite number"),
+    "NaN": (
+        lambda ws, v: ws.send(frame(0, np.where(np.arange(len(v[0])) == 5, np.nan, v[0]))),
+        1007,
+        "is not a finite number",
+    ),
     "oversized payload": (lambda ws, v: ws.send(b"\0" * 70000), 1009, None),
     "absurd values": (lambda ws, v: ws.send(frame(1, np.full_like(v[0], 3e38))), 1007, "is out of range"),
-    "frames faster than real time": (lambda ws, v: send_all(ws, [frame(i, v[0]) for i in range(400)]), 1008, f"more than {QUEUE} frames waiting"),
-    "unknown style": (lambda ws, v: ws.send(json.dumps({"type": "set", "style": "zombie"})), 1008, "valid: active, elderly"),
+    "frames faster than real time": (
+        lambda ws, v: send_all(ws, [frame(i, v[0]) for i in range(400)]),
+        1008,
+        f"more than {QUEUE} frames waiting",
+    ),
+    "unknown style": (
+        lambda ws, v: ws.send(json.dumps({"type": "set", "style": "zombie"})),
+        1008,
+        "valid: active, elderly",
+    ),
     # a JSON frame on a binary stream whose seq cannot be packed as uint32 once stopped every stream
-    "seq past uint32": (lambda ws, v: ws.send(json.dumps({"type": "frame", "seq": 2**40, "values": v[0].tolist()})), 1007, "'seq' must be an integer"),
-    "negative seq": (lambda ws, v: ws.send(json.dumps({"type": "frame", "seq": -1, "values": v[0].tolist()})), 1007, "'seq' must be an integer"),
-    "seq not a number": (lambda ws, v: ws.send(json.dumps({"type": "frame", "seq": "7", "values": v[0].tolist()})), 1007, "'seq' must be an integer"),
+    "seq past uint32": (
+        lambda ws, v: ws.send(json.dumps({"type": "frame", "seq": 2**40, "values": v[0].tolist()})),
+        1007,
+        "'seq' must be an integer",
+    ),
+    "negative seq": (
+        lambda ws, v: ws.send(json.dumps({"type": "frame", "seq": -1, "values": v[0].tolist()})),
+        1007,
+        "'seq' must be an integer",
+    ),
+    "seq not a number": (
+        lambda ws, v: ws.send(json.dumps({"type": "frame", "seq": "7", "values": v[0].tolist()})),
+        1007,
+        "'seq' must be an integer",
+    ),
 }
 
 
@@ -330,6 +378,7 @@ def test_clients_vanishing_mid_stream_and_a_client_that_stops_reading(server, cl
         ws.socket.close()
     slow = RawClient(port)  # sends frames at 100 fps and never reads a reply
     slow.send(0x1, json.dumps({**hello(m, 30.0, "elderly", 1.0, None, "slow"), "positions": True}).encode())
+
     def listed() -> bool:
         return "slow" in urllib.request.urlopen(f"http://127.0.0.1:{port}/streams", timeout=10).read().decode()
 
@@ -360,7 +409,11 @@ def test_http_pages_and_clips(server):
     page = urllib.request.urlopen(f"http://127.0.0.1:{port}/", timeout=10).read().decode()
     assert "/static/viewer.js" in page and "cdn" not in page.lower()
     names = json.loads(urllib.request.urlopen(f"http://127.0.0.1:{port}/clips", timeout=10).read())
-    text = urllib.request.urlopen(f"http://127.0.0.1:{port}/clips/{urllib.request.quote(names[0])}", timeout=10).read().decode()
+    text = (
+        urllib.request.urlopen(f"http://127.0.0.1:{port}/clips/{urllib.request.quote(names[0])}", timeout=10)
+        .read()
+        .decode()
+    )
     assert bvh.parse(text).n_frames > 100
     with pytest.raises(urllib.error.HTTPError, match="404"):
         urllib.request.urlopen(f"http://127.0.0.1:{port}/static/../server.py", timeout=10)
@@ -418,8 +471,13 @@ def test_stream_bvh_writes_the_stylised_stream(server, tmp_path):
                         "--input-style", "normal", "--content", "walk", "--root-speed", "-o", str(tmp_path / "paced.bvh")], capture_output=True, text=True)  # fmt: skip
     assert r.returncode == 0, r.stdout + r.stderr
     paced = bvh.read(tmp_path / "paced.bvh").positions[:, 0]
-    ground = np.linalg.norm(np.diff(paced[:, [0, 2]], axis=0), axis=-1).sum() / np.linalg.norm(np.diff(source.positions[:, 0, [0, 2]], axis=0), axis=-1).sum()
-    assert ground < 0.97 and np.allclose(paced[:, 1], source.positions[:, 0, 1], atol=1e-3)  # an elderly pace, the input's height
+    ground = (
+        np.linalg.norm(np.diff(paced[:, [0, 2]], axis=0), axis=-1).sum()
+        / np.linalg.norm(np.diff(source.positions[:, 0, [0, 2]], axis=0), axis=-1).sum()
+    )
+    assert ground < 0.97 and np.allclose(
+        paced[:, 1], source.positions[:, 0, 1], atol=1e-3
+    )  # an elderly pace, the input's height
     r = subprocess.run([sys.executable, "-m", "styleerd.cli", "stream-bvh", str(tmp_path / "in.bvh"), "--to", "ws://127.0.0.1:9/", "--style", "elderly"],
                        capture_output=True, text=True)  # fmt: skip
     assert r.returncode == 2 and "cannot connect" in r.stderr and "Traceback" not in r.stderr
@@ -456,4 +514,6 @@ def test_bone_fronts_follow_each_bones_roll(server, clip):
         assert np.allclose(fronts[j], expected, atol=1e-4), m.skeleton.names[j]
         bone = positions[j] - positions[m.skeleton.parents[j]]
         if np.linalg.norm(bone) > 1e-3:
-            assert abs(np.dot(fronts[j], bone / np.linalg.norm(bone))) < 1e-3 and np.isclose(np.linalg.norm(fronts[j]), 1, atol=1e-4)
+            assert abs(np.dot(fronts[j], bone / np.linalg.norm(bone))) < 1e-3 and np.isclose(
+                np.linalg.norm(fronts[j]), 1, atol=1e-4
+            )

@@ -75,8 +75,17 @@ def test_the_16_style_model_transfers_into_its_bandai1_styles_with_labels_inferr
     assert len(w.config.styles) == 16 and {"happy", "chimpira", "elderly", "youthful"} <= set(w.config.styles)
     assert labeller_stem(w.config).name == "labeller-bandai12"
     bvh.write(tmp_path / "walk.bvh", procedural.walk(seconds=2.0, fps=30.0))
-    for argv in (["transfer", "walk.bvh", "--style", "happy", "-o", "out.bvh"], ["export-onnx", "--styles", "happy,sad", "-o", "step.onnx"]):
-        done = subprocess.run([sys.executable, "-m", "styleerd.cli", *argv, "--model", "styleerd-bandai12"], cwd=tmp_path, capture_output=True, text=True, timeout=300)
+    for argv in (
+        ["transfer", "walk.bvh", "--style", "happy", "-o", "out.bvh"],
+        ["export-onnx", "--styles", "happy,sad", "-o", "step.onnx"],
+    ):
+        done = subprocess.run(
+            [sys.executable, "-m", "styleerd.cli", *argv, "--model", "styleerd-bandai12"],
+            cwd=tmp_path,
+            capture_output=True,
+            text=True,
+            timeout=300,
+        )
         assert done.returncode == 0, done.stderr
     assert bvh.read(tmp_path / "out.bvh").n_frames == 60
     assert json.loads((tmp_path / "step.json").read_text())["branch_styles"] == ["happy", "sad"]

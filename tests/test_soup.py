@@ -33,7 +33,9 @@ def test_soup_is_the_weighted_average_of_the_weights(two_stages, tmp_path):
         assert torch.allclose(ss[k], 0.25 * sa[k] + 0.75 * sb[k], atol=1e-7), k
     for k in ("mean", "std", "offsets", "reference"):  # what both share comes back bit for bit
         assert torch.equal(ss[k], sa[k])
-    assert [s["weight"] for s in m["training"]["soup"]] == [0.25, 0.75] and m["training"]["started_from"] == meta["training"]["started_from"]
+    assert [s["weight"] for s in m["training"]["soup"]] == [0.25, 0.75] and m["training"]["started_from"] == meta[
+        "training"
+    ]["started_from"]
     assert m["training"]["wall_minutes"] == pytest.approx(2 * meta["training"]["wall_minutes"], abs=0.01)
     x = torch.zeros(1, 3, averaged.config.feature_dim)
     rot, _, _ = averaged(x, torch.eye(7)[[5]], torch.eye(10)[[0]], torch.eye(7)[[1]])

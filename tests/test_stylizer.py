@@ -22,7 +22,11 @@ def model():
     m = walking_motion(100)
     f, _ = motion_features(m)
     torch.manual_seed(0)
-    g = StyleERD(GeneratorConfig(m.skeleton.n_joints, STYLES, CONTENTS, neutral_layers=2, style_layers=2), m.skeleton, FeatureStats.fit(f, m.skeleton.n_joints))
+    g = StyleERD(
+        GeneratorConfig(m.skeleton.n_joints, STYLES, CONTENTS, neutral_layers=2, style_layers=2),
+        m.skeleton,
+        FeatureStats.fit(f, m.skeleton.n_joints),
+    )
     for p in g.parameters():
         p.data += 0.05 * torch.randn_like(p)
     return g.eval()
@@ -169,14 +173,21 @@ def test_numba_kernels_on_threads_from_two_callers_at_once_equal_one_thread(mode
 
     def run(threads: int) -> np.ndarray:
         st = StreamStylizer(model, "normal", "walk", targets, n_streams=n, backend="numba", threads=threads)
-        return np.stack([st.step(np.stack([m.rotations[t] for m in ms]), np.stack([m.positions[t] for m in ms]))[0] for t in range(frames)])
+        return np.stack(
+            [
+                st.step(np.stack([m.rotations[t] for m in ms]), np.stack([m.positions[t] for m in ms]))[0]
+                for t in range(frames)
+            ]
+        )
 
     want = run(1)
     assert splits == []
     with ThreadPoolExecutor(2) as pool:
         got = list(pool.map(run, [2, 2]))
     threads = min(2, numba.config.NUMBA_NUM_THREADS)  # NUMBA_NUM_THREADS=1: the kernels stay on the calling thread
-    assert splits == ([threads] * (2 * frames * 2) if threads > 1 else [])  # two stylizers, two passes a step (the target's and the identity's)
+    assert splits == (
+        [threads] * (2 * frames * 2) if threads > 1 else []
+    )  # two stylizers, two passes a step (the target's and the identity's)
     for out in got:
         assert np.abs(out - want).max() <= 1e-5
 
@@ -280,7 +291,6 @@ def test_labels_not_given_are_inferred_causally_and_given_labels_win(model):
         StreamStylizer(model, None, None, {"old": 1.0}, labeller=OnlineLabeller(5, 3, 2))
 
 
-
 def test_root_speed_scales_each_ground_step_by_the_networks_speed_online(model):
     """``root_speed``: each frame's ground step of the input root is scaled by the network's
     root speed over the input's (smoothed, clamped), height kept; checked against the torch
@@ -304,11 +314,16 @@ def test_root_speed_scales_each_ground_step_by_the_networks_speed_online(model):
             step = m.positions[t, 0] - m.positions[t - 1, 0]
             offset += (ratio - 1) * np.array([step[0], 0.0, step[2]])
         expected.append(m.positions[t, 0] + offset)
-    on, off = StreamStylizer(model, "normal", "walk", {"old": 1.0}, root_speed=True), StreamStylizer(model, "normal", "walk", {"old": 1.0})
+    on, off = (
+        StreamStylizer(model, "normal", "walk", {"old": 1.0}, root_speed=True),
+        StreamStylizer(model, "normal", "walk", {"old": 1.0}),
+    )
     for t in range(60):
         r_on, p_on = on.step(m.rotations[t], m.positions[t])
         r_off, p_off = off.step(m.rotations[t], m.positions[t])
-        assert np.array_equal(r_on, r_off) and np.array_equal(p_off[0], m.positions[t])  # poses unchanged; off: the input's root
+        assert np.array_equal(r_on, r_off) and np.array_equal(
+            p_off[0], m.positions[t]
+        )  # poses unchanged; off: the input's root
         assert np.allclose(p_on[0, 0], expected[t], atol=1e-4), t
         assert p_on[0, 0, 1] == m.positions[t, 0, 1] and np.array_equal(p_on[0, 1:], m.positions[t, 1:])
     assert np.abs(np.array(expected) - m.positions[:, 0]).max() > 0.1  # the random network's speed is not the input's
@@ -319,7 +334,10 @@ def test_root_speed_is_causal(model):
     m2 = Motion(m.skeleton, m.rotations.copy(), m.positions.copy(), m.fps)
     m2.positions[25:, 0] += np.array([30.0, 0.0, 50.0])  # a future jump of the root
     m2.rotations[25:, 3] = quat.mul(m2.rotations[25:, 3], quat.from_angle_axis(np.array([0.8]), np.array([1.0, 0, 0])))
-    a, b = StreamStylizer(model, "normal", "walk", {"old": 1.0}, root_speed=True), StreamStylizer(model, "normal", "walk", {"old": 1.0}, root_speed=True)
+    a, b = (
+        StreamStylizer(model, "normal", "walk", {"old": 1.0}, root_speed=True),
+        StreamStylizer(model, "normal", "walk", {"old": 1.0}, root_speed=True),
+    )
     for t in range(25):
         ra, pa = a.step(m.rotations[t], m.positions[t])
         rb, pb = b.step(m2.rotations[t], m2.positions[t])
@@ -332,7 +350,10 @@ def test_numba_kernels_on_threads_with_parts_root_speed_and_some_rows_equal_one_
     streams only (by index and as a slice), a stream reset mid-way: as on one thread."""
     n, frames = 48, 8
     ms = [walking_motion(frames, seed=k) for k in range(n)]
-    frame = lambda t, rows=slice(None): (np.stack([m.rotations[t] for m in ms])[rows], np.stack([m.positions[t] for m in ms])[rows])  # noqa: E731
+    frame = lambda t, rows=slice(None): (
+        np.stack([m.rotations[t] for m in ms])[rows],
+        np.stack([m.positions[t] for m in ms])[rows],
+    )  # noqa: E731
     make = lambda threads: StreamStylizer(model, "normal", "walk", {"old": 1.0}, n_streams=n, backend="numba", threads=threads,  # noqa: E731
                                           parts="legs=angry,arms=input", root_speed=True)  # fmt: skip
     one, two = make(1), make(2)
@@ -382,7 +403,24 @@ def test_the_stream_profile_accounts_for_every_part_of_a_step(tmp_path):
 
     out = tmp_path / "profile.json"
     root = Path(__file__).parents[1]
-    subprocess.run([sys.executable, "benchmarks/profile_streams.py", "--streams", "40", "--steps", "5", "--rounds", "1", "--json", str(out)], cwd=root, check=True, capture_output=True, timeout=600)
+    subprocess.run(
+        [
+            sys.executable,
+            "benchmarks/profile_streams.py",
+            "--streams",
+            "40",
+            "--steps",
+            "5",
+            "--rounds",
+            "1",
+            "--json",
+            str(out),
+        ],
+        cwd=root,
+        check=True,
+        capture_output=True,
+        timeout=600,
+    )
     r = json.loads(out.read_text())["rounds"][0]
     parts = [r["features_us"], r["network_us"], r["root_on_heading_us"]]
     assert all(p > 0 for p in parts) and abs(sum(parts) + r["rest_us"] - r["step_us"]) < 1.0
@@ -408,7 +446,10 @@ def test_without_a_thread_safe_layer_the_kernels_stay_on_one_thread(model, monke
         assert parallel.kernel_threads(2, 1000) == 1
         ms = [walking_motion(3, seed=k) for k in range(40)]
         frame = lambda t: (np.stack([m.rotations[t] for m in ms]), np.stack([m.positions[t] for m in ms]))  # noqa: E731
-        one, two = (StreamStylizer(model, "normal", "walk", {"old": 1.0}, n_streams=40, backend="numba", threads=k) for k in (1, 2))
+        one, two = (
+            StreamStylizer(model, "normal", "walk", {"old": 1.0}, n_streams=40, backend="numba", threads=k)
+            for k in (1, 2)
+        )
         for t in range(3):
             assert np.abs(two.step(*frame(t))[0] - one.step(*frame(t))[0]).max() <= 1e-5
     finally:

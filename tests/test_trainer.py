@@ -17,7 +17,16 @@ from styleerd.errors import StyleERDError
 
 pytestmark = pytest.mark.slow
 
-TINY = dict(max_train_clips=40, neutral_layers=2, style_layers=1, batch_size=16, val_windows=64, classifier_epochs=1, threads=1, val_every=1)
+TINY = dict(
+    max_train_clips=40,
+    neutral_layers=2,
+    style_layers=1,
+    batch_size=16,
+    val_windows=64,
+    classifier_epochs=1,
+    threads=1,
+    val_every=1,
+)
 
 
 def write_config(path, **kw):
@@ -26,7 +35,14 @@ def write_config(path, **kw):
 
 
 def run_cli(*args, env=None, **kw):
-    return subprocess.Popen([sys.executable, "-m", "styleerd.cli", *map(str, args)], stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, env=env, **kw)
+    return subprocess.Popen(
+        [sys.executable, "-m", "styleerd.cli", *map(str, args)],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.STDOUT,
+        text=True,
+        env=env,
+        **kw,
+    )
 
 
 def epochs_done(out):
@@ -69,7 +85,16 @@ def test_resume_refuses_a_different_config_but_allows_more_epochs(shared_data, t
         train(TrainConfig(**{**TINY, "lr_g": 1e-3}, epochs=3), out, progress=False)
 
 
-@pytest.mark.parametrize("ablation", [dict(use_adv=False, use_per=False), dict(use_per=False), dict(use_adv=False), dict(attention=False), dict(learned_init=False)])
+@pytest.mark.parametrize(
+    "ablation",
+    [
+        dict(use_adv=False, use_per=False),
+        dict(use_per=False),
+        dict(use_adv=False),
+        dict(attention=False),
+        dict(learned_init=False),
+    ],
+)
 def test_ablation_switches_train(shared_data, tmp_path, ablation):
     from styleerd.train.trainer import train
 
@@ -109,7 +134,10 @@ def test_content_loss_ranks_the_true_content_first():
     x = torch.randn(4, 12, 6)
     pred = clf(x).argmax(-1)
     maps = clf.feature_maps(x)
-    right, wrong = losses.content_classification(clf, maps, pred), losses.content_classification(clf, maps, (pred + 1) % 3)
+    right, wrong = (
+        losses.content_classification(clf, maps, pred),
+        losses.content_classification(clf, maps, (pred + 1) % 3),
+    )
     assert right < wrong
     assert torch.isclose(right, torch.nn.functional.cross_entropy(clf(x), pred))
 
@@ -118,8 +146,25 @@ def test_data_parallel_two_processes_with_torchrun(shared_data, tmp_path):
     cfg = write_config(tmp_path / "c.yaml", epochs=2)
     env = dict(os.environ, OMP_NUM_THREADS="1")
     p = subprocess.run(
-        [sys.executable, "-m", "torch.distributed.run", "--standalone", "--nproc_per_node", "2", "-m", "styleerd.cli", "train", "--config", str(cfg), "--out", str(tmp_path / "ddp")],
-        capture_output=True, text=True, env=env, timeout=900,
+        [
+            sys.executable,
+            "-m",
+            "torch.distributed.run",
+            "--standalone",
+            "--nproc_per_node",
+            "2",
+            "-m",
+            "styleerd.cli",
+            "train",
+            "--config",
+            str(cfg),
+            "--out",
+            str(tmp_path / "ddp"),
+        ],
+        capture_output=True,
+        text=True,
+        env=env,
+        timeout=900,
     )
     assert p.returncode == 0, p.stdout[-3000:] + p.stderr[-3000:]
     assert epochs_done(tmp_path / "ddp") == 2
@@ -155,7 +200,11 @@ def test_both_bandai_sets_as_one_train_style_by_style(shared_data, tmp_path):
 
     fs = prepare("bandai-namco-1+2", shared_data, progress=False)
     styles = set(fs.styles.tolist())
-    assert {"elderly", "exhausted", "masculine", "happy", "chimpira", "youthful"} <= styles and not {"old", "tired", "masculinity"} & styles
+    assert {"elderly", "exhausted", "masculine", "happy", "chimpira", "youthful"} <= styles and not {
+        "old",
+        "tired",
+        "masculinity",
+    } & styles
     assert len(styles) == 16  # Bandai-1's 15 (three renamed) and Bandai-2's youthful
     one = np.char.startswith(fs.names.astype(str), "dataset-1_")
     held = np.array([bandai1_kept_back(n, c) for n, c in zip(fs.names, fs.contents)])
@@ -163,7 +212,14 @@ def test_both_bandai_sets_as_one_train_style_by_style(shared_data, tmp_path):
     assert ((fs.styles == "happy") & one & held).sum() == 5 and ((fs.styles == "happy") & one & ~held).sum() == 6
     assert set(fs.splits[~one]) == {"train", "val", "test"}  # Bandai-2 keeps its split by take
     out = tmp_path / "b12"
-    train(TrainConfig(**{**TINY, "max_train_clips": 0}, dataset="bandai-namco-1+2", balance_styles=True, epochs=1, stride=200), out, progress=False, export=tmp_path / "m")
+    train(
+        TrainConfig(
+            **{**TINY, "max_train_clips": 0}, dataset="bandai-namco-1+2", balance_styles=True, epochs=1, stride=200
+        ),
+        out,
+        progress=False,
+        export=tmp_path / "m",
+    )
     model, _ = load_generator(tmp_path / "m")
     assert model.config.styles == tuple(sorted(styles)) and "bow" in model.config.contents
 
@@ -174,19 +230,32 @@ def test_fine_tune_from_a_saved_generator_with_a_critic_that_sees_rotations(shar
     train(TrainConfig(**TINY, epochs=1), tmp_path / "a", progress=False, export=tmp_path / "start")
     start, _ = ckpt.load_generator(tmp_path / "start")
     # lr_g 0: the fine-tuned generator must be exactly the one it started from
-    tuning = TrainConfig(**{**TINY, "lr_g": 0.0}, epochs=1, init_from=str(tmp_path / "start"), critic_rotations=True, keep="last")
+    tuning = TrainConfig(
+        **{**TINY, "lr_g": 0.0}, epochs=1, init_from=str(tmp_path / "start"), critic_rotations=True, keep="last"
+    )
     train(tuning, tmp_path / "b", progress=False, export=tmp_path / "tuned")
     tensors, _ = ckpt.load_tensors(tmp_path / "b" / "checkpoint")
     tuned = ckpt.unprefixed("generator", tensors)
     assert all(torch.equal(v, tuned[k]) for k, v in start.state_dict().items())
     exported, meta = ckpt.load_generator(tmp_path / "tuned")  # keep "last": the final epoch, with where it started
     assert all(torch.equal(v, exported.state_dict()[k]) for k, v in start.state_dict().items())
-    assert "last epoch" in meta["training"]["kept"] and meta["training"]["started_from"]["model"] == str(tmp_path / "start")
+    assert "last epoch" in meta["training"]["kept"] and meta["training"]["started_from"]["model"] == str(
+        tmp_path / "start"
+    )
     assert meta["training"]["started_from"]["training"]["epochs_trained"] == 1
     # where a run started and what it exports may change on resuming (the checkpoint holds the weights)
-    train(TrainConfig(**{**tuning.to_dict(), "epochs": 2, "keep": "best", "init_from": ""}), tmp_path / "b", progress=False)
+    train(
+        TrainConfig(**{**tuning.to_dict(), "epochs": 2, "keep": "best", "init_from": ""}),
+        tmp_path / "b",
+        progress=False,
+    )
     # ema: the export (and every validation) is the moving average of the weights, not the weights
-    train(TrainConfig(**TINY, epochs=1, init_from=str(tmp_path / "start"), keep="last", ema=0.99), tmp_path / "m", progress=False, export=tmp_path / "averaged")
+    train(
+        TrainConfig(**TINY, epochs=1, init_from=str(tmp_path / "start"), keep="last", ema=0.99),
+        tmp_path / "m",
+        progress=False,
+        export=tmp_path / "averaged",
+    )
     tensors_m, _ = ckpt.load_tensors(tmp_path / "m" / "checkpoint")
     averaged, meta = ckpt.load_generator(tmp_path / "averaged")
     assert "moving average (decay 0.99)" in meta["training"]["kept"]
@@ -198,7 +267,12 @@ def test_fine_tune_from_a_saved_generator_with_a_critic_that_sees_rotations(shar
     with pytest.raises(StyleERDError, match="keep must be"):
         train(TrainConfig(**{**TINY, "keep": "newest"}, epochs=1), tmp_path / "d", progress=False)
     # keep "realistic": every validation epoch judged by realism per style; the export is the most realistic one
-    train(TrainConfig(**TINY, epochs=3, init_from=str(tmp_path / "start"), keep="realistic"), tmp_path / "r", progress=False, export=tmp_path / "realistic")
+    train(
+        TrainConfig(**TINY, epochs=3, init_from=str(tmp_path / "start"), keep="realistic"),
+        tmp_path / "r",
+        progress=False,
+        export=tmp_path / "realistic",
+    )
     rows = list(csv.DictReader(open(tmp_path / "r" / "metrics.csv")))
     margins = [float(r["realism_margin"]) for r in rows]
     assert len(margins) == 3 and all(0 < m < 10 for m in margins)
@@ -208,7 +282,9 @@ def test_fine_tune_from_a_saved_generator_with_a_critic_that_sees_rotations(shar
     assert meta["training"]["best"]["epoch"] == chosen and f"epoch {chosen} of 3" in meta["training"]["kept"]
     best, _ = ckpt.load_generator(tmp_path / "r" / "best")
     assert all(torch.equal(v, best.state_dict()[k]) for k, v in realistic.state_dict().items())
-    monkeypatch.setattr("styleerd.train.trainer._recognisers", lambda s: (None, None))  # judges that do not fit the data
+    monkeypatch.setattr(
+        "styleerd.train.trainer._recognisers", lambda s: (None, None)
+    )  # judges that do not fit the data
     with pytest.raises(StyleERDError, match="keep: realistic needs the shipped recognisers"):
         train(TrainConfig(**TINY, epochs=1, keep="realistic"), tmp_path / "e", progress=False)
     J = start.config.n_joints
@@ -216,11 +292,19 @@ def test_fine_tune_from_a_saved_generator_with_a_critic_that_sees_rotations(shar
     plain, _ = ckpt.load_tensors(tmp_path / "a" / "checkpoint")
     assert plain["discriminator.trunk.0.1.weight"].shape[1] == 6 * J  # the paper's critic: positions, velocities
     with pytest.raises(StyleERDError, match="init_from .* config differs"):
-        train(TrainConfig(**{**TINY, "neutral_layers": 3}, epochs=1, init_from=str(tmp_path / "start")), tmp_path / "c", progress=False)
+        train(
+            TrainConfig(**{**TINY, "neutral_layers": 3}, epochs=1, init_from=str(tmp_path / "start")),
+            tmp_path / "c",
+            progress=False,
+        )
     # a run that resumes takes its weights from its checkpoint: the model it started from may be gone
     for suffix in (".safetensors", ".json"):
         (tmp_path / "start").with_suffix(suffix).unlink()
-    train(TrainConfig(**TINY, epochs=2, init_from=str(tmp_path / "start"), keep="last", ema=0.99), tmp_path / "m", progress=False)
+    train(
+        TrainConfig(**TINY, epochs=2, init_from=str(tmp_path / "start"), keep="last", ema=0.99),
+        tmp_path / "m",
+        progress=False,
+    )
     assert len(list(csv.DictReader(open(tmp_path / "m" / "metrics.csv")))) == 2
     with pytest.raises(StyleERDError, match="device 'no-such-device' cannot be used"):
         train(TrainConfig(**TINY, epochs=1, device="no-such-device"), tmp_path / "g", progress=False)
@@ -270,11 +354,23 @@ def test_a_train_step_moves_both_networks_and_leaves_them_trainable(shared_data)
     rng = np.random.default_rng(0)
     logs = {}
     for step in range(2):  # R1 on the first
-        logs |= train_step(G, D, *make_optimisers(config, G, D), C, config, s, rng.choice(len(s.train.starts), 16), rng.integers(0, len(s.data.styles), 16), step)
-    assert {"rec", "adv", "per", "cls", "cyc", "critic", "r1"} <= logs.keys() and all(np.isfinite(v) for v in logs.values())
+        logs |= train_step(
+            G,
+            D,
+            *make_optimisers(config, G, D),
+            C,
+            config,
+            s,
+            rng.choice(len(s.train.starts), 16),
+            rng.integers(0, len(s.data.styles), 16),
+            step,
+        )
+    assert {"rec", "adv", "per", "cls", "cyc", "critic", "r1"} <= logs.keys() and all(
+        np.isfinite(v) for v in logs.values()
+    )
     assert all(p.requires_grad for p in D.parameters()) and all(p.requires_grad for p in G.parameters())
     moved = [not torch.equal(a, p) for a, p in zip(before, (*G.parameters(), *D.parameters()))]
-    assert all(moved[len(list(G.parameters())):]), "every critic weight must train"
+    assert all(moved[len(list(G.parameters())) :]), "every critic weight must train"
     assert sum(moved[: len(list(G.parameters()))]) > 0.9 * len(list(G.parameters()))
 
 
@@ -290,10 +386,16 @@ def test_bench_train_step_times_the_trainers_own_step_of_two_recipes(shared_data
     r = json.loads(out.read_text())
     assert "cycle pass + loss" in r["before"]["parts_ms"] and "cycle pass + loss" not in r["after"]["parts_ms"]
     assert r["before"]["batch"] == 16 and r["after"]["batch"] == 12
-    assert r["before"]["code"] == "HEAD" and r["after"]["code"] == "working tree"  # the before recipe on the committed trainer, from git
+    assert (
+        r["before"]["code"] == "HEAD" and r["after"]["code"] == "working tree"
+    )  # the before recipe on the committed trainer, from git
     for name in ("before", "after"):
         parts = r[name]["parts_ms"]
-        assert {"generator forward (B + B)", "generator backward + Adam", "critic step (+ R1 on its steps)"} <= parts.keys()
+        assert {
+            "generator forward (B + B)",
+            "generator backward + Adam",
+            "critic step (+ R1 on its steps)",
+        } <= parts.keys()
         assert all(v > 0 for v in parts.values()) and abs(sum(parts.values()) - r[name]["step_ms"]) < 0.1
     assert abs(r["speedup"] - r["before"]["epoch_s"] / r["after"]["epoch_s"]) < 0.002
     assert "after / before epoch time" in bench.stdout
@@ -310,7 +412,9 @@ def test_bench_train_parallel_times_real_epochs_in_one_and_two_processes(shared_
     r = json.loads(out.read_text())
     forms = r["forms"]
     assert list(forms) == ["1 process x 1 thread", "1 process x 2 threads", "2 processes x 1 thread (torchrun)"]
-    assert len({f["steps"] for f in forms.values()}) == 1 and forms["1 process x 1 thread"]["speedup"] == 1.0  # one global batch: the same steps
+    assert (
+        len({f["steps"] for f in forms.values()}) == 1 and forms["1 process x 1 thread"]["speedup"] == 1.0
+    )  # one global batch: the same steps
     for f in forms.values():
         assert f["epoch_s"] > 0 and abs(f["windows_per_minute"] - 60 * f["steps"] * 16 / f["epoch_s"]) <= 1
 

@@ -35,7 +35,13 @@ def test_test_clips_into_every_style_keep_layout_frames_and_trajectory(shared_da
         src = bvh.read(clip.path)
         for style in g.config.styles:
             out_path = tmp_path / f"{clip.name}-{style}.bvh"
-            transfer_file(clip.path, out_path, g, meta["data"]["fps"], TransferOptions({style: 1.0}, input_style=clip.style, content=clip.content))
+            transfer_file(
+                clip.path,
+                out_path,
+                g,
+                meta["data"]["fps"],
+                TransferOptions({style: 1.0}, input_style=clip.style, content=clip.content),
+            )
             out = bvh.read(out_path)
             assert out.skeleton == src.skeleton and out.n_frames == src.n_frames and np.isclose(out.fps, src.fps)
             assert np.isfinite(bvh.channel_values(out)).all()
@@ -47,8 +53,16 @@ def test_other_frame_rates_come_back_at_their_rate_and_length(shared_data, model
     clip = find_clips(shared_data, "bandai-namco-2")[0]
     fast = resample(bvh.read(clip.path), 60.0)
     bvh.write(tmp_path / "in60.bvh", fast)
-    done = transfer_file(tmp_path / "in60.bvh", tmp_path / "out60.bvh", g, meta["data"]["fps"], TransferOptions({"elderly": 1.0}, input_style=clip.style, content=clip.content))
-    assert done.frames == fast.n_frames == bvh.read(tmp_path / "out60.bvh").n_frames and np.isclose(bvh.read(tmp_path / "out60.bvh").fps, 60.0, rtol=1e-6)
+    done = transfer_file(
+        tmp_path / "in60.bvh",
+        tmp_path / "out60.bvh",
+        g,
+        meta["data"]["fps"],
+        TransferOptions({"elderly": 1.0}, input_style=clip.style, content=clip.content),
+    )
+    assert done.frames == fast.n_frames == bvh.read(tmp_path / "out60.bvh").n_frames and np.isclose(
+        bvh.read(tmp_path / "out60.bvh").fps, 60.0, rtol=1e-6
+    )
 
 
 def test_xia_clips_into_every_style_keep_skeleton_frames_and_root(shared_data, model, tmp_path):
@@ -58,7 +72,14 @@ def test_xia_clips_into_every_style_keep_skeleton_frames_and_root(shared_data, m
         src = bvh.read(path)
         for style in g.config.styles:
             out_path = tmp_path / f"{path.stem}-{style}.bvh"
-            transfer_file(path, out_path, g, meta["data"]["fps"], TransferOptions({style: 1.0}, input_style="normal", content="walk"), report=lines.append)
+            transfer_file(
+                path,
+                out_path,
+                g,
+                meta["data"]["fps"],
+                TransferOptions({style: 1.0}, input_style="normal", content="walk"),
+                report=lines.append,
+            )
             out = bvh.read(out_path)
             assert out.skeleton == src.skeleton and out.n_frames == src.n_frames and np.isclose(out.fps, src.fps)
             assert np.isfinite(bvh.channel_values(out)).all()
@@ -72,16 +93,61 @@ def test_unmappable_skeleton_and_bad_labels_fail_cleanly(shared_data, model, tmp
     xia = shared_data / "xia-sample" / "angry_13_000.bvh"
     text = xia.read_text().replace("LeftHand", "Paw").replace("LeftForeArm", "Wrist2")
     (tmp_path / "odd.bvh").write_text(text)
-    with pytest.raises(StyleERDError, match=r"odd.bvh: cannot map the skeleton: no joint found for left elbow \(model joint LowerArm_L\)"):
-        transfer_file(tmp_path / "odd.bvh", tmp_path / "x.bvh", g, 30.0, TransferOptions({"elderly": 1.0}, input_style="normal", content="walk"))
+    with pytest.raises(
+        StyleERDError,
+        match=r"odd.bvh: cannot map the skeleton: no joint found for left elbow \(model joint LowerArm_L\)",
+    ):
+        transfer_file(
+            tmp_path / "odd.bvh",
+            tmp_path / "x.bvh",
+            g,
+            30.0,
+            TransferOptions({"elderly": 1.0}, input_style="normal", content="walk"),
+        )
     assert not (tmp_path / "x.bvh").exists()
     (tmp_path / "map.json").write_text('{"LowerArm_L": "Wrist2", "Hand_L": "Paw"}')
-    r = subprocess.run([sys.executable, "-m", "styleerd.cli", "transfer", str(tmp_path / "odd.bvh"), "--style", "elderly", "--input-style", "normal",
-                        "--content", "walk", "--joint-map", str(tmp_path / "map.json"), "-o", str(tmp_path / "x.bvh")], capture_output=True, text=True)
+    r = subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "styleerd.cli",
+            "transfer",
+            str(tmp_path / "odd.bvh"),
+            "--style",
+            "elderly",
+            "--input-style",
+            "normal",
+            "--content",
+            "walk",
+            "--joint-map",
+            str(tmp_path / "map.json"),
+            "-o",
+            str(tmp_path / "x.bvh"),
+        ],
+        capture_output=True,
+        text=True,
+    )
     assert r.returncode == 0 and "LowerArm_L <- Wrist2" in r.stdout and (tmp_path / "x.bvh").is_file()
     clip = find_clips(shared_data, "bandai-namco-2")[0]
-    r = subprocess.run([sys.executable, "-m", "styleerd.cli", "transfer", str(clip.path), "--style", "oldie", "--input-style", "normal",
-                        "--content", "walk", "-o", str(tmp_path / "y.bvh")], capture_output=True, text=True)
+    r = subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "styleerd.cli",
+            "transfer",
+            str(clip.path),
+            "--style",
+            "oldie",
+            "--input-style",
+            "normal",
+            "--content",
+            "walk",
+            "-o",
+            str(tmp_path / "y.bvh"),
+        ],
+        capture_output=True,
+        text=True,
+    )
     assert r.returncode == 2 and "valid: active, elderly" in r.stderr and len(r.stderr.strip().splitlines()) == 1
     assert not (tmp_path / "y.bvh").exists()
 
@@ -94,7 +160,13 @@ def test_channel_stream_equals_the_file_transfer_on_a_stream_at_model_rate(model
     source = walk(2.0, fps=30.0)
     bvh.write(tmp_path / "in.bvh", source)
     src = bvh.read(tmp_path / "in.bvh")
-    transfer_file(tmp_path / "in.bvh", tmp_path / "out.bvh", g, 30.0, TransferOptions({"elderly": 1.0}, input_style="normal", content="walk"))
+    transfer_file(
+        tmp_path / "in.bvh",
+        tmp_path / "out.bvh",
+        g,
+        30.0,
+        TransferOptions({"elderly": 1.0}, input_style="normal", content="walk"),
+    )
     out = bvh.read(tmp_path / "out.bvh")
     stream = ChannelStylizer(g, src.skeleton, {"elderly": 1.0}, "normal", "walk", fps=30.0)
     values = bvh.channel_values(src)
@@ -117,7 +189,9 @@ def _transfer_every_style(job):
     problems = []
     for target in g.config.styles:
         out_path = out_dir / f"{path.stem}-{target}.bvh"
-        transfer_file(path, out_path, g, meta["data"]["fps"], TransferOptions({target: 1.0}, input_style=style, content=content))
+        transfer_file(
+            path, out_path, g, meta["data"]["fps"], TransferOptions({target: 1.0}, input_style=style, content=content)
+        )
         out = bvh.read(out_path)
         if not (out.skeleton == src.skeleton and out.n_frames == src.n_frames and np.isclose(out.fps, src.fps)):
             problems.append(f"{target}: layout")
@@ -160,9 +234,18 @@ def test_streamed_file_transfer_equals_the_whole_motion_pipeline(model, tmp_path
     g, _ = model
     bvh.write(tmp_path / "in.bvh", walk(1.5, fps=fps))
     src = bvh.read(tmp_path / "in.bvh")
-    transfer_file(tmp_path / "in.bvh", tmp_path / "out.bvh", g, 30.0, TransferOptions({"elderly": 1.0}, input_style="normal", content="walk"), chunk=7)
+    transfer_file(
+        tmp_path / "in.bvh",
+        tmp_path / "out.bvh",
+        g,
+        30.0,
+        TransferOptions({"elderly": 1.0}, input_style="normal", content="walk"),
+        chunk=7,
+    )
     jm = map_skeleton(src.skeleton, g, first_pose=src.rotations[0])
-    styled = run_stream(StreamStylizer(g, "normal", "walk", {"elderly": 1.0}, fps=30.0), resample(to_target(src, jm), 30.0))
+    styled = run_stream(
+        StreamStylizer(g, "normal", "walk", {"elderly": 1.0}, fps=30.0), resample(to_target(src, jm), 30.0)
+    )
     whole = to_source(resample(styled, src.fps, n_frames=src.n_frames), jm, src)
     whole = clean_feet(whole, src)
     streamed = bvh.read(tmp_path / "out.bvh")
@@ -182,7 +265,14 @@ def test_memory_stays_bounded_however_long_the_file(model, tmp_path):
     for seconds in (8.0, 32.0):
         bvh.write(tmp_path / "in.bvh", walk(seconds, fps=30.0))
         tracemalloc.start()
-        transfer_file(tmp_path / "in.bvh", tmp_path / "out.bvh", g, 30.0, TransferOptions({"elderly": 1.0}, input_style="normal", content="walk"), chunk=64)
+        transfer_file(
+            tmp_path / "in.bvh",
+            tmp_path / "out.bvh",
+            g,
+            30.0,
+            TransferOptions({"elderly": 1.0}, input_style="normal", content="walk"),
+            chunk=64,
+        )
         peaks.append(tracemalloc.get_traced_memory()[1])
         tracemalloc.stop()
     assert bvh.read(tmp_path / "out.bvh").n_frames == 960
@@ -206,7 +296,11 @@ def test_bad_files_fail_with_one_line_and_nothing_written(model, tmp_path, case)
     else:
         bvh.write(path, m)
         out = tmp_path / "out.txt"
-    r = subprocess.run([sys.executable, "-m", "styleerd.cli", "transfer", str(path), "--style", "elderly", "-o", str(out)], capture_output=True, text=True)
+    r = subprocess.run(
+        [sys.executable, "-m", "styleerd.cli", "transfer", str(path), "--style", "elderly", "-o", str(out)],
+        capture_output=True,
+        text=True,
+    )
     assert r.returncode == 2 and expected in r.stderr and len(r.stderr.strip().splitlines()) == 1, r.stderr
     assert not out.exists() and sorted(p.name for p in tmp_path.iterdir()) == ["in.bvh"]
 
@@ -220,12 +314,23 @@ def test_a_stream_whose_content_changes_midway(shared_data, model, tmp_path):
     clips = find_clips(shared_data, "bandai-namco-2")
     split = split_takes({c.name: (c.dataset, c.style, c.content) for c in clips})
     walk_clip = next(c for c in clips if split[c.name] == "test" and c.content == "walk" and c.style == "normal")
-    wave_clip = next(c for c in clips if split[c.name] == "test" and c.content == "wave-both-hands" and c.style == "normal")
+    wave_clip = next(
+        c for c in clips if split[c.name] == "test" and c.content == "wave-both-hands" and c.style == "normal"
+    )
     a, b = load_motion(walk_clip), load_motion(wave_clip)
-    joined = Motion(a.skeleton, np.concatenate([a.rotations, b.rotations]), np.concatenate([a.positions, b.positions]), a.fps)
+    joined = Motion(
+        a.skeleton, np.concatenate([a.rotations, b.rotations]), np.concatenate([a.positions, b.positions]), a.fps
+    )
     bvh.write(tmp_path / "joined.bvh", joined)
     lines = []
-    done = transfer_file(tmp_path / "joined.bvh", tmp_path / "out.bvh", g, meta["data"]["fps"], TransferOptions({"elderly": 1.0}), report=lines.append)
+    done = transfer_file(
+        tmp_path / "joined.bvh",
+        tmp_path / "out.bvh",
+        g,
+        meta["data"]["fps"],
+        TransferOptions({"elderly": 1.0}),
+        report=lines.append,
+    )
     out = bvh.read(tmp_path / "out.bvh")
     assert out.n_frames == joined.n_frames and np.isfinite(bvh.channel_values(out)).all()
     assert done.labels == ("normal", "wave-both-hands")  # the labeller followed the change
@@ -242,7 +347,11 @@ def test_slots_stepped_apart_equal_independent_streams(model, backend):
     g, _ = model
     m = walk(2.0, fps=30.0)
     values = bvh.channel_values(m)
-    setups = [("normal", "walk", {"feminine": 1.0}), (None, None, {"elderly": 0.6, "normal": 0.4}), ("exhausted", None, {"normal": 1.0})]
+    setups = [
+        ("normal", "walk", {"feminine": 1.0}),
+        (None, None, {"elderly": 0.6, "normal": 0.4}),
+        ("exhausted", None, {"normal": 1.0}),
+    ]
     pool = ChannelStylizer(g, m.skeleton, {"normal": 1.0}, "normal", "walk", n_streams=3, backend=backend)
     for k, (s, c, t) in enumerate(setups):
         pool.configure([k], s, c, t)
@@ -278,7 +387,23 @@ def test_root_speed_gives_an_elderly_walk_the_normal_pace_with_feet_planted(shar
     clip = next(c for c in clips if split[c.name] == "test" and c.style == "elderly" and c.content == "walk")
     src = resample(bvh.read(clip.path), fps)
     bvh.write(tmp_path / "in.bvh", src)
-    done = subprocess.run([sys.executable, "-m", "styleerd.cli", "transfer", tmp_path / "in.bvh", "--style", "normal", "--root-speed", "-o", tmp_path / "out.bvh"], capture_output=True, text=True, timeout=300)
+    done = subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "styleerd.cli",
+            "transfer",
+            tmp_path / "in.bvh",
+            "--style",
+            "normal",
+            "--root-speed",
+            "-o",
+            tmp_path / "out.bvh",
+        ],
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
     assert done.returncode == 0, done.stderr
     out = bvh.read(tmp_path / "out.bvh")
     assert out.n_frames == src.n_frames and out.skeleton == src.skeleton
@@ -289,7 +414,9 @@ def test_root_speed_gives_an_elderly_walk_the_normal_pace_with_feet_planted(shar
     print(f"{fps} fps: ground covered {ratio:.3f} x the input's")
     assert 1.2 < ratio < 2.0
     moving = np.linalg.norm(step_in, axis=-1) > 1e-3
-    cos = (step_in * step_out).sum(-1)[moving] / (np.linalg.norm(step_in, axis=-1) * np.linalg.norm(step_out, axis=-1))[moving]
+    cos = (step_in * step_out).sum(-1)[moving] / (np.linalg.norm(step_in, axis=-1) * np.linalg.norm(step_out, axis=-1))[
+        moving
+    ]
     assert cos.mean() > 0.99  # the input's heading
     assert np.allclose(g_out[:, hips, 1], g_in[:, hips, 1], atol=1e-3)  # and height
     roles = BodyRoles.of(src.skeleton)

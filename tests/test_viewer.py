@@ -17,7 +17,9 @@ CHROMIUM = shutil.which("chromium") or "/usr/bin/chromium"
 ARGS = ["--no-sandbox", "--disable-gpu", "--use-angle=swiftshader", "--enable-unsafe-swiftshader", "--no-first-run",
         "--disable-background-networking", "--disable-component-update", "--disable-sync"]  # fmt: skip
 
-pytestmark = pytest.mark.skipif(not Path(CHROMIUM).exists(), reason="Chromium not installed (.ci/run installs Debian's chromium)")
+pytestmark = pytest.mark.skipif(
+    not Path(CHROMIUM).exists(), reason="Chromium not installed (.ci/run installs Debian's chromium)"
+)
 
 
 @pytest.fixture(scope="module")
@@ -69,13 +71,18 @@ def test_body_parts_restart_the_stream_with_targets_of_their_own(page):
     says which parts it took) and the drawn output changes; back to none, the stream is plain."""
     base = drawn_after_restart(page, "exhausted")
     page.select_option("#part-legs", "elderly")
-    page.wait_for_function("window.viewer.ready && window.viewer.parts && window.viewer.parts.legs && window.viewer.parts.legs.elderly === 1", timeout=30000)
+    page.wait_for_function(
+        "window.viewer.ready && window.viewer.parts && window.viewer.parts.legs && window.viewer.parts.legs.elderly === 1",
+        timeout=30000,
+    )
     page.wait_for_function("window.viewer.drawn.has(40)", timeout=30000)
     parts = np.array(page.evaluate("window.viewer.drawn.get(40)"))
     height = np.ptp(base.reshape(-1, 3)[:, 1])
     assert np.linalg.norm((parts - base).reshape(-1, 3), axis=-1).max() > 0.02 * height
     page.select_option("#part-legs", "")
-    page.wait_for_function("window.viewer.ready && window.viewer.parts && Object.keys(window.viewer.parts).length === 0", timeout=30000)
+    page.wait_for_function(
+        "window.viewer.ready && window.viewer.parts && Object.keys(window.viewer.parts).length === 0", timeout=30000
+    )
     assert page.locator("#error").inner_text() == "" and not page.errors
 
 

@@ -19,7 +19,15 @@ from styleerd.motion import quat
 from styleerd.motion.kinematics import forward_kinematics
 from styleerd.motion.motion import Motion
 from styleerd.motion.procedural import walk
-from styleerd.serve.vmc import BONE, ROOT, VMCBridge, humanoid_skeleton, rotation_to_unity, unity_position, unity_rotation
+from styleerd.serve.vmc import (
+    BONE,
+    ROOT,
+    VMCBridge,
+    humanoid_skeleton,
+    rotation_to_unity,
+    unity_position,
+    unity_rotation,
+)
 
 MIRROR = np.diag([-1.0, 1.0, 1.0])
 UNITY_NAMES = {"Spine1": "Chest", "Spine2": "UpperChest", "LeftArm": "LeftUpperArm", "LeftForeArm": "LeftLowerArm", "LeftUpLeg": "LeftUpperLeg",
@@ -35,7 +43,9 @@ def test_axes_round_trip_and_match_a_mirrored_rotation():
     assert np.allclose(unity_position(unity_position(p)), p)
     ours = unity_rotation(q_unity)
     R = Rotation.from_quat(np.concatenate([ours[:, 1:], ours[:, :1]], -1)).as_matrix()
-    assert np.allclose(R, MIRROR @ Rotation.from_quat(q_unity).as_matrix() @ MIRROR)  # the same rotation seen in a mirror
+    assert np.allclose(
+        R, MIRROR @ Rotation.from_quat(q_unity).as_matrix() @ MIRROR
+    )  # the same rotation seen in a mirror
 
 
 def test_forward_kinematics_commutes_with_the_conversion():
@@ -286,7 +296,9 @@ def test_a_bad_datagram_is_dropped_and_the_stream_goes_on(model, kind):
         if t == 5:
             sent += bridge.feed(BAD_DATAGRAMS[kind])
     got, _ = _decode(sent)
-    assert len(got) >= len(frames) - 2 and all(np.isfinite(np.concatenate([np.concatenate(v) for v in f.values()])).all() for f in got)
+    assert len(got) >= len(frames) - 2 and all(
+        np.isfinite(np.concatenate([np.concatenate(v) for v in f.values()])).all() for f in got
+    )
 
 
 @pytest.mark.parametrize("examples", [300, pytest.param(10_000, marks=pytest.mark.slow, id="long")])
@@ -303,6 +315,7 @@ def test_fuzzed_datagrams_never_stop_the_bridge(model, examples):
             bridge.feed(d)
     args = st.one_of(st.floats(allow_nan=True, allow_infinity=True, width=32), st.integers(-(2**31), 2**31 - 1), st.text(max_size=8),
                      st.booleans(), st.binary(min_size=1, max_size=8), st.sampled_from(names))  # fmt: skip
+
     def built(address, xs) -> bytes:
         try:
             return _osc(address, *xs)
@@ -334,7 +347,10 @@ def test_a_first_frame_without_hips_waits_and_a_new_avatar_is_mapped_again(model
     m, names, frames = _unity_frames(1.0)
     reports = []
     bridge = VMCBridge(model, {"elderly": 1.0}, report=reports.append)
-    no_hips = [_osc(ROOT, "root", 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0), _osc(BONE, "Spine", 0.0, 0.1, 0.0, 0.0, 0.0, 0.0, 1.0)]
+    no_hips = [
+        _osc(ROOT, "root", 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0),
+        _osc(BONE, "Spine", 0.0, 0.1, 0.0, 0.0, 0.0, 0.0, 1.0),
+    ]
     for d in no_hips + no_hips:
         assert bridge.feed(d) == [] or True
     assert any("no 'Hips' bone" in r for r in reports)

@@ -19,7 +19,11 @@ from styleerd.motion.retarget import body_parts, tpose_rotations
 from styleerd.motion.skeleton import Skeleton
 
 # contents that a mirror turns into each other
-MIRRORED_CONTENT = {"wave-left-hand": "wave-right-hand", "raise-up-left-hand": "raise-up-right-hand", "walk-turn-left": "walk-turn-right"}
+MIRRORED_CONTENT = {
+    "wave-left-hand": "wave-right-hand",
+    "raise-up-left-hand": "raise-up-right-hand",
+    "walk-turn-left": "walk-turn-right",
+}
 MIRRORED_CONTENT.update({v: k for k, v in MIRRORED_CONTENT.items()})
 
 
@@ -32,7 +36,15 @@ def with_proportions(motion: Motion, legs: float, arms: float, trunk: float) -> 
     scale = np.ones(sk.n_joints)
     for j in range(1, sk.n_joints):
         p = part_of.get(j, "")
-        scale[j] = legs if p.endswith(("knee", "foot", "toe")) else arms if p.endswith(("shoulder", "elbow", "hand")) else trunk if p in ("spine", "chest", "neck", "head") else 1.0
+        scale[j] = (
+            legs
+            if p.endswith(("knee", "foot", "toe"))
+            else arms
+            if p.endswith(("shoulder", "elbow", "hand"))
+            else trunk
+            if p in ("spine", "chest", "neck", "head")
+            else 1.0
+        )
     offsets = sk.offsets * scale[:, None]
     skeleton = Skeleton(sk.names, sk.parents, offsets, sk.channels, sk.end_sites)
     pos = np.broadcast_to(offsets, motion.positions.shape).copy()
@@ -51,7 +63,9 @@ def with_joint_offsets(motion: Motion, offsets: np.ndarray) -> Motion:
     (what another rig's conventions leave after retargeting)."""
     parents = motion.skeleton.parents
     g, _ = forward_kinematics(motion.rotations, motion.positions, parents)
-    return Motion(motion.skeleton, quat.normalize(local_rotations(quat.mul(g, offsets), parents)), motion.positions, motion.fps)
+    return Motion(
+        motion.skeleton, quat.normalize(local_rotations(quat.mul(g, offsets), parents)), motion.positions, motion.fps
+    )
 
 
 def random_joint_offsets(n_joints: int, degrees: float, rng: np.random.Generator) -> np.ndarray:
@@ -80,7 +94,9 @@ def mirror(motion: Motion, reference_pose: np.ndarray) -> Motion:
     return Motion(sk, quat.normalize(local_rotations(g_new, sk.parents)), pos, motion.fps)
 
 
-def other_performer(motion: Motion, content: str, reference_pose: np.ndarray, rng: np.random.Generator) -> tuple[Motion, str]:
+def other_performer(
+    motion: Motion, content: str, reference_pose: np.ndarray, rng: np.random.Generator
+) -> tuple[Motion, str]:
     """A random mix of the above: proportions within 15 %, speed 0.8-1.25 x, joint offsets up
     to 12 degrees, mirrored half of the time (the content label mirrored with it)."""
     m = with_proportions(motion, *rng.uniform(0.85, 1.15, 3))

@@ -19,7 +19,16 @@ import numpy as np
 from tqdm import tqdm
 
 from styleerd.atomic import atomic_write
-from styleerd.data.datasets import COMBINED, DATASETS, Clip, bandai1_kept_back, cache_dir, data_root, find_clips, load_motion
+from styleerd.data.datasets import (
+    COMBINED,
+    DATASETS,
+    Clip,
+    bandai1_kept_back,
+    cache_dir,
+    data_root,
+    find_clips,
+    load_motion,
+)
 from styleerd.data.features import FeatureStats, motion_features
 from styleerd.data.windows import split_takes
 from styleerd.errors import StyleERDError
@@ -93,7 +102,9 @@ def _process(job: tuple[Clip, FeatureParams]) -> tuple[np.ndarray, np.ndarray, i
     return feats.astype(np.float32), traj, source.n_frames, motion.skeleton
 
 
-def build(root: Path, dataset: str, params: FeatureParams, cache: Path, workers: int | None = None, progress: bool = True) -> FeatureSet:
+def build(
+    root: Path, dataset: str, params: FeatureParams, cache: Path, workers: int | None = None, progress: bool = True
+) -> FeatureSet:
     clips = find_clips(root, dataset, cache)
     jobs = [(c, params) for c in clips]
     workers = workers or os.cpu_count() or 1
@@ -116,7 +127,13 @@ def build(root: Path, dataset: str, params: FeatureParams, cache: Path, workers:
     lengths = np.array([len(r[0]) for r in results])
     split = split_takes({c.name: (c.dataset, c.style, c.content) for c in clips})
     if dataset in COMBINED:  # Bandai-1's few takes: a fixed set held out (datasets.bandai1_kept_back)
-        split.update({c.name: "test" if bandai1_kept_back(c.name, c.content) else "train" for c in clips if c.dataset == "bandai-namco-1"})
+        split.update(
+            {
+                c.name: "test" if bandai1_kept_back(c.name, c.content) else "train"
+                for c in clips
+                if c.dataset == "bandai-namco-1"
+            }
+        )
     return FeatureSet(
         dataset=dataset,
         skeleton=skeleton,
@@ -203,6 +220,10 @@ def summary(fs: FeatureSet) -> str:
     cw = max(len(c) for c in contents) + 1
     out.append("clips".ljust(cw) + "".join(f"{s[: w - 1]:>{w}}" for s in styles) + f"{'total':>{w}}")
     for c in contents:
-        out.append(c.ljust(cw) + "".join(f"{counts[s, c] or '-':>{w}}" for s in styles) + f"{sum(counts[s, c] for s in styles):>{w}}")
+        out.append(
+            c.ljust(cw)
+            + "".join(f"{counts[s, c] or '-':>{w}}" for s in styles)
+            + f"{sum(counts[s, c] for s in styles):>{w}}"
+        )
     out.append("frames".ljust(cw) + "".join(f"{frames[s]:>{w},}" for s in styles) + f"{total:>{w},}")
     return "\n".join(out)

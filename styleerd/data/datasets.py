@@ -38,6 +38,8 @@ def bandai1_kept_back(name: str, content: str) -> bool:
     five of each style's eleven clips are held out (test) wherever Bandai-1 trains a model, so
     its styles can be judged on clips no model or recogniser of theirs has seen."""
     return content in BANDAI1_KEPT_BACK or (content == "walk" and name.endswith("_002"))
+
+
 _BANDAI_DIRS = {
     "bandai-namco-2": "Bandai-Namco-Research-Motiondataset-2",
     "bandai-namco-1": "Bandai-Namco-Research-Motiondataset-1",
@@ -146,7 +148,9 @@ def find_clips(root: Path, dataset: str, cache: Path | None = None) -> list[Clip
     """All labelled clips of ``dataset`` under data folder ``root`` (unpacking if needed)."""
     if dataset in COMBINED:
         parts = [find_clips(root, d, cache) for d in COMBINED[dataset]]
-        return parts[0] + [Clip(c.dataset, c.name, c.path, BANDAI1_AS_BANDAI2.get(c.style, c.style), c.content) for c in parts[1]]
+        return parts[0] + [
+            Clip(c.dataset, c.name, c.path, BANDAI1_AS_BANDAI2.get(c.style, c.style), c.content) for c in parts[1]
+        ]
     if dataset in _BANDAI_DIRS:
         archive = root / f"{dataset}.tar.xz"
         if not archive.is_file():

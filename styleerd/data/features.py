@@ -26,7 +26,13 @@ import numpy as np
 
 from styleerd.data.parallel import kernel_threads
 from styleerd.motion import quat
-from styleerd.motion.kinematics import facing_directions, foot_contacts, forward_pose, forward_positions, heading_rotations
+from styleerd.motion.kinematics import (
+    facing_directions,
+    foot_contacts,
+    forward_pose,
+    forward_positions,
+    heading_rotations,
+)
 from styleerd.motion.motion import Motion
 from styleerd.motion.skeleton import BodyRoles, Skeleton
 
@@ -129,7 +135,27 @@ def stream_features(
 
 
 @nb.njit(cache=True, nogil=True, parallel=True)
-def _stream_features_on_shards(shards, rot, pos, previous, previous_facing, started, parents, roles, fps, max_speed, mean, std, reference, limit, x, traj, g, facing, ok):
+def _stream_features_on_shards(
+    shards,
+    rot,
+    pos,
+    previous,
+    previous_facing,
+    started,
+    parents,
+    roles,
+    fps,
+    max_speed,
+    mean,
+    std,
+    reference,
+    limit,
+    x,
+    traj,
+    g,
+    facing,
+    ok,
+):
     """``_stream_features_kernel`` on ``shards`` slices of the streams, one per thread."""
     N = rot.shape[0]
     for k in nb.prange(shards):
@@ -139,7 +165,26 @@ def _stream_features_on_shards(shards, rot, pos, previous, previous_facing, star
 
 
 @nb.njit(cache=True, nogil=True)
-def _stream_features_kernel(rot, pos, previous, previous_facing, started, parents, roles, fps, max_speed, mean, std, reference, limit, x, traj, g, facing, ok):
+def _stream_features_kernel(
+    rot,
+    pos,
+    previous,
+    previous_facing,
+    started,
+    parents,
+    roles,
+    fps,
+    max_speed,
+    mean,
+    std,
+    reference,
+    limit,
+    x,
+    traj,
+    g,
+    facing,
+    ok,
+):
     J = rot.shape[1]
     left, right, feet = roles
     inv_std = 1.0 / std  # a product per value, not a division (the divisions were a tenth of the kernel)
@@ -147,7 +192,9 @@ def _stream_features_kernel(rot, pos, previous, previous_facing, started, parent
     raw = np.empty(x.shape[1])  # a stream's features before normalisation: one vectorisable pass normalises them
     for n in range(rot.shape[0]):
         for j in range(J):
-            scale = 1.0 / max(np.sqrt(rot[n, j, 0] ** 2 + rot[n, j, 1] ** 2 + rot[n, j, 2] ** 2 + rot[n, j, 3] ** 2), 1e-12)
+            scale = 1.0 / max(
+                np.sqrt(rot[n, j, 0] ** 2 + rot[n, j, 1] ** 2 + rot[n, j, 2] ** 2 + rot[n, j, 3] ** 2), 1e-12
+            )
             for k in range(4):
                 unit[n, j, k] = rot[n, j, k] * scale
         forward_pose(unit[n], pos[n], parents, g_rot[n], g[n])
@@ -187,16 +234,28 @@ def _stream_features_kernel(rot, pos, previous, previous_facing, started, parent
         moved = started[n]
         for j in range(J):  # positions (relative to the root) and velocities, in the heading frame
             raw[4 * J + 3 * j], raw[4 * J + 3 * j + 1], raw[4 * J + 3 * j + 2] = quat.mul_vec_scalars(
-                hw, 0.0, -hy, 0.0, g[n, j, 0] - g[n, 0, 0], g[n, j, 1] - g[n, 0, 1], g[n, j, 2] - g[n, 0, 2])  # by inv(heading)
+                hw, 0.0, -hy, 0.0, g[n, j, 0] - g[n, 0, 0], g[n, j, 1] - g[n, 0, 1], g[n, j, 2] - g[n, 0, 2]
+            )  # by inv(heading)
             if moved:
                 raw[7 * J + 3 * j], raw[7 * J + 3 * j + 1], raw[7 * J + 3 * j + 2] = quat.mul_vec_scalars(
-                    hw, 0.0, -hy, 0.0, (g[n, j, 0] - previous[n, j, 0]) * fps, (g[n, j, 1] - previous[n, j, 1]) * fps, (g[n, j, 2] - previous[n, j, 2]) * fps)
+                    hw,
+                    0.0,
+                    -hy,
+                    0.0,
+                    (g[n, j, 0] - previous[n, j, 0]) * fps,
+                    (g[n, j, 1] - previous[n, j, 1]) * fps,
+                    (g[n, j, 2] - previous[n, j, 2]) * fps,
+                )
             else:
                 raw[7 * J + 3 * j], raw[7 * J + 3 * j + 1], raw[7 * J + 3 * j + 2] = 0.0, 0.0, 0.0
         for k in range(len(feet)):  # contacts: foot speed since the previous frame below max_speed
             f = feet[k]
             if moved:
-                dx, dy, dz = g[n, f, 0] - previous[n, f, 0], g[n, f, 1] - previous[n, f, 1], g[n, f, 2] - previous[n, f, 2]
+                dx, dy, dz = (
+                    g[n, f, 0] - previous[n, f, 0],
+                    g[n, f, 1] - previous[n, f, 1],
+                    g[n, f, 2] - previous[n, f, 2],
+                )
                 planted = np.sqrt(dx * dx + dy * dy + dz * dz) * fps < max_speed
             else:
                 planted = 0.0 < max_speed
@@ -210,13 +269,17 @@ def _stream_features_kernel(rot, pos, previous, previous_facing, started, parent
         ok[n] = good
 
 
-def motion_features(motion: Motion, roles: BodyRoles | None = None, contact_speed: float = CONTACT_SPEED) -> tuple[np.ndarray, np.ndarray]:
+def motion_features(
+    motion: Motion, roles: BodyRoles | None = None, contact_speed: float = CONTACT_SPEED
+) -> tuple[np.ndarray, np.ndarray]:
     """Features ``[T, D]`` and trajectory ``[T, 7]`` of a whole motion (the same values a
     stream of its frames gives, frame by frame)."""
     roles = roles or BodyRoles.of(motion.skeleton)
     g_pos = forward_positions(motion.rotations, motion.positions, motion.skeleton.parents)
     previous = np.concatenate([g_pos[:1], g_pos[:-1]], axis=0)
-    feats, traj, _ = pose_features(motion.rotations, motion.positions, previous, motion.skeleton, roles, motion.fps, contact_speed)
+    feats, traj, _ = pose_features(
+        motion.rotations, motion.positions, previous, motion.skeleton, roles, motion.fps, contact_speed
+    )
     return feats, traj
 
 

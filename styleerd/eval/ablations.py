@@ -60,7 +60,17 @@ def shipped_budget() -> tuple[TrainConfig, int]:
 
 def ablation_config(name: str, threads: int = 1, device: str = "cpu") -> TrainConfig:
     base, epochs = shipped_budget()
-    return TrainConfig.from_dict({**base.to_dict(), "name": f"ablation-{slug(name)}", "epochs": epochs, "max_minutes": 0, "threads": threads, "device": device, **ABLATIONS[name]})
+    return TrainConfig.from_dict(
+        {
+            **base.to_dict(),
+            "name": f"ablation-{slug(name)}",
+            "epochs": epochs,
+            "max_minutes": 0,
+            "threads": threads,
+            "device": device,
+            **ABLATIONS[name],
+        }
+    )
 
 
 def model_stem(name: str) -> Path | None:
@@ -103,8 +113,14 @@ def train_ablations(root: Path, data_dir: str | None = None, threads: int = 1, d
             out, stem = root / slug(name), model_stem(name)
             config = ablation_config(name, threads, device)
             shared = root / "content_classifier"
-            if config.use_per and shared.with_suffix(".safetensors").is_file() and not (out / "content_classifier.safetensors").is_file():
-                out.mkdir(parents=True, exist_ok=True)  # the perceptual classifier is the same for every run: train it once
+            if (
+                config.use_per
+                and shared.with_suffix(".safetensors").is_file()
+                and not (out / "content_classifier.safetensors").is_file()
+            ):
+                out.mkdir(
+                    parents=True, exist_ok=True
+                )  # the perceptual classifier is the same for every run: train it once
                 for suffix in (".safetensors", ".json"):
                     shutil.copy(shared.with_suffix(suffix), (out / "content_classifier").with_suffix(suffix))
             train(config, out, data_dir, export=stem)
@@ -115,7 +131,14 @@ def train_ablations(root: Path, data_dir: str | None = None, threads: int = 1, d
     return stems
 
 
-PAPER_FMD = {"full": 61.95, "rec only": 285.17, "rec + adv": 75.40, "rec + per": 380.78, "no attention": 382.57, "zero initial states": 309.70}
+PAPER_FMD = {
+    "full": 61.95,
+    "rec only": 285.17,
+    "rec + adv": 75.40,
+    "rec + per": 380.78,
+    "no attention": 382.57,
+    "zero initial states": 309.70,
+}
 COLUMNS = [
     ("FMD", "fmd"), ("FMD / floor", "fmd_over_floor"), ("SRA", "sra"), ("CRA", "cra"),
     ("SRA first 10", "sra_first_10"), ("FMD first 10", "fmd_first_10"), ("rec. deg", "rec_deg"), ("jitter", "jitter_ratio"),
@@ -134,7 +157,12 @@ def ablation_table(data_dir: str | None = None, names: list[str] | None = None) 
     for name in tqdm([n for n in ABLATIONS if trained(n) and (names is None or n in names)], desc="evaluating"):
         model, meta = ckpt.load_generator(model_stem(name))
         training = meta["training"]
-        rows[name] = {"recipe": training["config"]["name"], "epochs": int(training.get("epochs_trained", training["config"]["epochs"])), "best_epoch": training["best"]["epoch"], **evaluate_model(model, data_dir)}
+        rows[name] = {
+            "recipe": training["config"]["name"],
+            "epochs": int(training.get("epochs_trained", training["config"]["epochs"])),
+            "best_epoch": training["best"]["epoch"],
+            **evaluate_model(model, data_dir),
+        }
     return rows
 
 
@@ -150,7 +178,11 @@ def markdown(rows: dict, epochs: int) -> str:
         return f"{r[k]:.3f} ± {sd:.3f}"
 
     for name, r in rows.items():
-        lines.append(f"| {name} | {r.get('recipe', '')} | {r['epochs']} | " + " | ".join(cell(r, k) for _, k in COLUMNS) + f" | {PAPER_FMD[name]:.2f} |")
+        lines.append(
+            f"| {name} | {r.get('recipe', '')} | {r['epochs']} | "
+            + " | ".join(cell(r, k) for _, k in COLUMNS)
+            + f" | {PAPER_FMD[name]:.2f} |"
+        )
     missing = [n for n in ABLATIONS if n not in rows]
     at_budget = [n for n, r in rows.items() if r["epochs"] == epochs]
     order = sorted(at_budget, key=lambda n: rows[n]["fmd"])
@@ -160,24 +192,39 @@ def markdown(rows: dict, epochs: int) -> str:
         f"The full budget: the full model's recipe and data, seed 0, {epochs} epochs (its run's); each model's best",
         "epoch by validation SRA + CRA; all judged on the test split by the shipped recognisers and FMD extractor;",
         "± one standard deviation over 200 bootstrap resamples of the test transfers.",
-        f"FMD floor (two halves of the real test windows): {next(iter(rows.values()))['fmd_floor']:.3f}." if rows else "",
+        f"FMD floor (two halves of the real test windows): {next(iter(rows.values()))['fmd_floor']:.3f}."
+        if rows
+        else "",
         "",
         f"Ordering by FMD here (models at the full budget): {' < '.join(order)}.",
         f"Ordering in the paper (the same models): {' < '.join(paper_order)}.",
     ]
     if "full" in at_budget and len(at_budget) > 1:
-        lines += ["", "The paper's claim that the full model is the most realistic, ablation by ablation (FMD, ± one spread):"]
+        lines += [
+            "",
+            "The paper's claim that the full model is the most realistic, ablation by ablation (FMD, ± one spread):",
+        ]
         f = rows["full"]
         for name in at_budget:
             if name == "full":
                 continue
             r = rows[name]
             gap, spread_sum = r["fmd"] - f["fmd"], r["spread"]["fmd"] + f["spread"]["fmd"]
-            verdict = "holds" if gap > spread_sum else "does not hold" if gap < -spread_sum else "within the spread (undecided)"
-            lines.append(f"- full {f['fmd']:.3f} ± {f['spread']['fmd']:.3f} vs {name} {r['fmd']:.3f} ± {r['spread']['fmd']:.3f}: {verdict}.")
+            verdict = (
+                "holds"
+                if gap > spread_sum
+                else "does not hold"
+                if gap < -spread_sum
+                else "within the spread (undecided)"
+            )
+            lines.append(
+                f"- full {f['fmd']:.3f} ± {f['spread']['fmd']:.3f} vs {name} {r['fmd']:.3f} ± {r['spread']['fmd']:.3f}: {verdict}."
+            )
     short = [n for n in rows if n not in at_budget]
     if short:
-        lines.append(f"Not yet at the full budget (earlier models, kept until theirs are trained; `styleerd eval ablations` trains them): {', '.join(short)}.")
+        lines.append(
+            f"Not yet at the full budget (earlier models, kept until theirs are trained; `styleerd eval ablations` trains them): {', '.join(short)}."
+        )
     if missing:
         lines.append(f"Not trained yet (`styleerd eval ablations` resumes them): {', '.join(missing)}.")
     return "\n".join(lines) + "\n"

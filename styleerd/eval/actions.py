@@ -59,7 +59,11 @@ RIG_MAPS = {
 }  # fmt: skip
 # Held out of every training run, whole subjects or whole actions: (source, file stems)
 CMU_HELD_OUT = {"iclone": ("002_",), "asf-names": ("126_",)}
-CMU_REPORTED_SWIMS = ("126_01", "126_05", "126_09")  # three of subject 126's thirteen strokes, so swimming does not outweigh the rest
+CMU_REPORTED_SWIMS = (
+    "126_01",
+    "126_05",
+    "126_09",
+)  # three of subject 126's thirteen strokes, so swimming does not outweigh the rest
 BANDAI1_ACTIONS = ("call", "dance-long", "dance-short", "kick", "punch", "respond", "slash")
 XIA_ACTIONS = {"16": "jump", "18": "punch"}
 # CMU subject 2's takes (the database's own descriptions)
@@ -97,17 +101,33 @@ def held_out_clips(data_dir: str | None = None) -> list[ActionClip]:
     out = []
     cmu = unpack(root / "cmu-sample.tar.xz") / "cmu-sample"
     for folder, prefixes in CMU_HELD_OUT.items():
-        for path in sorted(p for p in (cmu / folder).glob("*.bvh") if p.stem.startswith(prefixes) and (folder != "asf-names" or p.stem in CMU_REPORTED_SWIMS)):
+        for path in sorted(
+            p
+            for p in (cmu / folder).glob("*.bvh")
+            if p.stem.startswith(prefixes) and (folder != "asf-names" or p.stem in CMU_REPORTED_SWIMS)
+        ):
             action = CMU_ACTIONS.get(path.stem, "swim" if folder == "asf-names" else "other")
             out.append(ActionClip(f"cmu {path.stem}", action, f"cmu-sample/{folder}", _trimmed(bvh.read(path)), "normal",
                                   RIG_MAPS["cc-base" if folder == "iclone" else "cmu-asf"]))  # fmt: skip
     for c in find_clips(root, "bandai-namco-1"):
         if held_out(c.name, c.dataset, c.content, c.style):
-            out.append(ActionClip(c.name.removeprefix("dataset-1_"), c.content, "bandai-namco-1", _trimmed(load_motion(c)), "normal"))
+            out.append(
+                ActionClip(
+                    c.name.removeprefix("dataset-1_"), c.content, "bandai-namco-1", _trimmed(load_motion(c)), "normal"
+                )
+            )
     for c in find_clips(root, "xia-sample"):
         cid = c.name.rsplit("_", 2)[1]
         if cid in XIA_ACTIONS:
-            out.append(ActionClip(f"xia {c.name}", XIA_ACTIONS[cid], "xia-sample", _trimmed(load_motion(c)), "normal" if c.name.startswith("neutral") else None))
+            out.append(
+                ActionClip(
+                    f"xia {c.name}",
+                    XIA_ACTIONS[cid],
+                    "xia-sample",
+                    _trimmed(load_motion(c)),
+                    "normal" if c.name.startswith("neutral") else None,
+                )
+            )
     return out
 
 
@@ -115,8 +135,15 @@ def bandai2_test_walks(data_dir: str | None = None, n: int = 8) -> list[ActionCl
     """The first ``n`` neutral walks (straight and turning) of Bandai-Namco-2's test split: the reference."""
     clips = find_clips(data_root(data_dir), "bandai-namco-2")
     split = split_takes({c.name: (c.dataset, c.style, c.content) for c in clips})
-    walks: list[Clip] = [c for c in clips if split[c.name] == "test" and c.style == "normal" and c.content.startswith("walk")][:n]
-    return [ActionClip(c.name.removeprefix("dataset-2_"), c.content, "bandai-namco-2 test", _trimmed(load_motion(c)), "normal") for c in walks]
+    walks: list[Clip] = [
+        c for c in clips if split[c.name] == "test" and c.style == "normal" and c.content.startswith("walk")
+    ][:n]
+    return [
+        ActionClip(
+            c.name.removeprefix("dataset-2_"), c.content, "bandai-namco-2 test", _trimmed(load_motion(c)), "normal"
+        )
+        for c in walks
+    ]
 
 
 def _map(clip: ActionClip, model: GeneratorWeights) -> JointMap:
@@ -185,12 +212,20 @@ def _compare(change: dict[str, np.ndarray], reference: dict[str, np.ndarray]) ->
     return (float(a @ b / (na * nb)) if na > 0 and nb > 0 else 0.0), float(na / nb) if nb > 0 else 0.0
 
 
-def _transfers(clip: ActionClip, model: GeneratorWeights, targets: list[str], pose: str) -> tuple[Motion, dict[str, Motion]]:
+def _transfers(
+    clip: ActionClip, model: GeneratorWeights, targets: list[str], pose: str
+) -> tuple[Motion, dict[str, Motion]]:
     """The identity output and each target's output of a clip (``transfer`` as users run it)."""
     m, identity_target = clip.motion, clip.input_style or model.config.neutral_style
 
     def run(target: str, input_style: str | None) -> Motion:
-        return transfer_motion(m, model, 30.0, TransferOptions({target: 1.0}, input_style, None, clip.joint_map, pose=pose), where=clip.name)
+        return transfer_motion(
+            m,
+            model,
+            30.0,
+            TransferOptions({target: 1.0}, input_style, None, clip.joint_map, pose=pose),
+            where=clip.name,
+        )
 
     identity = run(identity_target, clip.input_style or identity_target)
     return identity, {t: run(t, clip.input_style) for t in targets}
@@ -220,7 +255,10 @@ def evaluate_actions(model: GeneratorWeights, data_dir: str | None = None, poses
                     change = style_change(clip.motion, m, identity, jm, scale)
                     if group == "walks":
                         changes[s].append(change)
-                    row["styles"][s] = {"correlation": round(action_kept(clip.motion, m, jm, scale)[1], 3), "change": change}
+                    row["styles"][s] = {
+                        "correlation": round(action_kept(clip.motion, m, jm, scale)[1], 3),
+                        "change": change,
+                    }
                 rows[clip.name] = row
         walk_change = {s: {k: np.mean([c[k] for c in changes[s]], 0) for k in changes[s][0]} for s in styles}
         for row in rows.values():
@@ -242,7 +280,9 @@ def _summary(rows: dict[str, dict], styles: list[str]) -> dict:
         g = {"clips": len(rs), "identity_error_cm": {"mean": round(float(ids[:, 0].mean()), 2), "worst": round(float(ids[:, 0].max()), 2)},
              "identity_correlation": {"mean": round(float(ids[:, 1].mean()), 3), "worst": round(float(ids[:, 1].min()), 3)}, "styles": {}}  # fmt: skip
         for s in styles:
-            v = np.array([(r["styles"][s]["correlation"], r["styles"][s]["cosine"], r["styles"][s]["size_ratio"]) for r in rs])
+            v = np.array(
+                [(r["styles"][s]["correlation"], r["styles"][s]["cosine"], r["styles"][s]["size_ratio"]) for r in rs]
+            )
             g["styles"][s] = {"correlation": round(float(v[:, 0].mean()), 3), "correlation_worst": round(float(v[:, 0].min()), 3),
                               "cosine": round(float(v[:, 1].mean()), 3), "cosine_worst": round(float(v[:, 1].min()), 3),
                               "size_ratio": round(float(v[:, 2].mean()), 3), "size_ratio_worst": round(float(v[:, 2].min()), 3)}  # fmt: skip
@@ -275,10 +315,21 @@ def walk_clips(data_dir: str | None = None) -> list[ActionClip]:
     out.append(ActionClip("xia neutral walk", "walk", "xia-sample", _trimmed(load_motion(xia)), "normal"))
     cmu = unpack(root / "cmu-sample.tar.xz") / "cmu-sample" / "iclone"
     for stem in ("002_01", "002_02", "002_03"):
-        out.append(ActionClip(f"cmu {stem}", CMU_ACTIONS[stem], "cmu-sample/iclone", _trimmed(bvh.read(cmu / f"{stem}.bvh")), "normal", RIG_MAPS["cc-base"]))
+        out.append(
+            ActionClip(
+                f"cmu {stem}",
+                CMU_ACTIONS[stem],
+                "cmu-sample/iclone",
+                _trimmed(bvh.read(cmu / f"{stem}.bvh")),
+                "normal",
+                RIG_MAPS["cc-base"],
+            )
+        )
     generated = resample(walk(SECONDS, fps=60.0, turn_degrees_per_second=0.0), 30.0)
     out.append(ActionClip("generated walk in place", "walk in place", "procedural", in_place(generated), "normal"))
-    out.append(ActionClip("xia neutral walk in place", "walk in place", "xia-sample", in_place(out[0].motion), "normal"))
+    out.append(
+        ActionClip("xia neutral walk in place", "walk in place", "xia-sample", in_place(out[0].motion), "normal")
+    )
     return out
 
 
@@ -307,7 +358,12 @@ def feet_figures(given: Motion, output: Motion, jm: JointMap, scale: float) -> d
             "stride_cm": {"input": round(float(gap(ain)), 1), "output": round(float(gap(aout)), 1)}}  # fmt: skip
 
 
-def evaluate_feet(model: GeneratorWeights, data_dir: str | None = None, poses: tuple[str, ...] = ("input", "network"), root_speed: tuple[bool, ...] = (False, True)) -> dict:
+def evaluate_feet(
+    model: GeneratorWeights,
+    data_dir: str | None = None,
+    poses: tuple[str, ...] = ("input", "network"),
+    root_speed: tuple[bool, ...] = (False, True),
+) -> dict:
     """``feet_figures`` of every walk clip into every style (and identity), per pose path and with
     and without ``--root-speed``; the labeller's read of each walk (with inferred labels)."""
     neutral = model.config.neutral_style
@@ -317,7 +373,14 @@ def evaluate_feet(model: GeneratorWeights, data_dir: str | None = None, poses: t
         scale = _body_scale(clip.motion.skeleton, jm)
         row: dict = {"action": clip.action, "source": clip.source}
         labels: list = []
-        transfer_motion(clip.motion, model, 30.0, TransferOptions({neutral: 1.0}, None, None, clip.joint_map), labels=labels, where=clip.name)
+        transfer_motion(
+            clip.motion,
+            model,
+            30.0,
+            TransferOptions({neutral: 1.0}, None, None, clip.joint_map),
+            labels=labels,
+            where=clip.name,
+        )
         row["labeller_reads"] = list(labels[0]) if labels else None
         for pose in poses:
             for rs in root_speed:
@@ -325,7 +388,9 @@ def evaluate_feet(model: GeneratorWeights, data_dir: str | None = None, poses: t
                 row[key] = {}
                 for style in model.config.styles:
                     o = TransferOptions({style: 1.0}, clip.input_style, None, clip.joint_map, root_speed=rs, pose=pose)
-                    row[key][style] = feet_figures(clip.motion, transfer_motion(clip.motion, model, 30.0, o, where=clip.name), jm, scale)
+                    row[key][style] = feet_figures(
+                        clip.motion, transfer_motion(clip.motion, model, 30.0, o, where=clip.name), jm, scale
+                    )
         out[clip.name] = row
     return out
 
@@ -343,13 +408,34 @@ def markdown(report: dict) -> str:
         lines += [f"### Pose `{pose}`", "", "| clip | action | identity cm | identity corr | " + " | ".join(styles) + " |",
                   "|---|---|---:|---:|" + "---:|" * len(styles)]  # fmt: skip
         for name, row in r["clips"].items():
-            cells = [f"{row['styles'][s]['correlation']:.2f} / {row['styles'][s]['cosine']:.2f} / {row['styles'][s]['size_ratio']:.2f}" for s in styles]
-            lines.append(f"| {name} | {row['action']} | {row['identity']['error_cm']:.1f} | {row['identity']['correlation']:.2f} | " + " | ".join(cells) + " |")
+            cells = [
+                f"{row['styles'][s]['correlation']:.2f} / {row['styles'][s]['cosine']:.2f} / {row['styles'][s]['size_ratio']:.2f}"
+                for s in styles
+            ]
+            lines.append(
+                f"| {name} | {row['action']} | {row['identity']['error_cm']:.1f} | {row['identity']['correlation']:.2f} | "
+                + " | ".join(cells)
+                + " |"
+            )
         for group, g in r["summary"].items():
-            cells = [f"{g['styles'][s]['correlation']:.2f} / {g['styles'][s]['cosine']:.2f} / {g['styles'][s]['size_ratio']:.2f}" for s in styles]
-            lines.append(f"| **{group}: mean** | {g['clips']} clips | {g['identity_error_cm']['mean']:.1f} | {g['identity_correlation']['mean']:.2f} | " + " | ".join(cells) + " |")
-            cells = [f"{g['styles'][s]['correlation_worst']:.2f} / {g['styles'][s]['cosine_worst']:.2f} / {g['styles'][s]['size_ratio_worst']:.2f}" for s in styles]
-            lines.append(f"| **{group}: worst** | | {g['identity_error_cm']['worst']:.1f} | {g['identity_correlation']['worst']:.2f} | " + " | ".join(cells) + " |")
+            cells = [
+                f"{g['styles'][s]['correlation']:.2f} / {g['styles'][s]['cosine']:.2f} / {g['styles'][s]['size_ratio']:.2f}"
+                for s in styles
+            ]
+            lines.append(
+                f"| **{group}: mean** | {g['clips']} clips | {g['identity_error_cm']['mean']:.1f} | {g['identity_correlation']['mean']:.2f} | "
+                + " | ".join(cells)
+                + " |"
+            )
+            cells = [
+                f"{g['styles'][s]['correlation_worst']:.2f} / {g['styles'][s]['cosine_worst']:.2f} / {g['styles'][s]['size_ratio_worst']:.2f}"
+                for s in styles
+            ]
+            lines.append(
+                f"| **{group}: worst** | | {g['identity_error_cm']['worst']:.1f} | {g['identity_correlation']['worst']:.2f} | "
+                + " | ".join(cells)
+                + " |"
+            )
         lines.append("")
     if report.get("feet"):
         keys = [k for k in next(iter(report["feet"].values())) if k.startswith("pose")]
@@ -384,8 +470,15 @@ def action_filmstrips(model: GeneratorWeights, folder: Path, data_dir: str | Non
         rows: list[tuple[str, Motion]] = [(f"input: Bandai-Namco-1 {clip.name} (held out)", clip.motion)]
         for pose in ("network", "input"):
             identity, styled = _transfers(clip, model, list(styles), pose)
-            rows += [(f"pose {pose}: identity (-> {clip.input_style})", identity)] + [(f"pose {pose}: -> {s}", m) for s, m in styled.items()]
+            rows += [(f"pose {pose}: identity (-> {clip.input_style})", identity)] + [
+                (f"pose {pose}: -> {s}", m) for s, m in styled.items()
+            ]
         path = folder / f"actions-{clip.action}.png"
-        filmstrip(rows, path, frames=8, title=f"{clip.action}: the paper's output (pose network) against the input's pose plus the style's change (pose input)")
+        filmstrip(
+            rows,
+            path,
+            frames=8,
+            title=f"{clip.action}: the paper's output (pose network) against the input's pose plus the style's change (pose input)",
+        )
         paths.append(path)
     return paths

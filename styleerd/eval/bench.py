@@ -46,9 +46,11 @@ STREAMS = (1, 4, 10, 16, 64, 100, 256, 1000, 4096)  # the throughput curve's poi
 # repeated at once gave 1.02-1.06x, 5 rounds of 5)
 WARMUP_S = 0.3
 WINDOWS_1000 = 3  # timed windows of each 1,000-stream rate (issue 18's target), the best kept
-TARGETS = ("targets (issue 4): step p50 <= 100 us, end-to-end p50 <= 300 us, >= 200,000 frames/s at 1,000 streams; (issue 18, numba): step p50 <= 20 us,\n"
-           "end to end p50 <= 100 us, 1,000 streams >= 50 % of the matmul peak (under the products-alone row); (issue 18, onnx) 1,000 streams >= the numpy backend.\n"
-           "This machine's speed wanders 2-4x: benchmarks/bench_engine.py compares commits in alternating rounds")
+TARGETS = (
+    "targets (issue 4): step p50 <= 100 us, end-to-end p50 <= 300 us, >= 200,000 frames/s at 1,000 streams; (issue 18, numba): step p50 <= 20 us,\n"
+    "end to end p50 <= 100 us, 1,000 streams >= 50 % of the matmul peak (under the products-alone row); (issue 18, onnx) 1,000 streams >= the numpy backend.\n"
+    "This machine's speed wanders 2-4x: benchmarks/bench_engine.py compares commits in alternating rounds"
+)
 
 
 def set_threads(n: int) -> None:
@@ -73,7 +75,9 @@ def network_step(model: StyleERD, backend: str, steps: int, every_branch: bool =
     if every_branch:
         from styleerd.runtime.backends import OnnxBackend
 
-        b = OnnxBackend(generator_weights(model), 1, form="plain" if backend == "onnx-plain" else "lstm", every_branch=True)
+        b = OnnxBackend(
+            generator_weights(model), 1, form="plain" if backend == "onnx-plain" else "lstm", every_branch=True
+        )
     else:
         b = make_backend(backend, model, 1)
     x = np.random.default_rng(0).normal(0, 1, (steps + 50, 1, c.feature_dim)).astype(np.float32)
@@ -91,7 +95,9 @@ def network_step(model: StyleERD, backend: str, steps: int, every_branch: bool =
 def end_to_end(model: StyleERD, backend: str, steps: int, pose: str = "input") -> dict:
     source = walk(seconds=steps / 30.0 + 2.0, fps=30.0)
     values = bvh.channel_values(source)
-    stream = ChannelStylizer(model, source.skeleton, {"elderly": 1.0}, "normal", "walk", fps=30.0, backend=backend, pose=pose)
+    stream = ChannelStylizer(
+        model, source.skeleton, {"elderly": 1.0}, "normal", "walk", fps=30.0, backend=backend, pose=pose
+    )
     times = []
     for t in range(len(values)):
         t0 = time.perf_counter()
@@ -117,11 +123,21 @@ def whole_clip_ms(model: StyleERD, backend: str, length: int, repeats: int = 3) 
     return round(best * 1e3, 2)
 
 
-def throughput(model: StyleERD, backend: str, n_streams: int, seconds: float = 1.5, threads: int = 2, windows: int = 1, pose: str = "input") -> float:
+def throughput(
+    model: StyleERD,
+    backend: str,
+    n_streams: int,
+    seconds: float = 1.5,
+    threads: int = 2,
+    windows: int = 1,
+    pose: str = "input",
+) -> float:
     """Frames/s of one StreamStylizer stepping ``n_streams`` streams on ``threads`` threads
     (the caller sets the thread pools: ``set_threads``)."""
     m = _model_walk(model, 4.0)
-    st = StreamStylizer(model, "normal", "walk", {"elderly": 1.0}, n_streams=n_streams, backend=backend, threads=threads, pose=pose)
+    st = StreamStylizer(
+        model, "normal", "walk", {"elderly": 1.0}, n_streams=n_streams, backend=backend, threads=threads, pose=pose
+    )
     rot = np.repeat(m.rotations[:, None], n_streams, 1)
     pos = np.repeat(m.positions[:, None], n_streams, 1)
     frame = itertools.count()
@@ -150,7 +166,9 @@ def _steady_rate(run, frames_per_call: int, seconds: float, windows: int = 1) ->
     return best
 
 
-def network_throughput(model: StyleERD, backend: str, n_streams: int = 1000, seconds: float = 1.5, threads: int = 2, windows: int = 1) -> float:
+def network_throughput(
+    model: StyleERD, backend: str, n_streams: int = 1000, seconds: float = 1.5, threads: int = 2, windows: int = 1
+) -> float:
     """Frames/s of the network step alone over ``n_streams`` streams on ``threads`` threads, as
     StreamStylizer runs it: numpy and onnx in one shard of streams per thread of a pool (each
     shard's rows stepped in place, BLAS or onnxruntime on one thread per shard), numba in one
@@ -165,7 +183,12 @@ def network_throughput(model: StyleERD, backend: str, n_streams: int = 1000, sec
     b = make_backend(backend, model, n_streams, 1 if sharded else threads)
     x = np.random.default_rng(0).normal(0, 1, (n_streams, c.feature_dim)).astype(np.float32)
     one_hot = lambda k, i: np.eye(k, dtype=np.float32)[np.full(n_streams, i)]  # noqa: E731
-    inputs = (x, one_hot(len(c.input_styles), c.neutral_index), one_hot(len(c.contents), 0), one_hot(len(c.styles), c.styles.index("elderly")))
+    inputs = (
+        x,
+        one_hot(len(c.input_styles), c.neutral_index),
+        one_hot(len(c.contents), 0),
+        one_hot(len(c.styles), c.styles.index("elderly")),
+    )
     shards = _slices(n_streams, threads) if sharded else [slice(None)]
     with ThreadPoolExecutor(len(shards)) as pool, threadpool_limits(1 if sharded else threads):
         step = lambda s: b.step(*(a[s] for a in inputs), None if s == slice(None) else s)  # noqa: E731
@@ -182,13 +205,22 @@ def step_products(model: StyleERD) -> tuple[np.ndarray, np.ndarray]:
     P, table, sizes, _ = pack(step_weights(generator_weights(model)))
     n_enc, L0, L1, n_dec = (int(v) for v in sizes[:4])
     H = model.config.hidden
-    stack = lambda e, layers: [table[e][:3], table[e + 1][:3]] + [(table[e + 2 * i][0], 2 * H, table[e + 2 * i][2]) for i in range(1, layers)]  # noqa: E731
+    stack = lambda e, layers: (
+        [table[e][:3], table[e + 1][:3]] + [(table[e + 2 * i][0], 2 * H, table[e + 2 * i][2]) for i in range(1, layers)]
+    )  # noqa: E731
     first_dec = n_enc + 2 * L0 + 2 * L1 * len(model.config.branch_styles)
-    calls = [table[i][:3] for i in range(n_enc)] + stack(n_enc, L0) + stack(n_enc + 2 * L0, L1) + [table[first_dec + i][:3] for i in range(n_dec)]
+    calls = (
+        [table[i][:3] for i in range(n_enc)]
+        + stack(n_enc, L0)
+        + stack(n_enc + 2 * L0, L1)
+        + [table[first_dec + i][:3] for i in range(n_dec)]
+    )
     return P, np.array(calls, np.int64)
 
 
-def products_alone(model: StyleERD, n_streams: int = 1000, seconds: float = 1.5, threads: int = 2, windows: int = 1) -> float:
+def products_alone(
+    model: StyleERD, n_streams: int = 1000, seconds: float = 1.5, threads: int = 2, windows: int = 1
+) -> float:
     """Frames/s of the numba step's matrix products alone (``step_products``): the same BLAS
     calls on the same shapes (blocks of ``compiled.BLOCK_ROWS`` streams), one shard of streams
     per thread, nothing else (no activations, no copies). The whole step's fraction of peak
@@ -255,8 +287,12 @@ def run_bench(model: StyleERD, steps: int = 2000, streams: tuple[int, ...] = STR
         r["whole_clip_ms"] = {f"L={n}": whole_clip_ms(model, name, n) for n in (60, 90, 120)}
         peaks.append(matmul_peak(2))
         set_threads(2)
-        r["frames_per_second"] = {n: round(throughput(model, name, n, windows=WINDOWS_1000 if n == 1000 else 1)) for n in streams}
-        r["network_only_1000_streams"] = {"frames_per_second": round(network_throughput(model, name, windows=WINDOWS_1000))}
+        r["frames_per_second"] = {
+            n: round(throughput(model, name, n, windows=WINDOWS_1000 if n == 1000 else 1)) for n in streams
+        }
+        r["network_only_1000_streams"] = {
+            "frames_per_second": round(network_throughput(model, name, windows=WINDOWS_1000))
+        }
         if name == "numba":  # the ceiling: its matrix products alone, same calls and shapes
             r["products_alone_1000_streams"] = {"frames_per_second": round(products_alone(model, windows=WINDOWS_1000))}
         report["backends"][name] = r
@@ -270,10 +306,14 @@ def run_bench(model: StyleERD, steps: int = 2000, streams: tuple[int, ...] = STR
         r["achieved_gflops"] = round(max(r["frames_per_second"].values()) * report["flops_per_frame"] / 1e9, 2)
         r["fraction_of_peak"] = round(r["achieved_gflops"] / peak, 4)
         if 1000 in r["frames_per_second"]:  # issue 18's target
-            r["fraction_of_peak_1000_streams"] = round(r["frames_per_second"][1000] * report["flops_per_frame"] / 1e9 / peak, 4)
+            r["fraction_of_peak_1000_streams"] = round(
+                r["frames_per_second"][1000] * report["flops_per_frame"] / 1e9 / peak, 4
+            )
         for part in ("network_only_1000_streams", "products_alone_1000_streams"):
             if part in r:
-                r[part]["fraction_of_peak"] = round(r[part]["frames_per_second"] * report["flops_per_frame"] / 1e9 / peak, 4)
+                r[part]["fraction_of_peak"] = round(
+                    r[part]["frames_per_second"] * report["flops_per_frame"] / 1e9 / peak, 4
+                )
     return report
 
 
@@ -290,10 +330,17 @@ def table(report: dict) -> str:
              lambda r: f"{r['network_only_1000_streams']['frames_per_second']:,} ({100 * r['network_only_1000_streams']['fraction_of_peak']:.1f} %)" if "network_only_1000_streams" in r else ""),
             ("the network's matrix products alone (same BLAS calls and shapes, nothing else), 1,000 streams: frames/s (fraction of matmul peak)",
              lambda r: f"{r['products_alone_1000_streams']['frames_per_second']:,} ({100 * r['products_alone_1000_streams']['fraction_of_peak']:.1f} %)" if "products_alone_1000_streams" in r else "")]  # fmt: skip
-    paper = {"network step p50 / p99 (us, batch 1, 1 thread)": "1,730 (online per frame)", "whole clip L=60 (ms)": "7.47", "whole clip L=90 (ms)": "10.18", "whole clip L=120 (ms)": "13.22"}
+    paper = {
+        "network step p50 / p99 (us, batch 1, 1 thread)": "1,730 (online per frame)",
+        "whole clip L=60 (ms)": "7.47",
+        "whole clip L=90 (ms)": "10.18",
+        "whole clip L=120 (ms)": "13.22",
+    }
     lines = ["| | " + " | ".join(names) + " | paper, GTX 1060 |", "|" + " --- |" * (len(names) + 2)]
     for label, f in rows:
-        lines.append(f"| {label} | " + " | ".join(f(report["backends"][n]) for n in names) + f" | {paper.get(label, '')} |")
+        lines.append(
+            f"| {label} | " + " | ".join(f(report["backends"][n]) for n in names) + f" | {paper.get(label, '')} |"
+        )
     mem = report["memory_per_stream_bytes"]
     lines += ["", f"FLOPs per frame: {report['flops_per_frame']:,}; float32 matmul peak measured here: {report['matmul_peak_gflops_2_threads']} GFLOP/s (2 threads, {report['cpu_count']} cores; the best of "
               f"{', '.join(map(str, report.get('matmul_peak_gflops_each_measure', [])))}, measured before each backend's throughput);",

@@ -56,10 +56,19 @@ def run_demo(out: Path, data_dir: str | None = None) -> str:
         stem = "generated" if style else "real"
         for name, suffix, weights in targets:
             target = out / f"{stem}-{suffix}.bvh"
-            transfer_file(path, target, model, meta["data"]["fps"], TransferOptions(weights, input_style=style, content=content))
+            transfer_file(
+                path, target, model, meta["data"]["fps"], TransferOptions(weights, input_style=style, content=content)
+            )
             result = bvh.read(target)
             rows.append((f"-> {name}", result))
-            lines.append(f"{label[:28]:<28} {target.name:<34} {result.n_frames:>6} {result.fps:>4.0f} {_mean_change_cm(source, result):>15.1f} cm")
-    write_html(out / "index.html", rows, "styleerd demo: one input, every style", f"model {c.styles} x {len(c.contents)} contents; inputs stylised frame by frame, feet cleaned")
+            lines.append(
+                f"{label[:28]:<28} {target.name:<34} {result.n_frames:>6} {result.fps:>4.0f} {_mean_change_cm(source, result):>15.1f} cm"
+            )
+    write_html(
+        out / "index.html",
+        rows,
+        "styleerd demo: one input, every style",
+        f"model {c.styles} x {len(c.contents)} contents; inputs stylised frame by frame, feet cleaned",
+    )
     lines.append(f"\nwrote {len(rows)} motions to {out}/ ; open {out / 'index.html'} in a browser")
     return "\n".join(lines)

@@ -53,7 +53,9 @@ FIRST_FRAMES = 10
 
 
 @torch.no_grad()
-def responsiveness(model: StyleERD, s: Setup, style_rec, fmd: MotionAutoencoder, window: int = 24, split: str = "test") -> dict:
+def responsiveness(
+    model: StyleERD, s: Setup, style_rec, fmd: MotionAutoencoder, window: int = 24, split: str = "test"
+) -> dict:
     """Each clip of ``split`` streamed from its first frame into its transfer target(s): SRA and FMD
     of the first ``FIRST_FRAMES`` output frames and of the 24-frame windows after them."""
     model.eval()
@@ -69,7 +71,12 @@ def responsiveness(model: StyleERD, s: Setup, style_rec, fmd: MotionAutoencoder,
         st, ct = data.styles.index(fs.styles[c]), data.contents.index(fs.contents[c])
         targets = [t for t in range(len(data.styles)) if t != neutral] if st == neutral else [neutral]
         x = data.frames[sl][None].expand(len(targets), -1, -1)
-        rot, vel, _ = model(x, data.onehot_style(np.full(len(targets), st)), data.onehot_content(np.full(len(targets), ct)), data.onehot_style(np.array(targets)))
+        rot, vel, _ = model(
+            x,
+            data.onehot_style(np.full(len(targets), st)),
+            data.onehot_content(np.full(len(targets), ct)),
+            data.onehot_style(np.array(targets)),
+        )
         ch = model.motion_channels(rot, vel)
         n_rest = (x.shape[1] - FIRST_FRAMES) // window
         t = np.array(targets)
@@ -83,7 +90,9 @@ def responsiveness(model: StyleERD, s: Setup, style_rec, fmd: MotionAutoencoder,
             hit_rest += int((style_rec(ch[:, a : a + window]).argmax(-1).numpy() == t).sum())
             rest_fake.append(fmd_features(fmd, rot[:, a : a + window], reference))
             rest_t.append(t)
-            rest_real.setdefault(st, []).append(fmd_features(fmd, window_rotations(data, np.array([sl.start + a])), reference)[0])
+            rest_real.setdefault(st, []).append(
+                fmd_features(fmd, window_rotations(data, np.array([sl.start + a])), reference)[0]
+            )
     ft, rt = np.concatenate(first_t), np.concatenate(rest_t)
     first_real_by = {k: np.stack(v) for k, v in first_real.items()}
     rest_real_by = {k: np.stack(v) for k, v in rest_real.items()}
@@ -148,11 +157,30 @@ def _streams(model: StyleERD, data_dir: str | None, frames: int):
     return rot, pos, styles, contents, targets
 
 
-def _run(model: StyleERD, rot, pos, styles, contents, targets, switch: dict | None = None, blend_frames: int = 8, cleanup: bool = False, root_speed: bool = False):
+def _run(
+    model: StyleERD,
+    rot,
+    pos,
+    styles,
+    contents,
+    targets,
+    switch: dict | None = None,
+    blend_frames: int = 8,
+    cleanup: bool = False,
+    root_speed: bool = False,
+):
     """Stream every clip at once; returns output local rotations [N, T, J, 4] and positions
     [N, T, J, 3] (the input's, or with ``root_speed`` the root moved)."""
     N, T = rot.shape[:2]
-    st = StreamStylizer(model, styles, contents, [{t: 1.0} for t in targets], n_streams=N, blend_frames=blend_frames, root_speed=root_speed)
+    st = StreamStylizer(
+        model,
+        styles,
+        contents,
+        [{t: 1.0} for t in targets],
+        n_streams=N,
+        blend_frames=blend_frames,
+        root_speed=root_speed,
+    )
     lock = FootLock(model.skeleton, N) if cleanup else None
     out, out_pos = np.empty_like(rot), np.empty_like(pos)
     for t in range(T):
@@ -169,7 +197,9 @@ def _ground_speed(positions: np.ndarray) -> np.ndarray:
     return np.linalg.norm(np.diff(positions[:, :, 0][..., [0, 2]], axis=1), axis=-1).mean(1)
 
 
-def other_performer_labels(model: StyleERD, labeller, data_dir: str | None = None, after: tuple[int, ...] = (1, 10, 30)) -> dict[str, dict]:
+def other_performer_labels(
+    model: StyleERD, labeller, data_dir: str | None = None, after: tuple[int, ...] = (1, 10, 30)
+) -> dict[str, dict]:
     """The style the stylizer tells the encoder (labeller posterior, unsure ones leaning to
     neutral) for each xia-sample clip, streamed as ``transfer`` streams it (retargeted,
     resampled to 30 fps): after ``after`` frames and at the clip's end."""
@@ -190,7 +220,9 @@ def other_performer_labels(model: StyleERD, labeller, data_dir: str | None = Non
     return out
 
 
-def runtime_report(model: StyleERD, labeller, data_dir: str | None = None, frames: int = 90, blend_frames: int = 8) -> dict:
+def runtime_report(
+    model: StyleERD, labeller, data_dir: str | None = None, frames: int = 90, blend_frames: int = 8
+) -> dict:
     s = setup(TrainConfig(), data_dir, progress=False)
     report: dict = {"labels": stream_accuracy(labeller, s.fs, s.data, "test", neutral=model.config.neutral_style),
                     "labels_raw": stream_accuracy(labeller, s.fs, s.data, "test"),
@@ -230,16 +262,25 @@ def runtime_report(model: StyleERD, labeller, data_dir: str | None = None, frame
     # move per frame around the switch with the same frames of the stream that does not switch
     half = frames // 2
     others = [x for x in model.config.styles if x != model.config.neutral_style]
-    new = [others[(others.index(t) + 1) % len(others)] if t in others else others[i % len(others)] for i, t in enumerate(targets)]
+    new = [
+        others[(others.index(t) + 1) % len(others)] if t in others else others[i % len(others)]
+        for i, t in enumerate(targets)
+    ]
     window = slice(half - 1, half + blend_frames)  # moves into frames half .. half + blend_frames
 
     def largest_move(g):
         return np.linalg.norm(np.diff(g, axis=1), axis=-1).max(-1)  # [N, T-1]
 
     steady = largest_move(world(raw))
-    switch = {"frame": half, "blend_frames": blend_frames, "no_switch_cm": round(float(steady[:, window].max(1).mean()), 3)}
+    switch = {
+        "frame": half,
+        "blend_frames": blend_frames,
+        "no_switch_cm": round(float(steady[:, window].max(1).mean()), 3),
+    }
     for name, n in (("blended_cm", blend_frames), ("unblended_cm", 1)):
-        moved = largest_move(world(_run(model, rot, pos, styles, contents, targets, {"frame": half, "targets": new}, n)[0]))
+        moved = largest_move(
+            world(_run(model, rot, pos, styles, contents, targets, {"frame": half, "targets": new}, n)[0])
+        )
         switch[name] = round(float(moved[:, window].max(1).mean()), 3)
     switch["normal_p99_cm"] = round(float(np.percentile(steady, 99)), 3)
     report["style_switch"] = switch
@@ -249,14 +290,18 @@ def runtime_report(model: StyleERD, labeller, data_dir: str | None = None, frame
 # ---------------------------------------------------------------- transfers as users run them
 
 
-def root_speeds(dataset: str = "bandai-namco-2", data_dir: str | None = None, split: str = "train") -> dict[str, dict[str, float]]:
+def root_speeds(
+    dataset: str = "bandai-namco-2", data_dir: str | None = None, split: str = "train"
+) -> dict[str, dict[str, float]]:
     """Per content and style, the mean ground speed of the root over the ``split`` clips
     (data units per second): the pace each style moves at."""
     fs = prepare(dataset, data_dir, progress=False)
     speeds: dict[tuple[str, str], list[float]] = {}
     for c in fs.clips(split):
         path = fs.trajectory[fs.frames(c)][:, [0, 2]]
-        speeds.setdefault((str(fs.contents[c]), str(fs.styles[c])), []).append(float(np.linalg.norm(np.diff(path, axis=0), axis=-1).mean() * fs.params.fps))
+        speeds.setdefault((str(fs.contents[c]), str(fs.styles[c])), []).append(
+            float(np.linalg.norm(np.diff(path, axis=0), axis=-1).mean() * fs.params.fps)
+        )
     out: dict[str, dict[str, float]] = {}
     for (content, style), v in sorted(speeds.items()):
         out.setdefault(content, {})[style] = round(float(np.mean(v)), 1)
@@ -284,9 +329,13 @@ def runtime_transfers(model: StyleERD, labeller, style_rec, content_rec, data_di
     ``root_speed``, ``pose``: the stylizer's options."""
     fs, c = prepare(dataset, data_dir, progress=False), model.config
     neutral = c.neutral_style
-    hits: dict[tuple[str, str], np.ndarray] = {}  # (source, target) -> [given s, given c, inferred s, inferred c, windows]
+    hits: dict[
+        tuple[str, str], np.ndarray
+    ] = {}  # (source, target) -> [given s, given c, inferred s, inferred c, windows]
     read_as: dict[str, dict[str, int]] = {}
-    misread: dict[tuple[str, str], dict[str, int]] = {}  # (source, target) -> what the missed windows read as (labels given)
+    misread: dict[
+        tuple[str, str], dict[str, int]
+    ] = {}  # (source, target) -> what the missed windows read as (labels given)
     for clip in tqdm(fs.clips(split), desc=f"{split} clips streamed", leave=False):
         sl = fs.frames(clip)
         if sl.stop - sl.start < window:
@@ -295,11 +344,23 @@ def runtime_transfers(model: StyleERD, labeller, style_rec, content_rec, data_di
         style, content = str(fs.styles[clip]), str(fs.contents[clip])
         targets = [t for t in c.input_styles if t != neutral] if style == neutral else [neutral]
         n = len(targets)
-        st = StreamStylizer(model, [style] * n + [None] * n, [content] * n + [None] * n, [{t: 1.0} for t in targets * 2], n_streams=2 * n, labeller=labeller, root_speed=root_speed, pose=pose)
+        st = StreamStylizer(
+            model,
+            [style] * n + [None] * n,
+            [content] * n + [None] * n,
+            [{t: 1.0} for t in targets * 2],
+            n_streams=2 * n,
+            labeller=labeller,
+            root_speed=root_speed,
+            pose=pose,
+        )
         rot = np.empty((2 * n, motion.n_frames, c.n_joints, 4))
         pos = np.empty((2 * n, motion.n_frames, c.n_joints, 3))
         for t in range(motion.n_frames):
-            rot[:, t], pos[:, t] = st.step(np.broadcast_to(motion.rotations[t], rot[:, t].shape), np.broadcast_to(motion.positions[t], pos[:, t].shape))
+            rot[:, t], pos[:, t] = st.step(
+                np.broadcast_to(motion.rotations[t], rot[:, t].shape),
+                np.broadcast_to(motion.positions[t], pos[:, t].shape),
+            )
         label = st.inferred_labels()[n][0]
         seen = read_as.setdefault(style, {})
         seen[label] = seen.get(label, 0) + 1

@@ -62,7 +62,9 @@ def filmstrip(rows: list[tuple[str, Motion]], path: str | Path, frames: int = 8,
     plt.close(fig)
 
 
-def style_filmstrip(model: GeneratorWeights, clip: Clip, path: str | Path, frames: int = 8, cards: str | Path | None = None) -> None:
+def style_filmstrip(
+    model: GeneratorWeights, clip: Clip, path: str | Path, frames: int = 8, cards: str | Path | None = None
+) -> None:
     """A neutral clip and its transfer into every other style of ``model``; with ``cards``, also
     one small picture per style there (``STYLE.png``, the input as ``STYLE.png`` of its own)."""
     motion = resample(load_motion(clip), 30.0)

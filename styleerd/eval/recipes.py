@@ -17,7 +17,9 @@ from styleerd.eval.ablations import ABLATIONS, model_stem, trained
 from styleerd.model import checkpoint as ckpt
 from styleerd.train.validation import CRA_BAR, FMD_BAR, style_ratios
 
-RECIPES_DIR = Path(__file__).resolve().parents[2] / "models" / "recipes"  # research models: in a checkout, not in the package
+RECIPES_DIR = (
+    Path(__file__).resolve().parents[2] / "models" / "recipes"
+)  # research models: in a checkout, not in the package
 
 
 def recipe_models() -> dict[str, Path | None]:
@@ -25,7 +27,9 @@ def recipe_models() -> dict[str, Path | None]:
     under models/recipes/ and the ablations."""
     models: dict[str, Path | None] = {"shipped": None}
     models.update({p.stem: p.with_suffix("") for p in sorted(RECIPES_DIR.glob("*.safetensors"))})
-    models.update({f"ablation: {name}": model_stem(name) for name in ABLATIONS if name != "full" and trained(name)})  # full: a row of its own (shipped, or a recipe)
+    models.update(
+        {f"ablation: {name}": model_stem(name) for name in ABLATIONS if name != "full" and trained(name)}
+    )  # full: a row of its own (shipped, or a recipe)
     return models
 
 
@@ -39,7 +43,11 @@ def neutralisation(streamed: dict, neutral: str) -> dict:
     """Per source style, the share of windows of its transfer back to ``neutral`` read as
     ``neutral`` (labels given / inferred), beside the transfers into styles."""
     t = streamed["transfers"]
-    back = {s: {"given": v[neutral]["given"]["sra"], "inferred": v[neutral]["inferred"]["sra"]} for s, v in t.items() if s != neutral}
+    back = {
+        s: {"given": v[neutral]["given"]["sra"], "inferred": v[neutral]["inferred"]["sra"]}
+        for s, v in t.items()
+        if s != neutral
+    }
     into = t[neutral]
 
     def mean(rows, how):
@@ -47,7 +55,9 @@ def neutralisation(streamed: dict, neutral: str) -> dict:
 
     return {
         "to_neutral": back,
-        "to_neutral_mean": {how: round(float(np.mean([v[how] for v in back.values()])), 4) for how in ("given", "inferred")},
+        "to_neutral_mean": {
+            how: round(float(np.mean([v[how] for v in back.values()])), 4) for how in ("given", "inferred")
+        },
         "into_styles_mean": {how: mean(into.values(), how) for how in ("given", "inferred")},
         "into_styles": {s: {how: v[how]["sra"] for how in ("given", "inferred")} for s, v in into.items()},
     }
@@ -63,7 +73,9 @@ def recipe_table(data_dir: str | None = None, names: list[str] | None = None) ->
         model, meta = ckpt.load_generator(stem)
         q = evaluate_model(model, data_dir)
         training = meta["training"]
-        stages = [s["training"] for s in training.get("soup", [])] or [training]  # a soup: the steps of every stage averaged
+        stages = [s["training"] for s in training.get("soup", [])] or [
+            training
+        ]  # a soup: the steps of every stage averaged
         rows[name] = {
             "model": "shipped" if stem is None else str(stem.relative_to(RECIPES_DIR.parents[1])),
             "config": training["config"]["name"],
@@ -74,7 +86,10 @@ def recipe_table(data_dir: str | None = None, names: list[str] | None = None) ->
         }
         if not name.startswith("ablation"):  # the ablations: realism and content only (their own table has the rest)
             for key, speed in (("neutralisation", False), ("neutralisation_root_speed", True)):
-                rows[name][key] = neutralisation(runtime_transfers(model, labeller, style_rec, content_rec, data_dir, root_speed=speed), model.config.neutral_style)
+                rows[name][key] = neutralisation(
+                    runtime_transfers(model, labeller, style_rec, content_rec, data_dir, root_speed=speed),
+                    model.config.neutral_style,
+                )
     return rows
 
 
@@ -91,24 +106,43 @@ def tradeoff_plot(rows: dict, path: Path) -> None:
     for name, r in rows.items():
         q = r["quality"]
         x, y = q["fmd_over_floor"], q["cra"] / q["content_ceiling"]
-        a.errorbar(x, y, xerr=q["spread"]["fmd"] / q["fmd_floor"], yerr=q["spread"]["cra"] / q["content_ceiling"], fmt="o", capsize=3)
+        a.errorbar(
+            x,
+            y,
+            xerr=q["spread"]["fmd"] / q["fmd_floor"],
+            yerr=q["spread"]["cra"] / q["content_ceiling"],
+            fmt="o",
+            capsize=3,
+        )
         a.annotate(name, (x, y), textcoords="offset points", xytext=(5, 4), fontsize=8)
-    a.set(xlabel="FMD / floor (lower is more real)", ylabel="CRA / ceiling (content kept)", title="Recipes (bars: bootstrap spread)")
+    a.set(
+        xlabel="FMD / floor (lower is more real)",
+        ylabel="CRA / ceiling (content kept)",
+        title="Recipes (bars: bootstrap spread)",
+    )
     markers = itertools.cycle("osD^v<>pPX*h")  # as many recipes as there are
     for name, r in rows.items():
         if name.startswith("ablation"):
             continue
         ps = r["per_style"]
         m = next(markers)
-        b.scatter([v["fmd_over_floor"] for v in ps.values()], [v["cra_of_ceiling"] for v in ps.values()], marker=m, label=name)
+        b.scatter(
+            [v["fmd_over_floor"] for v in ps.values()], [v["cra_of_ceiling"] for v in ps.values()], marker=m, label=name
+        )
         for style, v in ps.items():
-            b.annotate(style, (v["fmd_over_floor"], v["cra_of_ceiling"]), textcoords="offset points", xytext=(4, 3), fontsize=7)
+            b.annotate(
+                style, (v["fmd_over_floor"], v["cra_of_ceiling"]), textcoords="offset points", xytext=(4, 3), fontsize=7
+            )
     for ax in (a, b):
         ax.axvline(FMD_BAR, ls="--", c="grey")
         ax.axhline(CRA_BAR, ls="--", c="grey")
         ax.set_xscale("log")
         ax.grid(alpha=0.3)
-    b.set(xlabel="FMD / floor per target style", ylabel="CRA / ceiling per target style", title="Per target style (limits dashed)")
+    b.set(
+        xlabel="FMD / floor per target style",
+        ylabel="CRA / ceiling per target style",
+        title="Per target style (limits dashed)",
+    )
     b.legend(fontsize=8)
     fig.tight_layout()
     fig.savefig(path, dpi=110)
@@ -147,14 +181,26 @@ def markdown(rows: dict) -> str:
         if name.startswith("ablation"):
             continue
         ps = r["per_style"]
-        lines += [f"**{name}** per target style (FMD / floor, CRA / ceiling) and, labels given / inferred, back to neutral per source style and into each style:", ""]
+        lines += [
+            f"**{name}** per target style (FMD / floor, CRA / ceiling) and, labels given / inferred, back to neutral per source style and into each style:",
+            "",
+        ]
         lines.append("| | " + " | ".join(ps) + " |")
         lines.append("|" + " --- |" * (len(ps) + 1))
         lines.append("| FMD / floor | " + " | ".join(f"{v['fmd_over_floor']:.2f}" for v in ps.values()) + " |")
-        lines.append("| CRA / ceiling | " + " | ".join(f"{100 * v['cra_of_ceiling']:.1f} %" for v in ps.values()) + " |")
+        lines.append(
+            "| CRA / ceiling | " + " | ".join(f"{100 * v['cra_of_ceiling']:.1f} %" for v in ps.values()) + " |"
+        )
         for key, how in (("neutralisation", ""), ("neutralisation_root_speed", ", --root-speed")):
             n = r[key]
             for what, rows in ((f"back to neutral{how}", n["to_neutral"]), (f"into the style{how}", n["into_styles"])):
-                lines.append(f"| {what} | " + " | ".join(f"{100 * rows[k]['given']:.1f} / {100 * rows[k]['inferred']:.1f} %" if k in rows else "" for k in ps) + " |")
+                lines.append(
+                    f"| {what} | "
+                    + " | ".join(
+                        f"{100 * rows[k]['given']:.1f} / {100 * rows[k]['inferred']:.1f} %" if k in rows else ""
+                        for k in ps
+                    )
+                    + " |"
+                )
         lines.append("")
     return "\n".join(lines) + "\n"

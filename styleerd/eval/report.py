@@ -38,7 +38,13 @@ def pictures(docs: Path, data_dir: str | None) -> dict[str, str]:
     out = {}
     style_filmstrip(model, clip, docs / "filmstrip-bandai2.png", cards=docs / "styles")
     out["every style"] = "filmstrip-bandai2.png"
-    rows = [(f"elderly at intensity {a:g}", stylise_motion(model, motion, c.neutral_style, "walk", {"elderly": a, c.neutral_style: 1 - a})) for a in (0.0, 0.3, 0.6, 1.0)]
+    rows = [
+        (
+            f"elderly at intensity {a:g}",
+            stylise_motion(model, motion, c.neutral_style, "walk", {"elderly": a, c.neutral_style: 1 - a}),
+        )
+        for a in (0.0, 0.3, 0.6, 1.0)
+    ]
     filmstrip(rows, docs / "intensity-bandai2.png", title=f"Intensity (the paper's Fig. 5): {clip.name}")
     out["intensity"] = "intensity-bandai2.png"
     rows = [(name, stylise_motion(model, motion, c.neutral_style, "walk", w)) for name, w in (
@@ -50,7 +56,12 @@ def pictures(docs: Path, data_dir: str | None) -> dict[str, str]:
     rows = [("input, first 10 frames", first),
             ("full model -> elderly", stylise_motion(model, first, c.neutral_style, "walk", {"elderly": 1.0})),
             ("zero initial states -> elderly", stylise_motion(zero, first, c.neutral_style, "walk", {"elderly": 1.0}))]  # fmt: skip
-    filmstrip(rows, docs / "first-frames-bandai2.png", frames=10, title="The first 10 frames of a stream: learned vs zero initial states")
+    filmstrip(
+        rows,
+        docs / "first-frames-bandai2.png",
+        frames=10,
+        title="The first 10 frames of a stream: learned vs zero initial states",
+    )
     out["first frames"] = "first-frames-bandai2.png"
     return out
 
@@ -85,7 +96,9 @@ def write_report(docs: Path = Path("docs"), data_dir: str | None = None, bench_s
     plot(bench, docs / "throughput.png")
     progress("pictures ...")
     pics = pictures(docs, data_dir)
-    per_style = " | ".join(f"{k} {v:.3f} ({quality['fmd_floor_per_style'][k]:.3f})" for k, v in quality["fmd_per_style"].items())
+    per_style = " | ".join(
+        f"{k} {v:.3f} ({quality['fmd_floor_per_style'][k]:.3f})" for k, v in quality["fmd_per_style"].items()
+    )
     progress("rotations on other skeletons ...")
     rotations = rotation_report(model, meta["data"]["fps"], data_dir)
     write_rotations(rotations, docs / "rotations.md")
@@ -98,15 +111,15 @@ split; every figure is printed by its own command as well (named in each section
 
 | | value |
 | --- | --- |
-| SRA (transfers: neutral -> each style, styled -> neutral; {quality['transfers']:,} windows) | {100 * quality['sra']:.2f} % |
-| CRA | {100 * quality['cra']:.2f} % |
-| FMD (floor: two halves of the real test windows) | {quality['fmd']:.3f} ({quality['fmd_floor']:.3f}); {quality['fmd_over_floor']:.2f} x the floor |
+| SRA (transfers: neutral -> each style, styled -> neutral; {quality["transfers"]:,} windows) | {100 * quality["sra"]:.2f} % |
+| CRA | {100 * quality["cra"]:.2f} % |
+| FMD (floor: two halves of the real test windows) | {quality["fmd"]:.3f} ({quality["fmd_floor"]:.3f}); {quality["fmd_over_floor"]:.2f} x the floor |
 | FMD per target style (floor) | {per_style} |
-| responsiveness: SRA on the first 10 frames of each clip / after | {100 * quality['sra_first_10']:.1f} % / {100 * quality['sra_rest']:.1f} % |
-| responsiveness: FMD on the first 10 frames / after | {quality['fmd_first_10']:.3f} / {quality['fmd_rest']:.3f} |
-| jitter (mean jerk of transfers / of real motion) | {quality['jitter_ratio']:.2f} |
-| reconstruction (target = input style) | {quality['rec_deg']:.2f} degrees, {quality['rec_cm']:.2f} cm |
-| training | {training_minutes(meta['training'])} on a 2-core CPU |
+| responsiveness: SRA on the first 10 frames of each clip / after | {100 * quality["sra_first_10"]:.1f} % / {100 * quality["sra_rest"]:.1f} % |
+| responsiveness: FMD on the first 10 frames / after | {quality["fmd_first_10"]:.3f} / {quality["fmd_rest"]:.3f} |
+| jitter (mean jerk of transfers / of real motion) | {quality["jitter_ratio"]:.2f} |
+| reconstruction (target = input style) | {quality["rec_deg"]:.2f} degrees, {quality["rec_cm"]:.2f} cm |
+| training | {training_minutes(meta["training"])} on a 2-core CPU |
 
 ## Ablations (the paper's Table 1; `styleerd eval ablations`)
 
@@ -124,13 +137,13 @@ split; every figure is printed by its own command as well (named in each section
 {added_styles_section(docs)}
 ## Pictures
 
-![every style]({pics['every style']})
+![every style]({pics["every style"]})
 
-![intensity]({pics['intensity']})
+![intensity]({pics["intensity"]})
 
-![mixture]({pics['mixture']})
+![mixture]({pics["mixture"]})
 
-![first frames]({pics['first frames']})
+![first frames]({pics["first frames"]})
 """
     path = docs / "RESULTS.md"
     atomic_write_text(path, text)
@@ -145,25 +158,35 @@ def training_minutes(training: dict) -> str:
         return here + ")"
     start = f"{base['training'].get('wall_minutes')} min ({base['training']['config']['name']})"
     if "soup" in training:  # stages fine-tuned from one start, their weights averaged
-        stages = " and ".join(f"{s['training'].get('wall_minutes')} min ({s['training']['config']['name']})" for s in training["soup"])
+        stages = " and ".join(
+            f"{s['training'].get('wall_minutes')} min ({s['training']['config']['name']})" for s in training["soup"]
+        )
         return f"{start} + {stages}, each fine-tuning from it, their weights averaged (`styleerd soup`)"
     return f"{start} + {here}, fine-tuning from it)"
 
 
 def online_section(runtime: dict) -> str:
     """The "Online behaviour" section of RESULTS.md from ``runtime_report``."""
-    skate, switch, labels, raw = runtime["foot_skate_cm_per_frame"], runtime["style_switch"], runtime["labels"], runtime["labels_raw"]
-    xia = "\n".join(f"| {clip} | {' / '.join(v[k] for k in ('1', '10', '30', 'end'))} |" for clip, v in runtime["xia_labels"].items())
+    skate, switch, labels, raw = (
+        runtime["foot_skate_cm_per_frame"],
+        runtime["style_switch"],
+        runtime["labels"],
+        runtime["labels_raw"],
+    )
+    xia = "\n".join(
+        f"| {clip} | {' / '.join(v[k] for k in ('1', '10', '30', 'end'))} |"
+        for clip, v in runtime["xia_labels"].items()
+    )
     return f"""## Online behaviour (`styleerd eval-runtime`)
 
 | | value |
 | --- | --- |
-| input labels inferred online, right after 1 / 10 / 30 frames (style; as the stylizer uses them: unsure ones lean to neutral) | {100 * labels[1]['style']:.1f} % / {100 * labels[10]['style']:.1f} % / {100 * labels[30]['style']:.1f} % |
-| the same, the labeller's own top label | {100 * raw[1]['style']:.1f} % / {100 * raw[10]['style']:.1f} % / {100 * raw[30]['style']:.1f} % |
-| the same (content) | {100 * labels[1]['content']:.1f} % / {100 * labels[10]['content']:.1f} % / {100 * labels[30]['content']:.1f} % |
-| foot skate while planted, cm/frame: input / raw output / cleaned output | {skate['input']:.3f} / {skate['raw_output']:.3f} / {skate['cleaned_output']:.3f} ({skate['streams']} streams x {skate['frames']} frames) |
-| the same with `--root-speed` (root pace over the input's per stream: {skate['root_speed_ratio_range'][0]:.2f} to {skate['root_speed_ratio_range'][1]:.2f}) | - / {skate['raw_output_root_speed']:.3f} / {skate['cleaned_output_root_speed']:.3f} |
-| largest joint move per frame around a style switch: no switch / blended over {switch['blend_frames']} frames / unblended (cm) | {switch['no_switch_cm']:.2f} / {switch['blended_cm']:.2f} / {switch['unblended_cm']:.2f} (p99 of normal motion {switch['normal_p99_cm']:.2f}) |
+| input labels inferred online, right after 1 / 10 / 30 frames (style; as the stylizer uses them: unsure ones lean to neutral) | {100 * labels[1]["style"]:.1f} % / {100 * labels[10]["style"]:.1f} % / {100 * labels[30]["style"]:.1f} % |
+| the same, the labeller's own top label | {100 * raw[1]["style"]:.1f} % / {100 * raw[10]["style"]:.1f} % / {100 * raw[30]["style"]:.1f} % |
+| the same (content) | {100 * labels[1]["content"]:.1f} % / {100 * labels[10]["content"]:.1f} % / {100 * labels[30]["content"]:.1f} % |
+| foot skate while planted, cm/frame: input / raw output / cleaned output | {skate["input"]:.3f} / {skate["raw_output"]:.3f} / {skate["cleaned_output"]:.3f} ({skate["streams"]} streams x {skate["frames"]} frames) |
+| the same with `--root-speed` (root pace over the input's per stream: {skate["root_speed_ratio_range"][0]:.2f} to {skate["root_speed_ratio_range"][1]:.2f}) | - / {skate["raw_output_root_speed"]:.3f} / {skate["cleaned_output_root_speed"]:.3f} |
+| largest joint move per frame around a style switch: no switch / blended over {switch["blend_frames"]} frames / unblended (cm) | {switch["no_switch_cm"]:.2f} / {switch["blended_cm"]:.2f} / {switch["unblended_cm"]:.2f} (p99 of normal motion {switch["normal_p99_cm"]:.2f}) |
 
 The input style the encoder is told for each xia-sample clip (another performer, another
 skeleton, 120 fps; the labeller is trained on Bandai-Namco-2 only, with copies of each clip as
@@ -188,9 +211,11 @@ def _training_runs(r: dict) -> str:
     if "training_ratio" not in r:
         return ""
     b, a = r["before"], r["after"]
-    return (f" The kept models' whole runs at these step times: `{b['model']}` {b['epochs_trained']} epochs, "
-            f"{b['training_min']:.1f} min; `{a['model']}` {a['epochs_trained']} epochs, {a['training_min']:.1f} min: "
-            f"{r['training_ratio']:.2f} of the time.")
+    return (
+        f" The kept models' whole runs at these step times: `{b['model']}` {b['epochs_trained']} epochs, "
+        f"{b['training_min']:.1f} min; `{a['model']}` {a['epochs_trained']} epochs, {a['training_min']:.1f} min: "
+        f"{r['training_ratio']:.2f} of the time."
+    )
 
 
 def actions_section(docs: Path) -> str:
@@ -233,7 +258,8 @@ output, per joint, in the body's frame, averaged over the clip) against the same
         for source, r in st["network"]["to_neutral"].items():
             rows.append(f"| streamed, {source} -> normal (given / inferred) | "
                         + " | ".join(f"{100 * st[p]['to_neutral'][source]['given']:.1f} / {100 * st[p]['to_neutral'][source]['inferred']:.1f}" for p in ("network", "input")) + " |")  # fmt: skip
-        text += """
+        text += (
+            """
 ### The same model on Bandai-Namco-2's test split, each pose path
 
 `styleerd eval quality --pose network|input` (24-frame test windows from fresh states: percentages,
@@ -241,7 +267,10 @@ FMD) and `styleerd eval streamed --pose network|input` (whole test clips streame
 them: the share of windows read as the target), kept in `docs/pose-quality.json` and
 `docs/pose-streamed.json`.
 
-""" + "\n".join(rows) + "\n"
+"""
+            + "\n".join(rows)
+            + "\n"
+        )
     return text
 
 
@@ -268,22 +297,24 @@ network's pace. ± one standard deviation over 200 bootstrap resamples of the tr
     if speed.is_file():
         r = json.loads(speed.read_text())
         parts = list(r["before"]["parts_ms"]) + [k for k in r["after"]["parts_ms"] if k not in r["before"]["parts_ms"]]
-        rows = "\n".join(f"| {k} | {r['before']['parts_ms'].get(k, 0):.1f} | {r['after']['parts_ms'].get(k, 0):.1f} |" for k in parts)
+        rows = "\n".join(
+            f"| {k} | {r['before']['parts_ms'].get(k, 0):.1f} | {r['after']['parts_ms'].get(k, 0):.1f} |" for k in parts
+        )
         text += f"""### A training step, two recipes side by side (`benchmarks/bench_train_step.py`)
 
-The trainer's own step (`train.trainer.train_step`) of `{r['before']['config']}` on the trainer's
-code at {_code(r['before'])} and of `{r['after']['config']}` on {_code(r['after'])}, each in its own process, the two
-taking turns step by step in one run on the same batches (batch {r['before']['batch']} and {r['after']['batch']}, {r['threads']} threads, {r['steps']} steps
+The trainer's own step (`train.trainer.train_step`) of `{r["before"]["config"]}` on the trainer's
+code at {_code(r["before"])} and of `{r["after"]["config"]}` on {_code(r["after"])}, each in its own process, the two
+taking turns step by step in one run on the same batches (batch {r["before"]["batch"]} and {r["after"]["batch"]}, {r["threads"]} threads, {r["steps"]} steps
 each), so both see the same machine; each part's time per step, averaged over the steps (R1 runs
 on every 4th step, the cycle pass on every `cyc_every`-th).
 
 | part (ms) | before | after |
 | --- | --- | --- |
 {rows}
-| step | {r['before']['step_ms']:.1f} | {r['after']['step_ms']:.1f} |
-| epoch (s) | {r['before']['epoch_s']:.1f} | {r['after']['epoch_s']:.1f} |
+| step | {r["before"]["step_ms"]:.1f} | {r["after"]["step_ms"]:.1f} |
+| epoch (s) | {r["before"]["epoch_s"]:.1f} | {r["after"]["epoch_s"]:.1f} |
 
-{r['speedup']:.2f} x the training windows per minute.{_training_runs(r)}
+{r["speedup"]:.2f} x the training windows per minute.{_training_runs(r)}
 
 """
     return text
@@ -301,21 +332,37 @@ def added_styles_section(docs: Path) -> str:
         rows = []
         for style, v in r["styles"].items():
             start = v.get("from_start")
-            cells = [f"{v['minutes']:.1f}", *(pct(x[f"{k}_played"]) for x in (v["added"], v["none"]) for k in ("sra", "cra"))]
-            cells += [f"{v['added']['fmd']:.3f}", f"{v['none']['fmd']:.3f}", f"{v['fmd_real_adaptation_vs_kept_back']:.3f}", pct(v["recogniser_ceiling"])]
+            cells = [
+                f"{v['minutes']:.1f}",
+                *(pct(x[f"{k}_played"]) for x in (v["added"], v["none"]) for k in ("sra", "cra")),
+            ]
+            cells += [
+                f"{v['added']['fmd']:.3f}",
+                f"{v['none']['fmd']:.3f}",
+                f"{v['fmd_real_adaptation_vs_kept_back']:.3f}",
+                pct(v["recogniser_ceiling"]),
+            ]
             cells += [f"{pct(start['sra_played'])} / {pct(start['cra_played'])} / {start['fmd']:.3f}" if start else "-"]
             rows.append(f"| {style} | " + " | ".join(cells) + " |")
-        trained = "\n".join(f"| {k} | {pct(v['sra_played'])} | {pct(v['cra_played'])} | {v['fmd']:.3f} |" for k, v in r.get("trained_styles", {}).items())
-        start_note = f"`{r['from_start_model']['model']}` ({r['from_start_model']['training_minutes']} min of training)" if "from_start_model" in r else "not yet trained"
+        trained = "\n".join(
+            f"| {k} | {pct(v['sra_played'])} | {pct(v['cra_played'])} | {v['fmd']:.3f} |"
+            for k, v in r.get("trained_styles", {}).items()
+        )
+        start_note = (
+            f"`{r['from_start_model']['model']}` ({r['from_start_model']['training_minutes']} min of training)"
+            if "from_start_model" in r
+            else "not yet trained"
+        )
         reads = {", ".join(v.get("critic_reads") or ["positions", "velocities"]) for v in r["styles"].values()}
         critic = _critic_comparison(r, docs / "unseen-styles-positions-critic.json")
-        text += f"""## Styles the shipped model never saw: `styleerd add-style` (`benchmarks/unseen_styles.py`)
+        text += (
+            f"""## Styles the shipped model never saw: `styleerd add-style` (`benchmarks/unseen_styles.py`)
 
 Per Bandai-Namco-1 style absent from Bandai-Namco-2: six of its eleven clips (walk 001, run,
 walk-left, walk-right, bow, bye) added it to the shipped model with `add-style` (1,200 steps,
 minutes of the whole command on this 2-core machine, sharing it with other work; its critic
 read {" / ".join(sorted(reads))}, as the model's own); the other
-five (walk 002, dash, walk-back, byebye, guide) were kept back. Judged on {r['content']['windows']}
+five (walk 002, dash, walk-back, byebye, guide) were kept back. Judged on {r["content"]["windows"]}
 neutral Bandai-Namco-2 test windows of walk and run, transferred into the style, as they play
 (the output poses on the input's root path, velocities from the played positions): SRA by a
 15-style recogniser trained on the kept-back Bandai-1 clips only ("ceiling": its accuracy on
@@ -327,7 +374,9 @@ trained with the same six clips of every Bandai-1 style (SRA / CRA / FMD).
 {critic}
 | style | minutes | SRA added | CRA added | SRA none | CRA none | FMD added | FMD none | FMD real vs real | SRA ceiling | from the start |
 | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |
-""" + "\n".join(rows) + f"""
+"""
+            + "\n".join(rows)
+            + f"""
 
 The same judge on the shipped model's own styles (trained on hundreds of Bandai-Namco-2 clips),
 under their Bandai-1 names: how far one dataset's style reads as the other's.
@@ -342,19 +391,23 @@ backends (`tests/test_add_style.py`).
 ![added styles](added-styles.png)
 
 """
+        )
     if b12.is_file():
         r = json.loads(b12.read_text())
-        per = "\n".join(f"| {k} | {100 * v['sra']:.1f} % | {100 * v['cra']:.1f} % | {v['transfers']} |" for k, v in r["per_target"].items())
+        per = "\n".join(
+            f"| {k} | {100 * v['sra']:.1f} % | {100 * v['cra']:.1f} % | {v['transfers']} |"
+            for k, v in r["per_target"].items()
+        )
         text += f"""## The 16-style model (`styleerd-bandai12`, `configs/bandai12.yaml`)
 
 Bandai-Namco-1 and -2 as one dataset (`bandai-namco-1+2`: Bandai-1's old, tired and
 masculinity are Bandai-2's elderly, exhausted and masculine; active, feminine and normal are
-the same names; 15 Bandai-1 styles and Bandai-2's youthful), {r['training_minutes']} min of training.
+the same names; 15 Bandai-1 styles and Bandai-2's youthful), {r["training_minutes"]} min of training.
 `styleerd evaluate --model styleerd-bandai12 --recognisers recognisers-bandai12` on its test split
-({r['windows']:,} windows: Bandai-2's test takes and every Bandai-1 style's five kept-back clips),
-with recognisers trained on its training split: SRA {100 * r['sra']:.1f} % ({100 * r['sra_of_ceiling']:.1f} % of the
-recogniser's {100 * r['style_ceiling']:.1f} % on real windows), CRA {100 * r['cra']:.1f} % ({100 * r['cra_of_ceiling']:.1f} % of
-{100 * r['content_ceiling']:.1f} %), reconstruction {r['rec_deg']:.2f} degrees / {r['rec_cm']:.2f} cm.
+({r["windows"]:,} windows: Bandai-2's test takes and every Bandai-1 style's five kept-back clips),
+with recognisers trained on its training split: SRA {100 * r["sra"]:.1f} % ({100 * r["sra_of_ceiling"]:.1f} % of the
+recogniser's {100 * r["style_ceiling"]:.1f} % on real windows), CRA {100 * r["cra"]:.1f} % ({100 * r["cra_of_ceiling"]:.1f} % of
+{100 * r["content_ceiling"]:.1f} %), reconstruction {r["rec_deg"]:.2f} degrees / {r["rec_cm"]:.2f} cm.
 
 | target style | SRA | CRA | transfers |
 | --- | --- | --- | --- |

@@ -46,7 +46,9 @@ def _degrees(q: np.ndarray) -> np.ndarray:
     return np.degrees(quat.angle_between(quat.identity(), q))
 
 
-def rotation_errors(reference: Motion, motion: Motion, joints: list[int] | None = None) -> dict[str, tuple[float, float, float]]:
+def rotation_errors(
+    reference: Motion, motion: Motion, joints: list[int] | None = None
+) -> dict[str, tuple[float, float, float]]:
     """Per joint (default every joint), the median over frames of the angle between the two
     motions' global rotations, and of its swing and twist about the joint's bone (degrees)."""
     g_ref = forward_kinematics(reference.rotations, reference.positions, reference.skeleton.parents)[0]
@@ -85,7 +87,14 @@ def _inputs(model: StyleERD, data_dir: str | None, clips_per_set: int) -> list[t
         out.append(("model skeleton (Bandai-Namco-2 test)", k.name, bvh.read(k.path), k.style))
     xia_styles = {"neutral": neutral, "old": "elderly"}
     for path in sorted((root / "xia-sample").glob("*.bvh")):
-        out.append(("xia-sample (CMU names, 120 fps)", path.stem, bvh.read(path), xia_styles.get(path.stem.split("_")[0], neutral)))
+        out.append(
+            (
+                "xia-sample (CMU names, 120 fps)",
+                path.stem,
+                bvh.read(path),
+                xia_styles.get(path.stem.split("_")[0], neutral),
+            )
+        )
     return out
 
 
@@ -114,21 +123,33 @@ def markdown(report: dict) -> str:
     ]
     for r in report["rows"]:
         (a, (t, s, w)), (b, (t2, s2, w2)) = r["round_trip_worst"], r["stylised_worst"]
-        lines.append(f"| {r['input']} | {r['group']} | {a} {t:.1f} ({s:.1f} / {w:.1f}) | {b} {t2:.1f} ({s2:.1f} / {w2:.1f}) |")
+        lines.append(
+            f"| {r['input']} | {r['group']} | {a} {t:.1f} ({s:.1f} / {w:.1f}) | {b} {t2:.1f} ({s2:.1f} / {w2:.1f}) |"
+        )
     groups: dict[str, list] = {}
     for r in report["rows"]:
         groups.setdefault(r["group"], []).append(r)
-    lines += ["", "| group | joints | median over clips of the per-joint median angle, round trip: swing / twist | into the style: swing / twist |", "| --- | --- | --- | --- |"]
+    lines += [
+        "",
+        "| group | joints | median over clips of the per-joint median angle, round trip: swing / twist | into the style: swing / twist |",
+        "| --- | --- | --- | --- |",
+    ]
     for group, rows in groups.items():
         per = lambda key, k: np.median([np.median([v[k] for v in r[key].values()]) for r in rows])  # noqa: E731
-        lines.append(f"| {group} | all mapped | {per('round_trip', 1):.1f} / {per('round_trip', 2):.1f} | {per('stylised', 1):.1f} / {per('stylised', 2):.1f} |")
+        lines.append(
+            f"| {group} | all mapped | {per('round_trip', 1):.1f} / {per('round_trip', 2):.1f} | {per('stylised', 1):.1f} / {per('stylised', 2):.1f} |"
+        )
     names = list(groups)
     lines += ["", "Per body part, the median over a group's clips of the joint's median angle, swing / twist (round trip | into the style):", "",
               "| body part | " + " | ".join(names) + " |", "| --- |" + " --- |" * len(names)]  # fmt: skip
     for part in BODY_PARTS:
         cells = []
         for group in names:
-            found = [(r["round_trip"][r["parts"][part]], r["stylised"][r["parts"][part]]) for r in groups[group] if part in r.get("parts", {})]
+            found = [
+                (r["round_trip"][r["parts"][part]], r["stylised"][r["parts"][part]])
+                for r in groups[group]
+                if part in r.get("parts", {})
+            ]
             if not found:
                 cells.append("-")
                 continue

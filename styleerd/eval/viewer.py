@@ -112,7 +112,9 @@ def _rounded(positions: np.ndarray, height: float) -> list:
     return np.round(positions, max(1, int(np.ceil(-np.log10(height / 2000))))).tolist()
 
 
-def write_html(path: str | Path, motions: list[tuple[str, Motion]], title: str, subtitle: str = "", fps: float = 30.0) -> None:
+def write_html(
+    path: str | Path, motions: list[tuple[str, Motion]], title: str, subtitle: str = "", fps: float = 30.0
+) -> None:
     """The page at ``path``: every motion resampled to ``fps``, as global joint positions and
     bone fronts."""
     entries, height = [], 1.0
@@ -123,5 +125,9 @@ def write_html(path: str | Path, motions: list[tuple[str, Motion]], title: str, 
         entries.append({"label": label, "parents": m.skeleton.parents.tolist(), "frames": _rounded(g, height),
                         "fronts": np.round(quat.mul_vec(g_rot[:, np.maximum(m.skeleton.parents, 0)], bone_fronts(m.skeleton)), 2).tolist()})  # fmt: skip
     data = json.dumps({"fps": fps, "height": height * 1.1, "motions": entries}, separators=(",", ":"))
-    page = _PAGE.replace("__TITLE__", html.escape(title)).replace("__SUBTITLE__", html.escape(subtitle)).replace("__DATA__", data)
+    page = (
+        _PAGE.replace("__TITLE__", html.escape(title))
+        .replace("__SUBTITLE__", html.escape(subtitle))
+        .replace("__DATA__", data)
+    )
     atomic_write_text(Path(path), page)

@@ -55,11 +55,21 @@ def unprefixed(prefix: str, tensors: dict[str, torch.Tensor]) -> dict[str, torch
 
 
 def generator_meta(model: StyleERD, skeleton: Skeleton, stats: FeatureStats, **extra) -> dict:
-    return {"kind": "styleerd-generator", "config": model.config.to_dict(), "skeleton": skeleton.to_dict(), "stats": stats.to_dict(), **extra}
+    return {
+        "kind": "styleerd-generator",
+        "config": model.config.to_dict(),
+        "skeleton": skeleton.to_dict(),
+        "stats": stats.to_dict(),
+        **extra,
+    }
 
 
 def build_generator(meta: dict) -> StyleERD:
-    return StyleERD(GeneratorConfig.from_dict(meta["config"]), Skeleton.from_dict(meta["skeleton"]), FeatureStats.from_dict(meta["stats"]))
+    return StyleERD(
+        GeneratorConfig.from_dict(meta["config"]),
+        Skeleton.from_dict(meta["skeleton"]),
+        FeatureStats.from_dict(meta["stats"]),
+    )
 
 
 def torch_generator(weights: GeneratorWeights) -> StyleERD:
@@ -71,6 +81,7 @@ def torch_generator(weights: GeneratorWeights) -> StyleERD:
 
 def load_generator(stem: str | Path | None = None) -> tuple[StyleERD, dict]:
     """The generator saved at ``stem`` (default: the shipped model), in eval mode."""
+
     def build(tensors, meta):
         model = build_generator(meta)
         model.load_state_dict(unprefixed("generator", tensors))
@@ -92,11 +103,19 @@ def classifier_meta(model: WindowClassifier, labels: list[str], **extra) -> dict
 
 
 def build_classifier(meta: dict) -> WindowClassifier:
-    return WindowClassifier(meta["in_dim"], len(meta["labels"]), tuple(meta["channels"]), meta["kernel"], meta["instance_norm"], meta.get("first_channel", 0))
+    return WindowClassifier(
+        meta["in_dim"],
+        len(meta["labels"]),
+        tuple(meta["channels"]),
+        meta["kernel"],
+        meta["instance_norm"],
+        meta.get("first_channel", 0),
+    )
 
 
 def load_recognisers(stem: str | Path | None = None) -> tuple[WindowClassifier, WindowClassifier, dict]:
     """(style recogniser, content recogniser, meta) for evaluation."""
+
     def build(tensors, meta):
         style, content = build_classifier(meta["style"]), build_classifier(meta["content"])
         style.load_state_dict(unprefixed("style", tensors))
@@ -109,6 +128,7 @@ def load_recognisers(stem: str | Path | None = None) -> tuple[WindowClassifier, 
 
 def load_labeller(stem: str | Path | None = None) -> tuple[OnlineLabeller, dict]:
     """The online style/content labeller saved at ``stem`` (default: the shipped one)."""
+
     def build(tensors, meta):
         model = OnlineLabeller(**meta["config"])
         model.load_state_dict(unprefixed("labeller", tensors))
@@ -119,6 +139,7 @@ def load_labeller(stem: str | Path | None = None) -> tuple[OnlineLabeller, dict]
 
 def load_fmd(stem: str | Path | None = None) -> tuple[MotionAutoencoder, dict]:
     """The FMD feature extractor saved at ``stem`` (default: the shipped one)."""
+
     def build(tensors, meta):
         c = meta["config"]
         model = MotionAutoencoder(c["n_joints"], tuple(c["channels"]), c["kernel"])

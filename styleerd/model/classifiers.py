@@ -21,7 +21,15 @@ class WindowClassifier(nn.Module):
     """Reads channels ``first_channel : first_channel + in_dim`` of its input windows
     ``[B, T, C]``, so every caller passes whole feature windows."""
 
-    def __init__(self, in_dim: int, n_classes: int, channels: tuple[int, ...] = (128, 64, 32), kernel: int = 5, instance_norm: bool = False, first_channel: int = 0):
+    def __init__(
+        self,
+        in_dim: int,
+        n_classes: int,
+        channels: tuple[int, ...] = (128, 64, 32),
+        kernel: int = 5,
+        instance_norm: bool = False,
+        first_channel: int = 0,
+    ):
         super().__init__()
         self.in_dim, self.channels, self.kernel, self.instance_norm = in_dim, channels, kernel, instance_norm
         self.first_channel = first_channel

@@ -32,9 +32,13 @@ class GeneratorConfig:
 
     def __post_init__(self):
         if self.added_styles and tuple(self.styles[-len(self.added_styles) :]) != tuple(self.added_styles):
-            raise ValueError(f"added styles {list(self.added_styles)} must be the last of the styles {list(self.styles)}")
+            raise ValueError(
+                f"added styles {list(self.added_styles)} must be the last of the styles {list(self.styles)}"
+            )
         if self.neutral_style not in self.input_styles:
-            raise ValueError(f"the neutral style {self.neutral_style!r} is not among the input styles {list(self.input_styles)}")
+            raise ValueError(
+                f"the neutral style {self.neutral_style!r} is not among the input styles {list(self.input_styles)}"
+            )
 
     @property
     def feature_dim(self) -> int:

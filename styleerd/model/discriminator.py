@@ -19,7 +19,16 @@ def conv(in_ch: int, out_ch: int, kernel: int = 3) -> nn.Sequential:
 
 
 class Discriminator(nn.Module):
-    def __init__(self, in_dim: int, n_styles: int, n_contents: int, window: int, layers: int = 4, feature_dim: int = 16, attention: bool = True):
+    def __init__(
+        self,
+        in_dim: int,
+        n_styles: int,
+        n_contents: int,
+        window: int,
+        layers: int = 4,
+        feature_dim: int = 16,
+        attention: bool = True,
+    ):
         super().__init__()
         trunk: list[nn.Module] = []
         ch = in_dim
@@ -30,7 +39,9 @@ class Discriminator(nn.Module):
         self.attention = attention
         self.last = conv(ch, feature_dim if attention else n_styles)
         if attention:
-            self.label_mlp = nn.Sequential(nn.Linear(n_styles + n_contents, 64), nn.LeakyReLU(0.2), nn.Linear(64, 64), nn.LeakyReLU(0.2))
+            self.label_mlp = nn.Sequential(
+                nn.Linear(n_styles + n_contents, 64), nn.LeakyReLU(0.2), nn.Linear(64, 64), nn.LeakyReLU(0.2)
+            )
             self.feature_attention = nn.Linear(64, feature_dim)
             self.temporal_attention = nn.Linear(64, window)
 

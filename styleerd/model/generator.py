@@ -113,7 +113,9 @@ class StyleERD(nn.Module):
         rotations, velocities = self.decode(out, target)
         return rotations, velocities, RecurrentState(neutral_state, branches)
 
-    def forward_targets(self, x: torch.Tensor, style: torch.Tensor, content: torch.Tensor, targets: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    def forward_targets(
+        self, x: torch.Tensor, style: torch.Tensor, content: torch.Tensor, targets: torch.Tensor
+    ) -> tuple[torch.Tensor, torch.Tensor]:
         """``forward`` from fresh states of ``x [B, T, D]`` under K target weightings at once,
         ``targets [K*B, nS]`` (rows k*B .. k*B + B - 1: the k-th): the encoder and the neutral
         branch, which do not depend on the target, run once (training's reconstruction and
@@ -124,7 +126,9 @@ class StyleERD(nn.Module):
         out, _ = self._add_branches(z.repeat(k, 1, 1), out.repeat(k, 1, 1), targets, {})
         return self.decode(out, targets)
 
-    def _add_branches(self, z: torch.Tensor, out: torch.Tensor, target: torch.Tensor, branches: dict[int, State]) -> tuple[torch.Tensor, dict[int, State]]:
+    def _add_branches(
+        self, z: torch.Tensor, out: torch.Tensor, target: torch.Tensor, branches: dict[int, State]
+    ) -> tuple[torch.Tensor, dict[int, State]]:
         """``out`` plus each style branch's output on ``z`` weighted by ``target``; a branch
         runs only on the rows that weight it."""
         B = z.shape[0]
@@ -163,7 +167,12 @@ class StyleERD(nn.Module):
         return torch_quat.normalize(y[..., : 4 * J].reshape(B, T, J, 4)), y[..., 4 * J :]
 
     def step(
-        self, x: torch.Tensor, style: torch.Tensor, content: torch.Tensor, target: torch.Tensor, state: RecurrentState | None
+        self,
+        x: torch.Tensor,
+        style: torch.Tensor,
+        content: torch.Tensor,
+        target: torch.Tensor,
+        state: RecurrentState | None,
     ) -> tuple[torch.Tensor, torch.Tensor, RecurrentState]:
         """One frame ``x [B, D]`` -> rotations ``[B, J, 4]``, velocities ``[B, 3J]``, state."""
         rot, vel, state = self.forward(x.unsqueeze(1), style, content, target, state)

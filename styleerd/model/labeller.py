@@ -21,7 +21,9 @@ class OnlineLabeller(nn.Module):
         self.style = nn.Linear(hidden, n_styles)
         self.content = nn.Linear(hidden, n_contents)
 
-    def forward(self, x: torch.Tensor, h: torch.Tensor | None = None) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    def forward(
+        self, x: torch.Tensor, h: torch.Tensor | None = None
+    ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
         """``x [B, T, D]`` -> style logits ``[B, T, nS]``, content logits ``[B, T, nC]``, state."""
         y, h = self.gru(self.inp(x), h)
         return self.style(y), self.content(y), h

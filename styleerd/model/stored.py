@@ -58,7 +58,9 @@ def load_arrays(stem: str | Path) -> tuple[dict[str, np.ndarray], dict]:
     except (OSError, SafetensorError) as e:  # missing, a folder, truncated, not a safetensors file
         raise StyleERDError(f"cannot load model {path}: {getattr(e, 'strerror', None) or e}") from None
     if text is None:
-        raise StyleERDError(f"cannot load model {path}: no styleerd configuration in its header (not saved by styleerd)")
+        raise StyleERDError(
+            f"cannot load model {path}: no styleerd configuration in its header (not saved by styleerd)"
+        )
     try:
         meta = json.loads(text)
     except ValueError as e:
@@ -75,7 +77,9 @@ def loaded(name: str | Path | None, default: str, build):
         return build(arrays, meta), meta
     except (KeyError, TypeError, ValueError, AttributeError, RuntimeError) as e:
         problem = f"missing {e}" if isinstance(e, KeyError) else str(e).splitlines()[0]
-        raise StyleERDError(f"cannot load model {path.with_suffix('.safetensors')}: its configuration or weights are incomplete ({problem})") from None
+        raise StyleERDError(
+            f"cannot load model {path.with_suffix('.safetensors')}: its configuration or weights are incomplete ({problem})"
+        ) from None
 
 
 @dataclass
@@ -146,7 +150,9 @@ def labeller_weights(labeller) -> LabellerWeights:
     """``labeller`` as ``LabellerWeights``: itself, or the arrays of a torch ``OnlineLabeller``."""
     if isinstance(labeller, LabellerWeights):
         return labeller
-    return LabellerWeights(labeller.config(), {k: v.detach().float().cpu().numpy() for k, v in labeller.state_dict().items()})
+    return LabellerWeights(
+        labeller.config(), {k: v.detach().float().cpu().numpy() for k, v in labeller.state_dict().items()}
+    )
 
 
 def labeller_stem(config: GeneratorConfig) -> Path:
@@ -158,18 +164,26 @@ def labeller_stem(config: GeneratorConfig) -> Path:
                 meta = json.loads(sidecar.read_text())
             except (OSError, ValueError):
                 continue
-            if isinstance(meta, dict) and meta.get("kind") == "styleerd-labeller" and meta.get("styles") == list(config.input_styles) and meta.get("contents") == list(config.contents):
+            if (
+                isinstance(meta, dict)
+                and meta.get("kind") == "styleerd-labeller"
+                and meta.get("styles") == list(config.input_styles)
+                and meta.get("contents") == list(config.contents)
+            ):
                 return sidecar.with_suffix("")
     return model_stem(LABELLER, LABELLER)
 
 
 def load_labeller_weights(name: str | Path | None = None) -> LabellerWeights:
     """The online style/content labeller ``name`` (default: the shipped one), without torch."""
+
     def build(arrays, meta):
         config = {k: int(meta["config"][k]) for k in ("in_dim", "n_styles", "n_contents", "hidden")}
         weights = {k[len("labeller.") :]: v for k, v in arrays.items() if k.startswith("labeller.")}
         if weights["inp.0.weight"].shape != (config["hidden"], config["in_dim"]):
-            raise ValueError(f"inp.0.weight has shape {weights['inp.0.weight'].shape}, the configuration says {(config['hidden'], config['in_dim'])}")
+            raise ValueError(
+                f"inp.0.weight has shape {weights['inp.0.weight'].shape}, the configuration says {(config['hidden'], config['in_dim'])}"
+            )
         return LabellerWeights(config, weights)
 
     return loaded(name, LABELLER, build)[0]
@@ -184,4 +198,3 @@ def toward_neutral(p_style: np.ndarray, neutral: int, unsure: float = 0.5, sure:
     out = keep * p_style
     out[..., neutral] += 1.0 - keep[..., 0]
     return out.astype(p_style.dtype)
-

@@ -91,7 +91,12 @@ def _depth_levels(parents: tuple[int, ...]) -> tuple[list[int], list[torch.Tenso
     if sorted(by_depth) != list(range(len(parents))):
         raise ValueError(f"parents {list(parents)} do not form one tree rooted at joint 0")
     slots = [torch.tensor([above.index(parents[j]) for j in level]) for above, level in zip(levels, levels[1:])]
-    return [len(level) for level in levels], slots, torch.tensor(by_depth), torch.tensor([by_depth.index(j) for j in range(len(parents))])
+    return (
+        [len(level) for level in levels],
+        slots,
+        torch.tensor(by_depth),
+        torch.tensor([by_depth.index(j) for j in range(len(parents))]),
+    )
 
 
 def angle_loss(a: torch.Tensor, b: torch.Tensor, eps: float = 1e-6) -> torch.Tensor:

@@ -120,7 +120,9 @@ def _parse_hierarchy(tokens: _Tokens) -> Skeleton:
             line = tokens.line()
             count = tokens.number(f"joint {name!r} CHANNELS count")
             if count != int(count) or not 0 <= count <= 6:
-                raise BVHError(path, line, f"joint {name!r}: channel count {tokens.items[tokens.i - 1][0]!r} is not 0..6")
+                raise BVHError(
+                    path, line, f"joint {name!r}: channel count {tokens.items[tokens.i - 1][0]!r} is not 0..6"
+                )
             listed = []
             for _ in range(int(count)):
                 line = tokens.line()
@@ -157,7 +159,9 @@ def _parse_hierarchy(tokens: _Tokens) -> Skeleton:
         raise BVHError(path, line, "expected ROOT after HIERARCHY")
     joint(-1, 1)
     if tokens.peek() is not None:
-        raise BVHError(path, tokens.line(), f"unexpected {tokens.peek()!r} after the root joint (only one ROOT is supported)")
+        raise BVHError(
+            path, tokens.line(), f"unexpected {tokens.peek()!r} after the root joint (only one ROOT is supported)"
+        )
     return Skeleton(tuple(names), np.array(parents), np.array(offsets), tuple(channels), tuple(end_sites))
 
 
@@ -186,7 +190,9 @@ def _frame_values(lines: list[str], first_line: int, n_channels: int, path: str)
             if not np.isfinite(v):
                 raise BVHError(path, first_line + t, f"frame {t}: value {tok!r} of channel {c} is not finite")
         if len(toks) != n_channels:
-            raise BVHError(path, first_line + t, f"frame {t}: {len(toks)} values, the hierarchy declares {n_channels} channels")
+            raise BVHError(
+                path, first_line + t, f"frame {t}: {len(toks)} values, the hierarchy declares {n_channels} channels"
+            )
     raise BVHError(path, first_line, "frame data could not be parsed")  # unreachable in practice
 
 
@@ -226,7 +232,9 @@ def _check_body(body: list[str], n_frames: int, first: int, n_lines: int, path: 
     if blank:
         raise BVHError(path, first + 1 + blank[0], "blank line inside the frame data")
     if len(body) < n_frames:
-        raise BVHError(path, n_lines, f"truncated MOTION section: Frames says {n_frames}, found {len(body)} frame lines")
+        raise BVHError(
+            path, n_lines, f"truncated MOTION section: Frames says {n_frames}, found {len(body)} frame lines"
+        )
     if len(body) > n_frames:
         raise BVHError(path, first + 1 + n_frames, f"Frames says {n_frames}, found {len(body)} frame lines")
 
@@ -341,7 +349,11 @@ def channel_problem(skeleton: Skeleton, values: np.ndarray) -> tuple[int, str] |
     row, column = (int(i) for i in np.argwhere(~ok)[0])
     joint, channel = [(name, c) for name, chans in zip(skeleton.names, skeleton.channels) for c in chans][column]
     value = values[row, column]
-    problem = "is not a finite number" if not np.isfinite(value) else f"= {value:.3g} is out of range (|value| < {MAX_CHANNEL:g})"
+    problem = (
+        "is not a finite number"
+        if not np.isfinite(value)
+        else f"= {value:.3g} is out of range (|value| < {MAX_CHANNEL:g})"
+    )
     return row, f"joint {joint!r} {channel} {problem}"
 
 
@@ -350,12 +362,22 @@ def motion_from_channels(skeleton: Skeleton, values: np.ndarray, fps: float) -> 
     angles as given are kept as ``euler_hint``)."""
     T, J = len(values), skeleton.n_joints
     rotations, positions, hint = np.empty((T, J, 4)), np.empty((T, J, 3)), np.empty((T, J, 3))
-    _from_channels_kernel(np.ascontiguousarray(values, dtype=np.float64), skeleton.offsets, *skeleton.channel_layout, skeleton.euler_axes, rotations, positions, hint)
+    _from_channels_kernel(
+        np.ascontiguousarray(values, dtype=np.float64),
+        skeleton.offsets,
+        *skeleton.channel_layout,
+        skeleton.euler_axes,
+        rotations,
+        positions,
+        hint,
+    )
     return Motion(skeleton, rotations, positions, fps, euler_hint=hint)
 
 
 @nb.njit(cache=True)
-def _from_channels_kernel(values, offsets, pos_col, pos_joint, pos_axis, rot_col, rot_joint, rot_slot, axes, rotations, positions, hint):
+def _from_channels_kernel(
+    values, offsets, pos_col, pos_joint, pos_axis, rot_col, rot_joint, rot_slot, axes, rotations, positions, hint
+):
     for t in range(values.shape[0]):
         positions[t] = offsets  # a joint without position channels holds its rest offset
         hint[t] = 0.0
@@ -365,7 +387,9 @@ def _from_channels_kernel(values, offsets, pos_col, pos_joint, pos_axis, rot_col
             hint[t, rot_joint[i], rot_slot[i]] = values[t, rot_col[i]]
         for j in range(axes.shape[0]):
             e = np.radians(hint[t, j])
-            rotations[t, j, 0], rotations[t, j, 1], rotations[t, j, 2], rotations[t, j, 3] = quat.euler_scalars_to_quat(e[0], e[1], e[2], axes[j, 0], axes[j, 1], axes[j, 2])
+            rotations[t, j, 0], rotations[t, j, 1], rotations[t, j, 2], rotations[t, j, 3] = quat.euler_scalars_to_quat(
+                e[0], e[1], e[2], axes[j, 0], axes[j, 1], axes[j, 2]
+            )
 
 
 def read(path: str | os.PathLike) -> Motion:
@@ -381,7 +405,9 @@ def channel_values(motion: Motion) -> np.ndarray:
     else they are unrolled over time so the curves have no +-180 degree flips."""
     sk, T = motion.skeleton, motion.n_frames
     pos_col, _, _, rot_col, _, _ = sk.channel_layout
-    hint = np.zeros((0, 0, 3)) if motion.euler_hint is None else np.ascontiguousarray(motion.euler_hint, dtype=np.float64)
+    hint = (
+        np.zeros((0, 0, 3)) if motion.euler_hint is None else np.ascontiguousarray(motion.euler_hint, dtype=np.float64)
+    )
     angles, out = np.empty((T, sk.n_joints, 3)), np.empty((T, len(pos_col) + len(rot_col)))
     _euler_angles_kernel(np.ascontiguousarray(motion.rotations, dtype=np.float64), sk.euler_axes, hint, angles)
     if motion.euler_hint is None:
@@ -451,7 +477,9 @@ def format_frames(values: np.ndarray, precision: int = 9) -> str:
 
 
 def format_bvh(motion: Motion, precision: int = 9) -> str:
-    return format_header(motion.skeleton, motion.n_frames, motion.fps, precision) + format_frames(channel_values(motion), precision)
+    return format_header(motion.skeleton, motion.n_frames, motion.fps, precision) + format_frames(
+        channel_values(motion), precision
+    )
 
 
 def write(path: str | os.PathLike, motion: Motion, precision: int = 9) -> None:

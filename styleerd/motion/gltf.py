@@ -54,11 +54,15 @@ def _append(views: list, accessors: list, blob: bytearray, array: np.ndarray, ki
     blob.extend(b"\0" * (-len(blob) % 4))
     flat = data.reshape(len(data), -1)
     bounds = {"min": flat.min(0).tolist(), "max": flat.max(0).tolist()} if with_bounds else {}
-    accessors.append(gl.Accessor(bufferView=len(views) - 1, componentType=component, count=len(data), type=kind, **bounds))
+    accessors.append(
+        gl.Accessor(bufferView=len(views) - 1, componentType=component, count=len(data), type=kind, **bounds)
+    )
     return len(accessors) - 1
 
 
-def bone_prisms(skeleton, rest_positions: np.ndarray, rest_rotations: np.ndarray, thickness: float) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+def bone_prisms(
+    skeleton, rest_positions: np.ndarray, rest_rotations: np.ndarray, thickness: float
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """A body of one prism per bone (parent joint -> joint), in the bind pose given by the
     joints' global rest positions and rotations: (positions ``[V, 3]``, normals ``[V, 3]``,
     the joint each vertex follows ``[V]``, triangles ``[F, 3]``). The cross-section is a
@@ -95,7 +99,13 @@ def bone_prisms(skeleton, rest_positions: np.ndarray, rest_rotations: np.ndarray
     return np.concatenate(pos), np.concatenate(nor), np.concatenate(joint), np.array(tri)
 
 
-def write_glb(path: str | Path, motion: Motion, metres_per_unit: float | None = None, mesh: bool = False, rest_rotations: np.ndarray | None = None) -> None:
+def write_glb(
+    path: str | Path,
+    motion: Motion,
+    metres_per_unit: float | None = None,
+    mesh: bool = False,
+    rest_rotations: np.ndarray | None = None,
+) -> None:
     """The motion as a .glb: nodes, a skin bound in the rest pose (zero rotations, or the local
     ``rest_rotations [J, 4]``, which then are the nodes' default rotations), one animation."""
     sk, T = motion.skeleton, motion.n_frames
@@ -103,14 +113,25 @@ def write_glb(path: str | Path, motion: Motion, metres_per_unit: float | None = 
     blob = bytearray()
     views, accessors = [], []
 
-    def add(array: np.ndarray, kind: str, with_bounds: bool = False, component: int = gl.FLOAT, target: int | None = None) -> int:
+    def add(
+        array: np.ndarray, kind: str, with_bounds: bool = False, component: int = gl.FLOAT, target: int | None = None
+    ) -> int:
         return _append(views, accessors, blob, array, kind, with_bounds, component, target)
 
     xyzw = quat.normalize(motion.rotations)[..., [1, 2, 3, 0]]
-    rest_local = quat.identity((sk.n_joints,)) if rest_rotations is None else quat.normalize(np.asarray(rest_rotations, dtype=np.float64))
+    rest_local = (
+        quat.identity((sk.n_joints,))
+        if rest_rotations is None
+        else quat.normalize(np.asarray(rest_rotations, dtype=np.float64))
+    )
     default = xyzw[0] if rest_rotations is None else rest_local[:, [1, 2, 3, 0]]
     nodes = [
-        gl.Node(name=name, translation=(motion.positions[0, j] if rest_rotations is None else sk.offsets[j]).tolist(), rotation=default[j].tolist(), children=sk.children(j))
+        gl.Node(
+            name=name,
+            translation=(motion.positions[0, j] if rest_rotations is None else sk.offsets[j]).tolist(),
+            rotation=default[j].tolist(),
+            children=sk.children(j),
+        )
         for j, name in enumerate(sk.names)
     ]
     nodes.append(gl.Node(name="styleerd", scale=[scale] * 3, children=[0]))
@@ -122,7 +143,9 @@ def write_glb(path: str | Path, motion: Motion, metres_per_unit: float | None = 
             animated.append(("translation", add(motion.positions[:, j], gl.VEC3)))
         for target, output in animated:
             samplers.append(gl.AnimationSampler(input=times, output=output, interpolation="LINEAR"))
-            channels.append(gl.AnimationChannel(sampler=len(samplers) - 1, target=gl.AnimationChannelTarget(node=j, path=target)))
+            channels.append(
+                gl.AnimationChannel(sampler=len(samplers) - 1, target=gl.AnimationChannelTarget(node=j, path=target))
+            )
     # inverse bind matrices of the rest pose, column-major as glTF stores them
     rest_rot, rest = forward_kinematics(rest_local, sk.offsets.copy(), sk.parents)
     ibm = np.tile(np.eye(4), (sk.n_joints, 1, 1))
@@ -151,8 +174,19 @@ def write_glb(path: str | Path, motion: Motion, metres_per_unit: float | None = 
         scenes=[gl.Scene(nodes=scene_nodes)],
         nodes=nodes,
         meshes=meshes,
-        materials=[gl.Material(name="body", pbrMetallicRoughness=gl.PbrMetallicRoughness(baseColorFactor=[0.75, 0.72, 0.68, 1.0], metallicFactor=0.0, roughnessFactor=0.7))] if mesh else [],
-        skins=[gl.Skin(name="skeleton", joints=list(range(sk.n_joints)), skeleton=0, inverseBindMatrices=inverse_binds)],
+        materials=[
+            gl.Material(
+                name="body",
+                pbrMetallicRoughness=gl.PbrMetallicRoughness(
+                    baseColorFactor=[0.75, 0.72, 0.68, 1.0], metallicFactor=0.0, roughnessFactor=0.7
+                ),
+            )
+        ]
+        if mesh
+        else [],
+        skins=[
+            gl.Skin(name="skeleton", joints=list(range(sk.n_joints)), skeleton=0, inverseBindMatrices=inverse_binds)
+        ],
         animations=[gl.Animation(name="styleerd", samplers=samplers, channels=channels)],
         buffers=[gl.Buffer(byteLength=len(blob))],
         bufferViews=views,
@@ -173,7 +207,9 @@ for _side in ("left", "right"):
                       f"{_side}Foot": f"{_side}_foot", f"{_side}Toes": f"{_side}_toe"})  # fmt: skip
 MAX_SECONDS = 3600.0  # of an animation: an hour (a key time of 1e7 s would ask for 197 GiB)
 MAX_DEPTH = 256  # of a node tree, as the BVH reader's
-MAX_VALUES = 20_000_000  # joint frames of one animation (an hour of 150 joints at 30 fps; 0.6 GB as float64 quaternions)
+MAX_VALUES = (
+    20_000_000  # joint frames of one animation (an hour of 150 joints at 30 fps; 0.6 GB as float64 quaternions)
+)
 _COMPONENTS = {5120: np.int8, 5121: np.uint8, 5122: np.int16, 5123: np.uint16, 5125: np.uint32, 5126: np.float32}
 _WIDTH = {"SCALAR": 1, "VEC2": 2, "VEC3": 3, "VEC4": 4, "MAT4": 16}
 
@@ -210,17 +246,25 @@ def _accessor(doc: gl.GLTF2, blob: bytes, index: int) -> np.ndarray:
     if a.sparse is not None or a.bufferView is None:
         raise ValueError(f"accessor {index}: sparse or empty accessors are not supported")
     if a.componentType not in _COMPONENTS or a.type not in _WIDTH:
-        raise ValueError(f"accessor {index}: component type {a.componentType!r} or type {a.type!r} is not a glTF 2.0 one"[:200])
+        raise ValueError(
+            f"accessor {index}: component type {a.componentType!r} or type {a.type!r} is not a glTF 2.0 one"[:200]
+        )
     view = doc.bufferViews[_whole(a.bufferView, f"accessor {index}'s bufferView", 0, len(doc.bufferViews) - 1)]
     dtype = np.dtype(_COMPONENTS[a.componentType])
     element = dtype.itemsize * _WIDTH[a.type]
     count = _whole(a.count, f"accessor {index}'s count", 1, len(blob))
     view_start = _whole(view.byteOffset or 0, f"buffer view {a.bufferView}'s byteOffset")
     view_length = _whole(view.byteLength, f"buffer view {a.bufferView}'s byteLength", 1)
-    stride = element if view.byteStride is None else _whole(view.byteStride, f"buffer view {a.bufferView}'s byteStride", 4, 252)
+    stride = (
+        element
+        if view.byteStride is None
+        else _whole(view.byteStride, f"buffer view {a.bufferView}'s byteStride", 4, 252)
+    )
     offset = _whole(a.byteOffset or 0, f"accessor {index}'s byteOffset")
     if stride < element or offset % dtype.itemsize:
-        raise ValueError(f"accessor {index}: a stride of {stride} bytes for {element}-byte elements, or an unaligned offset")
+        raise ValueError(
+            f"accessor {index}: a stride of {stride} bytes for {element}-byte elements, or an unaligned offset"
+        )
     if view_start + view_length > len(blob) or offset + stride * (count - 1) + element > view_length:
         raise ValueError(f"accessor {index} reaches past the end of its buffer view or buffer")
     at = view_start + offset + stride * np.arange(count)[:, None] + np.arange(element)[None]
@@ -272,11 +316,20 @@ def _node_trs(node: gl.Node, n: int = 0) -> tuple[np.ndarray, np.ndarray, np.nda
             m = np.array(node.matrix, dtype=np.float64).reshape(4, 4).T
             values = [m]
         else:
-            r = np.array(node.rotation if node.rotation is not None else [0, 0, 0, 1.0], dtype=np.float64).reshape(4)[[3, 0, 1, 2]]
-            t, s = np.array(node.translation or [0, 0, 0.0], dtype=np.float64).reshape(3), np.array(node.scale or [1, 1, 1.0], dtype=np.float64).reshape(3)
+            r = np.array(node.rotation if node.rotation is not None else [0, 0, 0, 1.0], dtype=np.float64).reshape(4)[
+                [3, 0, 1, 2]
+            ]
+            t, s = (
+                np.array(node.translation or [0, 0, 0.0], dtype=np.float64).reshape(3),
+                np.array(node.scale or [1, 1, 1.0], dtype=np.float64).reshape(3),
+            )
             values = [r, t, s]
     except (TypeError, ValueError):
-        raise ValueError(f"node {n} ({node.name!r}): its matrix, rotation, translation or scale is not a list of numbers of the right length"[:200]) from None
+        raise ValueError(
+            f"node {n} ({node.name!r}): its matrix, rotation, translation or scale is not a list of numbers of the right length"[
+                :200
+            ]
+        ) from None
     if not all(np.isfinite(v).all() for v in values):
         raise ValueError(f"node {n} ({node.name!r}): its transform has a NaN or infinite value"[:200])
     if node.matrix is not None:
@@ -313,7 +366,9 @@ def _tree(doc: gl.GLTF2) -> dict[int, int]:
         for c in node.children or []:
             c = _whole(c, f"node {i}'s child", 0, len(doc.nodes) - 1)
             if c == i or c in parent:
-                raise ValueError(f"node {c} is {'its own child' if c == i else f'a child of both node {parent[c]} and node {i}'}: the nodes must form a tree")
+                raise ValueError(
+                    f"node {c} is {'its own child' if c == i else f'a child of both node {parent[c]} and node {i}'}: the nodes must form a tree"
+                )
             parent[c] = i
     depth: dict[int, int] = {}
     for n in range(len(doc.nodes)):
@@ -398,11 +453,15 @@ def _read(doc: gl.GLTF2, blob: bytes, animation: int, fps: float | None) -> Gltf
             if not (np.isfinite(times).all() and np.isfinite(values).all()):
                 raise ValueError(f"animation channel of node {ch.target.node}: a key time or value is NaN or infinite")
             if times[0] < 0 or times[-1] > MAX_SECONDS or (np.diff(times) < 0).any():
-                raise ValueError(f"animation channel of node {ch.target.node}: key times must rise from 0 to at most {MAX_SECONDS:g} s")
+                raise ValueError(
+                    f"animation channel of node {ch.target.node}: key times must rise from 0 to at most {MAX_SECONDS:g} s"
+                )
             if sampler.interpolation == "CUBICSPLINE":
                 values = values[1::3]  # (in-tangent, value, out-tangent): the values, linearly
             if len(times) != len(values) or len(times) == 0:
-                raise ValueError(f"animation channel of node {ch.target.node}: {len(times)} times, {len(values)} values")
+                raise ValueError(
+                    f"animation channel of node {ch.target.node}: {len(times)} times, {len(values)} values"
+                )
             keyed[(index[ch.target.node], ch.target.path)] = (times, values, sampler.interpolation or "LINEAR")
             steps.append(np.diff(times))
     if not keyed:
@@ -440,7 +499,12 @@ def _read(doc: gl.GLTF2, blob: bytes, animation: int, fps: float | None) -> Gltf
     offsets = a_scale * quat.mul_vec(parent_rest, rest_t)
     offsets[0] = a_pos + a_scale * quat.mul_vec(a_rot, rest_t[0])
     pos[:, 1:] = a_scale * quat.mul_vec(parent_rest[None, 1:], pos[:, 1:])
-    channels = tuple(POSITION_CHANNELS + ("Zrotation", "Xrotation", "Yrotation") if j == 0 or moved[j] else ("Zrotation", "Xrotation", "Yrotation") for j in range(J))
+    channels = tuple(
+        POSITION_CHANNELS + ("Zrotation", "Xrotation", "Yrotation")
+        if j == 0 or moved[j]
+        else ("Zrotation", "Xrotation", "Yrotation")
+        for j in range(J)
+    )
     names = tuple(doc.nodes[n].name or f"node{n}" for n in order)
     if len(set(names)) != len(names):
         names = tuple(f"{nm}.{n}" for nm, n in zip(names, order))
@@ -481,7 +545,9 @@ def write_gltf_animation(path: str | Path, source: GltfMotion, motion: Motion) -
             animated.append(("translation", add(pos[:, j], gl.VEC3)))
         for target, output in animated:
             samplers.append(gl.AnimationSampler(input=times, output=output, interpolation="LINEAR"))
-            channels.append(gl.AnimationChannel(sampler=len(samplers) - 1, target=gl.AnimationChannelTarget(node=node, path=target)))
+            channels.append(
+                gl.AnimationChannel(sampler=len(samplers) - 1, target=gl.AnimationChannelTarget(node=node, path=target))
+            )
     doc.animations = [gl.Animation(name="styleerd", samplers=samplers, channels=channels)]
     doc.buffers = [gl.Buffer(byteLength=len(blob))]
     doc.set_binary_blob(bytes(blob))

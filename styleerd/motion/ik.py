@@ -26,9 +26,14 @@ def two_bone_ik(
     joints' global rotations; ``bend_axis [..., 3]`` the axis the middle joint bends about when
     the limb is straight (for legs: the body's left-right axis). See ``limb_ik``."""
     arrays = np.broadcast_arrays(*(np.asarray(v, dtype=np.float64) for v in (a, b, c, target, bend_axis)))
-    a_global, b_global = np.broadcast_arrays(np.asarray(a_global, dtype=np.float64), np.asarray(b_global, dtype=np.float64))
+    a_global, b_global = np.broadcast_arrays(
+        np.asarray(a_global, dtype=np.float64), np.asarray(b_global, dtype=np.float64)
+    )
     lead = np.broadcast_shapes(arrays[0].shape[:-1], a_global.shape[:-1])
-    flat = [np.ascontiguousarray(np.broadcast_to(v, lead + v.shape[-1:])).reshape(-1, v.shape[-1]) for v in (*arrays, a_global, b_global)]
+    flat = [
+        np.ascontiguousarray(np.broadcast_to(v, lead + v.shape[-1:])).reshape(-1, v.shape[-1])
+        for v in (*arrays, a_global, b_global)
+    ]
     a_new, b_new = np.empty((len(flat[0]), 4)), np.empty((len(flat[0]), 4))
     _ik_kernel(*flat, eps, a_new, b_new)
     return a_new.reshape(lead + (4,)), b_new.reshape(lead + (4,))
@@ -72,6 +77,10 @@ def limb_ik(a, b, c, target, a_global, b_global, bend_axis, eps, a_new, b_new):
     bx, by, bz = s * x, s * y, s * z
     kw, kx, ky, kz = quat.mul_scalars(bw, bx, by, bz, b_global[0], b_global[1], b_global[2], b_global[3])
     tx, ty, tz = quat.mul_vec_scalars(bw, bx, by, bz, bc[0], bc[1], bc[2])
-    sw, sx, sy, sz = quat.between_scalars(b[0] + tx - a[0], b[1] + ty - a[1], b[2] + tz - a[2], target[0] - a[0], target[1] - a[1], target[2] - a[2])
-    a_new[0], a_new[1], a_new[2], a_new[3] = quat.mul_scalars(sw, sx, sy, sz, a_global[0], a_global[1], a_global[2], a_global[3])
+    sw, sx, sy, sz = quat.between_scalars(
+        b[0] + tx - a[0], b[1] + ty - a[1], b[2] + tz - a[2], target[0] - a[0], target[1] - a[1], target[2] - a[2]
+    )
+    a_new[0], a_new[1], a_new[2], a_new[3] = quat.mul_scalars(
+        sw, sx, sy, sz, a_global[0], a_global[1], a_global[2], a_global[3]
+    )
     b_new[0], b_new[1], b_new[2], b_new[3] = quat.mul_scalars(sw, sx, sy, sz, kw, kx, ky, kz)

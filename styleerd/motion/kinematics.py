@@ -15,7 +15,9 @@ UP = np.array([0.0, 1.0, 0.0])
 FORWARD = np.array([0.0, 0.0, 1.0])
 
 
-def forward_kinematics(rotations: np.ndarray, positions: np.ndarray, parents: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def forward_kinematics(
+    rotations: np.ndarray, positions: np.ndarray, parents: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
     """Global rotations ``[..., J, 4]`` and positions ``[..., J, 3]`` (float64) from local
     ones (leading axes broadcast). ``parents`` must list parents before children
     (``parents[0] == -1``). One compiled loop over poses and joints: per-frame calls cost
@@ -50,7 +52,9 @@ def forward_pose(rot, pos, parents, g_rot, g_pos):
         w, x, y, z = g_rot[p, 0], g_rot[p, 1], g_rot[p, 2], g_rot[p, 3]
         ox, oy, oz = quat.mul_vec_scalars(w, x, y, z, pos[j, 0], pos[j, 1], pos[j, 2])
         g_pos[j, 0], g_pos[j, 1], g_pos[j, 2] = ox + g_pos[p, 0], oy + g_pos[p, 1], oz + g_pos[p, 2]
-        g_rot[j, 0], g_rot[j, 1], g_rot[j, 2], g_rot[j, 3] = quat.mul_scalars(w, x, y, z, rot[j, 0], rot[j, 1], rot[j, 2], rot[j, 3])
+        g_rot[j, 0], g_rot[j, 1], g_rot[j, 2], g_rot[j, 3] = quat.mul_scalars(
+            w, x, y, z, rot[j, 0], rot[j, 1], rot[j, 2], rot[j, 3]
+        )
 
 
 def forward_positions(rotations: np.ndarray, positions: np.ndarray, parents: np.ndarray) -> np.ndarray:
@@ -83,7 +87,9 @@ def heading_rotations(directions: np.ndarray) -> np.ndarray:
     return quat.from_angle_axis(angle, UP)
 
 
-def foot_contacts(global_positions: np.ndarray, previous_positions: np.ndarray, feet: tuple[int, ...], fps: float, max_speed: float) -> np.ndarray:
+def foot_contacts(
+    global_positions: np.ndarray, previous_positions: np.ndarray, feet: tuple[int, ...], fps: float, max_speed: float
+) -> np.ndarray:
     """Contact flags ``[..., len(feet)]``: a foot is planted while its speed since the previous
     frame (backward difference, units per second) is below ``max_speed``."""
     step = global_positions[..., feet, :] - previous_positions[..., feet, :]

@@ -57,7 +57,9 @@ def with_extra_joints(skeleton: Skeleton, extra: int, chain: int = 20) -> Skelet
         parents.append(0 if k % chain == 0 else len(names) - 1)
         names.append(f"X{k}")
         offsets.append(np.array([0.0, 1.0, 0.0]))
-    return Skeleton(tuple(names), np.array(parents), np.array(offsets), skeleton.channels + (_ROT,) * extra, skeleton.end_sites)
+    return Skeleton(
+        tuple(names), np.array(parents), np.array(offsets), skeleton.channels + (_ROT,) * extra, skeleton.end_sites
+    )
 
 
 def _rx(deg):
@@ -72,7 +74,13 @@ def _rz(deg):
     return quat.from_angle_axis(np.radians(deg), np.array([0, 0, 1.0]))
 
 
-def walk(seconds: float = 6.0, fps: float = 60.0, steps_per_second: float = 1.8, speed: float = 125.0, turn_degrees_per_second: float = 12.0) -> Motion:
+def walk(
+    seconds: float = 6.0,
+    fps: float = 60.0,
+    steps_per_second: float = 1.8,
+    speed: float = 125.0,
+    turn_degrees_per_second: float = 12.0,
+) -> Motion:
     """A plain, neutral walk along a gentle left curve: legs swing from the hips, knees bend in
     the swing phase, arms swing against the legs, the pelvis bobs, sways and twists."""
     sk = tpose_skeleton()
@@ -102,13 +110,17 @@ def walk(seconds: float = 6.0, fps: float = 60.0, steps_per_second: float = 1.8,
     return Motion(sk, quat.normalize(rot), pos, fps)
 
 
-def with_rest_frames(motion: Motion, frames: np.ndarray, names: tuple[str, ...] | None = None, scale: float = 1.0) -> Motion:
+def with_rest_frames(
+    motion: Motion, frames: np.ndarray, names: tuple[str, ...] | None = None, scale: float = 1.0
+) -> Motion:
     """The same movement on a rig whose joints have other rest frames: ``frames [J, 4]`` is each
     joint's new frame relative to its old one (the old rest is identity everywhere), so every
     joint's global rotation becomes ``G_j * frames_j``, every offset ``inv(frames_parent) *
     offset``, and the joint positions stay (times ``scale``: other units). Renamed by ``names``."""
     sk = motion.skeleton
-    parent_frames = np.where((sk.parents >= 0)[:, None], frames[np.maximum(sk.parents, 0)], quat.identity((sk.n_joints,)))
+    parent_frames = np.where(
+        (sk.parents >= 0)[:, None], frames[np.maximum(sk.parents, 0)], quat.identity((sk.n_joints,))
+    )
     offsets = quat.mul_vec(quat.inv(parent_frames), sk.offsets) * scale
     local = quat.mul(quat.mul(quat.inv(parent_frames), motion.rotations), frames)
     pos = np.broadcast_to(offsets, motion.positions.shape).copy()
@@ -141,8 +153,16 @@ def rig_variants(motion: Motion | None = None, seed: int = 0) -> dict[str, Motio
     out["A-pose, centimetres"] = with_rest_frames(motion, a_pose)
     out["Mixamo T-pose, metres"] = with_rest_frames(motion, quat.identity((J,)), scale=0.01)
     blender = with_rest_frames(motion, quat.identity((J,)), tuple(_BLENDER[n] for n in sk.names), scale=0.01)
-    lengths = np.array([1.2 if "Leg" in n or "Foot" in n else 0.85 if "Arm" in n or "Spine" in n else 1.0 for n in sk.names])
-    body = Skeleton(blender.skeleton.names, sk.parents, blender.skeleton.offsets * lengths[:, None], sk.channels, blender.skeleton.end_sites)
+    lengths = np.array(
+        [1.2 if "Leg" in n or "Foot" in n else 0.85 if "Arm" in n or "Spine" in n else 1.0 for n in sk.names]
+    )
+    body = Skeleton(
+        blender.skeleton.names,
+        sk.parents,
+        blender.skeleton.offsets * lengths[:, None],
+        sk.channels,
+        blender.skeleton.end_sites,
+    )
     pos = np.broadcast_to(body.offsets, motion.positions.shape).copy()
     pos[:, 0] = blender.positions[:, 0] * 1.2  # the hips ride higher on longer legs
     out["Blender names and proportions, metres"] = Motion(body, blender.rotations, pos, motion.fps)

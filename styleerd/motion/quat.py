@@ -66,7 +66,9 @@ def inv(q: np.ndarray) -> np.ndarray:
 
 
 def normalize(q: np.ndarray, eps: float = 1e-12) -> np.ndarray:
-    return q / np.maximum(np.sqrt(np.einsum("...i,...i->...", q, q))[..., None], eps)  # einsum: twice linalg.norm's speed
+    return q / np.maximum(
+        np.sqrt(np.einsum("...i,...i->...", q, q))[..., None], eps
+    )  # einsum: twice linalg.norm's speed
 
 
 def positive_w(q: np.ndarray) -> np.ndarray:
@@ -161,7 +163,9 @@ def euler_scalars_to_quat(e0, e1, e2, a0, a1, a2):
 @nb.njit(cache=True)
 def _from_euler_kernel(e, axes, out):
     for n in range(e.shape[0]):
-        out[n, 0], out[n, 1], out[n, 2], out[n, 3] = euler_scalars_to_quat(e[n, 0], e[n, 1], e[n, 2], axes[0], axes[1], axes[2])
+        out[n, 0], out[n, 1], out[n, 2], out[n, 3] = euler_scalars_to_quat(
+            e[n, 0], e[n, 1], e[n, 2], axes[0], axes[1], axes[2]
+        )
 
 
 def _xform_table() -> np.ndarray:
@@ -202,14 +206,48 @@ def from_xform(m: np.ndarray) -> np.ndarray:
     m00, m11, m22 = m[..., 0, 0], m[..., 1, 1], m[..., 2, 2]
     cand = np.stack(
         [
-            np.stack([1 + m00 + m11 + m22, m[..., 2, 1] - m[..., 1, 2], m[..., 0, 2] - m[..., 2, 0], m[..., 1, 0] - m[..., 0, 1]], -1),
-            np.stack([m[..., 2, 1] - m[..., 1, 2], 1 + m00 - m11 - m22, m[..., 0, 1] + m[..., 1, 0], m[..., 0, 2] + m[..., 2, 0]], -1),
-            np.stack([m[..., 0, 2] - m[..., 2, 0], m[..., 0, 1] + m[..., 1, 0], 1 - m00 + m11 - m22, m[..., 1, 2] + m[..., 2, 1]], -1),
-            np.stack([m[..., 1, 0] - m[..., 0, 1], m[..., 0, 2] + m[..., 2, 0], m[..., 1, 2] + m[..., 2, 1], 1 - m00 - m11 + m22], -1),
+            np.stack(
+                [
+                    1 + m00 + m11 + m22,
+                    m[..., 2, 1] - m[..., 1, 2],
+                    m[..., 0, 2] - m[..., 2, 0],
+                    m[..., 1, 0] - m[..., 0, 1],
+                ],
+                -1,
+            ),
+            np.stack(
+                [
+                    m[..., 2, 1] - m[..., 1, 2],
+                    1 + m00 - m11 - m22,
+                    m[..., 0, 1] + m[..., 1, 0],
+                    m[..., 0, 2] + m[..., 2, 0],
+                ],
+                -1,
+            ),
+            np.stack(
+                [
+                    m[..., 0, 2] - m[..., 2, 0],
+                    m[..., 0, 1] + m[..., 1, 0],
+                    1 - m00 + m11 - m22,
+                    m[..., 1, 2] + m[..., 2, 1],
+                ],
+                -1,
+            ),
+            np.stack(
+                [
+                    m[..., 1, 0] - m[..., 0, 1],
+                    m[..., 0, 2] + m[..., 2, 0],
+                    m[..., 1, 2] + m[..., 2, 1],
+                    1 - m00 - m11 + m22,
+                ],
+                -1,
+            ),
         ],
         axis=-2,
     )
-    best = np.argmax(np.stack([1 + m00 + m11 + m22, 1 + m00 - m11 - m22, 1 - m00 + m11 - m22, 1 - m00 - m11 + m22], -1), axis=-1)
+    best = np.argmax(
+        np.stack([1 + m00 + m11 + m22, 1 + m00 - m11 - m22, 1 - m00 + m11 - m22, 1 - m00 - m11 + m22], -1), axis=-1
+    )
     q = np.take_along_axis(cand, best[..., None, None], axis=-2)[..., 0, :]
     return positive_w(normalize(q))
 
@@ -254,7 +292,9 @@ def nearest_euler(e: np.ndarray, reference: np.ndarray) -> np.ndarray:
     shifts), the one nearest ``reference``. Reproduces a source file's angle branches."""
     e, reference = np.broadcast_arrays(np.asarray(e, dtype=np.float64), np.asarray(reference, dtype=np.float64))
     out = np.empty(e.shape)
-    _nearest_euler_kernel(np.ascontiguousarray(e).reshape(-1, 3), np.ascontiguousarray(reference).reshape(-1, 3), out.reshape(-1, 3))
+    _nearest_euler_kernel(
+        np.ascontiguousarray(e).reshape(-1, 3), np.ascontiguousarray(reference).reshape(-1, 3), out.reshape(-1, 3)
+    )
     return out
 
 
@@ -277,7 +317,9 @@ def nearest_euler_scalars(e0, e1, e2, r0, r1, r2):
 @nb.njit(cache=True)
 def _nearest_euler_kernel(e, ref, out):
     for n in range(e.shape[0]):
-        out[n, 0], out[n, 1], out[n, 2] = nearest_euler_scalars(e[n, 0], e[n, 1], e[n, 2], ref[n, 0], ref[n, 1], ref[n, 2])
+        out[n, 0], out[n, 1], out[n, 2] = nearest_euler_scalars(
+            e[n, 0], e[n, 1], e[n, 2], ref[n, 0], ref[n, 1], ref[n, 2]
+        )
 
 
 def unroll_euler(e: np.ndarray) -> np.ndarray:

@@ -58,7 +58,10 @@ TPOSE_DIRECTIONS = {
 }  # fmt: skip
 # Parts whose twist is fixed by a second, sideways direction (left minus right -> +X): the
 # first part of each side's chain that does not sit on the part itself.
-ACROSS = {"hips": (("left_hip",), ("right_hip",)), "chest": (("left_collar", "left_shoulder"), ("right_collar", "right_shoulder"))}
+ACROSS = {
+    "hips": (("left_hip",), ("right_hip",)),
+    "chest": (("left_collar", "left_shoulder"), ("right_collar", "right_shoulder")),
+}
 
 
 def _path(skeleton: Skeleton, ancestor: int, joint: int) -> list[int]:
@@ -180,7 +183,11 @@ class JointMap:
     def target_only_arrays(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """``target_only`` as arrays: joints, parents, rotations ``[M, 4]``."""
         only = self.target_only
-        return np.array([j for j, _, _ in only], np.int64), np.array([p for _, p, _ in only], np.int64), np.array([r for _, _, r in only]).reshape(-1, 4)
+        return (
+            np.array([j for j, _, _ in only], np.int64),
+            np.array([p for _, p, _ in only], np.int64),
+            np.array([r for _, _, r in only]).reshape(-1, 4),
+        )
 
     @cached_property
     def unmapped_source(self) -> np.ndarray:
@@ -204,7 +211,11 @@ class JointMap:
 def _pose_positions(skeleton: Skeleton, rotations: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Global rotations and positions of one pose (local rotations ``[J, 4]``; None: the rest
     pose, every rotation zero) with the rest offsets as translations."""
-    rot = quat.identity((skeleton.n_joints,)) if rotations is None else quat.normalize(np.asarray(rotations, dtype=np.float64))
+    rot = (
+        quat.identity((skeleton.n_joints,))
+        if rotations is None
+        else quat.normalize(np.asarray(rotations, dtype=np.float64))
+    )
     return forward_kinematics(rot, skeleton.offsets.copy(), skeleton.parents)
 
 
@@ -232,7 +243,10 @@ def _bone(P: np.ndarray, parts: dict[str, int], part: str, shared: set[str]) -> 
 def _across(P: np.ndarray, parts: dict[str, int], part: str, shared: set[str]) -> np.ndarray | None:
     """Left minus right at the hips (the hip joints) or the chest (collars or shoulders)."""
     eps = 1e-6 * max(1.0, float(np.abs(P - P[0]).max()))
-    sides = [[parts[p] for p in side if p in shared and np.linalg.norm(P[parts[p]] - P[parts[part]]) > eps] for side in ACROSS[part]]
+    sides = [
+        [parts[p] for p in side if p in shared and np.linalg.norm(P[parts[p]] - P[parts[part]]) > eps]
+        for side in ACROSS[part]
+    ]
     return P[sides[0][0]] - P[sides[1][0]] if all(sides) else None
 
 
@@ -253,7 +267,9 @@ def _body_frames(P: np.ndarray, parts: dict[str, int], shared: set[str]) -> dict
 HINGES = {"left_shoulder": np.cross(LEFT, FORWARD), "right_shoulder": np.cross(RIGHT, FORWARD)}
 
 
-def _elbow_hinge(P: np.ndarray, parts: dict[str, int], shoulder: str, shared: set[str], min_degrees: float = 20.0) -> np.ndarray | None:
+def _elbow_hinge(
+    P: np.ndarray, parts: dict[str, int], shoulder: str, shared: set[str], min_degrees: float = 20.0
+) -> np.ndarray | None:
     """The unit hinge axis of a bent elbow in pose positions ``P`` (None if the elbow is
     nearly straight there, as in a T-pose, so its plane says nothing)."""
     elbow = shoulder.replace("shoulder", "elbow")
@@ -272,7 +288,9 @@ def _roll_onto(v: np.ndarray, target: np.ndarray, axis: np.ndarray) -> np.ndarra
     return quat.to_xform(quat.from_angle_axis(angle, axis))
 
 
-def tpose_rotations(skeleton: Skeleton, parts: dict[str, int], shared: set[str], pose: np.ndarray | None = None) -> np.ndarray:
+def tpose_rotations(
+    skeleton: Skeleton, parts: dict[str, int], shared: set[str], pose: np.ndarray | None = None
+) -> np.ndarray:
     """Global rotations ``[J, 4]`` of the skeleton in the canonical T-pose, each bone's full
     frame fixed (its direction and its roll about itself), found from a reference pose of the
     skeleton (local rotations ``pose [J, 4]``; None: the rest pose) in which the bones have
@@ -292,7 +310,12 @@ def tpose_rotations(skeleton: Skeleton, parts: dict[str, int], shared: set[str],
     for chain in CHAINS:
         for above, part in zip(chain, chain[1:]):
             for p in (above, part) if above not in turn else (part,):
-                if p in turn or p not in shared or p not in TPOSE_DIRECTIONS or (bone := _bone(P, parts, p, shared)) is None:
+                if (
+                    p in turn
+                    or p not in shared
+                    or p not in TPOSE_DIRECTIONS
+                    or (bone := _bone(P, parts, p, shared)) is None
+                ):
                     continue
                 if p in ("hips", "chest") and body is not None:
                     turn[p] = body[p]
@@ -326,7 +349,9 @@ def natural_rest(skeleton: Skeleton, parts: dict[str, int], shared: set[str]) ->
     parent's X) or one with rolled joint frames is not."""
     _, P = _pose_positions(skeleton)
     body = _body_frames(P, parts, shared)
-    if body is None or quat.angle_between(quat.from_xform(body["hips"]), quat.from_xform(body["chest"])) > np.radians(30):
+    if body is None or quat.angle_between(quat.from_xform(body["hips"]), quat.from_xform(body["chest"])) > np.radians(
+        30
+    ):
         return False
     limits = {"spine": 40, "neck": 40, "left_hip": 40, "left_knee": 40, "right_hip": 40, "right_knee": 40, "left_foot": 60, "right_foot": 60,
               "left_shoulder": 60, "left_elbow": 60, "right_shoulder": 60, "right_elbow": 60}  # fmt: skip
@@ -361,15 +386,25 @@ def leg_length(skeleton: Skeleton, parts: dict[str, int]) -> float:
     return float(np.linalg.norm(P[knee] - P[hip]) + np.linalg.norm(P[foot] - P[knee]))
 
 
-def _source_frames(source: Skeleton, parts: dict[str, int], shared: set[str], first_pose: np.ndarray | None) -> tuple[np.ndarray, str, bool]:
+def _source_frames(
+    source: Skeleton, parts: dict[str, int], shared: set[str], first_pose: np.ndarray | None
+) -> tuple[np.ndarray, str, bool]:
     """The source's T-pose rotations, what they came from, and whether a first frame is still
     wanted: a T- or A-pose rest, else the first frame (a rest such as every bone along its
     parent's X, or joint frames rolled in the rig, says nothing about the bones' natural roll)."""
     if natural_rest(source, parts, shared):
         return tpose_rotations(source, parts, shared), "the rest pose (a T- or A-pose)", False
     if first_pose is None:
-        return tpose_rotations(source, parts, shared), "the rest pose, though it is no T- or A-pose (no first frame given yet): bone rolls may be off", True
-    return tpose_rotations(source, parts, shared, first_pose), "the first frame (the rest pose is no T- or A-pose)", False
+        return (
+            tpose_rotations(source, parts, shared),
+            "the rest pose, though it is no T- or A-pose (no first frame given yet): bone rolls may be off",
+            True,
+        )
+    return (
+        tpose_rotations(source, parts, shared, first_pose),
+        "the first frame (the rest pose is no T- or A-pose)",
+        False,
+    )
 
 
 def joint_map(
@@ -392,7 +427,9 @@ def joint_map(
     if explicit:
         for t_name, s_name in explicit.items():
             if t_name not in target.names:
-                raise ValueError(f"joint map: {t_name!r} is not a joint of the model skeleton ({', '.join(target.names)})")
+                raise ValueError(
+                    f"joint map: {t_name!r} is not a joint of the model skeleton ({', '.join(target.names)})"
+                )
             if s_name not in source.names:
                 raise ValueError(f"joint map: {s_name!r} is not a joint of the input skeleton")
             t = target.index(t_name)
@@ -402,8 +439,13 @@ def joint_map(
             sp[part] = source.index(s_name)
     missing = [p for p in REQUIRED if p not in sp]
     if missing:
-        named = [f"{p.replace('_', ' ')} (model joint {target.names[tp[p]]})" if p in tp else p.replace("_", " ") for p in missing]
-        raise ValueError(f"cannot map the skeleton: no joint found for {', '.join(named)}; name them with --joint-map, a JSON object of model joint -> your joint")
+        named = [
+            f"{p.replace('_', ' ')} (model joint {target.names[tp[p]]})" if p in tp else p.replace("_", " ")
+            for p in missing
+        ]
+        raise ValueError(
+            f"cannot map the skeleton: no joint found for {', '.join(named)}; name them with --joint-map, a JSON object of model joint -> your joint"
+        )
     if tp["hips"] != 0:
         raise ValueError(f"the model skeleton's root {target.names[0]!r} is not its hips")
     shared = {p for p in tp if p in sp}
@@ -433,7 +475,22 @@ def to_target(motion: Motion, jm: JointMap) -> Motion:
 
 
 @nb.njit(cache=True)
-def _to_target_kernel(rot, pos, s_parents, t_parents, t_idx, s_idx, offsets, only_joint, only_parent, only_rel, t_offsets, scale, out_rot, out_pos):
+def _to_target_kernel(
+    rot,
+    pos,
+    s_parents,
+    t_parents,
+    t_idx,
+    s_idx,
+    offsets,
+    only_joint,
+    only_parent,
+    only_rel,
+    t_offsets,
+    scale,
+    out_rot,
+    out_pos,
+):
     """Per frame: source FK; mapped target joints' globals = source global x offset; the others
     their T-pose relation to their parent (parents first); then local rotations; rest offsets
     with the scaled root path (pairs are sorted by target joint; the hips, joint 0, are mapped)."""
@@ -473,7 +530,9 @@ def _local_pose(glob, parents, out, unit):
         if p < 0:
             w, x, y, z = glob[j, 0], glob[j, 1], glob[j, 2], glob[j, 3]
         else:
-            w, x, y, z = quat.mul_scalars(glob[p, 0], -glob[p, 1], -glob[p, 2], -glob[p, 3], glob[j, 0], glob[j, 1], glob[j, 2], glob[j, 3])
+            w, x, y, z = quat.mul_scalars(
+                glob[p, 0], -glob[p, 1], -glob[p, 2], -glob[p, 3], glob[j, 0], glob[j, 1], glob[j, 2], glob[j, 3]
+            )
         norm = max(np.sqrt(w * w + x * x + y * y + z * z), 1e-12) if unit else 1.0
         out[j, 0], out[j, 1], out[j, 2], out[j, 3] = w / norm, x / norm, y / norm, z / norm
 

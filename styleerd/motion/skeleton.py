@@ -63,7 +63,9 @@ class Skeleton:
     @cached_property
     def euler_axes(self) -> np.ndarray:
         """``[J, 3]`` the axes (0, 1, 2: x, y, z) of each joint's Euler order."""
-        return np.array([["xyz".index(a) for a in order] for order in self.rotation_orders], dtype=np.int64).reshape(-1, 3)
+        return np.array([["xyz".index(a) for a in order] for order in self.rotation_orders], dtype=np.int64).reshape(
+            -1, 3
+        )
 
     @cached_property
     def channel_layout(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
@@ -131,9 +133,28 @@ def _sided(left: tuple[str, ...]) -> tuple[str, ...]:
 # Joint names by body part (lower case, namespace dropped), as Bandai-Namco, CMU/Xia,
 # Mixamo/Unity and Blender rigs name them; left side, the right side follows.
 _LEFT_NAMES = {
-    "collar": ("shoulder_l", "leftshoulder", "leftcollar", "l_collar", "leftclavicle", "clavicle_l", "l_clavicle", "clavicle.l", "shoulder.l"),
+    "collar": (
+        "shoulder_l",
+        "leftshoulder",
+        "leftcollar",
+        "l_collar",
+        "leftclavicle",
+        "clavicle_l",
+        "l_clavicle",
+        "clavicle.l",
+        "shoulder.l",
+    ),
     "shoulder": ("upperarm_l", "leftarm", "leftupperarm", "l_shoulder", "l_upperarm", "upper_arm.l"),
-    "elbow": ("lowerarm_l", "leftforearm", "leftlowerarm", "leftelbow", "l_elbow", "l_forearm", "forearm_l", "forearm.l"),
+    "elbow": (
+        "lowerarm_l",
+        "leftforearm",
+        "leftlowerarm",
+        "leftelbow",
+        "l_elbow",
+        "l_forearm",
+        "forearm_l",
+        "forearm.l",
+    ),
     "hand": ("hand_l", "lefthand", "leftwrist", "l_wrist", "l_hand", "hand.l"),
     "hip": ("upperleg_l", "leftupleg", "leftupperleg", "lefthip", "l_hip", "thigh_l", "thigh.l", "l_thigh"),
     "knee": ("lowerleg_l", "leftleg", "leftlowerleg", "leftknee", "l_knee", "calf_l", "shin.l", "l_calf", "leftshin"),
@@ -179,7 +200,19 @@ class BodyRoles:
 
     @classmethod
     def of(cls, skeleton: Skeleton) -> "BodyRoles":
-        r = {role: find_role(skeleton, role) for role in ("left_hip", "right_hip", "left_shoulder", "right_shoulder", "left_foot", "right_foot", "left_toe", "right_toe")}
+        r = {
+            role: find_role(skeleton, role)
+            for role in (
+                "left_hip",
+                "right_hip",
+                "left_shoulder",
+                "right_shoulder",
+                "left_foot",
+                "right_foot",
+                "left_toe",
+                "right_toe",
+            )
+        }
         j, length = r["left_foot"], 0.0
         while j != r["left_hip"] and j > 0:
             length += float(np.linalg.norm(skeleton.offsets[j]))

@@ -41,13 +41,19 @@ class TorchBackend:
     def reset(self, streams: np.ndarray | None = None) -> None:
         self.first[slice(None) if streams is None else streams] = True
 
-    def step(self, x: np.ndarray, style: np.ndarray, content: np.ndarray, target: np.ndarray, rows: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+    def step(
+        self, x: np.ndarray, style: np.ndarray, content: np.ndarray, target: np.ndarray, rows: np.ndarray | None = None
+    ) -> tuple[np.ndarray, np.ndarray]:
         import torch
 
         if rows is not None:
-            raise StyleERDError("the torch backend (the reference) steps all its streams at once; use numpy or onnx to step some")
+            raise StyleERDError(
+                "the torch backend (the reference) steps all its streams at once; use numpy or onnx to step some"
+            )
         with torch.no_grad():
-            return self._step(*(torch.as_tensor(np.asarray(a), dtype=torch.float32) for a in (x, style, content, target)))
+            return self._step(
+                *(torch.as_tensor(np.asarray(a), dtype=torch.float32) for a in (x, style, content, target))
+            )
 
     def _step(self, x, style, content, target) -> tuple[np.ndarray, np.ndarray]:
         import torch
@@ -79,7 +85,9 @@ class OnnxBackend:
     stream's first frame takes the learned initial states of all its rows, so a branch that
     first runs later starts from its own."""
 
-    def __init__(self, model: GeneratorWeights, n_streams: int, threads: int = 1, form: str = "lstm", every_branch: bool = False):
+    def __init__(
+        self, model: GeneratorWeights, n_streams: int, threads: int = 1, form: str = "lstm", every_branch: bool = False
+    ):
         import onnxruntime as ort
 
         from styleerd.runtime.onnx_export import initial_states, state_layers
@@ -99,7 +107,9 @@ class OnnxBackend:
         self.graphs: dict = {}  # (styles (None: every style), fuse) -> (session, its state rows among self.layers)
         self.by_pattern: dict = {}  # bytes of a row of target != 0 -> the same
         self.building = threading.Lock()
-        self.no_first = np.zeros((n_streams, 1), np.float32)  # the graph of every branch: first frames are reset here, not by it
+        self.no_first = np.zeros(
+            (n_streams, 1), np.float32
+        )  # the graph of every branch: first frames are reset here, not by it
 
     def reset(self, streams: np.ndarray | None = None) -> None:
         self.first[slice(None) if streams is None else streams] = True
@@ -114,8 +124,13 @@ class OnnxBackend:
                 from styleerd.runtime.onnx_export import state_layers, step_graph
 
                 proto = step_graph(self.model, self.form, styles, fuse, grouped=not self.every_branch)
-                session = ort.InferenceSession(proto.SerializeToString(), self.options, providers=["CPUExecutionProvider"])
-                self.graphs[(styles, fuse)] = (session, np.array([self.layers.index(row) for row in state_layers(self.model, styles)]))
+                session = ort.InferenceSession(
+                    proto.SerializeToString(), self.options, providers=["CPUExecutionProvider"]
+                )
+                self.graphs[(styles, fuse)] = (
+                    session,
+                    np.array([self.layers.index(row) for row in state_layers(self.model, styles)]),
+                )
             return self.graphs[(styles, fuse)]
 
     def _graph_of(self, weighted: np.ndarray, n: int):
@@ -129,27 +144,44 @@ class OnnxBackend:
             self.by_pattern[key] = self.graph(styles, False if unfused else None)
         return self.by_pattern[key]
 
-    def step(self, x: np.ndarray, style: np.ndarray, content: np.ndarray, target: np.ndarray, rows: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+    def step(
+        self, x: np.ndarray, style: np.ndarray, content: np.ndarray, target: np.ndarray, rows: np.ndarray | None = None
+    ) -> tuple[np.ndarray, np.ndarray]:
         f32 = np.ascontiguousarray
         inputs = (f32(x, np.float32), f32(style, np.float32), f32(content, np.float32), f32(target, np.float32))
         # a slice of streams (every stream, a shard) stays one: its state rows are read and written as views
-        streams = slice(None) if rows is None else slice(*rows.indices(self.n)) if isinstance(rows, slice) else np.arange(self.n)[rows]
+        streams = (
+            slice(None)
+            if rows is None
+            else slice(*rows.indices(self.n))
+            if isinstance(rows, slice)
+            else np.arange(self.n)[rows]
+        )
         fresh = self.first[streams]
         if fresh.any():
             at = np.arange(self.n)[streams][fresh]
             start = np.einsum("nk,k...->n...", inputs[2][fresh], self.initial)
             self.h[at], self.c[at], self.first[at] = start[:, 0], start[:, 1], False
         weighted = inputs[3] != 0
-        if len(weighted) == 1 or self.every_branch or not (weighted != weighted[:1]).any():  # one group (the usual case)
-            return self._run(self._graph_of(weighted[0] if len(weighted) else weighted.any(0), len(weighted)), streams, inputs)
+        if (
+            len(weighted) == 1 or self.every_branch or not (weighted != weighted[:1]).any()
+        ):  # one group (the usual case)
+            return self._run(
+                self._graph_of(weighted[0] if len(weighted) else weighted.any(0), len(weighted)), streams, inputs
+            )
         # streams grouped by the styles they weight
         patterns, which = np.unique(weighted, axis=0, return_inverse=True)
         ids, c = np.arange(self.n)[streams], self.model.config
-        rot, vel = np.empty((len(weighted), c.n_joints, 4), np.float32), np.empty((len(weighted), 3 * c.n_joints), np.float32)
+        rot, vel = (
+            np.empty((len(weighted), c.n_joints, 4), np.float32),
+            np.empty((len(weighted), 3 * c.n_joints), np.float32),
+        )
         for g, pattern in enumerate(patterns):
             members = np.nonzero(which.ravel() == g)[0]
             at = ids[members]
-            rot[members], vel[members] = self._run(self._graph_of(pattern, len(members)), at, tuple(a[members] for a in inputs))
+            rot[members], vel[members] = self._run(
+                self._graph_of(pattern, len(members)), at, tuple(a[members] for a in inputs)
+            )
         return rot, vel
 
     def _run(self, graph, at, inputs) -> tuple[np.ndarray, np.ndarray]:
@@ -168,7 +200,11 @@ class OnnxBackend:
         if self.every_branch:
             feeds["first_frame"] = self.no_first[:n]
         rot, vel, h, c = session.run(None, feeds)
-        h, c = (h.reshape(n, len(layers), -1), c.reshape(n, len(layers), -1)) if self.form == "lstm" else (h.transpose(1, 0, 2), c.transpose(1, 0, 2))
+        h, c = (
+            (h.reshape(n, len(layers), -1), c.reshape(n, len(layers), -1))
+            if self.form == "lstm"
+            else (h.transpose(1, 0, 2), c.transpose(1, 0, 2))
+        )
         rows = (at, layers) if isinstance(at, slice) else np.ix_(at, layers)
         self.h[rows], self.c[rows] = h, c
         return rot, vel

@@ -25,7 +25,13 @@ MOTION_FILES = (".bvh", *GLTF_INPUTS, ".fbx")
 OUTPUTS = (".bvh", ".glb", ".vrm", ".fbx")
 
 
-def transfer_one(source: Path, output: Path, model: GeneratorWeights, options: TransferOptions, report: Callable[[str], None] | None = None) -> TransferReport:
+def transfer_one(
+    source: Path,
+    output: Path,
+    model: GeneratorWeights,
+    options: TransferOptions,
+    report: Callable[[str], None] | None = None,
+) -> TransferReport:
     """One file of any supported kind in, one out; FBX on either side goes through Blender."""
     if Path(output).suffix.lower() not in OUTPUTS:
         raise StyleERDError(f"{output}: the output must be .bvh, .glb or .fbx (or .vrm from a VRM or glTF input)")
@@ -51,7 +57,10 @@ def batch_pairs(inputs: list[str | Path], output_dir: str | Path, suffix: str | 
             pairs.append((item, Path(output_dir) / item.name))
         else:
             raise StyleERDError(f"{item}: no such file or folder")
-    pairs = [(src, out.with_suffix(suffix or (".glb" if out.suffix.lower() == ".gltf" else out.suffix))) for src, out in pairs]
+    pairs = [
+        (src, out.with_suffix(suffix or (".glb" if out.suffix.lower() == ".gltf" else out.suffix)))
+        for src, out in pairs
+    ]
     seen: dict[Path, Path] = {}
     for src, out in pairs:
         if out in seen:
@@ -170,7 +179,11 @@ def transfer_batch(pairs: list[tuple[Path, Path]], model_name: str | None, optio
                 for k, w in enumerate(pool):
                     late = w.task is not None and time.monotonic() - w.since > timeout
                     if late or not w.process.is_alive():
-                        why = f"took longer than --timeout {timeout:g} s" if late else f"its worker stopped (exit code {w.process.exitcode})"
+                        why = (
+                            f"took longer than --timeout {timeout:g} s"
+                            if late
+                            else f"its worker stopped (exit code {w.process.exitcode})"
+                        )
                         w.stop()
                         if w.task is not None:
                             src, out = w.task

@@ -40,7 +40,19 @@ class ChannelStylizer:
         self.model, self.explicit_map = model, explicit_map
         self.skeleton, self.fps, self.n = skeleton, fps, n_streams
         self.n_channels = sum(len(c) for c in skeleton.channels)
-        self.stylizer = StreamStylizer(model, input_style, content, target, n_streams, fps, labeller=labeller, backend=backend, parts=parts, root_speed=root_speed, pose=pose)
+        self.stylizer = StreamStylizer(
+            model,
+            input_style,
+            content,
+            target,
+            n_streams,
+            fps,
+            labeller=labeller,
+            backend=backend,
+            parts=parts,
+            root_speed=root_speed,
+            pose=pose,
+        )
         self.lock = FootLock(skeleton, n_streams, fps, legs=self.map.source_legs()) if cleanup else None
 
     def configure(self, streams, input_style: str | None, content: str | None, target: dict[str, float]) -> None:

@@ -44,11 +44,15 @@ class FootLock:
         self.legs = np.array(legs)
         self.across = (self.legs[0, 0], self.legs[1, 0])
         parents = skeleton.parents
-        self.toes = np.array([next(iter(skeleton.children(a)), -1) for _, _, a in self.legs], np.int64)  # -1: a foot without a toe joint
+        self.toes = np.array(
+            [next(iter(skeleton.children(a)), -1) for _, _, a in self.legs], np.int64
+        )  # -1: a foot without a toe joint
         # IK sets hip and knee rotations directly: the leg must be one hip-knee-ankle chain
         self.enabled = all(parents[k] == h and parents[a] == k for h, k, a in self.legs)
         P = forward_positions(quat.identity((skeleton.n_joints,)), skeleton.offsets, skeleton.parents)
-        leg = np.linalg.norm(P[self.legs[0, 1]] - P[self.legs[0, 0]]) + np.linalg.norm(P[self.legs[0, 2]] - P[self.legs[0, 1]])
+        leg = np.linalg.norm(P[self.legs[0, 1]] - P[self.legs[0, 0]]) + np.linalg.norm(
+            P[self.legs[0, 2]] - P[self.legs[0, 1]]
+        )
         self.max_speed = contact_speed * leg
         self.n, self.release_frames = n_streams, max(1, release_frames)
         self.previous = np.zeros((n_streams, 2, 3))  # input ankles of the last frame (once started)
@@ -63,7 +67,14 @@ class FootLock:
         rows = slice(None) if streams is None else np.asarray(streams, dtype=int)
         self.since_release[rows], self.planted[rows], self.started[rows] = self.release_frames, False, False
 
-    def step(self, rotations: np.ndarray, positions: np.ndarray, input_rotations: np.ndarray, input_positions: np.ndarray, rows=None) -> np.ndarray:
+    def step(
+        self,
+        rotations: np.ndarray,
+        positions: np.ndarray,
+        input_rotations: np.ndarray,
+        input_positions: np.ndarray,
+        rows=None,
+    ) -> np.ndarray:
         """Output frame ``rotations [N, J, 4]`` (local) with ``positions [N, J, 3]``, and the
         input frame it came from -> cleaned local rotations; of every stream, or of the
         streams ``rows`` only."""
@@ -100,7 +111,9 @@ def _foot_lock_kernel(positions, in_rot, in_pos, state, parents, legs, toes, acr
         started[r] = True
         forward_pose(out[i], positions[i], parents, g_rot, g_pos)
         for side in range(2):
-            if now[side] and not planted[r, side]:  # a contact begins: hold the output ankle here, at the input's height
+            if (
+                now[side] and not planted[r, side]
+            ):  # a contact begins: hold the output ankle here, at the input's height
                 anchor[r, side] = g_pos[legs[side, 2]]
                 anchor[r, side, 1] = previous[r, side, 1]
             since = 0 if now[side] else (1 if planted[r, side] else min(since_release[r, side] + 1, release))
@@ -119,7 +132,9 @@ def _foot_lock_kernel(positions, in_rot, in_pos, state, parents, legs, toes, acr
             lifted = False
             for side in range(2):
                 ankle, toe = legs[side, 2], toes[side]
-                lift = max(0.0, floor[r, side, 0] - g_pos[ankle, 1], floor[r, side, 1] - g_pos[toe, 1] if toe >= 0 else 0.0)
+                lift = max(
+                    0.0, floor[r, side, 0] - g_pos[ankle, 1], floor[r, side, 1] - g_pos[toe, 1] if toe >= 0 else 0.0
+                )
                 if lift > 1e-9:
                     target[:] = g_pos[ankle]
                     target[1] += lift
@@ -138,8 +153,12 @@ def _leg_to(out, parents, leg, g_pos, g_rot, target, left, hip_g, knee_g):
     if p < 0:
         out[hip] = hip_g
     else:
-        out[hip, 0], out[hip, 1], out[hip, 2], out[hip, 3] = quat.mul_scalars(g_rot[p, 0], -g_rot[p, 1], -g_rot[p, 2], -g_rot[p, 3], hip_g[0], hip_g[1], hip_g[2], hip_g[3])
-    out[knee, 0], out[knee, 1], out[knee, 2], out[knee, 3] = quat.mul_scalars(hip_g[0], -hip_g[1], -hip_g[2], -hip_g[3], knee_g[0], knee_g[1], knee_g[2], knee_g[3])
+        out[hip, 0], out[hip, 1], out[hip, 2], out[hip, 3] = quat.mul_scalars(
+            g_rot[p, 0], -g_rot[p, 1], -g_rot[p, 2], -g_rot[p, 3], hip_g[0], hip_g[1], hip_g[2], hip_g[3]
+        )
+    out[knee, 0], out[knee, 1], out[knee, 2], out[knee, 3] = quat.mul_scalars(
+        hip_g[0], -hip_g[1], -hip_g[2], -hip_g[3], knee_g[0], knee_g[1], knee_g[2], knee_g[3]
+    )
 
 
 def clean_feet(output: Motion, source: Motion) -> Motion:
@@ -147,5 +166,10 @@ def clean_feet(output: Motion, source: Motion) -> Motion:
     lock = FootLock(output.skeleton, 1, output.fps)
     rot = np.empty_like(output.rotations)
     for t in range(output.n_frames):
-        rot[t] = lock.step(output.rotations[t : t + 1], output.positions[t : t + 1], source.rotations[t : t + 1], source.positions[t : t + 1])[0]
+        rot[t] = lock.step(
+            output.rotations[t : t + 1],
+            output.positions[t : t + 1],
+            source.rotations[t : t + 1],
+            source.positions[t : t + 1],
+        )[0]
     return Motion(output.skeleton, rot, output.positions, output.fps, output.euler_hint)

@@ -43,7 +43,9 @@ def _gemm(x, W, y, beta):
     """``y = x @ W + beta * y`` by BLAS; each operand's rows may be strided (a block of columns of
     a wider array), its elements within a row not. Row-major ``y = x W`` is column-major
     ``y^T = W^T x^T``, which is how BLAS is asked."""
-    ints = np.array([W.shape[1], x.shape[0], x.shape[1], W.strides[0] // 4, x.strides[0] // 4, y.strides[0] // 4], np.int32)
+    ints = np.array(
+        [W.shape[1], x.shape[0], x.shape[1], W.strides[0] // 4, x.strides[0] // 4, y.strides[0] // 4], np.int32
+    )
     scalars = np.array([1.0, beta], np.float32)
     no_transpose = np.array([78], np.uint8)  # "N"
     _sgemm(no_transpose.ctypes, no_transpose.ctypes, ints.ctypes, ints[1:].ctypes, ints[2:].ctypes, scalars.ctypes, W.ctypes, ints[3:].ctypes,
@@ -175,11 +177,30 @@ def compiled_step(x, style, content, target, P, table, sizes, inits, branch_styl
     N = x.shape[0]
     for s in range(0, N, BLOCK_ROWS):
         e = min(N, s + BLOCK_ROWS)
-        _step_block(x[s:e], style[s:e], content[s:e], target[s:e], P, table, sizes, inits, branch_styles, h[s:e], c[s:e], hb[s:e], cb[s:e], first[s:e], rot[s:e], vel[s:e])
+        _step_block(
+            x[s:e],
+            style[s:e],
+            content[s:e],
+            target[s:e],
+            P,
+            table,
+            sizes,
+            inits,
+            branch_styles,
+            h[s:e],
+            c[s:e],
+            hb[s:e],
+            cb[s:e],
+            first[s:e],
+            rot[s:e],
+            vel[s:e],
+        )
 
 
 @nb.njit(cache=True, nogil=True, parallel=True)
-def compiled_step_on_shards(shards, x, style, content, target, P, table, sizes, inits, branch_styles, h, c, hb, cb, first, rot, vel):
+def compiled_step_on_shards(
+    shards, x, style, content, target, P, table, sizes, inits, branch_styles, h, c, hb, cb, first, rot, vel
+):
     """``compiled_step`` on ``shards`` slices of the streams at once, one per thread (the caller
     holds BLAS to one thread). Inputs that do not fit are refused before the split (a shard of
     inputs that fit fits too)."""
@@ -187,7 +208,24 @@ def compiled_step_on_shards(shards, x, style, content, target, P, table, sizes, 
     N = x.shape[0]
     for k in nb.prange(shards):
         s, e = N * k // shards, N * (k + 1) // shards
-        compiled_step(x[s:e], style[s:e], content[s:e], target[s:e], P, table, sizes, inits, branch_styles, h[s:e], c[s:e], hb[s:e], cb[s:e], first[s:e], rot[s:e], vel[s:e])
+        compiled_step(
+            x[s:e],
+            style[s:e],
+            content[s:e],
+            target[s:e],
+            P,
+            table,
+            sizes,
+            inits,
+            branch_styles,
+            h[s:e],
+            c[s:e],
+            hb[s:e],
+            cb[s:e],
+            first[s:e],
+            rot[s:e],
+            vel[s:e],
+        )
 
 
 @nb.njit(cache=True, nogil=True)
@@ -264,10 +302,14 @@ def _step_block(x, style, content, target, P, table, sizes, inits, branch_styles
             _relu(o)
         y = o
     flat, scale = rot.reshape((N, 4 * J)), np.empty(4 * J, np.float32)
-    for n in range(N):  # unit quaternions: each one's scale written out four times, then one product per value (vectorises)
+    for n in range(
+        N
+    ):  # unit quaternions: each one's scale written out four times, then one product per value (vectorises)
         yn, rn = y[n], flat[n]
         for j in range(J):
-            s = np.float32(1.0) / max(np.sqrt(yn[4 * j] ** 2 + yn[4 * j + 1] ** 2 + yn[4 * j + 2] ** 2 + yn[4 * j + 3] ** 2), np.float32(1e-8))
+            s = np.float32(1.0) / max(
+                np.sqrt(yn[4 * j] ** 2 + yn[4 * j + 1] ** 2 + yn[4 * j + 2] ** 2 + yn[4 * j + 3] ** 2), np.float32(1e-8)
+            )
             scale[4 * j], scale[4 * j + 1], scale[4 * j + 2], scale[4 * j + 3] = s, s, s, s
         for k in range(4 * J):
             rn[k] = yn[k] * scale[k]
@@ -308,16 +350,33 @@ def pack(w: StepWeights) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray
     for W, b in w.encoder:
         matrix(W, b)
     for layers in [w.neutral, *w.branches]:
-        for w_cat, b in layers:  # the hidden weights right after the input weights: [W_input; W_hidden] is one matrix too
+        for (
+            w_cat,
+            b,
+        ) in layers:  # the hidden weights right after the input weights: [W_input; W_hidden] is one matrix too
             inputs, at_w, at_b = len(w_cat) - w.hidden, put(w_cat), put(b)
-            table += [(at_w, inputs, w_cat.shape[1], at_b), (at_w + inputs * w_cat.shape[1], w.hidden, w_cat.shape[1], -1)]
+            table += [
+                (at_w, inputs, w_cat.shape[1], at_b),
+                (at_w + inputs * w_cat.shape[1], w.hidden, w_cat.shape[1], -1),
+            ]
     for W, b in w.decoder:
         matrix(W, b)
     if w.decoder_added is not None:
         matrix(w.decoder_added, None)
     inits = np.array([put(a) for a in (*w.neutral_init, *w.branch_init)], np.int64)
     n_targets = w.input_styles + (0 if w.decoder_added is None else len(w.decoder_added))
-    sizes = np.array([len(w.encoder), len(w.neutral), len(w.branches[0]) if w.branches else 0, len(w.decoder), w.n_joints, w.input_styles, n_targets], np.int64)
+    sizes = np.array(
+        [
+            len(w.encoder),
+            len(w.neutral),
+            len(w.branches[0]) if w.branches else 0,
+            len(w.decoder),
+            w.n_joints,
+            w.input_styles,
+            n_targets,
+        ],
+        np.int64,
+    )
     return np.concatenate(parts), np.array(table, np.int64), sizes, inits
 
 
@@ -336,7 +395,21 @@ class CompiledBackend(NumpyBackend):
         N = len(x)
         rot, vel = np.empty((N, self.w.n_joints, 4), np.float32), np.empty((N, 3 * self.w.n_joints), np.float32)
         flat = self._whole[1:] if h is self._whole[0] else tuple(_rows(a) for a in (h, c, hb, cb))
-        args = (x, style, content, target, self.params, self.table, self.sizes, self.inits, self.branch_styles, *flat, first, rot, vel)
+        args = (
+            x,
+            style,
+            content,
+            target,
+            self.params,
+            self.table,
+            self.sizes,
+            self.inits,
+            self.branch_styles,
+            *flat,
+            first,
+            rot,
+            vel,
+        )
         shards = kernel_threads(self.threads, N)
         if shards == 1:
             compiled_step(*args)

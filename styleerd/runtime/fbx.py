@@ -38,7 +38,9 @@ def blender():
     try:
         import bpy
     except ImportError:
-        raise StyleERDError("FBX needs Blender's Python module: pip install 'styleerd[blender]' (bpy 4.2 to 5.0, on Python 3.11)") from None
+        raise StyleERDError(
+            "FBX needs Blender's Python module: pip install 'styleerd[blender]' (bpy 4.2 to 5.0, on Python 3.11)"
+        ) from None
     return bpy
 
 
@@ -75,7 +77,9 @@ def read_armature(arm, frames: range, fps: float) -> Motion:
     index = {b.name: i for i, b in enumerate(bones)}
     parents = np.array([index[b.parent.name] if b.parent else -1 for b in bones])
     if (parents == -1).sum() > 1:
-        raise StyleERDError(f"armature {arm.name!r} has {(parents == -1).sum()} root bones; one root (the hips) is needed")
+        raise StyleERDError(
+            f"armature {arm.name!r} has {(parents == -1).sum()} root bones; one root (the hips) is needed"
+        )
     world = np.array(arm.matrix_world, dtype=np.float64)
     heads = np.array([world[:3, :3] @ np.array(b.head_local) + world[:3, 3] for b in bones]) @ Y_UP.T
     rest = np.stack([Y_UP @ _rotation(arm.matrix_world @ b.matrix_local) for b in bones])
@@ -138,7 +142,9 @@ def write_action(arm, motion: Motion, frames: range, name: str):
                 pb.rotation_axis_angle = (angle, *axis)
                 pb.keyframe_insert("rotation_axis_angle", frame=f, group=bone_name)
             else:
-                pb.rotation_euler = q.to_euler(pb.rotation_mode, pb.rotation_euler) if t else q.to_euler(pb.rotation_mode)
+                pb.rotation_euler = (
+                    q.to_euler(pb.rotation_mode, pb.rotation_euler) if t else q.to_euler(pb.rotation_mode)
+                )
                 pb.keyframe_insert("rotation_euler", frame=f, group=bone_name)
             if bone.parent is None:  # the root's location: the motion's root position, through the rest
                 m = np.array(arm.matrix_world, dtype=np.float64)
@@ -204,7 +210,11 @@ def _blender_output_kept():
 def _reason(error: Exception) -> str:
     """The line of a Blender operator's error that says what is wrong (not its traceback's
     ``Location: .../bpy/ops.py:109``)."""
-    lines = [line.strip() for line in str(error).splitlines() if line.strip() and not line.strip().startswith(("Location:", "Traceback", "File "))]
+    lines = [
+        line.strip()
+        for line in str(error).splitlines()
+        if line.strip() and not line.strip().startswith(("Location:", "Traceback", "File "))
+    ]
     return (lines[-1] if lines else type(error).__name__).removeprefix("Error: ")[:300]
 
 
@@ -214,7 +224,9 @@ def import_fbx(path: Path):
     _new_scene(bpy)
     try:
         with _blender_output_kept():
-            bpy.ops.import_scene.fbx(filepath=str(path), anim_offset=0.0)  # FBX time 0 is frame 0: a round trip keeps frame numbers
+            bpy.ops.import_scene.fbx(
+                filepath=str(path), anim_offset=0.0
+            )  # FBX time 0 is frame 0: a round trip keeps frame numbers
     except RuntimeError as e:
         raise StyleERDError(f"{path}: Blender cannot import this FBX: {_reason(e)}") from None
     arm = single_armature(bpy.context.scene.objects, str(path))
@@ -229,7 +241,12 @@ def import_fbx(path: Path):
 def _rest_keys(arm, frame: int, insert: bool) -> None:
     """Key (or unkey) every bone at its rest pose on ``frame``."""
     for pb in arm.pose.bones:
-        paths = ["location", {"QUATERNION": "rotation_quaternion", "AXIS_ANGLE": "rotation_axis_angle"}.get(pb.rotation_mode, "rotation_euler")]
+        paths = [
+            "location",
+            {"QUATERNION": "rotation_quaternion", "AXIS_ANGLE": "rotation_axis_angle"}.get(
+                pb.rotation_mode, "rotation_euler"
+            ),
+        ]
         if insert:
             pb.matrix_basis.identity()
             for path in paths:
@@ -263,7 +280,9 @@ def export_fbx(path: Path, arm, frames: range, fps: float) -> None:
         scene.frame_set(frames.start)
 
 
-def transfer_fbx(source: Path, output: Path, model: GeneratorWeights, options: TransferOptions, report=None) -> TransferReport:
+def transfer_fbx(
+    source: Path, output: Path, model: GeneratorWeights, options: TransferOptions, report=None
+) -> TransferReport:
     """FBX -> FBX (the same file, a stylised action), FBX -> BVH/GLB, or BVH/glTF -> FBX (a new
     armature), through Blender."""
     bpy = blender()

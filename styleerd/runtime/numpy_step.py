@@ -18,7 +18,9 @@ class StepWeights:
     """The generator's parameters as float32 arrays laid out for ``x @ W + b``."""
 
     encoder: list[tuple[np.ndarray, np.ndarray]]
-    neutral: list[tuple[np.ndarray, np.ndarray]]  # per layer: [W_input; W_hidden] [in + H, 4H] (for [x | h] @ W), b [4H]
+    neutral: list[
+        tuple[np.ndarray, np.ndarray]
+    ]  # per layer: [W_input; W_hidden] [in + H, 4H] (for [x | h] @ W), b [4H]
     branches: list[list[tuple[np.ndarray, np.ndarray]]]
     branch_styles: list[int]
     decoder: list[tuple[np.ndarray, np.ndarray]]
@@ -40,7 +42,10 @@ def step_weights(model) -> StepWeights:
 
     def lstm(prefix: str, layers: int) -> list[tuple[np.ndarray, np.ndarray]]:
         return [
-            (np.concatenate([sd[f"{prefix}.weight_ih_l{i}"].T, sd[f"{prefix}.weight_hh_l{i}"].T]), sd[f"{prefix}.bias_ih_l{i}"] + sd[f"{prefix}.bias_hh_l{i}"])
+            (
+                np.concatenate([sd[f"{prefix}.weight_ih_l{i}"].T, sd[f"{prefix}.weight_hh_l{i}"].T]),
+                sd[f"{prefix}.bias_ih_l{i}"] + sd[f"{prefix}.bias_hh_l{i}"],
+            )
             for i in range(layers)
         ]
 
@@ -108,12 +113,19 @@ class NumpyBackend:
     def reset(self, streams: np.ndarray | None = None) -> None:
         self.first[slice(None) if streams is None else streams] = True
 
-    def step(self, x: np.ndarray, style: np.ndarray, content: np.ndarray, target: np.ndarray, rows: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+    def step(
+        self, x: np.ndarray, style: np.ndarray, content: np.ndarray, target: np.ndarray, rows: np.ndarray | None = None
+    ) -> tuple[np.ndarray, np.ndarray]:
         """One frame of every stream, or of the streams ``rows`` only (the others keep their
         state): what a server with streams arriving at different times steps. Rows given as a
         slice are stepped in place (views), so disjoint slices may step concurrently."""
         f32 = np.ascontiguousarray
-        x, style, content, target = f32(x, np.float32), f32(style, np.float32), f32(content, np.float32), f32(target, np.float32)
+        x, style, content, target = (
+            f32(x, np.float32),
+            f32(style, np.float32),
+            f32(content, np.float32),
+            f32(target, np.float32),
+        )
         if rows is None:
             return self._arithmetic(x, style, content, target, self.h, self.c, self.hb, self.cb, self.first)
         sel = rows
@@ -148,10 +160,17 @@ def _numpy_step(w: StepWeights, x, style, content, target, h, c, hb, cb, first) 
             out[rows] += target[rows, s, None] * _lstm_stack(w.branches[k], z[rows], hk, ck)
             hb[rows, k], cb[rows, k] = hk, ck
     nI = w.input_styles
-    return _rotations(_dense_layers(np.concatenate([out, target[:, :nI]], -1), w.decoder, (target[:, nI:], w.decoder_added)), w.n_joints)
+    return _rotations(
+        _dense_layers(np.concatenate([out, target[:, :nI]], -1), w.decoder, (target[:, nI:], w.decoder_added)),
+        w.n_joints,
+    )
 
 
-def _dense_layers(y: np.ndarray, layers: list[tuple[np.ndarray, np.ndarray]], added: tuple[np.ndarray, np.ndarray | None] = (None, None)) -> np.ndarray:
+def _dense_layers(
+    y: np.ndarray,
+    layers: list[tuple[np.ndarray, np.ndarray]],
+    added: tuple[np.ndarray, np.ndarray | None] = (None, None),
+) -> np.ndarray:
     """Linear layers with ReLU between them, in place after each product (one temporary
     array per layer, not three). ``added``: inputs and weights summed into the first layer
     apart (the added styles' target weights)."""
@@ -175,7 +194,10 @@ class NumpyLabeller:
         self.w_in, self.b_in = sd["inp.0.weight"].T.copy(), sd["inp.0.bias"]
         self.w_ih, self.b_ih = sd["gru.weight_ih_l0"].T.copy(), sd["gru.bias_ih_l0"]
         self.w_hh, self.b_hh = sd["gru.weight_hh_l0"].T.copy(), sd["gru.bias_hh_l0"]
-        self.heads = [(sd["style.weight"].T.copy(), sd["style.bias"]), (sd["content.weight"].T.copy(), sd["content.bias"])]
+        self.heads = [
+            (sd["style.weight"].T.copy(), sd["style.bias"]),
+            (sd["content.weight"].T.copy(), sd["content.bias"]),
+        ]
         self.h = np.zeros((n_streams, labeller.config["hidden"]), np.float32)
 
     def reset(self, streams: np.ndarray | None = None) -> None:

@@ -21,7 +21,14 @@ from styleerd.runtime.cleanup import FootLock
 from styleerd.runtime.stylizer import StreamStylizer
 
 
-def stylise_motion(model: GeneratorWeights, motion: Motion, input_style: str | None, content: str | None, target: dict[str, float], backend: str = "numpy") -> Motion:
+def stylise_motion(
+    model: GeneratorWeights,
+    motion: Motion,
+    input_style: str | None,
+    content: str | None,
+    target: dict[str, float],
+    backend: str = "numpy",
+) -> Motion:
     """The motion in the target style(s): joint rotations from the network, root trajectory
     (position and facing) and joint translations from the input. Labels left None are
     inferred online."""
@@ -36,7 +43,13 @@ def run_stream(stylizer: StreamStylizer, motion: Motion) -> Motion:
     return Motion(motion.skeleton, out, motion.positions.copy(), motion.fps)
 
 
-def map_skeleton(skeleton: Skeleton, model: GeneratorWeights, explicit: dict[str, str] | None = None, where: str = "input", first_pose: np.ndarray | None = None) -> JointMap:
+def map_skeleton(
+    skeleton: Skeleton,
+    model: GeneratorWeights,
+    explicit: dict[str, str] | None = None,
+    where: str = "input",
+    first_pose: np.ndarray | None = None,
+) -> JointMap:
     """The mapping of a skeleton onto the model's, or a clear error naming what is missing.
     The model's bone frames come from its average pose; the input's from its rest pose when
     that is a T- or A-pose, else from ``first_pose`` (local rotations of its first frame)."""
@@ -62,7 +75,9 @@ class TransferOptions:
     mesh: bool = False
     parts: str | dict | None = None  # body parts with their own target (``stylizer.part_targets``)
     root_speed: bool = False  # the root's ground speed from the network (``StreamStylizer``), not the input's
-    pose: str = "input"  # the input's pose plus the style's change, or "network": the network's pose (``StreamStylizer``)
+    pose: str = (
+        "input"  # the input's pose plus the style's change, or "network": the network's pose (``StreamStylizer``)
+    )
 
 
 @dataclass
@@ -73,7 +88,12 @@ class TransferReport:
 
 
 def _stylised_stream(
-    header: bvh.Header, chunks: Iterator[np.ndarray], model: GeneratorWeights, fps: float, options: TransferOptions, report: Callable[[str], None] | None
+    header: bvh.Header,
+    chunks: Iterator[np.ndarray],
+    model: GeneratorWeights,
+    fps: float,
+    options: TransferOptions,
+    report: Callable[[str], None] | None,
 ) -> tuple[Iterator[np.ndarray], StreamStylizer]:
     """The stylised channel values of a stream of frames, chunk by chunk, and its stylizer
     (for the labels it inferred): the checks, the mapping (bone frames from the first frame
@@ -88,9 +108,21 @@ def _stylised_stream(
     jm = map_skeleton(header.skeleton, model, o.explicit_map, str(header.path), first_pose)
     if report:
         report(f"joint mapping (model <- input):\n{jm.describe()}")
-    stylizer = StreamStylizer(model, o.input_style, o.content, o.target, fps=fps, backend=o.backend, parts=o.parts, root_speed=o.root_speed, pose=o.pose)
+    stylizer = StreamStylizer(
+        model,
+        o.input_style,
+        o.content,
+        o.target,
+        fps=fps,
+        backend=o.backend,
+        parts=o.parts,
+        root_speed=o.root_speed,
+        pose=o.pose,
+    )
     lock = FootLock(header.skeleton, 1, header.fps, legs=jm.source_legs()) if o.cleanup else None
-    return _checked(_stylised_rows(header, itertools.chain([first], chunks), jm, stylizer, lock, fps), header.path), stylizer
+    return _checked(
+        _stylised_rows(header, itertools.chain([first], chunks), jm, stylizer, lock, fps), header.path
+    ), stylizer
 
 
 def transfer_motion(
@@ -141,6 +173,7 @@ def transfer_file(
     header, chunks = bvh.stream(source, chunk)
     rows, stylizer = _stylised_stream(header, chunks, model, fps, options, report)
     if kind == ".bvh":
+
         def write(tmp: str) -> None:
             with open(tmp, "w", encoding="utf-8") as f:
                 f.write(bvh.format_header(header.skeleton, header.n_frames, header.fps))
@@ -149,7 +182,9 @@ def transfer_file(
 
         atomic_write(output, write)
     else:
-        write_glb(output, bvh.motion_from_channels(header.skeleton, np.concatenate(list(rows)), header.fps), mesh=options.mesh)
+        write_glb(
+            output, bvh.motion_from_channels(header.skeleton, np.concatenate(list(rows)), header.fps), mesh=options.mesh
+        )
     return TransferReport(header.n_frames, header.fps, _inferred_labels(stylizer, report))
 
 
@@ -158,17 +193,23 @@ def _inferred_labels(stylizer: StreamStylizer, report: Callable[[str], None] | N
     labels were given. Also reported: how unfamiliar the motion was to the network (pose "input")."""
     if report and stylizer.pose == "input" and stylizer.frames[0]:
         share = stylizer.unfamiliar_sum[0] / stylizer.frames[0]
-        report(f"unfamiliar to the network: {100 * share:.0f} % (0: its own pose, as on motion like its training data; "
-               "100: the input's pose turned by the style's change, as on actions it never learnt)")
+        report(
+            f"unfamiliar to the network: {100 * share:.0f} % (0: its own pose, as on motion like its training data; "
+            "100: the input's pose turned by the style's change, as on actions it never learnt)"
+        )
     if stylizer.labeller is None:
         return None
     labels = stylizer.inferred_labels()[0]
     if report:
-        report(f"input labels at the last frame: style {labels[0]}, content {labels[1]} (inferred online where not given)")
+        report(
+            f"input labels at the last frame: style {labels[0]}, content {labels[1]} (inferred online where not given)"
+        )
     return labels
 
 
-def _transfer_gltf(source: Path, output: Path, model: GeneratorWeights, fps: float, options: TransferOptions, report) -> TransferReport:
+def _transfer_gltf(
+    source: Path, output: Path, model: GeneratorWeights, fps: float, options: TransferOptions, report
+) -> TransferReport:
     """A glTF/GLB/VRM character in: its first skin's skeleton and its animation, VRM humanoid
     bones named for the mapping; out as the same file with the animation replaced (.glb,
     .vrm) or as a BVH of its skeleton."""
@@ -180,7 +221,9 @@ def _transfer_gltf(source: Path, output: Path, model: GeneratorWeights, fps: flo
     explicit = {model.skeleton.names[model_parts[p]]: name for p, name in src.parts.items() if p in model_parts}
     explicit.update(options.explicit_map or {})
     lines: list[str] = []
-    out = transfer_motion(src.motion, model, fps, replace(options, explicit_map=explicit or None), report, labels=lines, where=str(source))
+    out = transfer_motion(
+        src.motion, model, fps, replace(options, explicit_map=explicit or None), report, labels=lines, where=str(source)
+    )
     if kind == ".bvh":
         bvh.write(output, out)
     else:
@@ -195,7 +238,14 @@ def _checked(rows: Iterator[np.ndarray], source) -> Iterator[np.ndarray]:
         yield values
 
 
-def _stylised_rows(header: bvh.Header, chunks: Iterator[np.ndarray], jm: JointMap, stylizer: StreamStylizer, lock: FootLock | None, fps: float) -> Iterator[np.ndarray]:
+def _stylised_rows(
+    header: bvh.Header,
+    chunks: Iterator[np.ndarray],
+    jm: JointMap,
+    stylizer: StreamStylizer,
+    lock: FootLock | None,
+    fps: float,
+) -> Iterator[np.ndarray]:
     """Output channel values, chunk by chunk, of the source frames streamed in: retarget each
     frame, resample to the model's rate (slerp between the two source frames around each
     model frame), stylise, resample back (slerp between the two stylised frames around each
@@ -242,7 +292,11 @@ def _stylised_rows(header: bvh.Header, chunks: Iterator[np.ndarray], jm: JointMa
             while j < J and (model_input(j)[0] + (0 if same or T == 1 else 1)) <= i:
                 rot, pos = mix(src, *model_input(j))
                 styled, styled_pos = stylizer.step(rot[None], pos[None])
-                out[j] = (styled[0], pos, styled_pos[0, 0] - pos[0])  # and the root's move by its stylised speed (model units)
+                out[j] = (
+                    styled[0],
+                    pos,
+                    styled_pos[0, 0] - pos[0],
+                )  # and the root's move by its stylised speed (model units)
                 j += 1
             while k < T and (model_output(k)[0] + (0 if same or J == 1 else 1)) < j and k <= i:
                 i0, w = model_output(k)
@@ -250,7 +304,9 @@ def _stylised_rows(header: bvh.Header, chunks: Iterator[np.ndarray], jm: JointMa
                 frame = src[k][2]
                 back = to_source(Motion(jm.target, rot[None], pos[None], fs), jm, frame)
                 if stylizer.root_speed:
-                    back.positions[0, 0] += (out[i0][2] if w == 0.0 else (1 - w) * out[i0][2] + w * out[i0 + 1][2]) / jm.scale
+                    back.positions[0, 0] += (
+                        out[i0][2] if w == 0.0 else (1 - w) * out[i0][2] + w * out[i0 + 1][2]
+                    ) / jm.scale
                 if lock is not None:
                     back.rotations = lock.step(back.rotations, back.positions, frame.rotations, frame.positions)
                 rows.append(bvh.channel_values(back)[0])

@@ -68,14 +68,18 @@ def _onnx_gates(a: np.ndarray, H: int, order=TORCH_TO_ONNX_GATES) -> np.ndarray:
     return np.concatenate([a[k * H : (k + 1) * H] for k in order]).astype(np.float32)
 
 
-def _lockstep_cells(g: _Graph, x: str, h: str, c: str, arrays: dict, members: list[tuple[str, int]], H: int) -> tuple[str, str]:
+def _lockstep_cells(
+    g: _Graph, x: str, h: str, c: str, arrays: dict, members: list[tuple[str, int]], H: int
+) -> tuple[str, str]:
     """Layer i of several branches at once, written out in plain ops: the branches are a batch
     axis of the matrix products (``x [1 or B, N, in]``, ``h, c [B, N, H]``, weights [B, in, 4H]),
     so a graph has one cell's worth of nodes per layer depth however many branches it holds."""
     order = (0, 1, 3, 2)  # torch's gates (i, f, g, o) as (i, f, o, g): one Sigmoid, one Tanh
     w_in = np.stack([_onnx_gates(arrays[f"{p}.weight_ih_l{i}"], H, order).T for p, i in members])
     w_hid = np.stack([_onnx_gates(arrays[f"{p}.weight_hh_l{i}"], H, order).T for p, i in members])
-    b = np.stack([_onnx_gates(arrays[f"{p}.bias_ih_l{i}"] + arrays[f"{p}.bias_hh_l{i}"], H, order)[None] for p, i in members])
+    b = np.stack(
+        [_onnx_gates(arrays[f"{p}.bias_ih_l{i}"] + arrays[f"{p}.bias_hh_l{i}"], H, order)[None] for p, i in members]
+    )
     if members[0][1] == 0:  # the first layer's input (the encoding) is shared by every branch
         gates = g.op("Add", g.op("MatMul", x, g.const(w_in)), g.op("MatMul", h, g.const(w_hid)))
     else:
@@ -104,8 +108,13 @@ def _ints(g: _Graph, *values: int) -> str:
 def _depths(c, branches: list[str]) -> list[list[tuple[str, int]]]:
     """Per layer depth, the (stack, layer) pairs at that depth: the neutral branch first, then
     the style branches."""
-    stacks = [("neutral", c.neutral_style, c.neutral_layers)] + [(f"branches.{k}", s, c.style_layers) for k, s in branches]
-    return [[(prefix, name, i) for prefix, name, layers in stacks if i < layers] for i in range(max(c.neutral_layers, c.style_layers))]
+    stacks = [("neutral", c.neutral_style, c.neutral_layers)] + [
+        (f"branches.{k}", s, c.style_layers) for k, s in branches
+    ]
+    return [
+        [(prefix, name, i) for prefix, name, layers in stacks if i < layers]
+        for i in range(max(c.neutral_layers, c.style_layers))
+    ]
 
 
 def _branches(c, styles: tuple[str, ...] | None) -> list[tuple[int, str]]:
@@ -138,7 +147,9 @@ def _initial_states(w, rows: list[tuple[str, int]], n_contents: int) -> np.ndarr
                            for init, branch_init in zip(w.neutral_init, w.branch_init) for prefix, i in rows], 1)  # fmt: skip
 
 
-def _lstm_form(g: _Graph, z: str, first: str | None, arrays: dict, w, c, depths: list, branches: list, fuse: bool) -> tuple[str, np.ndarray]:
+def _lstm_form(
+    g: _Graph, z: str, first: str | None, arrays: dict, w, c, depths: list, branches: list, fuse: bool
+) -> tuple[str, np.ndarray]:
     """The branches as ``LSTM`` ops on the state ``h, c [1, N, S H]`` (rows side by side, in
     ``state_layers`` order): ``fuse``, the layers of one depth run as one op (block-diagonal
     weights: fewer ops in sequence), else one op per layer. ``first`` None: a grouped graph
@@ -158,12 +169,25 @@ def _lstm_form(g: _Graph, z: str, first: str | None, arrays: dict, w, c, depths:
     parts = g.op("Split", state, _ints(g, *widths, *widths), outputs=2 * len(ops), axis=2)
     parts = {"h": parts[: len(ops)], "c": parts[len(ops) :]}
     x0 = g.op("Unsqueeze", z, _ints(g, 0))  # [1, N, E]: a sequence of one frame
-    out_of: dict[tuple[str, int], tuple[str, int, int]] = {}  # (branch, layer) -> its op's output h, its first column there, the op's width
+    out_of: dict[
+        tuple[str, int], tuple[str, int, int]
+    ] = {}  # (branch, layer) -> its op's output h, its first column there, the op's width
     new = {"h": [], "c": []}
     for k, members in enumerate(ops):
-        B, (first_prefix, depth) = len(members), members[0]  # every member's input is the op below's output (or the encoding)
-        x, _, width = (x0, 0, arrays[f"{first_prefix}.weight_ih_l0"].shape[1]) if depth == 0 else out_of[(first_prefix, depth - 1)]
-        W, R, bias = np.zeros((4 * B * H, width), np.float32), np.zeros((4 * B * H, B * H), np.float32), np.zeros((2, 4 * B * H), np.float32)
+        B, (first_prefix, depth) = (
+            len(members),
+            members[0],
+        )  # every member's input is the op below's output (or the encoding)
+        x, _, width = (
+            (x0, 0, arrays[f"{first_prefix}.weight_ih_l0"].shape[1])
+            if depth == 0
+            else out_of[(first_prefix, depth - 1)]
+        )
+        W, R, bias = (
+            np.zeros((4 * B * H, width), np.float32),
+            np.zeros((4 * B * H, B * H), np.float32),
+            np.zeros((2, 4 * B * H), np.float32),
+        )
         for m, (prefix, i) in enumerate(members):
             for gate, torch_gate in enumerate(TORCH_TO_ONNX_GATES):
                 to, src = slice((gate * B + m) * H, (gate * B + m + 1) * H), slice(torch_gate * H, (torch_gate + 1) * H)
@@ -194,7 +218,11 @@ def _lstm_form(g: _Graph, z: str, first: str | None, arrays: dict, w, c, depths:
                 neutral[r * H : (r + 1) * H] = 1.0
             else:
                 pick[style_of[prefix], r * H : (r + 1) * H] = 1.0
-        keep = g.op("Equal", g.op("Gemm", "target", g.const(np.tile(pick, 2)), g.const(np.tile(neutral, 2))), g.const(np.zeros(1, np.float32)))  # [N, 2T]
+        keep = g.op(
+            "Equal",
+            g.op("Gemm", "target", g.const(np.tile(pick, 2)), g.const(np.tile(neutral, 2))),
+            g.const(np.zeros(1, np.float32)),
+        )  # [N, 2T]
         kept = g.op("Where", keep, state, kept)
     g.nodes.append(helper.make_node("Split", [kept], ["h_out", "c_out"], axis=2))
     # the decoder reads neutral + sum_k w_k branch_k: the ops holding the last layers, side by
@@ -218,7 +246,9 @@ def _lstm_form(g: _Graph, z: str, first: str | None, arrays: dict, w, c, depths:
     return g.op("Concat", weighted, "target", axis=1), copies
 
 
-def _plain_form(g: _Graph, z: str, first: str | None, arrays: dict, w, c, depths: list, branches: list) -> tuple[str, np.ndarray]:
+def _plain_form(
+    g: _Graph, z: str, first: str | None, arrays: dict, w, c, depths: list, branches: list
+) -> tuple[str, np.ndarray]:
     """The branches written out in plain ops on the state ``h, c [S, N, H]`` (a row per layer,
     ``state_layers`` order), the cells of one depth one batched cell (``_lockstep_cells``);
     ``first`` None: a grouped graph (``_lstm_form``).
@@ -230,17 +260,26 @@ def _plain_form(g: _Graph, z: str, first: str | None, arrays: dict, w, c, depths
     # throughout: onnxruntime runs a batched product as one small GEMM call per batch entry
     states = {"h": "h", "c": "c"}
     if first is not None:
-        start = g.op("Transpose", g.op("Reshape", g.op("MatMul", "content", g.const(_initial_states(w, rows, nC))), _ints(g, -1, 2 * S, H)), perm=[1, 0, 2])
+        start = g.op(
+            "Transpose",
+            g.op("Reshape", g.op("MatMul", "content", g.const(_initial_states(w, rows, nC))), _ints(g, -1, 2 * S, H)),
+            perm=[1, 0, 2],
+        )
         starts = g.op("Split", start, outputs=2, axis=0)
         states = {name: g.op("Where", first, s0, name) for name, s0 in zip(("h", "c"), starts)}
     new = {"h": [], "c": []}
     sizes = _ints(g, *(len(d) for d in depths))
-    parts = {name: g.op("Split", states[name], sizes, outputs=len(depths), axis=0) if len(depths) > 1 else [states[name]] for name in states}
+    parts = {
+        name: g.op("Split", states[name], sizes, outputs=len(depths), axis=0) if len(depths) > 1 else [states[name]]
+        for name in states
+    }
     x, previous = z, None
     for d, depth in enumerate(depths):
         members = [(prefix, i) for prefix, _, i in depth]
         if previous is not None and members != [(p, i + 1) for p, _, i in previous][: len(members)]:
-            raise ValueError("a depth's branches must be the first of the depth before")  # the neutral branch is the deepest or as deep
+            raise ValueError(
+                "a depth's branches must be the first of the depth before"
+            )  # the neutral branch is the deepest or as deep
         if previous is not None and len(members) < len(previous):
             x = g.op("Slice", x, _ints(g, 0), _ints(g, len(members)), _ints(g, 0))
         x, c_new = _lockstep_cells(g, x, parts["h"][d], parts["c"][d], arrays, members, H)
@@ -260,11 +299,17 @@ def _plain_form(g: _Graph, z: str, first: str | None, arrays: dict, w, c, depths
     for r, (prefix, _) in enumerate(rows if first is not None else []):
         if prefix != "neutral":
             pick[c.styles.index(style_of[int(prefix.split(".")[1])]), len(branches) + r] = 1.0
-    picked = g.op("Unsqueeze", g.op("Transpose", g.op("MatMul", "target", g.const(pick)), perm=[1, 0]), _ints(g, 2)) if pick.size else None  # [K + S, N, 1]
+    picked = (
+        g.op("Unsqueeze", g.op("Transpose", g.op("MatMul", "target", g.const(pick)), perm=[1, 0]), _ints(g, 2))
+        if pick.size
+        else None
+    )  # [K + S, N, 1]
     if first is None:  # the branches' weights only
         weights = picked
     else:
-        weights, row_weights = g.op("Split", picked, _ints(g, len(branches), S), outputs=2, axis=0) if branches else (None, picked)
+        weights, row_weights = (
+            g.op("Split", picked, _ints(g, len(branches), S), outputs=2, axis=0) if branches else (None, picked)
+        )
     out = neutral_last  # out = neutral + sum_k w_k branch_k
     if branches:
         out = g.op("Add", out, g.op("ReduceSum", g.op("Mul", branch_last, weights), _ints(g, 0), keepdims=1))
@@ -272,10 +317,16 @@ def _plain_form(g: _Graph, z: str, first: str | None, arrays: dict, w, c, depths
     # a branch's rows advance only for streams that give its style a weight; the neutral rows always
     if first is not None:
         neutral_rows = np.array([[[float(prefix == "neutral")]] for prefix, _ in rows], np.float32)
-        keep = g.op("Equal", g.op("Add", row_weights, g.const(neutral_rows)), g.const(np.zeros(1, np.float32)))  # [S, N, 1]
+        keep = g.op(
+            "Equal", g.op("Add", row_weights, g.const(neutral_rows)), g.const(np.zeros(1, np.float32))
+        )  # [S, N, 1]
     for name in ("h", "c"):
         joined = [g.op("Concat", *new[name], axis=0) if len(depths) > 1 else new[name][0]]
-        g.nodes.append(helper.make_node("Where", [keep, states[name], *joined], [f"{name}_out"]) if first is not None else helper.make_node("Identity", joined, [f"{name}_out"]))
+        g.nodes.append(
+            helper.make_node("Where", [keep, states[name], *joined], [f"{name}_out"])
+            if first is not None
+            else helper.make_node("Identity", joined, [f"{name}_out"])
+        )
     return g.op("Concat", out, "target", axis=1), np.eye(H, dtype=np.float32)
 
 
@@ -287,7 +338,13 @@ def state_shape(model: GeneratorWeights, form: str = "lstm", styles: tuple[str, 
     return (1, "N", S * c.hidden) if form == "lstm" else (S, "N", c.hidden)
 
 
-def step_graph(model: GeneratorWeights, form: str = "lstm", styles: tuple[str, ...] | None = None, fuse: bool | None = None, grouped: bool = False) -> onnx.ModelProto:
+def step_graph(
+    model: GeneratorWeights,
+    form: str = "lstm",
+    styles: tuple[str, ...] | None = None,
+    fuse: bool | None = None,
+    grouped: bool = False,
+) -> onnx.ModelProto:
     """The step graph in ``form`` (``FORMS``) with the branches of ``styles`` (default every
     style; a graph for the styles a host uses is smaller and faster), checked by
     ``onnx.checker`` (full check). ``fuse`` (LSTM form): the layers of one depth as one op
@@ -309,7 +366,9 @@ def step_graph(model: GeneratorWeights, form: str = "lstm", styles: tuple[str, .
     w, arrays, c = step_weights(model), model.arrays, model.config
     unknown = set(styles or ()) - set(c.styles[s] for s in c.branch_styles)
     if unknown:
-        raise StyleERDError(f"no style branch for {', '.join(sorted(unknown))}; the model's: {', '.join(c.styles[s] for s in c.branch_styles)}")
+        raise StyleERDError(
+            f"no style branch for {', '.join(sorted(unknown))}; the model's: {', '.join(c.styles[s] for s in c.branch_styles)}"
+        )
     branches = _branches(c, styles)
     depths = _depths(c, branches)
     D, nI, nS, nC, J = c.feature_dim, len(c.input_styles), len(c.styles), len(c.contents), c.n_joints
@@ -321,19 +380,27 @@ def step_graph(model: GeneratorWeights, form: str = "lstm", styles: tuple[str, .
     for W, b in w.encoder[:-1]:
         z = g.op("Relu", g.op("Gemm", z, g.const(W), g.const(b)))
     if form == "lstm":
-        y, copies = _lstm_form(g, z, first, arrays, w, c, depths, branches, len(branches) <= FUSE_UP_TO if fuse is None else fuse)
+        y, copies = _lstm_form(
+            g, z, first, arrays, w, c, depths, branches, len(branches) <= FUSE_UP_TO if fuse is None else fuse
+        )
     else:
         y, copies = _plain_form(g, z, first, arrays, w, c, depths, branches)
     # decoder (added styles' target rows below the trained ones'); its last layer as two
     # products, the rotations' and the velocities'
     for i, (W, b) in enumerate(w.decoder[:-1]):
         if i == 0:
-            W = np.concatenate([copies @ W[: c.hidden], W[c.hidden :]] + ([w.decoder_added] if w.decoder_added is not None else [])).astype(np.float32)
+            W = np.concatenate(
+                [copies @ W[: c.hidden], W[c.hidden :]] + ([w.decoder_added] if w.decoder_added is not None else [])
+            ).astype(np.float32)
         y = g.op("Relu", g.op("Gemm", y, g.const(W), g.const(b)))
     W, b = w.decoder[-1]
     q = g.op("Reshape", g.op("Gemm", y, g.const(W[:, : 4 * J].copy()), g.const(b[: 4 * J].copy())), _ints(g, -1, J, 4))
-    g.nodes.append(helper.make_node("Gemm", [y, g.const(W[:, 4 * J :].copy()), g.const(b[4 * J :].copy())], ["velocities"]))
-    norm = g.op("Clip", g.op("ReduceL2", q, axes=[2], keepdims=1), g.const(np.array(1e-8, np.float32)))  # Clip, not Max: no broadcasting (1,000 streams: 10x faster)
+    g.nodes.append(
+        helper.make_node("Gemm", [y, g.const(W[:, 4 * J :].copy()), g.const(b[4 * J :].copy())], ["velocities"])
+    )
+    norm = g.op(
+        "Clip", g.op("ReduceL2", q, axes=[2], keepdims=1), g.const(np.array(1e-8, np.float32))
+    )  # Clip, not Max: no broadcasting (1,000 streams: 10x faster)
     g.nodes.append(helper.make_node("Div", [q, norm], ["rotations"]))
 
     f32, state = TensorProto.FLOAT, list(state_shape(model, form, styles))
@@ -349,7 +416,13 @@ def step_graph(model: GeneratorWeights, form: str = "lstm", styles: tuple[str, .
     return proto
 
 
-def sidecar(model: GeneratorWeights, proto: onnx.ModelProto, graph_name: str, form: str = "lstm", styles: tuple[str, ...] | None = None) -> dict:
+def sidecar(
+    model: GeneratorWeights,
+    proto: onnx.ModelProto,
+    graph_name: str,
+    form: str = "lstm",
+    styles: tuple[str, ...] | None = None,
+) -> dict:
     """What a host needs around the graph: label orders, the state's rows, the body roles the
     features use, the skeleton and the feature normalisation (docs/ONNX.md)."""
     model = generator_weights(model)
@@ -365,22 +438,35 @@ def sidecar(model: GeneratorWeights, proto: onnx.ModelProto, graph_name: str, fo
         "neutral_style": c.neutral_style,
         "branch_styles": [b for b, layer in layers if layer == 0 and b != c.neutral_style],
         "state_layers": [list(row) for row in layers],
-        "state_shapes": {i.name: [d.dim_param or d.dim_value for d in i.type.tensor_type.shape.dim] for i in proto.graph.input if i.name in ("h", "c")},
+        "state_shapes": {
+            i.name: [d.dim_param or d.dim_value for d in i.type.tensor_type.shape.dim]
+            for i in proto.graph.input
+            if i.name in ("h", "c")
+        },
         "feature_layout": "[rotations 4J (w,x,y,z) | positions 3J | velocities 3J | foot contacts 4], see docs/ONNX.md",
         "fps": meta.get("data", {}).get("fps"),
         # who faces where (left and right: hip, shoulder), the contacts' joints (left foot, left
         # toe, right foot, right toe) and the leg length (hip to foot at rest) they are measured in
-        "roles": {"left": list(roles.left), "right": list(roles.right), "feet": list(roles.feet), "leg_length": roles.leg_length},
+        "roles": {
+            "left": list(roles.left),
+            "right": list(roles.right),
+            "feet": list(roles.feet),
+            "leg_length": roles.leg_length,
+        },
         "contact_speed_leg_lengths": CONTACT_SPEED,
         "skeleton": model.skeleton.to_dict(),
         "stats": model.stats().to_dict(),
     }
 
 
-def export(model: GeneratorWeights, path: str | Path, form: str = "lstm", styles: tuple[str, ...] | None = None) -> None:
+def export(
+    model: GeneratorWeights, path: str | Path, form: str = "lstm", styles: tuple[str, ...] | None = None
+) -> None:
     """Write the step graph (``form``, the branches of ``styles`` or all) to ``path`` (.onnx)
     and its ``sidecar`` beside it (.json), both atomically."""
     path = Path(path)
     proto = step_graph(model, form, styles)
     atomic_write(path, lambda tmp: onnx.save(proto, tmp))
-    atomic_write_text(path.with_suffix(".json"), json.dumps(sidecar(model, proto, path.name, form, styles), indent=1) + "\n")
+    atomic_write_text(
+        path.with_suffix(".json"), json.dumps(sidecar(model, proto, path.name, form, styles), indent=1) + "\n"
+    )

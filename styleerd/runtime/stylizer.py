@@ -34,7 +34,15 @@ from styleerd.data.features import FeatureLayout, stream_features
 from styleerd.data.parallel import kernel_threads
 from styleerd.errors import StyleERDError
 from styleerd.model.config import FAMILIAR, RELEASE, UNFAMILIAR
-from styleerd.model.stored import GeneratorWeights, LabellerWeights, generator_weights, labeller_stem, labeller_weights, load_labeller_weights, toward_neutral
+from styleerd.model.stored import (
+    GeneratorWeights,
+    LabellerWeights,
+    generator_weights,
+    labeller_stem,
+    labeller_weights,
+    load_labeller_weights,
+    toward_neutral,
+)
 from styleerd.motion import quat
 from styleerd.motion.retarget import BODY_PARTS, part_joints
 from styleerd.motion.skeleton import BodyRoles
@@ -53,7 +61,10 @@ MAX_FEATURE = 1e6
 # these shards, medians of 5 alternating rounds of benchmarks/bench_engine.py).
 SHARD_FROM = {"onnx": 128, "onnx-plain": 128}  # per backend; numpy 600
 POSES = ("input", "network")  # what a stylised pose is built on (module docstring)
-OWN_THREADS = ("torch", "numba")  # backends whose steps run on threads of their own (torch's pool, numba's parallel loops), never on the stylizer's pool
+OWN_THREADS = (
+    "torch",
+    "numba",
+)  # backends whose steps run on threads of their own (torch's pool, numba's parallel loops), never on the stylizer's pool
 _ALL = slice(None)  # every stream (state rows as views)
 
 
@@ -67,7 +78,13 @@ def label_vector(names: tuple[str, ...], weights: dict[str, float], what: str) -
     return v
 
 
-def target_weights(model: GeneratorWeights, style: str | None = None, intensity: float = 1.0, mix: dict[str, float] | None = None, max_intensity: float = 2.0) -> dict[str, float]:
+def target_weights(
+    model: GeneratorWeights,
+    style: str | None = None,
+    intensity: float = 1.0,
+    mix: dict[str, float] | None = None,
+    max_intensity: float = 2.0,
+) -> dict[str, float]:
     """Target weights from a style, or a mixture of styles (weights normalised to sum 1), at an
     intensity (the rest goes to neutral; 0 = neutral, 1 = full style, above 1 exaggerates up to
     ``max_intensity``)."""
@@ -75,7 +92,10 @@ def target_weights(model: GeneratorWeights, style: str | None = None, intensity:
     if not 0.0 <= intensity <= max_intensity:  # NaN fails this too
         raise StyleERDError(f"intensity {intensity:g} is outside [0, {max_intensity:g}]")
     if mix:
-        if not all(isinstance(w, (int, float)) and not isinstance(w, bool) and 0 <= w < math.inf for w in mix.values()) or max(mix.values()) <= 0:
+        if (
+            not all(isinstance(w, (int, float)) and not isinstance(w, bool) and 0 <= w < math.inf for w in mix.values())
+            or max(mix.values()) <= 0
+        ):
             raise StyleERDError(f"mixture weights must be finite, non-negative numbers, not all 0; got {mix}")
         top = max(mix.values())  # scaled to at most 1 first: 1e308 + 1e308 would overflow the sum
         total = sum(v / top for v in mix.values())
@@ -103,7 +123,9 @@ def part_targets(model: GeneratorWeights, parts: str | dict | None) -> dict[str,
     if isinstance(parts, str):
         items = [item.partition("=")[::2] for item in parts.split(",") if item.strip()]
         if any(not value for _, value in items):
-            raise StyleERDError(f"--parts: give part=style, part=style:intensity or part=input, e.g. legs=elderly,arms=input; got {parts!r}")
+            raise StyleERDError(
+                f"--parts: give part=style, part=style:intensity or part=input, e.g. legs=elderly,arms=input; got {parts!r}"
+            )
         parts = {k.strip(): v.strip() for k, v in items}
     out: dict[str, dict[str, float] | None] = {}
     for part, value in parts.items():
@@ -114,7 +136,9 @@ def part_targets(model: GeneratorWeights, parts: str | dict | None) -> dict[str,
         elif isinstance(value, dict):  # a mixture: weights checked and normalised
             out[part] = target_weights(model, None, 1.0, value)
         elif not isinstance(value, str):
-            raise StyleERDError(f"body part {part}: give a style name, style:intensity, input or a mixture, got {value!r}"[:300])
+            raise StyleERDError(
+                f"body part {part}: give a style name, style:intensity, input or a mixture, got {value!r}"[:300]
+            )
         else:
             style, _, intensity = str(value).partition(":")
             try:
@@ -217,14 +241,25 @@ class StreamStylizer:
         self.threads = max(1, threads) if backend not in OWN_THREADS else 1
         self.kernel_threads = max(1, threads) if backend == "numba" else 1
         self.shard_from = SHARD_FROM.get(backend, 600)
-        self.backend = make_backend(backend, model, n_streams * (1 + len(self.part_passes)), threads=max(1, threads) // self.threads)
+        self.backend = make_backend(
+            backend, model, n_streams * (1 + len(self.part_passes)), threads=max(1, threads) // self.threads
+        )
         # pose "input": the identity transfer's pass, whose output the style's change is taken from
         self.pose = pose
-        self.identity = make_backend(backend, model, n_streams, threads=max(1, threads) // self.threads) if pose == "input" else None
+        self.identity = (
+            make_backend(backend, model, n_streams, threads=max(1, threads) // self.threads)
+            if pose == "input"
+            else None
+        )
         self.unfamiliar = np.zeros(n_streams)  # per stream, of its last frame (pose "input")
-        self.unfamiliar_sum, self.frames = np.zeros(n_streams), np.zeros(n_streams, np.int64)  # since the stream's reset
+        self.unfamiliar_sum, self.frames = (
+            np.zeros(n_streams),
+            np.zeros(n_streams, np.int64),
+        )  # since the stream's reset
         self._pool: ThreadPoolExecutor | None = None
-        self._sharded_step = threading.Lock()  # steps from several threads take turns: the barrier needs all of one step's shards running
+        self._sharded_step = (
+            threading.Lock()
+        )  # steps from several threads take turns: the barrier needs all of one step's shards running
         self.skeleton = model.skeleton
         self.roles = BodyRoles.of(self.skeleton)
         self.stats = model.stats()
@@ -234,11 +269,18 @@ class StreamStylizer:
         c = model.config
         S, I, C = len(c.styles), len(c.input_styles), len(c.contents)
         self.neutral = c.styles.index(c.neutral_style)
-        self.given_style, self.given_content = np.zeros((n_streams, I), np.float32), np.zeros((n_streams, C), np.float32)
+        self.given_style, self.given_content = (
+            np.zeros((n_streams, I), np.float32),
+            np.zeros((n_streams, C), np.float32),
+        )
         self.known_style, self.known_content = np.zeros(n_streams, bool), np.zeros(n_streams, bool)
         self.labeller: NumpyLabeller | None = None
         self.labeller_model = None if labeller is None else labeller_weights(labeller)
-        self.blend = _Blend(np.zeros((n_streams, S), np.float32), np.zeros((n_streams, S), np.float32), np.full(n_streams, self.blend_frames))
+        self.blend = _Blend(
+            np.zeros((n_streams, S), np.float32),
+            np.zeros((n_streams, S), np.float32),
+            np.full(n_streams, self.blend_frames),
+        )
         self.previous = np.zeros((n_streams, self.skeleton.n_joints, 3))  # global joint positions of the last frame
         self.facing = np.zeros((n_streams, 3))  # facing direction of the last frame
         self.started = np.zeros(n_streams, bool)
@@ -259,7 +301,9 @@ class StreamStylizer:
         c = self.model.config
         added = set(_per_stream(input_style, len(rows))) & set(c.added_styles)  # checked before any state changes
         if added:
-            raise StyleERDError(f"style {added.pop()!r} was added to this model as a target only; an input's style is one of: {', '.join(c.input_styles)} (or left to be inferred)")
+            raise StyleERDError(
+                f"style {added.pop()!r} was added to this model as a target only; an input's style is one of: {', '.join(c.input_styles)} (or left to be inferred)"
+            )
         for labels, names, what, given, known in (
             (input_style, c.input_styles, "input style", self.given_style, self.known_style),
             (content, c.contents, "content", self.given_content, self.known_content),
@@ -272,7 +316,11 @@ class StreamStylizer:
         self.blend.frame[rows] = self.blend_frames
         if self.labeller is None and not (self.known_style[rows].all() and self.known_content[rows].all()):
             labeller = self.labeller_model or load_labeller_weights(labeller_stem(c))
-            if (labeller.config["n_styles"], labeller.config["n_contents"], labeller.config["in_dim"]) != (len(c.input_styles), len(c.contents), c.feature_dim):
+            if (labeller.config["n_styles"], labeller.config["n_contents"], labeller.config["in_dim"]) != (
+                len(c.input_styles),
+                len(c.contents),
+                c.feature_dim,
+            ):
                 raise StyleERDError("the labeller does not fit this model's labels: give --input-style and --content")
             self.labeller = NumpyLabeller(labeller, self.n)
 
@@ -280,7 +328,9 @@ class StreamStylizer:
         """Forget the past of some (default all) streams: their next frame is a first frame
         (learned initial states)."""
         rows = slice(None) if streams is None else np.asarray(streams, dtype=int)
-        self.backend.reset(rows if streams is None else np.concatenate([rows + p * self.n for p in range(1 + len(self.part_passes))]))
+        self.backend.reset(
+            rows if streams is None else np.concatenate([rows + p * self.n for p in range(1 + len(self.part_passes))])
+        )
         if self.identity is not None:
             self.identity.reset(None if streams is None else rows)
         self.unfamiliar[rows] = self.unfamiliar_sum[rows] = self.frames[rows] = 0
@@ -292,7 +342,10 @@ class StreamStylizer:
     def inferred_labels(self) -> list[tuple[str, str]]:
         """Per stream, the (style, content) its last frame was stylised as (given or inferred)."""
         c = self.model.config
-        return [(c.input_styles[int(s)], c.contents[int(k)]) for s, k in zip(self.labels[0].argmax(-1), self.labels[1].argmax(-1))]
+        return [
+            (c.input_styles[int(s)], c.contents[int(k)])
+            for s, k in zip(self.labels[0].argmax(-1), self.labels[1].argmax(-1))
+        ]
 
     def current_weights(self) -> np.ndarray:
         if self.blend.frame.min() >= self.blend_frames:  # no blend under way (the usual case)
@@ -341,7 +394,11 @@ class StreamStylizer:
                 checked.wait()  # every shard's frames are checked before any state changes
             except threading.BrokenBarrierError:
                 return None  # another shard failed: its error is the one raised
-            return self._advance(s, features[k], weights, rotations[s], positions[s], out[s]) if all(f[4].all() for f in features) else None
+            return (
+                self._advance(s, features[k], weights, rotations[s], positions[s], out[s])
+                if all(f[4].all() for f in features)
+                else None
+            )
 
         with self._sharded_step, one_blas_thread():
             done = self._on_shards(shard, shards)
@@ -371,11 +428,27 @@ class StreamStylizer:
         streams = np.arange(self.n)[sel]
         bad = np.argwhere(~np.isfinite(rotations).all(-1) | ~np.isfinite(positions).all(-1))
         if len(bad):
-            raise StyleERDError(f"frame rejected: stream {streams[bad[0][0]]}, joint {self.skeleton.names[bad[0][1]]!r} has a NaN or infinite value")
-        raise StyleERDError(f"frame rejected: stream {streams[np.nonzero(~ok)[0][0]]}: its values are too large to stylise")
+            raise StyleERDError(
+                f"frame rejected: stream {streams[bad[0][0]]}, joint {self.skeleton.names[bad[0][1]]!r} has a NaN or infinite value"
+            )
+        raise StyleERDError(
+            f"frame rejected: stream {streams[np.nonzero(~ok)[0][0]]}: its values are too large to stylise"
+        )
 
     def _features(self, rotations: np.ndarray, positions: np.ndarray, sel):
-        return stream_features(rotations, positions, self.previous[sel], self.facing[sel], self.started[sel], self.skeleton, self.roles, self.fps, self.stats, MAX_FEATURE, threads=self.kernel_threads)
+        return stream_features(
+            rotations,
+            positions,
+            self.previous[sel],
+            self.facing[sel],
+            self.started[sel],
+            self.skeleton,
+            self.roles,
+            self.fps,
+            self.stats,
+            MAX_FEATURE,
+            threads=self.kernel_threads,
+        )
 
     def _pass_rows(self, sel, p: int):
         """The backend's rows of pass ``p`` for the streams ``sel``."""
@@ -394,7 +467,9 @@ class StreamStylizer:
         rot = rot.copy()
         for p, w in enumerate(self.part_passes, 1):
             joints = self.joint_pass == p
-            rot[:, joints] = self.backend.step(x, style, content, np.broadcast_to(w, weights.shape), self._pass_rows(sel, p))[0][:, joints]
+            rot[:, joints] = self.backend.step(
+                x, style, content, np.broadcast_to(w, weights.shape), self._pass_rows(sel, p)
+            )[0][:, joints]
         return rot, vel
 
     def _on_heading(self, rot: np.ndarray, traj: np.ndarray, out: np.ndarray) -> np.ndarray:
@@ -426,7 +501,9 @@ class StreamStylizer:
         out[:, 0] += self.root_offset[sel]
         return out
 
-    def _advance(self, sel, features, weights: np.ndarray, rotations: np.ndarray, positions: np.ndarray, out: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    def _advance(
+        self, sel, features, weights: np.ndarray, rotations: np.ndarray, positions: np.ndarray, out: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray]:
         """The network and the state updates of the streams ``sel`` (``_ALL``: all), whose
         input frame is ``rotations``, ``positions``; returns the output frame (its rotations
         written into ``out``)."""
@@ -445,7 +522,11 @@ class StreamStylizer:
         if self.identity is not None:
             identity = np.zeros_like(weights[sel])
             identity[:, : style.shape[1]] = style  # the input's own style, given or inferred
-            same = self._on_heading(self.identity.step(x, style, content, identity, None if sel is _ALL else sel)[0], traj, np.empty_like(out))
+            same = self._on_heading(
+                self.identity.step(x, style, content, identity, None if sel is _ALL else sel)[0],
+                traj,
+                np.empty_like(out),
+            )
             seen = np.where(self.started[sel], self.unfamiliar[sel] - RELEASE, 0.0)
             weight = np.empty(len(out))
             _towards_the_input(np.ascontiguousarray(rotations), same, out, seen, FAMILIAR, UNFAMILIAR, weight)
@@ -475,7 +556,9 @@ def _towards_the_input(given, same, styled, seen, familiar, unfamiliar, weight):
         for j in range(J):
             gw, gx, gy, gz = given[n, j, 0], given[n, j, 1], given[n, j, 2], given[n, j, 3]
             d = 1.0 / max(np.sqrt(gw * gw + gx * gx + gy * gy + gz * gz), 1e-12)
-            w, x, y, z = quat.mul_scalars(same[n, j, 0], -same[n, j, 1], -same[n, j, 2], -same[n, j, 3], gw * d, gx * d, gy * d, gz * d)
+            w, x, y, z = quat.mul_scalars(
+                same[n, j, 0], -same[n, j, 1], -same[n, j, 2], -same[n, j, 3], gw * d, gx * d, gy * d, gz * d
+            )
             total += 2.0 * np.arctan2(np.sqrt(x * x + y * y + z * z), abs(w))
         u = min(1.0, max(0.0, (np.degrees(total / J) - familiar) / (unfamiliar - familiar)))
         weight[n] = u = max(u, seen[n])
@@ -485,7 +568,9 @@ def _towards_the_input(given, same, styled, seen, familiar, unfamiliar, weight):
             sw, sx, sy, sz = styled[n, j, 0], styled[n, j, 1], styled[n, j, 2], styled[n, j, 3]
             gw, gx, gy, gz = given[n, j, 0], given[n, j, 1], given[n, j, 2], given[n, j, 3]
             d = 1.0 / max(np.sqrt(gw * gw + gx * gx + gy * gy + gz * gz), 1e-12)
-            cw, cx, cy, cz = quat.mul_scalars(same[n, j, 0], -same[n, j, 1], -same[n, j, 2], -same[n, j, 3], sw, sx, sy, sz)
+            cw, cx, cy, cz = quat.mul_scalars(
+                same[n, j, 0], -same[n, j, 1], -same[n, j, 2], -same[n, j, 3], sw, sx, sy, sz
+            )
             tw, tx, ty, tz = quat.mul_scalars(gw * d, gx * d, gy * d, gz * d, cw, cx, cy, cz)  # add_change
             dot = sw * tw + sx * tx + sy * ty + sz * tz
             if dot < 0.0:  # the shorter arc

@@ -40,8 +40,20 @@ class StreamResult:
 
 def hello(motion: Motion, fps: float, style: str | None, intensity: float, mix: dict[str, float] | None, name: str | None,
           input_style: str | None = None, content: str | None = None) -> dict:  # fmt: skip
-    msg = {"type": "hello", "skeleton": bvh.format_header(motion.skeleton, 0, fps), "fps": fps, "intensity": intensity, "format": "binary"}
-    for key, value in (("style", style), ("mix", mix), ("name", name), ("input_style", input_style), ("content", content)):
+    msg = {
+        "type": "hello",
+        "skeleton": bvh.format_header(motion.skeleton, 0, fps),
+        "fps": fps,
+        "intensity": intensity,
+        "format": "binary",
+    }
+    for key, value in (
+        ("style", style),
+        ("mix", mix),
+        ("name", name),
+        ("input_style", input_style),
+        ("content", content),
+    ):
         if value is not None:
             msg[key] = value
     return msg
@@ -110,7 +122,10 @@ async def play(url: str, motion: Motion, hello_msg: dict, seconds: float | None 
                     elif wait < -1.0 / fps:
                         result.late_sends += 1
                 else:
-                    while result.sent - result.received >= min(IN_FLIGHT, max(1, ready.get("queue", IN_FLIGHT) // 2)) and not receiver.done():
+                    while (
+                        result.sent - result.received >= min(IN_FLIGHT, max(1, ready.get("queue", IN_FLIGHT) // 2))
+                        and not receiver.done()
+                    ):
                         replied.clear()
                         await asyncio.wait_for(replied.wait(), 30.0)
                 sent_at[i] = time.perf_counter()
@@ -178,7 +193,12 @@ async def faulty_client(url: str, motion: Motion, kind: str, seed: int) -> dict:
     values = bvh.channel_values(motion).astype("<f4")
     msg = hello(motion, 30.0, "elderly", 1.0, None, f"faulty-{seed}")
     if kind == "bad hello":
-        msg = [{**msg, "fps": float("nan")}, {**msg, "mix": {"elderly": -1}}, {**msg, "skeleton": "HIERARCHY\nROOT"}, {"type": "hello"}][int(rng.integers(4))]
+        msg = [
+            {**msg, "fps": float("nan")},
+            {**msg, "mix": {"elderly": -1}},
+            {**msg, "skeleton": "HIERARCHY\nROOT"},
+            {"type": "hello"},
+        ][int(rng.integers(4))]
     outcome = {"kind": kind, "code": None}
     sock = socket.socket()
     if kind == "slow reader":  # a small receive buffer: the server's replies back up in seconds, not minutes
@@ -187,7 +207,9 @@ async def faulty_client(url: str, motion: Motion, kind: str, seed: int) -> dict:
         where = urlsplit(url)
         sock.setblocking(False)
         await asyncio.wait_for(asyncio.get_running_loop().sock_connect(sock, (where.hostname, where.port or 80)), 20)
-        async with connect(url, sock=sock, max_size=1 << 22, open_timeout=20, close_timeout=2, compression=None, max_queue=1) as ws:
+        async with connect(
+            url, sock=sock, max_size=1 << 22, open_timeout=20, close_timeout=2, compression=None, max_queue=1
+        ) as ws:
             await ws.send(json.dumps(msg, allow_nan=True))
             if json.loads(await ws.recv()).get("type") != "ready":
                 await ws.recv()  # the close
@@ -216,7 +238,11 @@ async def faulty_client(url: str, motion: Motion, kind: str, seed: int) -> dict:
 async def _faulty_loop(url: str, motion: Motion, deadline: float, index: int) -> list[dict]:
     episodes = []
     while time.perf_counter() < deadline - 5:
-        episodes.append(await faulty_client(url, motion, FAULTS[(index + len(episodes)) % len(FAULTS)], 1000 * index + len(episodes)))
+        episodes.append(
+            await faulty_client(
+                url, motion, FAULTS[(index + len(episodes)) % len(FAULTS)], 1000 * index + len(episodes)
+            )
+        )
     return episodes
 
 
@@ -228,7 +254,9 @@ async def load_test(url: str, motion: Motion, clients: int, seconds: float, fps:
     clip), the server's CPU use over the run, and what happened to each faulty episode."""
     before = await server_stats(url)
     t0 = time.perf_counter()
-    stalls: list[tuple[float, float]] = []  # (seconds into the run, ms) where this process's own loop stalled past 100 ms
+    stalls: list[
+        tuple[float, float]
+    ] = []  # (seconds into the run, ms) where this process's own loop stalled past 100 ms
 
     async def watch_loop() -> None:
         while time.perf_counter() < t0 + seconds:
@@ -239,7 +267,10 @@ async def load_test(url: str, motion: Motion, clients: int, seconds: float, fps:
                 stalls.append((round(t - t0, 1), round(late)))
 
     watcher = asyncio.create_task(watch_loop())
-    runs = [play(url, motion, hello(motion, fps, style, 1.0, None, f"load-{i}"), seconds, reference=reference) for i in range(clients)]
+    runs = [
+        play(url, motion, hello(motion, fps, style, 1.0, None, f"load-{i}"), seconds, reference=reference)
+        for i in range(clients)
+    ]
     bad = [_faulty_loop(url, motion, t0 + seconds, i) for i in range(faulty)]
     done = await asyncio.gather(*runs, *bad)
     results, episodes = done[:clients], [e for loop in done[clients:] for e in loop]

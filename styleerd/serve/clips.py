@@ -31,7 +31,9 @@ class DemoClips:
         split = split_takes({k.name: (k.dataset, k.style, k.content) for k in clips}) if clips else {}
         for content in REAL_CONTENTS:
             for style in (model.config.neutral_style, "elderly"):
-                clip = next((k for k in clips if split[k.name] == "test" and k.style == style and k.content == content), None)
+                clip = next(
+                    (k for k in clips if split[k.name] == "test" and k.style == style and k.content == content), None
+                )
                 if clip is not None:
                     self.paths[f"bandai {style} {content} ({clip.name})"] = clip.path
         self.generated = {"generated walk (T-pose skeleton, 30 fps)": None}

@@ -83,7 +83,12 @@ def expected_output(motion: Motion, frames: int, fps: float = 30.0, style: str =
 
     values = bvh.channel_values(motion).astype("<f4").astype(np.float64)
     local = ChannelStylizer(load_generator_weights(), motion.skeleton, {style: 1.0}, fps=fps)
-    return np.stack([local.step(values[i % len(values)])[0] for i in tqdm(range(frames), desc="local reference", unit="frame", leave=False)])
+    return np.stack(
+        [
+            local.step(values[i % len(values)])[0]
+            for i in tqdm(range(frames), desc="local reference", unit="frame", leave=False)
+        ]
+    )
 
 
 def run_load_test(clients: int, seconds: float, workers: int = 1, output: str | None = None, faulty: int = 0) -> str:
@@ -103,7 +108,9 @@ def run_load_test(clients: int, seconds: float, workers: int = 1, output: str | 
     sampler = threading.Thread(target=sample, daemon=True)
     sampler.start()
     try:
-        figures = asyncio.run(load_test(f"ws://127.0.0.1:{port}/", motion, clients, seconds, faulty=faulty, reference=reference))
+        figures = asyncio.run(
+            load_test(f"ws://127.0.0.1:{port}/", motion, clients, seconds, faulty=faulty, reference=reference)
+        )
         stop.set()
         sampler.join()
         figures["server_rss_mb"] = rss or [float("nan")]
@@ -121,5 +128,7 @@ def run_load_test(clients: int, seconds: float, workers: int = 1, output: str | 
              f"memory {figures['server_rss_mb'][0]:.0f} -> {figures['server_rss_mb'][-1]:.0f} MB (peak {max(figures['server_rss_mb']):.0f}), tracebacks {figures['server_tracebacks']}, "
              f"client late sends {figures['late_client_sends']}, errors {len(figures['errors'])}"]  # fmt: skip
     if faulty:
-        lines.append(f"{faulty} faulty clients, {figures['faulty_episodes']} episodes: {json.dumps(figures['faulty_outcomes'])}; streams left open {figures['streams_left']}")
+        lines.append(
+            f"{faulty} faulty clients, {figures['faulty_episodes']} episodes: {json.dumps(figures['faulty_outcomes'])}; streams left open {figures['streams_left']}"
+        )
     return "\n".join(lines)

@@ -57,7 +57,13 @@ STATIC = Path(__file__).parent / "static"
 SEQ = struct.Struct("<I")  # binary frames start with the frame's sequence number
 
 # close codes (RFC 6455)
-GOING_AWAY, INVALID_DATA, POLICY, INTERNAL, TRY_LATER = 1001, 1007, 1008, 1011, 1013  # 1009 (too big) is websockets' own
+GOING_AWAY, INVALID_DATA, POLICY, INTERNAL, TRY_LATER = (
+    1001,
+    1007,
+    1008,
+    1011,
+    1013,
+)  # 1009 (too big) is websockets' own
 HELLO_TIMEOUT_S = 10.0
 OVERLOAD = 4  # x queue: frames a client in real time may have waiting while the server is behind
 log = logging.getLogger("styleerd.serve")
@@ -129,12 +135,27 @@ class Pool:
     def __init__(self, model: GeneratorWeights, skeleton: Skeleton, fps: float, cleanup: bool, capacity: int, backend: str, key: tuple, parts: dict | None = None,
                  root_speed: bool = False, pose: str = "input"):  # fmt: skip
         neutral = model.config.neutral_style
-        self.stylizer = ChannelStylizer(model, skeleton, {neutral: 1.0}, neutral, model.config.contents[0], fps, capacity, cleanup=cleanup, backend=backend, parts=parts, root_speed=root_speed, pose=pose)
+        self.stylizer = ChannelStylizer(
+            model,
+            skeleton,
+            {neutral: 1.0},
+            neutral,
+            model.config.contents[0],
+            fps,
+            capacity,
+            cleanup=cleanup,
+            backend=backend,
+            parts=parts,
+            root_speed=root_speed,
+            pose=pose,
+        )
         self.skeleton, self.parts = skeleton, parts or {}
         self.fronts = bone_fronts(skeleton)  # rest fronts of the bones, for viewers that show their roll
         self.free = list(range(capacity - 1, -1, -1))
         self.streams: dict[int, Stream] = {}
-        self.key = key  # (skeleton header, fps, cleanup, parts, root speed, pose): streams that share all six share the pool
+        self.key = (
+            key  # (skeleton header, fps, cleanup, parts, root speed, pose): streams that share all six share the pool
+        )
 
 
 def _skeleton_from_text(text: str, fps: float, max_joints: int) -> Skeleton:
@@ -194,7 +215,9 @@ class StyleServer:
         mix, style = msg.get("mix"), msg.get("style")
         if style is not None and not isinstance(style, str):
             raise ClientError(POLICY, f"'style' must be a style name, got {style!r}")
-        if mix is not None and (not isinstance(mix, dict) or not all(isinstance(v, (int, float)) for v in mix.values())):
+        if mix is not None and (
+            not isinstance(mix, dict) or not all(isinstance(v, (int, float)) for v in mix.values())
+        ):
             raise ClientError(POLICY, f"'mix' must be an object of style -> weight, got {mix!r}")
         try:
             weights = target_weights(self.model, style, _number(msg, "intensity", 1.0, 0.0, 2.0), mix)
@@ -231,7 +254,15 @@ class StyleServer:
         except StyleERDError as e:
             raise ClientError(POLICY, str(e)) from None
         async with self.setup:  # the worker thread shares the interpreter with the stepping: one at a time
-            pool = await asyncio.to_thread(self._pool, msg.get("skeleton") if msg.get("preset") != "model" else None, fps, cleanup, parts, root_speed, pose)
+            pool = await asyncio.to_thread(
+                self._pool,
+                msg.get("skeleton") if msg.get("preset") != "model" else None,
+                fps,
+                cleanup,
+                parts,
+                root_speed,
+                pose,
+            )
         if len(self.streams) >= self.config.max_streams:  # others came in while this one was set up
             raise ClientError(TRY_LATER, f"the server is full ({self.config.max_streams} streams); try again later")
         pool = self.pools.setdefault(pool.key, pool)  # registered here, on the event loop
@@ -252,7 +283,14 @@ class StyleServer:
         except BaseException:
             self._close_stream(stream)
             raise
-        log.info("stream %d %r opened: %d joints, %g fps, target %s", stream.id, stream.name, pool.skeleton.n_joints, fps, target)
+        log.info(
+            "stream %d %r opened: %d joints, %g fps, target %s",
+            stream.id,
+            stream.name,
+            pool.skeleton.n_joints,
+            fps,
+            target,
+        )
         return stream
 
     def _pool(self, text: str | None, fps: float, cleanup: bool, parts: dict, root_speed: bool, pose: str) -> Pool:
@@ -260,16 +298,36 @@ class StyleServer:
         Runs in a worker thread: reads ``self.pools``, never changes it."""
         try:
             skeleton = self.model.skeleton if text is None else _skeleton_from_text(text, fps, self.config.max_joints)
-            key = (bvh.format_header(skeleton, 0, fps), fps, cleanup, json.dumps(parts, sort_keys=True), root_speed, pose)
+            key = (
+                bvh.format_header(skeleton, 0, fps),
+                fps,
+                cleanup,
+                json.dumps(parts, sort_keys=True),
+                root_speed,
+                pose,
+            )
             existing = self.pools.get(key)
             if existing is not None:
                 return existing
-            return Pool(self.model, skeleton, fps, cleanup, self.config.max_streams, self.config.backend, key, parts, root_speed, pose)
+            return Pool(
+                self.model,
+                skeleton,
+                fps,
+                cleanup,
+                self.config.max_streams,
+                self.config.backend,
+                key,
+                parts,
+                root_speed,
+                pose,
+            )
         except StyleERDError as e:
             raise ClientError(POLICY, str(e)) from None
 
     def _close_stream(self, stream: Stream) -> None:
-        log.info("stream %d %r closed after %d frames (%s)", stream.id, stream.name, stream.frames, stream.ws.close_code)
+        log.info(
+            "stream %d %r closed after %d frames (%s)", stream.id, stream.name, stream.frames, stream.ws.close_code
+        )
         self.streams.pop(stream.id, None)
         pool = stream.pool
         if pool.streams.pop(stream.row, None) is not None:
@@ -330,7 +388,10 @@ class StyleServer:
         if isinstance(message, bytes):
             n = stream.pool.stylizer.n_channels
             if len(message) != SEQ.size + 4 * n:
-                raise ClientError(POLICY, f"a binary frame is 4 + 4 x {n} = {SEQ.size + 4 * n} bytes (sequence number + {n} float32 channel values), got {len(message)}")
+                raise ClientError(
+                    POLICY,
+                    f"a binary frame is 4 + 4 x {n} = {SEQ.size + 4 * n} bytes (sequence number + {n} float32 channel values), got {len(message)}",
+                )
             self._enqueue(stream, SEQ.unpack_from(message)[0], np.frombuffer(message, "<f4", offset=SEQ.size))
             return
         msg = _json(message)
@@ -362,9 +423,15 @@ class StyleServer:
             # whose fault: a client ahead of real time, or a server behind it (never the client's)
             ahead = stream.frames - stream.pool.stylizer.fps * (time.perf_counter() - stream.opened)
             if ahead > self.config.queue:
-                raise ClientError(POLICY, f"more than {self.config.queue} frames waiting, {ahead:.0f} ahead of real time: send no faster than the stream's frame rate")
+                raise ClientError(
+                    POLICY,
+                    f"more than {self.config.queue} frames waiting, {ahead:.0f} ahead of real time: send no faster than the stream's frame rate",
+                )
             if len(stream.pending) >= OVERLOAD * self.config.queue:
-                raise ClientError(TRY_LATER, f"more than {OVERLOAD * self.config.queue} frames waiting: the server is overloaded; try again later")
+                raise ClientError(
+                    TRY_LATER,
+                    f"more than {OVERLOAD * self.config.queue} frames waiting: the server is overloaded; try again later",
+                )
         stream.pending.append((seq, values, time.perf_counter()))
         stream.frames += 1
         self.due.set()
@@ -445,17 +512,31 @@ class StyleServer:
                 message = b"".join(parts)
             else:
                 reply = {"type": "frame", "seq": seq, "values": np.round(out[i], 6).tolist()}
-                if pool.stylizer.stylizer.pose == "input":  # how far the network's own pose was left for the input's (0..1)
+                if (
+                    pool.stylizer.stylizer.pose == "input"
+                ):  # how far the network's own pose was left for the input's (0..1)
                     reply["unfamiliar"] = round(float(pool.stylizer.stylizer.unfamiliar[stream.row]), 3)
                 if stream.positions:
-                    reply["input_positions"], reply["output_positions"] = np.round(pos[0], 4).tolist(), np.round(pos[1], 4).tolist()
+                    reply["input_positions"], reply["output_positions"] = (
+                        np.round(pos[0], 4).tolist(),
+                        np.round(pos[1], 4).tolist(),
+                    )
                     if stream.fronts:
-                        reply["input_fronts"], reply["output_fronts"] = np.round(pos[2], 4).tolist(), np.round(pos[3], 4).tolist()
+                        reply["input_fronts"], reply["output_fronts"] = (
+                            np.round(pos[2], 4).tolist(),
+                            np.round(pos[3], 4).tolist(),
+                        )
                 message = json.dumps(reply)
             if not _offer(stream.outbox, message):
-                self._fail(stream, POLICY, f"more than {self.config.queue} stylised frames unsent: the client does not read")
+                self._fail(
+                    stream, POLICY, f"more than {self.config.queue} stylised frames unsent: the client does not read"
+                )
             for w in stream.watchers:
-                _offer(w.outbox, SEQ.pack(seq) + b"".join(p.astype("<f4").tobytes() for p in (pos if w.fronts else pos[:2])), drop_oldest=True)
+                _offer(
+                    w.outbox,
+                    SEQ.pack(seq) + b"".join(p.astype("<f4").tobytes() for p in (pos if w.fronts else pos[:2])),
+                    drop_oldest=True,
+                )
 
     def _fail(self, stream: Stream, code: int, message: str) -> None:
         """End a stream from the stepping task: its frames stop here, the client is told."""
@@ -489,15 +570,27 @@ class StyleServer:
     async def _watch(self, ws: ServerConnection, msg: dict) -> None:
         name, token = msg.get("stream"), msg.get("token", "")
         if len(self.watchers) >= self.config.max_watchers:
-            raise ClientError(TRY_LATER, f"this server has its {self.config.max_watchers} live viewers; try again later")
+            raise ClientError(
+                TRY_LATER, f"this server has its {self.config.max_watchers} live viewers; try again later"
+            )
         if not isinstance(token, str) or len(token) > MAX_TOKEN:
-            raise ClientError(POLICY, f"'token' must be the text a private stream's 'ready' carried (at most {MAX_TOKEN} characters)")
-        watcher = Watcher(ws, name if isinstance(name, str) else None, asyncio.Queue(self.config.queue), fronts=bool(msg.get("fronts", False)), token=token)
+            raise ClientError(
+                POLICY, f"'token' must be the text a private stream's 'ready' carried (at most {MAX_TOKEN} characters)"
+            )
+        watcher = Watcher(
+            ws,
+            name if isinstance(name, str) else None,
+            asyncio.Queue(self.config.queue),
+            fronts=bool(msg.get("fronts", False)),
+            token=token,
+        )
         self.watchers.add(watcher)
         sender = None
         try:  # the watcher is released however its connection ends
             candidates = [s for s in self.streams.values() if self._follows(watcher, s)]
-            await ws.send(json.dumps({"type": "waiting", "streams": [s.name for s in self.streams.values() if not s.private]}))
+            await ws.send(
+                json.dumps({"type": "waiting", "streams": [s.name for s in self.streams.values() if not s.private]})
+            )
             if candidates:
                 self._attach(watcher, candidates[-1])
             sender = asyncio.create_task(_send_loop(ws, watcher.outbox))
@@ -526,10 +619,18 @@ class StyleServer:
         except ValueError:  # not a host at all
             name = ""
         if self.host_names is not None and name.lower() not in self.host_names:
-            return _response(HTTPStatus.FORBIDDEN, f"this server does not answer to host {host!r} (serve --allow-host)".encode(), "text/plain")
+            return _response(
+                HTTPStatus.FORBIDDEN,
+                f"this server does not answer to host {host!r} (serve --allow-host)".encode(),
+                "text/plain",
+            )
         if "upgrade" in request.headers.get("Connection", "").lower():
             if not _origin_allowed(origins[0] if origins else None, host, self.config.origins):
-                return _response(HTTPStatus.FORBIDDEN, b"a page of another origin may not open a stream here (serve --allow-origin)", "text/plain")
+                return _response(
+                    HTTPStatus.FORBIDDEN,
+                    b"a page of another origin may not open a stream here (serve --allow-origin)",
+                    "text/plain",
+                )
             return None  # a WebSocket handshake
         if len(request.path) > 2048:
             return _response(HTTPStatus.REQUEST_URI_TOO_LONG, b"the path is too long", "text/plain")
@@ -553,7 +654,10 @@ class StyleServer:
         if name in ("stylizer.onnx", "stylizer.json"):
             if self._engine is None:
                 proto = step_graph(self.model, "lstm")
-                self._engine = {"stylizer.onnx": proto.SerializeToString(), "stylizer.json": json.dumps(sidecar(self.model, proto, "stylizer.onnx")).encode()}
+                self._engine = {
+                    "stylizer.onnx": proto.SerializeToString(),
+                    "stylizer.json": json.dumps(sidecar(self.model, proto, "stylizer.onnx")).encode(),
+                }
             return self._engine[name]
         if name == "reference.json":
             style = (query.get("style") or ["elderly"])[0]
@@ -574,7 +678,9 @@ class StyleServer:
                 kind = mimetypes.guess_type(file.name)[0] or "application/octet-stream"
                 return _response(HTTPStatus.OK, file.read_bytes(), kind)
             if path.endswith("three.module.js"):
-                return _response(HTTPStatus.NOT_FOUND, b"three.js is not installed: run 'make install' (npm ci)", "text/plain")
+                return _response(
+                    HTTPStatus.NOT_FOUND, b"three.js is not installed: run 'make install' (npm ci)", "text/plain"
+                )
         elif path == "/clips":
             return _response(HTTPStatus.OK, json.dumps(self.clips.names()).encode(), "application/json")
         elif path.startswith("/clips/"):
@@ -587,10 +693,17 @@ class StyleServer:
         elif path.startswith("/onnx/"):
             body = self._engine_file(path[len("/onnx/") :], query)
             if body is not None:
-                return _response(HTTPStatus.OK, body, "application/octet-stream" if path.endswith(".onnx") else "application/json")
+                return _response(
+                    HTTPStatus.OK, body, "application/octet-stream" if path.endswith(".onnx") else "application/json"
+                )
         elif path == "/styles":
             c = self.model.config
-            body = {"styles": list(c.styles), "input_styles": list(c.input_styles), "contents": list(c.contents), "neutral": c.neutral_style}
+            body = {
+                "styles": list(c.styles),
+                "input_styles": list(c.input_styles),
+                "contents": list(c.contents),
+                "neutral": c.neutral_style,
+            }
             return _response(HTTPStatus.OK, json.dumps(body).encode(), "application/json")
         return _response(HTTPStatus.NOT_FOUND, f"not found: {path}".encode(), "text/plain")
 
@@ -602,12 +715,19 @@ def _response(status: HTTPStatus, body: bytes, kind: str) -> Response:
 
 def _sequence_number(value) -> int:
     """A JSON frame's ``seq``: an integer that fits the binary replies' uint32."""
-    if isinstance(value, bool) or not isinstance(value, (int, float)) or not float(value).is_integer() or not 0 <= value <= 0xFFFFFFFF:
+    if (
+        isinstance(value, bool)
+        or not isinstance(value, (int, float))
+        or not float(value).is_integer()
+        or not 0 <= value <= 0xFFFFFFFF
+    ):
         raise ClientError(INVALID_DATA, f"a frame's 'seq' must be an integer in 0..{0xFFFFFFFF}, got {value!r}")
     return int(value)
 
 
-def _joint_positions(skeleton: Skeleton, values: np.ndarray, fps: float, rest_fronts: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def _joint_positions(
+    skeleton: Skeleton, values: np.ndarray, fps: float, rest_fronts: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
     """Global joint positions ``[N, J, 3]`` and bone fronts ``[N, J, 3]`` (float32: the unit
     front of the bone from each joint's parent, turned with the parent, so a viewer can show
     its roll) of channel values ``[N, channels]``."""
@@ -657,7 +777,12 @@ async def _refuse(ws: ServerConnection, code: int, message: str) -> None:
         ws.transport.abort()
 
 
-async def run_server(config: ServeConfig, reuse_port: bool = False, ready: "multiprocessing.synchronize.Event | None" = None, announce=print) -> None:
+async def run_server(
+    config: ServeConfig,
+    reuse_port: bool = False,
+    ready: "multiprocessing.synchronize.Event | None" = None,
+    announce=print,
+) -> None:
     """Serve until SIGINT/SIGTERM; then every client gets a clean close (1001, going away)."""
     server = StyleServer(config)
     stepper = asyncio.create_task(server.step_forever())
@@ -667,7 +792,9 @@ async def run_server(config: ServeConfig, reuse_port: bool = False, ready: "mult
     async with serve(server.handle, config.host, config.port, process_request=server.http, max_size=config.max_message,
                      max_queue=config.queue, reuse_port=reuse_port, ping_interval=20, close_timeout=2,
                      compression=None) as ws_server:  # float frames barely compress; deflate cost a fifth of the CPU  # fmt: skip
-        announce(f"styleerd serve: ws://{config.host}:{config.port}/  viewer: http://{config.host}:{config.port}/  ({config.backend} backend)")
+        announce(
+            f"styleerd serve: ws://{config.host}:{config.port}/  viewer: http://{config.host}:{config.port}/  ({config.backend} backend)"
+        )
         if ready is not None:
             ready.set()
         await stop
@@ -696,6 +823,7 @@ def serve_forever(config: ServeConfig, workers: int = 1) -> None:
         except OSError as e:  # the address is taken or cannot be bound
             raise StyleERDError(f"cannot serve on {config.host}:{config.port}: {e.strerror or e}") from None
         return
+
     def interrupt(*_):
         raise KeyboardInterrupt
 
@@ -709,8 +837,13 @@ def serve_forever(config: ServeConfig, workers: int = 1) -> None:
         for p, e in zip(procs, events):
             while not e.wait(0.2):
                 if not p.is_alive():  # it could not bind (the port is taken): say so once, stop the rest
-                    raise StyleERDError(f"cannot serve on {config.host}:{config.port}: a worker could not start (is the port in use?)")
-        print(f"styleerd serve: {workers} workers on ws://{config.host}:{config.port}/  viewer: http://{config.host}:{config.port}/", flush=True)
+                    raise StyleERDError(
+                        f"cannot serve on {config.host}:{config.port}: a worker could not start (is the port in use?)"
+                    )
+        print(
+            f"styleerd serve: {workers} workers on ws://{config.host}:{config.port}/  viewer: http://{config.host}:{config.port}/",
+            flush=True,
+        )
         for p in procs:
             p.join()
     except KeyboardInterrupt:

@@ -74,7 +74,11 @@ for _finger in ("Thumb", "Index", "Middle", "Ring", "Little"):
     _LEFT[f"Left{_finger}Proximal"] = ("LeftHand",)
     _LEFT[f"Left{_finger}Intermediate"] = (f"Left{_finger}Proximal",)
     _LEFT[f"Left{_finger}Distal"] = (f"Left{_finger}Intermediate",)
-UNITY_PARENTS = {**_TORSO, **_LEFT, **{k.replace("Left", "Right"): tuple(p.replace("Left", "Right") for p in v) for k, v in _LEFT.items()}}
+UNITY_PARENTS = {
+    **_TORSO,
+    **_LEFT,
+    **{k.replace("Left", "Right"): tuple(p.replace("Left", "Right") for p in v) for k, v in _LEFT.items()},
+}
 
 
 def unity_position(p: np.ndarray) -> np.ndarray:
@@ -119,7 +123,9 @@ class VMCBridge:
                  root_speed: bool = False):  # fmt: skip
         self.model, self.target, self.fps, self.cleanup, self.report = model, target, fps, cleanup, report
         self.root_speed = root_speed  # the hips move at the style's pace (their path drifts from the performer's)
-        self.parts = part_targets(model, parts)  # body parts with targets of their own (checked now, not at the first frame)
+        self.parts = part_targets(
+            model, parts
+        )  # body parts with targets of their own (checked now, not at the first frame)
         self.stylizer: ChannelStylizer | None = None
         self.skeleton: Skeleton | None = None
         self.root: list | None = None  # the last Root/Pos arguments
@@ -136,7 +142,15 @@ class VMCBridge:
         """One received datagram -> the datagrams to send on."""
         try:
             messages = [m.message for m in OscPacket(datagram).messages]
-        except (ParseError, RecursionError, ValueError, TypeError, OverflowError, IndexError, UnicodeError):  # python-osc meets any of these in junk
+        except (
+            ParseError,
+            RecursionError,
+            ValueError,
+            TypeError,
+            OverflowError,
+            IndexError,
+            UnicodeError,
+        ):  # python-osc meets any of these in junk
             self.malformed += 1
             return []
         passed, frames = [], []
@@ -150,7 +164,11 @@ class VMCBridge:
                     self.root = params
                 elif params[0] in UNITY_PARENTS:
                     self.bones[params[0]] = (np.array(params[1:4], float), np.array(params[4:8], float))
-                    if self.skeleton is not None and len(self.bones) >= len(self.skeleton.names) and all(b in self.bones for b in self.skeleton.names):
+                    if (
+                        self.skeleton is not None
+                        and len(self.bones) >= len(self.skeleton.names)
+                        and all(b in self.bones for b in self.skeleton.names)
+                    ):
                         frames += self._frame()
             else:
                 passed.append(msg)
@@ -182,14 +200,24 @@ class VMCBridge:
         cannot be mapped) is dropped, and the next frame is tried."""
         try:
             skeleton = humanoid_skeleton({b: unity_position(p) for b, (p, _) in self.bones.items()})
-            stylizer = ChannelStylizer(self.model, skeleton, self.target, fps=self.fps, cleanup=self.cleanup, parts=self.parts, root_speed=self.root_speed)
+            stylizer = ChannelStylizer(
+                self.model,
+                skeleton,
+                self.target,
+                fps=self.fps,
+                cleanup=self.cleanup,
+                parts=self.parts,
+                root_speed=self.root_speed,
+            )
         except StyleERDError as e:
             self.rejected += 1
             self.report(f"{e}; waiting for the next frame")
             self.bones, self.skeleton, self.stylizer = {}, None, None
             return []
         self.skeleton, self.stylizer, self.incomplete = skeleton, stylizer, 0
-        self.report(f"VMC: {len(self.skeleton.names)} bones; joint mapping (model <- avatar):\n{self.stylizer.map.describe()}")
+        self.report(
+            f"VMC: {len(self.skeleton.names)} bones; joint mapping (model <- avatar):\n{self.stylizer.map.describe()}"
+        )
         return self._frame()
 
     def _frame(self) -> list[bytes]:
@@ -247,7 +275,9 @@ def run_bridge(listen: int, send: int, style: str | None, intensity: float, mix:
     logging.getLogger("pythonosc").setLevel(logging.ERROR)  # junk is counted, not printed line by line
     model = load_generator_weights(model_name)
     target = target_weights(model, style, intensity, mix)
-    bridge = VMCBridge(model, target, fps, report=lambda text: print(text, flush=True), parts=parts, root_speed=root_speed)
+    bridge = VMCBridge(
+        model, target, fps, report=lambda text: print(text, flush=True), parts=parts, root_speed=root_speed
+    )
     rx = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
     rx.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 1 << 22)  # room for frames that arrive while the first is set up
     try:
@@ -255,7 +285,10 @@ def run_bridge(listen: int, send: int, style: str | None, intensity: float, mix:
     except OSError as e:
         raise StyleERDError(f"VMC: cannot listen on {host}:{listen} ({e.strerror})") from None
     tx = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
-    print(f"styleerd vmc: receiving VMC on {host}:{listen}, sending the stylised stream to {host}:{send}, target {target}", flush=True)
+    print(
+        f"styleerd vmc: receiving VMC on {host}:{listen}, sending the stylised stream to {host}:{send}, target {target}",
+        flush=True,
+    )
     last, dropped, waiting = time.time(), 0, deque(maxlen=BACKLOG)
     try:
         while True:

@@ -82,7 +82,14 @@ class StyleClips:
     frames: int
 
 
-def style_clips(paths: list[str | Path], model, window: int, stride: int, contents: list[str] | None = None, explicit_map: dict[str, str] | None = None) -> StyleClips:
+def style_clips(
+    paths: list[str | Path],
+    model,
+    window: int,
+    stride: int,
+    contents: list[str] | None = None,
+    explicit_map: dict[str, str] | None = None,
+) -> StyleClips:
     """Read, retarget (as ``transfer`` does) and resample the clips to the model's skeleton and
     rate, then cut them into windows. ``contents``: one content per clip, or one for all
     (default: inferred by the online labeller, as the clip's average)."""
@@ -129,7 +136,9 @@ def style_clips(paths: list[str | Path], model, window: int, stride: int, conten
         styles.append(np.repeat(p_s[None], len(starts), 0))
         cont.append(np.repeat(p_c[None], len(starts), 0))
         total += len(x)
-    return StyleClips(*(torch.from_numpy(np.concatenate(a)) for a in (xs, styles, cont)), [Path(p).name for p in paths], total)
+    return StyleClips(
+        *(torch.from_numpy(np.concatenate(a)) for a in (xs, styles, cont)), [Path(p).name for p in paths], total
+    )
 
 
 def with_added_style(G: StyleERD, name: str, like: str) -> StyleERD:
@@ -152,7 +161,9 @@ def with_added_style(G: StyleERD, name: str, like: str) -> StyleERD:
 
 
 @torch.no_grad()
-def _encoded(G: StyleERD, x: torch.Tensor, style: torch.Tensor, content: torch.Tensor, chunk: int = 512) -> tuple[torch.Tensor, torch.Tensor]:
+def _encoded(
+    G: StyleERD, x: torch.Tensor, style: torch.Tensor, content: torch.Tensor, chunk: int = 512
+) -> tuple[torch.Tensor, torch.Tensor]:
     """The frozen encoder's latents and the neutral branch's outputs of windows ``x``."""
     zs, outs = [], []
     for i in range(0, len(x), chunk):
@@ -183,11 +194,15 @@ def add_style(
     G, meta = ckpt.load_generator(model_name)
     c = G.config
     if not NAME.fullmatch(name):
-        raise StyleERDError(f"style name {name!r}: use 1 to 32 lower-case letters, digits, - or _, starting with a letter")
+        raise StyleERDError(
+            f"style name {name!r}: use 1 to 32 lower-case letters, digits, - or _, starting with a letter"
+        )
     if name in c.styles:
         raise StyleERDError(f"the model already has a style {name!r}; its styles: {', '.join(c.styles)}")
     if like is not None and (like not in c.styles or like == c.neutral_style):
-        raise StyleERDError(f"--like {like!r} must be one of the model's styles other than {c.neutral_style}: {', '.join(s for s in c.styles if s != c.neutral_style)}")
+        raise StyleERDError(
+            f"--like {like!r} must be one of the model's styles other than {c.neutral_style}: {', '.join(s for s in c.styles if s != c.neutral_style)}"
+        )
     train_config = TrainConfig.from_dict(meta["training"]["config"], where="the model's training config")
     new = style_clips(clips, G, train_config.window, config.stride, contents, explicit_map)
     if like is None:  # start from the trained style the labeller finds closest (not the neutral one)
@@ -198,13 +213,17 @@ def add_style(
     # neutral training windows of the model's dataset: the content to stylise
     s = setup(replace(train_config, stride=config.content_stride), data_dir, progress)
     if not np.allclose(s.data.stats.mean, G.mean.double().numpy(), atol=1e-5):
-        raise StyleERDError(f"the cached {train_config.dataset} features are not normalised as the model was trained (another data version?)")
+        raise StyleERDError(
+            f"the cached {train_config.dataset} features are not normalised as the model was trained (another data version?)"
+        )
     neutral_rows = np.nonzero(s.train.style == s.data.styles.index(c.neutral_style))[0]
     xc = s.data.gather(s.train.starts[neutral_rows])
     content_c = s.data.onehot_content(s.train.content[neutral_rows])
     content_ids = torch.from_numpy(s.train.content[neutral_rows]).long()
     style_c = s.data.onehot_style(np.full(len(neutral_rows), s.data.styles.index(c.neutral_style)))
-    per = _perceptual_classifier(train_config, s, cache_dir() / f"perceptual-{train_config.dataset}-seed{train_config.seed}", progress)
+    per = _perceptual_classifier(
+        train_config, s, cache_dir() / f"perceptual-{train_config.dataset}-seed{train_config.seed}", progress
+    )
     per.requires_grad_(False)
 
     torch.manual_seed(config.seed)
@@ -219,7 +238,12 @@ def add_style(
     for p in trainable:
         p.requires_grad_(True)
     J, L = c.n_joints, G2.layout
-    seen = critic_channels(train_config if config.critic_rotations is None else replace(train_config, critic_rotations=config.critic_rotations), L)
+    seen = critic_channels(
+        train_config
+        if config.critic_rotations is None
+        else replace(train_config, critic_rotations=config.critic_rotations),
+        L,
+    )
     D = Discriminator(seen.stop - seen.start, 1, len(c.contents), train_config.window, attention=train_config.attention)
     opt_g = torch.optim.Adam(trainable, lr=config.lr_g, betas=(0.5, 0.999), fused=True)
     opt_d = torch.optim.Adam(D.parameters(), lr=config.lr_d, betas=(0.5, 0.999), fused=True)
@@ -264,7 +288,14 @@ def add_style(
         opt_d.zero_grad(set_to_none=True)
         loss_d.backward()
         opt_d.step()
-        row = {"step": step + 1, "rec": loss_rec.item(), "adv": loss_adv.item(), "per": loss_per.item(), "cls": loss_cls.item(), "critic": loss_d.item()}
+        row = {
+            "step": step + 1,
+            "rec": loss_rec.item(),
+            "adv": loss_adv.item(),
+            "per": loss_per.item(),
+            "cls": loss_cls.item(),
+            "critic": loss_d.item(),
+        }
         log.append(row)
         bar.set_postfix({k: f"{v:.3f}" for k, v in row.items() if k != "step"})
         if config.max_minutes and time.perf_counter() - t_train > config.max_minutes * 60:
@@ -282,8 +313,14 @@ def add_style(
         "minutes": round(minutes, 2),
         "training_minutes": round((time.perf_counter() - t_train) / 60, 2),
         "config": asdict(config),
-        "critic_reads": [part for part in ("rotations", "positions", "velocities") if getattr(L, part).start >= seen.start and getattr(L, part).stop <= seen.stop],
-        "last_losses": {k: round(float(np.mean([r[k] for r in log[-50:]])), 4) for k in ("rec", "adv", "per", "cls", "critic")},
+        "critic_reads": [
+            part
+            for part in ("rotations", "positions", "velocities")
+            if getattr(L, part).start >= seen.start and getattr(L, part).stop <= seen.stop
+        ],
+        "last_losses": {
+            k: round(float(np.mean([r[k] for r in log[-50:]])), 4) for k in ("rec", "adv", "per", "cls", "critic")
+        },
     }
     meta2 = {**meta, "config": G2.config.to_dict(), "added_styles": [*meta.get("added_styles", []), added]}
     ckpt.save_tensors(Path(out), ckpt.prefixed("generator", G2), meta2)

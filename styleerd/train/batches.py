@@ -62,5 +62,7 @@ def window_rotations(data: TrainingData, starts: np.ndarray) -> torch.Tensor:
     x = data.gather(starts)
     J = len(data.stats.reference)
     rot = FeatureLayout(J).rotations
-    q = x[..., rot] * torch.as_tensor(data.stats.std[rot], dtype=torch.float32) + torch.as_tensor(data.stats.mean[rot], dtype=torch.float32)
+    q = x[..., rot] * torch.as_tensor(data.stats.std[rot], dtype=torch.float32) + torch.as_tensor(
+        data.stats.mean[rot], dtype=torch.float32
+    )
     return torch_quat.normalize(q.reshape(*x.shape[:2], J, 4))

@@ -44,7 +44,9 @@ def train_classifier(
     ``channels``; return the model of the best validation epoch and that accuracy."""
     torch.manual_seed(seed)
     n_classes = len(data.styles if label == "style" else data.contents)
-    model = WindowClassifier(channels.stop - channels.start, n_classes, instance_norm=instance_norm, first_channel=channels.start).to(device)
+    model = WindowClassifier(
+        channels.stop - channels.start, n_classes, instance_norm=instance_norm, first_channel=channels.start
+    ).to(device)
     opt = torch.optim.Adam(model.parameters(), lr=lr)
     target = torch.as_tensor(getattr(train, label)).to(device)
     rng = np.random.default_rng(seed)
@@ -52,7 +54,12 @@ def train_classifier(
     for epoch in range(epochs):
         model.train()
         order = rng.permutation(len(train.starts))
-        bar = tqdm(range(0, len(order) - batch + 1, batch), desc=f"{label} classifier {epoch + 1}/{epochs}", disable=not progress, leave=False)
+        bar = tqdm(
+            range(0, len(order) - batch + 1, batch),
+            desc=f"{label} classifier {epoch + 1}/{epochs}",
+            disable=not progress,
+            leave=False,
+        )
         for i in bar:
             idx = order[i : i + batch]
             x = data.gather(train.starts[idx]).to(device)

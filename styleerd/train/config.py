@@ -33,7 +33,9 @@ class TrainConfig:
     use_adv: bool = True
     use_per: bool = True
     attention: bool = True
-    critic_rotations: bool = False  # the critic also sees joint rotations (their twist is invisible in positions), beyond the paper
+    critic_rotations: bool = (
+        False  # the critic also sees joint rotations (their twist is invisible in positions), beyond the paper
+    )
     w_rec: float = 1.0
     w_adv: float = 1.0
     w_per: float = 0.1

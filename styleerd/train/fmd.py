@@ -34,7 +34,17 @@ def reconstruction_degrees(model: MotionAutoencoder, data: TrainingData, ws: Win
     return float(np.degrees(total / max(1, len(ws.starts))))
 
 
-def train_autoencoder(data: TrainingData, train: WindowSet, val: WindowSet, epochs: int = 8, batch: int = 128, lr: float = 1e-3, noise: float = 0.03, seed: int = 0, progress: bool = True) -> tuple[MotionAutoencoder, float]:
+def train_autoencoder(
+    data: TrainingData,
+    train: WindowSet,
+    val: WindowSet,
+    epochs: int = 8,
+    batch: int = 128,
+    lr: float = 1e-3,
+    noise: float = 0.03,
+    seed: int = 0,
+    progress: bool = True,
+) -> tuple[MotionAutoencoder, float]:
     torch.manual_seed(seed)
     rng = np.random.default_rng(seed)
     model = MotionAutoencoder(len(data.stats.reference))
@@ -43,7 +53,12 @@ def train_autoencoder(data: TrainingData, train: WindowSet, val: WindowSet, epoc
     for epoch in range(epochs):
         model.train()
         order = rng.permutation(len(train.starts))
-        bar = tqdm(range(0, len(order) - batch + 1, batch), desc=f"fmd autoencoder {epoch + 1}/{epochs}", disable=not progress, leave=False)
+        bar = tqdm(
+            range(0, len(order) - batch + 1, batch),
+            desc=f"fmd autoencoder {epoch + 1}/{epochs}",
+            disable=not progress,
+            leave=False,
+        )
         for i in bar:
             clean = window_rotations(data, train.starts[order[i : i + batch]])
             loss = angle_loss(model(torch_quat.normalize(clean + noise * torch.randn_like(clean))), clean)
@@ -57,7 +72,9 @@ def train_autoencoder(data: TrainingData, train: WindowSet, val: WindowSet, epoc
     return best.eval(), best_err
 
 
-def train_and_save(config: TrainConfig, data_dir: str | None = None, out: Path | None = None, progress: bool = True) -> dict:
+def train_and_save(
+    config: TrainConfig, data_dir: str | None = None, out: Path | None = None, progress: bool = True
+) -> dict:
     """``styleerd train-fmd``: train on real training windows, keep the best validation epoch,
     save next to the shipped models (or at ``out``)."""
     torch.set_num_threads(config.threads)
@@ -65,7 +82,17 @@ def train_and_save(config: TrainConfig, data_dir: str | None = None, out: Path |
     train = windows(s.fs, s.data, "train", config.classifier_stride, config.max_train_clips)
     model, val_deg = train_autoencoder(s.data, train, s.val, seed=config.seed, progress=progress)
     test = windows(s.fs, s.data, "test", config.window)
-    report = {"val_reconstruction_deg": round(val_deg, 3), "test_reconstruction_deg": round(reconstruction_degrees(model, s.data, test), 3)}
-    meta = {"kind": "styleerd-fmd", "config": model.config(), "reference": s.data.stats.reference.tolist(), "dataset": config.dataset, "window": config.window, **report}
+    report = {
+        "val_reconstruction_deg": round(val_deg, 3),
+        "test_reconstruction_deg": round(reconstruction_degrees(model, s.data, test), 3),
+    }
+    meta = {
+        "kind": "styleerd-fmd",
+        "config": model.config(),
+        "reference": s.data.stats.reference.tolist(),
+        "dataset": config.dataset,
+        "window": config.window,
+        **report,
+    }
     ckpt.save_tensors(out or MODELS_DIR / FMD, ckpt.prefixed("autoencoder", model), meta)
     return report

@@ -68,7 +68,15 @@ def stream_accuracy(model: OnlineLabeller, fs: FeatureSet, data: TrainingData, s
     return out
 
 
-def augmented_clips(fs: FeatureSet, data: TrainingData, clips: np.ndarray, copies: int, reference_pose: np.ndarray, seed: int, progress: bool = True) -> tuple[torch.Tensor, np.ndarray, np.ndarray, np.ndarray]:
+def augmented_clips(
+    fs: FeatureSet,
+    data: TrainingData,
+    clips: np.ndarray,
+    copies: int,
+    reference_pose: np.ndarray,
+    seed: int,
+    progress: bool = True,
+) -> tuple[torch.Tensor, np.ndarray, np.ndarray, np.ndarray]:
     """``copies`` other-performer versions of every clip: (normalised frames ``[N, D]``, clip
     starts ``[C + 1]``, style and content index per clip)."""
     rng = np.random.default_rng(seed + 1)
@@ -100,7 +108,9 @@ def train_labeller(fs: FeatureSet, data: TrainingData, epochs: int = 6, length: 
     frames = data.frames
     if copies:
         reference = data.stats.reference if reference_pose is None else reference_pose
-        extra, extra_start, extra_style, extra_content = augmented_clips(fs, data, np.unique(ws.clip), copies, reference, seed, progress)
+        extra, extra_start, extra_style, extra_content = augmented_clips(
+            fs, data, np.unique(ws.clip), copies, reference, seed, progress
+        )
         s2 = window_starts(extra_start, np.arange(len(extra_start) - 1), length, stride)
         c2 = np.searchsorted(extra_start, s2, side="right") - 1
         frames = torch.cat([frames, extra])
@@ -111,14 +121,19 @@ def train_labeller(fs: FeatureSet, data: TrainingData, epochs: int = 6, length: 
     for epoch in range(epochs):
         model.train()
         order = rng.permutation(len(starts))
-        bar = tqdm(range(0, len(order) - batch + 1, batch), desc=f"labeller {epoch + 1}/{epochs}", disable=not progress, leave=False)
+        bar = tqdm(
+            range(0, len(order) - batch + 1, batch),
+            desc=f"labeller {epoch + 1}/{epochs}",
+            disable=not progress,
+            leave=False,
+        )
         for i in bar:
             b = order[i : i + batch]
             x = frames[torch.as_tensor(starts[b][:, None] + np.arange(length))]
             s_logits, c_logits, _ = model(x)
-            loss = F.cross_entropy(s_logits.reshape(-1, len(data.styles)), style[b].repeat_interleave(length)) + F.cross_entropy(
-                c_logits.reshape(-1, len(data.contents)), content[b].repeat_interleave(length)
-            )
+            loss = F.cross_entropy(
+                s_logits.reshape(-1, len(data.styles)), style[b].repeat_interleave(length)
+            ) + F.cross_entropy(c_logits.reshape(-1, len(data.contents)), content[b].repeat_interleave(length))
             opt.zero_grad()
             loss.backward()
             opt.step()
@@ -131,7 +146,9 @@ def train_labeller(fs: FeatureSet, data: TrainingData, epochs: int = 6, length: 
     return best.eval(), {"history": history, "other_performer_copies": copies}
 
 
-def train_and_save(config: TrainConfig, data_dir: str | None = None, out: Path | None = None, progress: bool = True) -> dict:
+def train_and_save(
+    config: TrainConfig, data_dir: str | None = None, out: Path | None = None, progress: bool = True
+) -> dict:
     """``styleerd train-labeller``: train on the config's dataset, report stream accuracy on
     the test split, save next to the shipped models (or at ``out``)."""
     torch.set_num_threads(config.threads)
@@ -139,6 +156,13 @@ def train_and_save(config: TrainConfig, data_dir: str | None = None, out: Path |
     model, report = train_labeller(s.fs, s.data, seed=config.seed, max_clips=config.max_train_clips, progress=progress)
     report["test"] = stream_accuracy(model, s.fs, s.data, "test")
     report["test_leaning_neutral"] = stream_accuracy(model, s.fs, s.data, "test", neutral=config.neutral_style)
-    meta = {"kind": "styleerd-labeller", "config": model.config(), "styles": s.data.styles, "contents": s.data.contents, "dataset": config.dataset, **report}
+    meta = {
+        "kind": "styleerd-labeller",
+        "config": model.config(),
+        "styles": s.data.styles,
+        "contents": s.data.contents,
+        "dataset": config.dataset,
+        **report,
+    }
     ckpt.save_tensors(out or MODELS_DIR / LABELLER, ckpt.prefixed("labeller", model), meta)
     return report

@@ -11,7 +11,13 @@ from styleerd.model.classifiers import WindowClassifier
 from styleerd.model.discriminator import Discriminator
 
 
-def reconstruction_loss(rot: torch.Tensor, rot_target: torch.Tensor, channels: torch.Tensor, channels_target: torch.Tensor, layout: FeatureLayout) -> torch.Tensor:
+def reconstruction_loss(
+    rot: torch.Tensor,
+    rot_target: torch.Tensor,
+    channels: torch.Tensor,
+    channels_target: torch.Tensor,
+    layout: FeatureLayout,
+) -> torch.Tensor:
     """L_quat + 0.5 ||p - p''||^2 + ||v - v''||^2 (positions and velocities normalised)."""
     return (
         torch_quat.angle_loss(rot, rot_target)
@@ -43,7 +49,9 @@ def perceptual(classifier: WindowClassifier, source: torch.Tensor, output_maps: 
     return sum(F.mse_loss(o, t) for o, t in zip(output_maps, target))
 
 
-def content_classification(classifier: WindowClassifier, output_maps: list[torch.Tensor], content: torch.Tensor) -> torch.Tensor:
+def content_classification(
+    classifier: WindowClassifier, output_maps: list[torch.Tensor], content: torch.Tensor
+) -> torch.Tensor:
     """Cross-entropy of the (frozen) content classifier on the output (its feature maps)
     against the input's content label ``[B]``: the transfer must still read as the same action."""
     return F.cross_entropy(classifier.logits(output_maps[-1]), content)

@@ -25,15 +25,29 @@ def soup(stems: list[str], weights: list[float] | None = None) -> tuple[dict[str
     loaded = [ckpt.load_generator(s) for s in stems]
     (first, meta), start = loaded[0], loaded[0][1]["training"].get("started_from", {}).get("model")
     if start is None:
-        raise StyleERDError(f"{stems[0]} was not fine-tuned from a saved model: only models with one start average into a model")
+        raise StyleERDError(
+            f"{stems[0]} was not fine-tuned from a saved model: only models with one start average into a model"
+        )
     for stem, (model, m) in zip(stems[1:], loaded[1:]):
-        if model.config.to_dict() != first.config.to_dict() or m["skeleton"] != meta["skeleton"] or m["stats"] != meta["stats"]:
-            raise StyleERDError(f"{stem}: its generator (config, skeleton or feature statistics) differs from {stems[0]}'s")
+        if (
+            model.config.to_dict() != first.config.to_dict()
+            or m["skeleton"] != meta["skeleton"]
+            or m["stats"] != meta["stats"]
+        ):
+            raise StyleERDError(
+                f"{stem}: its generator (config, skeleton or feature statistics) differs from {stems[0]}'s"
+            )
         if m["training"].get("started_from", {}).get("model") != start:
-            raise StyleERDError(f"{stem} was not fine-tuned from {start}, as {stems[0]} was: their weights do not average into a model")
+            raise StyleERDError(
+                f"{stem} was not fine-tuned from {start}, as {stems[0]} was: their weights do not average into a model"
+            )
     states = [model.state_dict() for model, _ in loaded]
-    tensors = {f"generator.{k}": sum(w * s[k].double() for w, s in zip(weights, states)).float() for k in states[0]}  # float64 sums: shared tensors come back exact
-    stages = [{"model": str(stem), "weight": w, "training": m["training"]} for stem, w, (_, m) in zip(stems, weights, loaded)]
+    tensors = {
+        f"generator.{k}": sum(w * s[k].double() for w, s in zip(weights, states)).float() for k in states[0]
+    }  # float64 sums: shared tensors come back exact
+    stages = [
+        {"model": str(stem), "weight": w, "training": m["training"]} for stem, w, (_, m) in zip(stems, weights, loaded)
+    ]
     names = " + ".join(f"{w:g} {Path(stem).name}" for stem, w in zip(stems, weights))
     training = {
         "config": {**meta["training"]["config"], "name": f"soup: {names}"},

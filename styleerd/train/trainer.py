@@ -89,7 +89,9 @@ def _resumable(config: dict) -> dict:
     threads (a run may go on faster once the machine is free), which epoch it exports, and
     where its weights started (the checkpoint holds them once a run has one), and on which device
     (a run started on a GPU may go on on the CPU)."""
-    return {k: v for k, v in config.items() if k not in ("epochs", "max_minutes", "threads", "device", "keep", "init_from")}
+    return {
+        k: v for k, v in config.items() if k not in ("epochs", "max_minutes", "threads", "device", "keep", "init_from")
+    }
 
 
 def _check_in_sync(model: torch.nn.Module) -> None:
@@ -133,9 +135,23 @@ def _perceptual_classifier(config: TrainConfig, s: Setup, out: Path, progress: b
     cls_train = windows(s.fs, s.data, "train", config.classifier_stride, config.max_train_clips)
     layout = FeatureLayout(s.fs.skeleton.n_joints)
     motion = slice(0, layout.velocities.stop)  # rotations, positions, velocities (paper)
-    model, acc = train_classifier(s.data, cls_train, s.val, "content", True, motion, config.classifier_epochs, config.classifier_lr, config.seed, progress=progress, device=config.device)
+    model, acc = train_classifier(
+        s.data,
+        cls_train,
+        s.val,
+        "content",
+        True,
+        motion,
+        config.classifier_epochs,
+        config.classifier_lr,
+        config.seed,
+        progress=progress,
+        device=config.device,
+    )
     if _is_main():
-        ckpt.save_tensors(stem, ckpt.prefixed("classifier", model), ckpt.classifier_meta(model, s.data.contents, val_accuracy=acc))
+        ckpt.save_tensors(
+            stem, ckpt.prefixed("classifier", model), ckpt.classifier_meta(model, s.data.contents, val_accuracy=acc)
+        )
     return model
 
 
@@ -153,7 +169,9 @@ def _recognisers(s: Setup, stem: Path | None = None) -> tuple[WindowClassifier |
     return style, content
 
 
-def _state(G: StyleERD, D: Discriminator, opt_g: torch.optim.Optimizer, opt_d: torch.optim.Optimizer, G_avg: StyleERD | None) -> dict[str, torch.Tensor]:
+def _state(
+    G: StyleERD, D: Discriminator, opt_g: torch.optim.Optimizer, opt_d: torch.optim.Optimizer, G_avg: StyleERD | None
+) -> dict[str, torch.Tensor]:
     tensors = {**ckpt.prefixed("generator", G), **ckpt.prefixed("discriminator", D)}
     if G_avg is not None:
         tensors.update(ckpt.prefixed("average", G_avg))
@@ -164,7 +182,14 @@ def _state(G: StyleERD, D: Discriminator, opt_g: torch.optim.Optimizer, opt_d: t
     return tensors
 
 
-def _load_state(tensors: dict, G: StyleERD, D: Discriminator, opt_g: torch.optim.Optimizer, opt_d: torch.optim.Optimizer, G_avg: StyleERD | None) -> None:
+def _load_state(
+    tensors: dict,
+    G: StyleERD,
+    D: Discriminator,
+    opt_g: torch.optim.Optimizer,
+    opt_d: torch.optim.Optimizer,
+    G_avg: StyleERD | None,
+) -> None:
     G.load_state_dict(ckpt.unprefixed("generator", tensors))
     D.load_state_dict(ckpt.unprefixed("discriminator", tensors))
     if G_avg is not None:
@@ -195,14 +220,18 @@ def critic_channels(config: TrainConfig, layout: FeatureLayout) -> slice:
 
 def make_critic(config: TrainConfig, s: Setup) -> Discriminator:
     seen = critic_channels(config, FeatureLayout(s.fs.skeleton.n_joints))
-    return Discriminator(seen.stop - seen.start, len(s.data.styles), len(s.data.contents), config.window, attention=config.attention)
+    return Discriminator(
+        seen.stop - seen.start, len(s.data.styles), len(s.data.contents), config.window, attention=config.attention
+    )
 
 
 def make_optimisers(config: TrainConfig, G: StyleERD, D: Discriminator) -> tuple[torch.optim.Adam, torch.optim.Adam]:
     """Adam for the generator's trainable weights and for the critic's (the fused kernel: one
     pass over every weight, not a dozen small ops per tensor)."""
     return (
-        torch.optim.Adam([p for p in G.parameters() if p.requires_grad], lr=config.lr_g, betas=(0.5, 0.999), fused=True),
+        torch.optim.Adam(
+            [p for p in G.parameters() if p.requires_grad], lr=config.lr_g, betas=(0.5, 0.999), fused=True
+        ),
         torch.optim.Adam(D.parameters(), lr=config.lr_d, betas=(0.5, 0.999), fused=True),
     )
 
@@ -215,7 +244,10 @@ def train_step(G: StyleERD, D: Discriminator, opt_g: torch.optim.Optimizer, opt_
     B, J, L, dev = len(rows), G.config.n_joints, G.layout, G.mean.device
     seen = critic_channels(config, L)
     x = s.data.gather(s.train.starts[rows]).to(dev)
-    style, content = s.data.onehot_style(s.train.style[rows]).to(dev), s.data.onehot_content(s.train.content[rows]).to(dev)
+    style, content = (
+        s.data.onehot_style(s.train.style[rows]).to(dev),
+        s.data.onehot_content(s.train.content[rows]).to(dev),
+    )
     tgt = s.data.onehot_style(target).to(dev)
     real = x[..., : 10 * J]
     tick("batch gather")
@@ -242,7 +274,9 @@ def train_step(G: StyleERD, D: Discriminator, opt_g: torch.optim.Optimizer, opt_
         loss_g = loss_g + config.w_per * loss_per
         logs["per"] = loss_per.item()
     if config.w_cls:
-        loss_cls = losses.content_classification(per_classifier, fake_maps, torch.from_numpy(s.train.content[rows]).long().to(dev))
+        loss_cls = losses.content_classification(
+            per_classifier, fake_maps, torch.from_numpy(s.train.content[rows]).long().to(dev)
+        )
         loss_g = loss_g + config.w_cls * loss_cls
         logs["cls"] = loss_cls.item()
     tick("generator losses")
@@ -280,7 +314,9 @@ def train_step(G: StyleERD, D: Discriminator, opt_g: torch.optim.Optimizer, opt_
     return logs
 
 
-def train(config: TrainConfig, out: Path, data_dir: str | None = None, progress: bool = True, export: Path | None = None) -> dict:
+def train(
+    config: TrainConfig, out: Path, data_dir: str | None = None, progress: bool = True, export: Path | None = None
+) -> dict:
     """Train (or resume) in ``out``; returns the best validation metrics. With ``export``,
     the best generator (``keep`` "last": the final one) is also written there as a
     self-contained model."""
@@ -321,7 +357,9 @@ def train(config: TrainConfig, out: Path, data_dir: str | None = None, progress:
     G_avg = copy.deepcopy(G).requires_grad_(False) if config.ema else None  # what is validated and exported
     if resuming:
         tensors, meta = ckpt.load_tensors(state_stem)
-        if _resumable(TrainConfig.from_dict(meta["config"]).to_dict()) != _resumable(config.to_dict()):  # fields added since default
+        if _resumable(TrainConfig.from_dict(meta["config"]).to_dict()) != _resumable(
+            config.to_dict()
+        ):  # fields added since default
             raise StyleERDError(f"{out} holds a run with another config; use a new --out or delete it")
         _load_state(tensors, G, D, opt_g, opt_d, G_avg)
         epoch0, elapsed, best = meta["epoch"], meta["elapsed_s"], meta.get("best")
@@ -376,14 +414,23 @@ def train(config: TrainConfig, out: Path, data_dir: str | None = None, progress:
             row.update({k: round(v, 4) for k, v in validate(judged, s.data, s.val, style_rec, content_rec).items()})
             if realism is not None:
                 fmd, val_all = realism
-                row.update(realism_margin(transfer_quality(judged, s.data, val_all, style_rec, content_rec, fmd, resamples=0)))
+                row.update(
+                    realism_margin(transfer_quality(judged, s.data, val_all, style_rec, content_rec, fmd, resamples=0))
+                )
         if _is_main():
             score = _score(row, config.keep)
             if score is not None and (best is None or score > best["score"]):
                 best = {"score": score, **row}
-                ckpt.save_tensors(out / "best", ckpt.prefixed("generator", G_eval), _model_meta(G_eval, s, config, best))
+                ckpt.save_tensors(
+                    out / "best", ckpt.prefixed("generator", G_eval), _model_meta(G_eval, s, config, best)
+                )
             _append_csv(metrics_path, row)
-            ckpt.save_tensors(state_stem, _state(G, D, opt_g, opt_d, G_avg), {"config": config.to_dict(), "epoch": epoch + 1, "elapsed_s": elapsed, "best": best}, sidecar=False)
+            ckpt.save_tensors(
+                state_stem,
+                _state(G, D, opt_g, opt_d, G_avg),
+                {"config": config.to_dict(), "epoch": epoch + 1, "elapsed_s": elapsed, "best": best},
+                sidecar=False,
+            )
             if progress:
                 print(" ".join(f"{k}={v}" for k, v in row.items()), flush=True)
         _check_in_sync(G)
@@ -393,15 +440,22 @@ def train(config: TrainConfig, out: Path, data_dir: str | None = None, progress:
     if _is_main() and export is not None and (config.keep == "last" or (out / "best.json").is_file()):
         if config.keep == "last":
             tensors, meta = ckpt.prefixed("generator", G_eval), _model_meta(G_eval, s, config, best)
-            meta["training"]["kept"] = f"the last epoch ({done}), not the best validation epoch" + (f"; its weights' moving average (decay {config.ema})" if config.ema else "")
+            meta["training"]["kept"] = f"the last epoch ({done}), not the best validation epoch" + (
+                f"; its weights' moving average (decay {config.ema})" if config.ema else ""
+            )
         else:
             tensors, meta = ckpt.load_tensors(out / "best")
             if config.keep == "realistic":
-                meta["training"]["kept"] = f"epoch {meta['training']['best']['epoch']} of {done}: the validation epoch whose worst target style is furthest inside the realism bars"
+                meta["training"]["kept"] = (
+                    f"epoch {meta['training']['best']['epoch']} of {done}: the validation epoch whose worst target style is furthest inside the realism bars"
+                )
         meta["training"]["wall_minutes"] = round(elapsed / 60, 2)
         meta["training"]["epochs_trained"] = done  # the run's budget (its ablations train as many)
         if config.init_from:  # a fine-tuning stage: the training of the model it started from
-            meta["training"]["started_from"] = {"model": config.init_from, "training": ckpt.load_generator(config.init_from)[1]["training"]}
+            meta["training"]["started_from"] = {
+                "model": config.init_from,
+                "training": ckpt.load_generator(config.init_from)[1]["training"],
+            }
         ckpt.save_tensors(export, tensors, meta)
     return best or {}
 
@@ -414,13 +468,17 @@ def _start_from(G: StyleERD, stem: str) -> None:
     G.load_state_dict(start.state_dict())
 
 
-def _realism_judges(config: TrainConfig, s: Setup, style_rec: WindowClassifier | None) -> tuple[MotionAutoencoder, WindowSet]:
+def _realism_judges(
+    config: TrainConfig, s: Setup, style_rec: WindowClassifier | None
+) -> tuple[MotionAutoencoder, WindowSet]:
     """keep "realistic" judges realism per target style with the shipped FMD extractor and
     recognisers, on every validation window of every clip (FMD per style needs more than the
     quick subset, and than a tiny run's ``max_train_clips``)."""
     fmd, _ = ckpt.load_fmd()
     if style_rec is None or fmd.n_joints != s.fs.skeleton.n_joints:
-        raise StyleERDError(f"keep: realistic needs the shipped recognisers and FMD extractor, which do not fit {config.dataset}")
+        raise StyleERDError(
+            f"keep: realistic needs the shipped recognisers and FMD extractor, which do not fit {config.dataset}"
+        )
     return fmd, windows(s.fs, s.data, "val", config.window)
 
 
@@ -438,13 +496,19 @@ def _score(row: dict, keep: str) -> float | None:
 
 
 def _model_meta(G: StyleERD, s: Setup, config: TrainConfig, best: dict) -> dict:
-    archive = Path(s.fs.meta["data"]) / f"{config.dataset}.tar.xz" if "data" in s.fs.meta else None  # where it was prepared from
+    archive = (
+        Path(s.fs.meta["data"]) / f"{config.dataset}.tar.xz" if "data" in s.fs.meta else None
+    )  # where it was prepared from
     return ckpt.generator_meta(
         G,
         s.fs.skeleton,
         s.data.stats,
         code_version=CODE_VERSION,
-        data={"dataset": config.dataset, "sha256": file_digest(archive) if archive is not None and archive.is_file() else None, "fps": s.fs.params.fps},
+        data={
+            "dataset": config.dataset,
+            "sha256": file_digest(archive) if archive is not None and archive.is_file() else None,
+            "fps": s.fs.params.fps,
+        },
         training={"config": config.to_dict(), "best": best},
     )
 
@@ -463,7 +527,9 @@ def _append_csv(path: Path, row: dict) -> None:
     atomic_write_text(path, buf.getvalue())
 
 
-def train_recognisers(config: TrainConfig, data_dir: str | None = None, out: Path | None = None, progress: bool = True) -> dict:
+def train_recognisers(
+    config: TrainConfig, data_dir: str | None = None, out: Path | None = None, progress: bool = True
+) -> dict:
     """Train the evaluation style and content recognisers on real training windows, select on
     validation, report accuracy on real test windows (the ceiling of SRA / CRA)."""
     torch.set_num_threads(config.threads)
@@ -474,9 +540,24 @@ def train_recognisers(config: TrainConfig, data_dir: str | None = None, out: Pat
     visible = slice(layout.positions.start, layout.velocities.stop)  # joint positions + velocities
     report, tensors, meta = {}, {}, {}
     for label, labels in (("style", s.data.styles), ("content", s.data.contents)):
-        model, val_acc = train_classifier(s.data, cls_train, s.val, label, False, visible, config.classifier_epochs, config.classifier_lr, config.seed, progress=progress)
+        model, val_acc = train_classifier(
+            s.data,
+            cls_train,
+            s.val,
+            label,
+            False,
+            visible,
+            config.classifier_epochs,
+            config.classifier_lr,
+            config.seed,
+            progress=progress,
+        )
         test_acc = accuracy(model, s.data, test, label)
-        report[label] = {"val_accuracy": round(val_acc, 4), "test_accuracy": round(test_acc, 4), "test_windows": len(test.starts)}
+        report[label] = {
+            "val_accuracy": round(val_acc, 4),
+            "test_accuracy": round(test_acc, 4),
+            "test_windows": len(test.starts),
+        }
         tensors.update(ckpt.prefixed(label, model))
         meta[label] = ckpt.classifier_meta(model, labels, **report[label])
     meta["feature_stats"] = s.data.stats.to_dict()
@@ -485,7 +566,13 @@ def train_recognisers(config: TrainConfig, data_dir: str | None = None, out: Pat
     return report
 
 
-def evaluate(model_stem: Path | None = None, data_dir: str | None = None, split: str = "test", progress: bool = True, recognisers: Path | None = None) -> dict:
+def evaluate(
+    model_stem: Path | None = None,
+    data_dir: str | None = None,
+    split: str = "test",
+    progress: bool = True,
+    recognisers: Path | None = None,
+) -> dict:
     """The acceptance figures of a generator on real ``split`` windows: reconstruction error,
     SRA and CRA of its transfers, next to the recognisers' accuracy on the real windows."""
     model, meta = ckpt.load_generator(model_stem)
@@ -496,7 +583,10 @@ def evaluate(model_stem: Path | None = None, data_dir: str | None = None, split:
     if style_rec is None:
         raise StyleERDError("evaluation recognisers for this dataset are missing: run `styleerd train-recognisers`")
     result = validate(model, s.data, ws, style_rec, content_rec)
-    ceiling = {"style": accuracy(style_rec, s.data, ws, "style"), "content": accuracy(content_rec, s.data, ws, "content")}
+    ceiling = {
+        "style": accuracy(style_rec, s.data, ws, "style"),
+        "content": accuracy(content_rec, s.data, ws, "content"),
+    }
     hits: dict[int, np.ndarray] = {}  # per target style: [style hits, content hits, transfers]
     with torch.no_grad():
         for r, t, _, _, ch in transfers(model, s.data, ws):
@@ -515,5 +605,8 @@ def evaluate(model_stem: Path | None = None, data_dir: str | None = None, split:
         "rec_deg": round(result["rec_deg"], 3),
         "rec_cm": round(result["rec_cm"], 3),
         "training_minutes": meta["training"].get("wall_minutes"),
-        "per_target": {s.data.styles[k]: {"sra": round(h[0] / h[2], 4), "cra": round(h[1] / h[2], 4), "transfers": int(h[2])} for k, h in sorted(hits.items())},
+        "per_target": {
+            s.data.styles[k]: {"sra": round(h[0] / h[2], 4), "cra": round(h[1] / h[2], 4), "transfers": int(h[2])}
+            for k, h in sorted(hits.items())
+        },
     }

@@ -25,7 +25,7 @@ def transfer_targets(style: np.ndarray, neutral: int, n_styles: int) -> tuple[np
     every other style, a styled window goes to neutral. Returns (window index, target)."""
     rows, targets = [], []
     for i, s in enumerate(style):
-        for t in ([t for t in range(n_styles) if t != neutral] if s == neutral else [neutral]):
+        for t in [t for t in range(n_styles) if t != neutral] if s == neutral else [neutral]:
             rows.append(i)
             targets.append(t)
     return np.array(rows, dtype=np.int64), np.array(targets, dtype=np.int64)
@@ -83,11 +83,15 @@ def transfers(model: StyleERD, data: TrainingData, ws: WindowSet, batch: int = 5
         if pose == "input":  # as runtime.stylizer does it, frame by frame
             same_rot, same_vel, _ = model(x, style, content, style)
             given = model.raw_rotations(x)
-            now = ((torch.rad2deg(torch_quat.angle(same_rot, given)).mean(-1) - FAMILIAR) / (UNFAMILIAR - FAMILIAR)).clamp(0.0, 1.0)  # [B, T]
+            now = (
+                (torch.rad2deg(torch_quat.angle(same_rot, given)).mean(-1) - FAMILIAR) / (UNFAMILIAR - FAMILIAR)
+            ).clamp(0.0, 1.0)  # [B, T]
             weight = now.clone()
             for frame in range(1, now.shape[1]):
                 weight[:, frame] = torch.maximum(now[:, frame], weight[:, frame - 1] - RELEASE)
-            rot = torch_quat.slerp(rot, torch_quat.add_change(given, same_rot, rot), weight[..., None].expand(rot.shape[:-1]))
+            rot = torch_quat.slerp(
+                rot, torch_quat.add_change(given, same_rot, rot), weight[..., None].expand(rot.shape[:-1])
+            )
             vel = vel + weight[..., None] * (x[..., model.layout.velocities] - same_vel)
         yield r, t, rot, vel, model.motion_channels(rot, vel)
 
@@ -129,7 +133,12 @@ def transfer_quality(model: StyleERD, data: TrainingData, test: WindowSet, style
     model.eval()
     reference = torch.as_tensor(data.stats.reference, dtype=torch.float32)
     # the content recogniser on each real window once (a neutral window is the input of several transfers)
-    read_in = np.concatenate([content_rec(data.gather(test.starts[i : i + batch])).argmax(-1).numpy() for i in range(0, len(test.starts), batch)])
+    read_in = np.concatenate(
+        [
+            content_rec(data.gather(test.starts[i : i + batch])).argmax(-1).numpy()
+            for i in range(0, len(test.starts), batch)
+        ]
+    )
     feats, ok_s, ok_c, ok_in, jerk_fake, all_targets = [], [], [], [], [], []
     for r, t, rot, _, ch in transfers(model, data, test, batch, pose):
         ok_s.append(style_rec(ch).argmax(-1).numpy() == t)
@@ -140,23 +149,39 @@ def transfer_quality(model: StyleERD, data: TrainingData, test: WindowSet, style
         all_targets.append(t)
     targets, ok_s, ok_c, ok_in = (np.concatenate(a) for a in (all_targets, ok_s, ok_c, ok_in))
     fake = np.concatenate(feats)
-    real_all = np.concatenate([fmd_features(fmd, window_rotations(data, test.starts[i : i + batch]), reference) for i in range(0, len(test.starts), batch)])
+    real_all = np.concatenate(
+        [
+            fmd_features(fmd, window_rotations(data, test.starts[i : i + batch]), reference)
+            for i in range(0, len(test.starts), batch)
+        ]
+    )
     real = {k: real_all[test.style == k] for k in range(len(data.styles))}
     styles = np.unique(targets)
     per_style = {data.styles[k]: round(frechet_distance(fake[targets == k], real[k]), 3) for k in styles}
     # floor: two halves of the real windows, split by clip
     half = np.isin(test.clip, np.unique(test.clip)[::2])
-    floor_style = {data.styles[k]: round(frechet_distance(real_all[half & (test.style == k)], real_all[~half & (test.style == k)]), 3) for k in styles}
+    floor_style = {
+        data.styles[k]: round(
+            frechet_distance(real_all[half & (test.style == k)], real_all[~half & (test.style == k)]), 3
+        )
+        for k in styles
+    }
     pooled_real = proportional_real(real, targets)
     pooled = frechet_distance(fake, pooled_real)
     floor = frechet_distance(real_all[half], real_all[~half])
-    real_pos = torch.cat([_real_positions(model, data, test.starts[i : i + batch]) for i in range(0, len(test.starts), batch)])
+    real_pos = torch.cat(
+        [_real_positions(model, data, test.starts[i : i + batch]) for i in range(0, len(test.starts), batch)]
+    )
     # spreads over bootstrap resamples of the transfers (FMD: fake and real rows drawn together)
-    spread = {
-        "sra": bootstrap_spread(len(ok_s), lambda i: ok_s[i].mean(), resamples),
-        "cra": bootstrap_spread(len(ok_c), lambda i: ok_c[i].mean(), resamples),
-        "fmd": bootstrap_spread(len(fake), lambda i: frechet_distance(fake[i], pooled_real[i]), resamples),
-    } if resamples else {}
+    spread = (
+        {
+            "sra": bootstrap_spread(len(ok_s), lambda i: ok_s[i].mean(), resamples),
+            "cra": bootstrap_spread(len(ok_c), lambda i: ok_c[i].mean(), resamples),
+            "fmd": bootstrap_spread(len(fake), lambda i: frechet_distance(fake[i], pooled_real[i]), resamples),
+        }
+        if resamples
+        else {}
+    )
     return {
         "transfers": len(targets),
         "sra": round(float(ok_s.mean()), 4),
@@ -188,8 +213,13 @@ def _jerk(positions: torch.Tensor) -> np.ndarray:
 
 def style_ratios(quality: dict) -> tuple[dict[str, float], dict[str, float]]:
     """Per target style, FMD / floor and CRA / ceiling (``transfer_quality``'s output in)."""
-    fmd = {k: quality["fmd_per_style"][k] / max(quality["fmd_floor_per_style"][k], 1e-9) for k in quality["fmd_per_style"]}
-    cra = {k: quality["cra_per_style"][k] / max(quality["content_ceiling_per_style"][k], 1e-9) for k in quality["cra_per_style"]}
+    fmd = {
+        k: quality["fmd_per_style"][k] / max(quality["fmd_floor_per_style"][k], 1e-9) for k in quality["fmd_per_style"]
+    }
+    cra = {
+        k: quality["cra_per_style"][k] / max(quality["content_ceiling_per_style"][k], 1e-9)
+        for k in quality["cra_per_style"]
+    }
     return fmd, cra
 
 
@@ -199,4 +229,8 @@ def realism_margin(quality: dict) -> dict[str, float]:
     Also the worst FMD / floor and CRA / ceiling themselves."""
     fmd, cra = style_ratios(quality)
     margin = min(min(FMD_BAR / max(fmd[k], 1e-9), cra[k] / CRA_BAR) for k in fmd)
-    return {"worst_fmd_over_floor": round(max(fmd.values()), 3), "worst_cra_of_ceiling": round(min(cra.values()), 4), "realism_margin": round(margin, 4)}
+    return {
+        "worst_fmd_over_floor": round(max(fmd.values()), 3),
+        "worst_cra_of_ceiling": round(min(cra.values()), 4),
+        "realism_margin": round(margin, 4),
+    }
