@@ -158,7 +158,7 @@ def summary(rounds: dict[str, list[dict]]) -> tuple[dict, dict]:
     best peak of all rounds of both commits (the machine's; a round's own peak, measured while
     the machine was busy, flatters the round: it once made products 1.16x "the peak")."""
     peak = max(m["matmul_peak_gflops"] for ms in rounds.values() for m in ms)
-    achieved = lambda m, k: m[k] * m["matmul_peak_gflops"] / peak if k.startswith("fraction") else m[k]  # noqa: E731
+    achieved = lambda m, k: m[k] * m["matmul_peak_gflops"] / peak if k.startswith("fraction") else m[k]
     median = {
         name: {k: round(float(np.median([achieved(m, k) for m in ms])), 4) for k in ms[0]}
         for name, ms in rounds.items()

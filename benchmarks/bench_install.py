@@ -84,7 +84,7 @@ def main() -> None:
         f"{'install':<7} {'venv MB':>8} {'torch':>6} {'transfer cold s':>16} {'warm s':>7} {'numba cold s':>13} {'numba warm s':>13} {'--help s':>9}"
     )
     for name, r in report["installs"].items():
-        print(f"{name:<7} {r['venv_mb']:>8.0f} {str(r['torch_installed']):>6} {r['transfer_cold_s']:>16.2f} {r['transfer_warm_s']:>7.2f} "
+        print(f"{name:<7} {r['venv_mb']:>8.0f} {r['torch_installed']!s:>6} {r['transfer_cold_s']:>16.2f} {r['transfer_warm_s']:>7.2f} "
               f"{r['transfer_numba_cold_s']:>13.2f} {r['transfer_numba_warm_s']:>13.2f} {r['help_s']:>9.2f}")  # fmt: skip
     print(f"bare venv {report['bare_venv_mb']:.0f} MB; wheel {report['wheel_mb']} MB; wrote {out}")
 

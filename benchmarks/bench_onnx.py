@@ -31,9 +31,9 @@ from threadpoolctl import threadpool_limits
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from styleerd.model.stored import load_generator_weights  # noqa: E402
-from styleerd.runtime.backends import make_backend  # noqa: E402
-from styleerd.runtime.onnx_export import step_graph  # noqa: E402
+from styleerd.model.stored import load_generator_weights
+from styleerd.runtime.backends import make_backend
+from styleerd.runtime.onnx_export import step_graph
 
 FIRST = "10171e4"  # the last commit whose export was the plain-op graph only (opset 17)
 BEFORE = "bc2080d"  # the LSTM-op export as it stood before the batched graphs
@@ -151,7 +151,7 @@ def main() -> None:
                                   "frames_per_s_1000_streams_1_thread": rate(lambda: s1.run(None, f1000), 1000),
                                   "frames_per_s_1000_streams_2_threads": rate(lambda: s2.run(None, f1000), 1000)}  # fmt: skip
         print(name, report["graphs"][name], flush=True)
-    labels = lambda n: (np.eye(len(c.styles), dtype=np.float32)[[c.neutral_index] * n], np.eye(len(c.contents), dtype=np.float32)[[0] * n],  # noqa: E731
+    labels = lambda n: (np.eye(len(c.styles), dtype=np.float32)[[c.neutral_index] * n], np.eye(len(c.contents), dtype=np.float32)[[0] * n],
                         np.eye(len(c.styles), dtype=np.float32)[[c.branch_styles[0]] * n])  # fmt: skip
     x1, x1000 = (np.zeros((n, c.feature_dim), np.float32) for n in (1, 1000))
     with threadpool_limits(1):

@@ -23,9 +23,9 @@ import onnxruntime as ort
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from styleerd.atomic import atomic_write_text  # noqa: E402
-from styleerd.model.stored import load_generator_weights  # noqa: E402
-from styleerd.runtime.onnx_export import FORMS, state_shape, step_graph  # noqa: E402
+from styleerd.atomic import atomic_write_text
+from styleerd.model.stored import load_generator_weights
+from styleerd.runtime.onnx_export import FORMS, state_shape, step_graph
 
 
 def feeds(model, form: str, styles: tuple[str, ...] | None, n: int) -> dict[str, np.ndarray]:
@@ -33,7 +33,7 @@ def feeds(model, form: str, styles: tuple[str, ...] | None, n: int) -> dict[str,
     first style branch)."""
     c = model.config
     rows, _, width = state_shape(model, form, styles)
-    eye = lambda k, i: np.eye(k, dtype=np.float32)[np.full(n, i)]  # noqa: E731
+    eye = lambda k, i: np.eye(k, dtype=np.float32)[np.full(n, i)]
     rng = np.random.default_rng(0)
     return {
         "features": rng.normal(0, 1, (n, c.feature_dim)).astype(np.float32),

@@ -22,13 +22,13 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from styleerd.eval.metrics import _streams  # noqa: E402
-from styleerd.eval.plots import filmstrip  # noqa: E402
-from styleerd.model.stored import load_generator_weights  # noqa: E402
-from styleerd.motion.kinematics import forward_positions  # noqa: E402
-from styleerd.motion.motion import Motion  # noqa: E402
-from styleerd.motion.retarget import part_joints  # noqa: E402
-from styleerd.runtime.stylizer import StreamStylizer  # noqa: E402
+from styleerd.eval.metrics import _streams
+from styleerd.eval.plots import filmstrip
+from styleerd.model.stored import load_generator_weights
+from styleerd.motion.kinematics import forward_positions
+from styleerd.motion.motion import Motion
+from styleerd.motion.retarget import part_joints
+from styleerd.runtime.stylizer import StreamStylizer
 
 
 def stream(model, rot, pos, styles, contents, target: dict, parts: str | None) -> np.ndarray:

@@ -49,7 +49,7 @@ def main() -> None:
 
         setattr(module, name, call)
 
-    step = lambda t: st.step(rot[t % walk.n_frames], pos[t % walk.n_frames])  # noqa: E731
+    step = lambda t: st.step(rot[t % walk.n_frames], pos[t % walk.n_frames])
     for t in range(100):
         step(t)
     # wrapped once compiled (a kernel compiled later would find a Python function among its

@@ -35,11 +35,11 @@ from styleerd.atomic import atomic_write_text
 from styleerd.data.cache import prepare
 from styleerd.data.datasets import data_root, find_clips
 from styleerd.data.features import FeatureLayout
-from styleerd.motion import quat
 from styleerd.data.windows import window_starts
 from styleerd.eval.metrics import played_channels
 from styleerd.model import checkpoint as ckpt
 from styleerd.model.fmd import fmd_features
+from styleerd.motion import quat
 from styleerd.train.add_style import AddStyleConfig, add_style
 from styleerd.train.batches import TrainingData, WindowSet, window_rotations, windows
 from styleerd.train.classifiers import accuracy, train_classifier

@@ -86,7 +86,7 @@ class Host:
         r = s["roles"]
         self.left, self.right, self.feet = r["left"], r["right"], r["feet"]
         self.max_foot_speed = s["contact_speed_leg_lengths"] * r["leg_length"]
-        one_hot = lambda names, name: np.eye(len(names), dtype=np.float32)[[names.index(name)]]  # noqa: E731
+        one_hot = lambda names, name: np.eye(len(names), dtype=np.float32)[[names.index(name)]]
         self.style, self.content = (
             one_hot(s.get("input_styles", s["styles"]), input_style),
             one_hot(s["contents"], content),

@@ -17,7 +17,7 @@ try:
 except PackageNotFoundError:  # a checkout on sys.path without an install
     __version__ = "0+unknown"
 
-__all__ = ["Model", "Stylizer", "load", "read_motion", "transfer", "__version__"]
+__all__ = ["Model", "Stylizer", "__version__", "load", "read_motion", "transfer"]
 
 
 def __getattr__(name: str):

@@ -382,10 +382,8 @@ def _eval_ablations(args: argparse.Namespace) -> None:
 
 def _bench(args: argparse.Namespace) -> None:
     from styleerd.atomic import atomic_write_text
-    from styleerd.eval.bench import plot, run_bench, table
+    from styleerd.eval.bench import STREAMS, plot, run_bench, table
     from styleerd.model.checkpoint import load_generator
-
-    from styleerd.eval.bench import STREAMS
 
     report = run_bench(load_generator(args.model)[0], args.steps, tuple(args.streams or STREAMS))
     Path(args.json).parent.mkdir(parents=True, exist_ok=True)

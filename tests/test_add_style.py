@@ -14,11 +14,11 @@ import numpy as np
 import pytest
 import torch
 
+from styleerd.errors import StyleERDError
 from styleerd.model import checkpoint as ckpt
 from styleerd.model.stored import generator_weights, load_generator_weights
 from styleerd.motion import bvh
 from styleerd.motion.procedural import rig_variants, walk
-from styleerd.errors import StyleERDError
 from styleerd.runtime.backends import make_backend
 from styleerd.runtime.onnx_export import step_graph
 from styleerd.runtime.stylizer import StreamStylizer

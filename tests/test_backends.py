@@ -5,9 +5,9 @@ import numpy as np
 import onnx
 import pytest
 
+from styleerd.errors import StyleERDError
 from styleerd.model.checkpoint import load_generator
 from styleerd.runtime.backends import BACKENDS, make_backend
-from styleerd.errors import StyleERDError
 from styleerd.runtime.onnx_export import FORMS, OPSET, state_layers, state_shape, step_graph
 
 
@@ -186,7 +186,7 @@ def test_numba_backend_refuses_inputs_that_do_not_fit_its_state(model, n, thread
     c = model.config
     b = make_backend("numba", model, n, threads)
     x = np.zeros((n, c.feature_dim), np.float32)
-    one = lambda k: np.eye(k, dtype=np.float32)[np.zeros(n, int)]  # noqa: E731
+    one = lambda k: np.eye(k, dtype=np.float32)[np.zeros(n, int)]
     style, content, target = one(len(c.input_styles)), one(len(c.contents)), one(len(c.styles))
     b.step(x, style, content, target)
     for bad in ((x[:-1], style, content, target), (x, style, content, target[:-1]), (x[:, :-1], style, content, target),
@@ -251,7 +251,7 @@ def test_onnx_backend_runs_many_streams_on_a_graph_of_one_op_per_layer(model):
     c, n = model.config, UNFUSED_FROM + 4
     ref, onnx_ = make_backend("numpy", model, n), make_backend("onnx", model, n)
     rng = np.random.default_rng(2)
-    one = lambda k, i: np.eye(k, dtype=np.float32)[np.full(n, i)]  # noqa: E731
+    one = lambda k, i: np.eye(k, dtype=np.float32)[np.full(n, i)]
     style, content, target = (
         one(len(c.input_styles), c.neutral_index),
         one(len(c.contents), 4),

@@ -15,8 +15,8 @@ import sys
 from pathlib import Path
 
 import pytest
-
 from conftest import run_checked
+
 from styleerd.motion import bvh
 
 CHECKS = Path(__file__).with_name("blender_checks.py")

@@ -4,10 +4,10 @@ import sys
 
 import numpy as np
 import pytest
+from conftest import walking_motion
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from conftest import walking_motion
 from styleerd.motion import bvh, quat
 from styleerd.motion.bvh import BVHError
 from styleerd.motion.kinematics import forward_kinematics

@@ -1,9 +1,9 @@
 """Two-bone IK against forward kinematics, and the online foot lock."""
 
 import numpy as np
+from conftest import walking_motion
 from scipy.spatial.transform import Rotation
 
-from conftest import walking_motion
 from styleerd.motion import quat
 from styleerd.motion.ik import two_bone_ik
 from styleerd.motion.kinematics import forward_kinematics

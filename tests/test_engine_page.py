@@ -8,9 +8,9 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from test_viewer import ARGS, CHROMIUM
 
 from styleerd.serve.loadtest import free_port, start_server, stop_server
-from test_viewer import ARGS, CHROMIUM
 
 pytestmark = pytest.mark.skipif(
     not Path(CHROMIUM).exists(), reason="Chromium not installed (.ci/run installs Debian's chromium)"

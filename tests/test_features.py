@@ -1,7 +1,7 @@
 import numpy as np
 import pytest
-
 from conftest import walking_motion
+
 from styleerd.data.features import (
     FeatureLayout,
     FeatureStats,

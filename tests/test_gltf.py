@@ -3,9 +3,9 @@
 
 import numpy as np
 import pygltflib as gl
+from conftest import walking_motion
 from scipy.spatial.transform import Rotation
 
-from conftest import walking_motion
 from styleerd.motion.gltf import write_glb
 from styleerd.motion.kinematics import forward_kinematics
 from styleerd.motion.procedural import walk

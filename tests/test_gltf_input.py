@@ -5,6 +5,8 @@ back as the same file with only the animation replaced; the Khronos validator pa
 import numpy as np
 import pygltflib as gl
 import pytest
+from test_gltf_mesh import needs_node, validate
+from test_rotations import scipy_globals
 
 from styleerd.errors import StyleERDError
 from styleerd.eval.rotations import rotation_errors
@@ -13,8 +15,6 @@ from styleerd.motion import bvh, quat
 from styleerd.motion.gltf import read_gltf, write_glb
 from styleerd.motion.procedural import walk, with_rest_frames
 from styleerd.runtime.offline import TransferOptions, transfer_file
-from test_gltf_mesh import needs_node, validate
-from test_rotations import scipy_globals
 
 VRM_BONES = {
     "Hips": "hips",

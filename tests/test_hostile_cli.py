@@ -15,6 +15,7 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 from safetensors.numpy import save_file
+from test_bvh import GOOD
 
 from styleerd.errors import StyleERDError
 from styleerd.model.checkpoint import load_generator
@@ -22,8 +23,6 @@ from styleerd.models import MODELS_DIR
 from styleerd.motion import bvh
 from styleerd.motion.procedural import walk
 from styleerd.runtime.stylizer import target_weights
-
-from test_bvh import GOOD
 
 CLI = [sys.executable, "-m", "styleerd.cli"]
 

@@ -12,6 +12,7 @@ import time
 
 import numpy as np
 import pytest
+from test_server import RawClient, closed_with, frame, replies
 from websockets.exceptions import ConnectionClosed, InvalidStatus
 from websockets.sync.client import connect
 
@@ -21,8 +22,6 @@ from styleerd.motion.procedural import walk, with_extra_joints
 from styleerd.runtime.channels import ChannelStylizer
 from styleerd.serve.client import hello
 from styleerd.serve.loadtest import free_port, server_log, start_server, stop_server
-
-from test_server import RawClient, closed_with, frame, replies
 
 MAX_JOINTS, QUEUE, PROBE_FRAMES, MAX_WATCHERS = 120, 8, 40, 8
 

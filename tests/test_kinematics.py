@@ -1,7 +1,7 @@
 import numpy as np
+from conftest import walking_motion
 from scipy.spatial.transform import Rotation, Slerp
 
-from conftest import walking_motion
 from styleerd.motion import quat
 from styleerd.motion.kinematics import facing_directions, foot_contacts, forward_kinematics, heading_rotations
 from styleerd.motion.motion import drop_root

@@ -7,9 +7,9 @@ import pytest
 import scipy.linalg
 
 from styleerd.eval.metrics import runtime_report
-from styleerd.train.validation import frechet_distance
 from styleerd.model import checkpoint as ckpt
 from styleerd.model.checkpoint import load_generator, load_labeller
+from styleerd.train.validation import frechet_distance
 
 
 def test_frechet_distance_against_scipy_sqrtm():

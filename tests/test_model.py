@@ -1,8 +1,8 @@
 import numpy as np
 import pytest
 import torch
-
 from conftest import walking_motion
+
 from styleerd.data.features import FeatureStats, motion_features
 from styleerd.model import checkpoint as ckpt
 from styleerd.model import torch_quat

@@ -18,9 +18,9 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from conftest import run_checked as _run
 
 from styleerd.motion import bvh, procedural
-from conftest import run_checked as _run
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -28,7 +28,7 @@ ROOT = Path(__file__).resolve().parents[1]
 def readme_example() -> str:
     """The first ```python block of the README's "Python API" section."""
     section = ROOT.joinpath("README.md").read_text().split("\n## Python API\n", 1)[1]
-    return re.search(r"```python\n(.*?)```", section, re.S).group(1)
+    return re.search(r"```python\n(.*?)```", section, re.DOTALL).group(1)
 
 
 def test_readme_python_example_runs_as_written(tmp_path):
@@ -218,8 +218,8 @@ def test_a_model_finds_the_labeller_of_its_labels(tmp_path, monkeypatch):
     added styles to keeps its base's labeller: added styles are targets only)."""
     from dataclasses import replace
 
-    from styleerd.models import MODELS_DIR
     from styleerd.model.stored import labeller_stem, load_generator_weights
+    from styleerd.models import MODELS_DIR
 
     config = load_generator_weights().config
     assert labeller_stem(config) == MODELS_DIR / "labeller-bandai2"

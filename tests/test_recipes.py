@@ -5,7 +5,8 @@ import numpy as np
 import pytest
 
 from styleerd.errors import StyleERDError
-from styleerd.eval.ablations import ABLATIONS, markdown as ablation_markdown
+from styleerd.eval.ablations import ABLATIONS
+from styleerd.eval.ablations import markdown as ablation_markdown
 from styleerd.eval.recipes import markdown, neutralisation, per_style, tradeoff_plot
 
 STYLES = ("active", "elderly", "normal")
@@ -132,7 +133,6 @@ def test_parallel_ablation_trainers_take_different_ablations(tmp_path, monkeypat
     import json
 
     from styleerd.eval import ablations
-
     from styleerd.train.config import TrainConfig
 
     trained = []

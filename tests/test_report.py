@@ -89,6 +89,6 @@ def test_the_added_styles_section_sets_the_critics_side_by_side(tmp_path):
         json.loads((tmp_path / name).read_text())["styles"]
         for name in ("unseen-styles.json", "unseen-styles-positions-critic.json")
     )
-    fmd = lambda runs: np.mean([v["added"]["fmd"] for v in runs.values()])  # noqa: E731
+    fmd = lambda runs: np.mean([v["added"]["fmd"] for v in runs.values()])
     assert f"FMD {fmd(ours):.3f} against {fmd(other):.3f}" in text
     assert "its critic\nread rotations, positions, velocities" in text

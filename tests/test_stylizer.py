@@ -1,8 +1,8 @@
 import numpy as np
 import pytest
 import torch
-
 from conftest import walking_motion
+
 from styleerd.data.features import FeatureStats, motion_features
 from styleerd.errors import StyleERDError
 from styleerd.model.generator import GeneratorConfig, StyleERD
@@ -74,7 +74,7 @@ def test_stream_equals_the_generator_forward_on_whole_clip_features(model, backe
 
     want = generator(2)
     if pose == "input":
-        scipy = lambda q: Rotation.from_quat(q.reshape(-1, 4), scalar_first=True)  # noqa: E731
+        scipy = lambda q: Rotation.from_quat(q.reshape(-1, 4), scalar_first=True)
         same = generator(1)
         angles = np.degrees((scipy(same).inv() * scipy(m.rotations)).magnitude()).reshape(30, -1).mean(-1)
         low, high = np.percentile(angles, [30, 70])
@@ -203,7 +203,7 @@ def test_a_failing_shard_releases_the_others(model, monkeypatch):
     ms = [walking_motion(8, seed=k) for k in range(6)]
     one = StreamStylizer(model, "normal", "walk", {"old": 1.0}, n_streams=6, backend="numpy")
     three = StreamStylizer(model, "normal", "walk", {"old": 1.0}, n_streams=6, backend="numpy", threads=3)
-    frame = lambda t: (np.stack([m.rotations[t] for m in ms]), np.stack([m.positions[t] for m in ms]))  # noqa: E731
+    frame = lambda t: (np.stack([m.rotations[t] for m in ms]), np.stack([m.positions[t] for m in ms]))
     features, raised = three._features, []
 
     def fails_on_the_last_shard(rotations, positions, sel):
@@ -353,8 +353,8 @@ def test_numba_kernels_on_threads_with_parts_root_speed_and_some_rows_equal_one_
     frame = lambda t, rows=slice(None): (
         np.stack([m.rotations[t] for m in ms])[rows],
         np.stack([m.positions[t] for m in ms])[rows],
-    )  # noqa: E731
-    make = lambda threads: StreamStylizer(model, "normal", "walk", {"old": 1.0}, n_streams=n, backend="numba", threads=threads,  # noqa: E731
+    )
+    make = lambda threads: StreamStylizer(model, "normal", "walk", {"old": 1.0}, n_streams=n, backend="numba", threads=threads,
                                           parts="legs=angry,arms=input", root_speed=True)  # fmt: skip
     one, two = make(1), make(2)
     some = np.arange(0, n, 3)  # 16 streams: below PARALLEL_FROM
@@ -445,7 +445,7 @@ def test_without_a_thread_safe_layer_the_kernels_stay_on_one_thread(model, monke
     try:
         assert parallel.kernel_threads(2, 1000) == 1
         ms = [walking_motion(3, seed=k) for k in range(40)]
-        frame = lambda t: (np.stack([m.rotations[t] for m in ms]), np.stack([m.positions[t] for m in ms]))  # noqa: E731
+        frame = lambda t: (np.stack([m.rotations[t] for m in ms]), np.stack([m.positions[t] for m in ms]))
         one, two = (
             StreamStylizer(model, "normal", "walk", {"old": 1.0}, n_streams=40, backend="numba", threads=k)
             for k in (1, 2)

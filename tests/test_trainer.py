@@ -11,9 +11,9 @@ import pytest
 import torch
 import yaml
 
+from styleerd.errors import StyleERDError
 from styleerd.model import checkpoint as ckpt
 from styleerd.train.config import TrainConfig
-from styleerd.errors import StyleERDError
 
 pytestmark = pytest.mark.slow
 
@@ -312,6 +312,7 @@ def test_fine_tune_from_a_saved_generator_with_a_critic_that_sees_rotations(shar
 
 def test_moving_average_of_the_weights_follows_its_formula():
     from conftest import walking_motion
+
     from styleerd.data.features import FeatureStats, motion_features
     from styleerd.model.generator import GeneratorConfig, StyleERD
     from styleerd.train.trainer import update_average

@@ -14,11 +14,11 @@ from scipy.spatial.transform import Rotation
 
 from styleerd.errors import StyleERDError
 from styleerd.model.checkpoint import load_generator
-from styleerd.runtime.channels import ChannelStylizer
 from styleerd.motion import quat
 from styleerd.motion.kinematics import forward_kinematics
 from styleerd.motion.motion import Motion
 from styleerd.motion.procedural import walk
+from styleerd.runtime.channels import ChannelStylizer
 from styleerd.serve.vmc import (
     BONE,
     ROOT,

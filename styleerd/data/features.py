@@ -104,7 +104,7 @@ def stream_features(
     skeleton: Skeleton,
     roles: BodyRoles,
     fps: float,
-    stats: "FeatureStats",
+    stats: FeatureStats,
     limit: float,
     contact_speed: float = CONTACT_SPEED,
     threads: int = 1,
@@ -317,7 +317,7 @@ class FeatureStats:
     reference: np.ndarray  # [J, 4]
 
     @classmethod
-    def fit(cls, features: np.ndarray, n_joints: int) -> "FeatureStats":
+    def fit(cls, features: np.ndarray, n_joints: int) -> FeatureStats:
         layout = FeatureLayout(n_joints)
         q = features[:, layout.rotations].reshape(len(features), n_joints, 4).astype(np.float64)
         reference = np.stack([average_rotation(q[:, j]) for j in range(n_joints)])
@@ -339,7 +339,7 @@ class FeatureStats:
         return {"mean": self.mean.tolist(), "std": self.std.tolist(), "reference": self.reference.tolist()}
 
     @classmethod
-    def from_dict(cls, d: dict) -> "FeatureStats":
+    def from_dict(cls, d: dict) -> FeatureStats:
         return cls(np.array(d["mean"]), np.array(d["std"]), np.array(d["reference"]))
 
 

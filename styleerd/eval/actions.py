@@ -349,10 +349,10 @@ def feet_figures(given: Motion, output: Motion, jm: JointMap, scale: float) -> d
     fout, aout = _feet(output, jm)
     floor = fin[..., 1].min()
     below = max(0.0, float(floor - fout[..., 1].min())) * scale
-    speed = lambda a: np.linalg.norm(np.diff(a[..., [0, 2]], axis=0), axis=-1) * given.fps * scale  # noqa: E731  [T-1, 2] cm/s
+    speed = lambda a: np.linalg.norm(np.diff(a[..., [0, 2]], axis=0), axis=-1) * given.fps * scale
     s_in, s_out = speed(ain), speed(aout)
     planted = s_in < 0.15 * 0.45 * BODY_CM  # a leg is about 0.45 of the body
-    gap = lambda a: np.percentile(np.linalg.norm(a[:, 0, [0, 2]] - a[:, 1, [0, 2]], axis=-1), 95) * scale  # noqa: E731
+    gap = lambda a: np.percentile(np.linalg.norm(a[:, 0, [0, 2]] - a[:, 1, [0, 2]], axis=-1), 95) * scale
     return {"below_floor_cm": round(below, 2), "slide_cm_s": {"input": round(float(np.median(s_in[planted])), 2) if planted.any() else None,
             "output": round(float(np.median(s_out[planted])), 2) if planted.any() else None},
             "stride_cm": {"input": round(float(gap(ain)), 1), "output": round(float(gap(aout)), 1)}}  # fmt: skip

@@ -182,7 +182,7 @@ def network_throughput(
     sharded = backend not in OWN_THREADS and threads > 1
     b = make_backend(backend, model, n_streams, 1 if sharded else threads)
     x = np.random.default_rng(0).normal(0, 1, (n_streams, c.feature_dim)).astype(np.float32)
-    one_hot = lambda k, i: np.eye(k, dtype=np.float32)[np.full(n_streams, i)]  # noqa: E731
+    one_hot = lambda k, i: np.eye(k, dtype=np.float32)[np.full(n_streams, i)]
     inputs = (
         x,
         one_hot(len(c.input_styles), c.neutral_index),
@@ -191,7 +191,7 @@ def network_throughput(
     )
     shards = _slices(n_streams, threads) if sharded else [slice(None)]
     with ThreadPoolExecutor(len(shards)) as pool, threadpool_limits(1 if sharded else threads):
-        step = lambda s: b.step(*(a[s] for a in inputs), None if s == slice(None) else s)  # noqa: E731
+        step = lambda s: b.step(*(a[s] for a in inputs), None if s == slice(None) else s)
         return _steady_rate(lambda: list(pool.map(step, shards)), n_streams, seconds, windows)
 
 
@@ -207,7 +207,7 @@ def step_products(model: StyleERD) -> tuple[np.ndarray, np.ndarray]:
     H = model.config.hidden
     stack = lambda e, layers: (
         [table[e][:3], table[e + 1][:3]] + [(table[e + 2 * i][0], 2 * H, table[e + 2 * i][2]) for i in range(1, layers)]
-    )  # noqa: E731
+    )
     first_dec = n_enc + 2 * L0 + 2 * L1 * len(model.config.branch_styles)
     calls = (
         [table[i][:3] for i in range(n_enc)]
@@ -236,7 +236,7 @@ def products_alone(
     rng = np.random.default_rng(0)
     buffers = [rng.normal(0, 1, 2 * (s.stop - s.start) * int(calls[:, 1:].max())).astype(np.float32) for s in shards]
     with ThreadPoolExecutor(len(shards)) as pool, threadpool_limits(1):
-        run = lambda k: products(P, calls, shards[k].stop - shards[k].start, buffers[k])  # noqa: E731
+        run = lambda k: products(P, calls, shards[k].stop - shards[k].start, buffers[k])
         return _steady_rate(lambda: list(pool.map(run, range(len(shards)))), n_streams, seconds, windows)
 
 

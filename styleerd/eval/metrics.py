@@ -38,8 +38,8 @@ from styleerd.data.windows import gather_windows, split_takes
 from styleerd.model.fmd import MotionAutoencoder, fmd_features
 from styleerd.model.generator import StyleERD
 from styleerd.motion import bvh
-from styleerd.motion.motion import Motion
 from styleerd.motion.kinematics import foot_contacts, forward_positions
+from styleerd.motion.motion import Motion
 from styleerd.motion.skeleton import BodyRoles
 from styleerd.runtime.cleanup import FootLock
 from styleerd.runtime.stylizer import StreamStylizer

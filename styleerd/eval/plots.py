@@ -7,18 +7,18 @@ from pathlib import Path
 import matplotlib
 
 matplotlib.use("Agg")
-import matplotlib.pyplot as plt  # noqa: E402
-import numpy as np  # noqa: E402
+import matplotlib.pyplot as plt
+import numpy as np
 
-from styleerd.atomic import atomic_write  # noqa: E402
-from styleerd.data.datasets import Clip, load_motion  # noqa: E402
-from styleerd.model.stored import GeneratorWeights  # noqa: E402
-from styleerd.motion import quat  # noqa: E402
-from styleerd.motion.kinematics import facing_directions, forward_kinematics, heading_rotations  # noqa: E402
-from styleerd.motion.motion import Motion  # noqa: E402
-from styleerd.motion.resample import resample  # noqa: E402
-from styleerd.motion.skeleton import BodyRoles  # noqa: E402
-from styleerd.runtime.offline import stylise_motion  # noqa: E402
+from styleerd.atomic import atomic_write
+from styleerd.data.datasets import Clip, load_motion
+from styleerd.model.stored import GeneratorWeights
+from styleerd.motion import quat
+from styleerd.motion.kinematics import facing_directions, forward_kinematics, heading_rotations
+from styleerd.motion.motion import Motion
+from styleerd.motion.resample import resample
+from styleerd.motion.skeleton import BodyRoles
+from styleerd.runtime.offline import stylise_motion
 
 
 def _draw(ax, xy: np.ndarray, parents: np.ndarray, color: str) -> None:

@@ -7,7 +7,6 @@ trade-off plot."""
 from __future__ import annotations
 
 import itertools
-
 from pathlib import Path
 
 import numpy as np

@@ -17,7 +17,9 @@ from styleerd.eval.ablations import ablation_table, markdown, model_stem, shippe
 from styleerd.eval.bench import STREAMS, plot, run_bench, table
 from styleerd.eval.metrics import evaluate_model, runtime_report
 from styleerd.eval.plots import filmstrip, style_filmstrip
-from styleerd.eval.rotations import markdown as markdown_rotations, rotation_report, write as write_rotations
+from styleerd.eval.rotations import markdown as markdown_rotations
+from styleerd.eval.rotations import rotation_report
+from styleerd.eval.rotations import write as write_rotations
 from styleerd.model.checkpoint import load_generator, load_labeller
 from styleerd.motion.resample import resample
 from styleerd.runtime.offline import stylise_motion
@@ -328,7 +330,7 @@ def added_styles_section(docs: Path) -> str:
     unseen, b12 = docs / "unseen-styles.json", docs / "bandai12.json"
     if unseen.is_file():
         r = json.loads(unseen.read_text())
-        pct = lambda v: f"{100 * v:.1f} %"  # noqa: E731
+        pct = lambda v: f"{100 * v:.1f} %"
         rows = []
         for style, v in r["styles"].items():
             start = v.get("from_start")
@@ -424,7 +426,7 @@ def _critic_comparison(r: dict, other_path: Path) -> str:
         return ""
     other = json.loads(other_path.read_text())["styles"]
     both = [k for k in r["styles"] if k in other]
-    mean = lambda runs, key: float(np.mean([runs[k]["added"][key] for k in both]))  # noqa: E731
+    mean = lambda runs, key: float(np.mean([runs[k]["added"][key] for k in both]))
     ours = r["styles"]
     lower = sum(ours[k]["added"]["fmd"] < other[k]["added"]["fmd"] for k in both)
     return f"""

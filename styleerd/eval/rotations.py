@@ -135,7 +135,7 @@ def markdown(report: dict) -> str:
         "| --- | --- | --- | --- |",
     ]
     for group, rows in groups.items():
-        per = lambda key, k: np.median([np.median([v[k] for v in r[key].values()]) for r in rows])  # noqa: E731
+        per = lambda key, k: np.median([np.median([v[k] for v in r[key].values()]) for r in rows])
         lines.append(
             f"| {group} | all mapped | {per('round_trip', 1):.1f} / {per('round_trip', 2):.1f} | {per('stylised', 1):.1f} / {per('stylised', 2):.1f} |"
         )

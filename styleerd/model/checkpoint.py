@@ -16,8 +16,8 @@ from styleerd.atomic import atomic_write, atomic_write_text
 from styleerd.data.features import FeatureStats
 from styleerd.model.classifiers import WindowClassifier
 from styleerd.model.config import GeneratorConfig
-from styleerd.model.generator import StyleERD
 from styleerd.model.fmd import MotionAutoencoder
+from styleerd.model.generator import StyleERD
 from styleerd.model.labeller import OnlineLabeller
 from styleerd.model.stored import GeneratorWeights, load_arrays, loaded
 from styleerd.models import DEFAULT_MODEL, FMD, LABELLER, RECOGNISERS

@@ -62,7 +62,7 @@ class GeneratorConfig:
         return asdict(self)
 
     @classmethod
-    def from_dict(cls, d: dict) -> "GeneratorConfig":
+    def from_dict(cls, d: dict) -> GeneratorConfig:
         d = dict(d)
         for key in ("styles", "contents", "encoder", "decoder", "added_styles"):
             if key in d:

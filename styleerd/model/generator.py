@@ -20,8 +20,8 @@ import torch
 from torch import nn
 
 from styleerd.data.features import FeatureLayout, FeatureStats
-from styleerd.model.config import GeneratorConfig
 from styleerd.model import torch_quat
+from styleerd.model.config import GeneratorConfig
 from styleerd.motion.skeleton import Skeleton
 
 

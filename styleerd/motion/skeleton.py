@@ -107,7 +107,7 @@ class Skeleton:
         }
 
     @classmethod
-    def from_dict(cls, d: dict) -> "Skeleton":
+    def from_dict(cls, d: dict) -> Skeleton:
         return cls(
             names=tuple(d["names"]),
             parents=np.array(d["parents"]),
@@ -199,7 +199,7 @@ class BodyRoles:
         return tuple(np.array(j, dtype=np.int64) for j in (self.left, self.right, self.feet))
 
     @classmethod
-    def of(cls, skeleton: Skeleton) -> "BodyRoles":
+    def of(cls, skeleton: Skeleton) -> BodyRoles:
         r = {
             role: find_role(skeleton, role)
             for role in (

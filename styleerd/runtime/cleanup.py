@@ -78,7 +78,7 @@ class FootLock:
         """Output frame ``rotations [N, J, 4]`` (local) with ``positions [N, J, 3]``, and the
         input frame it came from -> cleaned local rotations; of every stream, or of the
         streams ``rows`` only."""
-        f64 = lambda a: np.ascontiguousarray(a, dtype=np.float64)  # noqa: E731
+        f64 = lambda a: np.ascontiguousarray(a, dtype=np.float64)
         out = f64(rotations).copy()
         state = np.arange(self.n)[slice(None) if rows is None else np.asarray(rows, dtype=int)]
         _foot_lock_kernel(f64(positions), f64(input_rotations), f64(input_positions), state, self.skeleton.parents, self.legs, self.toes, self.across[0], self.across[1],

@@ -9,9 +9,9 @@ from pathlib import Path
 
 import numpy as np
 
+from styleerd.atomic import atomic_write, check_output
 from styleerd.errors import StyleERDError
 from styleerd.model.stored import GeneratorWeights
-from styleerd.atomic import atomic_write, check_output
 from styleerd.motion import bvh, quat
 from styleerd.motion.gltf import GLTF_INPUTS, read_gltf, write_glb, write_gltf_animation
 from styleerd.motion.motion import Motion
@@ -177,8 +177,7 @@ def transfer_file(
         def write(tmp: str) -> None:
             with open(tmp, "w", encoding="utf-8") as f:
                 f.write(bvh.format_header(header.skeleton, header.n_frames, header.fps))
-                for values in rows:
-                    f.write(bvh.format_frames(values))
+                f.writelines(bvh.format_frames(values) for values in rows)
 
         atomic_write(output, write)
     else:

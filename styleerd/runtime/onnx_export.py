@@ -28,8 +28,8 @@ import onnx
 from onnx import TensorProto, helper, numpy_helper
 
 from styleerd.atomic import atomic_write, atomic_write_text
-from styleerd.errors import StyleERDError
 from styleerd.data.features import CONTACT_SPEED
+from styleerd.errors import StyleERDError
 from styleerd.model.stored import GeneratorWeights, generator_weights
 from styleerd.motion.skeleton import BodyRoles
 from styleerd.runtime.numpy_step import step_weights

@@ -49,7 +49,6 @@ from styleerd.motion.skeleton import BodyRoles
 from styleerd.runtime.backends import make_backend
 from styleerd.runtime.numpy_step import NumpyLabeller, one_blas_thread
 
-
 MAX_FEATURE = 1e6
 # streams per step from which a numpy or onnx step is split over the stylizer's threads, a shard
 # of streams per thread of a pool (measured with the numba step when it was split so, 2

@@ -49,8 +49,8 @@ from styleerd.motion import bvh, quat
 from styleerd.motion.kinematics import bone_fronts, forward_kinematics
 from styleerd.motion.skeleton import Skeleton
 from styleerd.runtime.channels import ChannelStylizer
-from styleerd.runtime.stylizer import POSES, label_vector, part_targets, target_weights
 from styleerd.runtime.onnx_export import sidecar, step_graph
+from styleerd.runtime.stylizer import POSES, label_vector, part_targets, target_weights
 from styleerd.serve.clips import DemoClips, reference_clip
 
 STATIC = Path(__file__).parent / "static"
@@ -101,7 +101,7 @@ class Stream:
     id: int
     name: str
     ws: ServerConnection
-    pool: "Pool"
+    pool: Pool
     row: int
     binary: bool
     positions: bool  # send joint positions of input and output with every frame
@@ -780,7 +780,7 @@ async def _refuse(ws: ServerConnection, code: int, message: str) -> None:
 async def run_server(
     config: ServeConfig,
     reuse_port: bool = False,
-    ready: "multiprocessing.synchronize.Event | None" = None,
+    ready: multiprocessing.synchronize.Event | None = None,
     announce=print,
 ) -> None:
     """Serve until SIGINT/SIGTERM; then every client gets a clean close (1001, going away)."""

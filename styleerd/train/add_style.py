@@ -35,13 +35,12 @@ from styleerd.model import checkpoint as ckpt
 from styleerd.model.discriminator import Discriminator
 from styleerd.model.generator import StyleERD
 from styleerd.model.stored import generator_weights, labeller_stem, toward_neutral
-from styleerd.motion.resample import resample
 from styleerd.motion.gltf import read_motion
+from styleerd.motion.resample import resample
 from styleerd.motion.retarget import joint_map, to_target
 from styleerd.train import losses
 from styleerd.train.config import TrainConfig
 from styleerd.train.trainer import _perceptual_classifier, critic_channels, setup
-
 
 MAX_CLIPS = 20
 NAME = re.compile(r"[a-z][a-z0-9_-]{0,31}")

@@ -61,7 +61,7 @@ class TrainConfig:
     classifier_lr: float = 1e-3
 
     @classmethod
-    def from_yaml(cls, path: str | Path, **overrides) -> "TrainConfig":
+    def from_yaml(cls, path: str | Path, **overrides) -> TrainConfig:
         try:
             data = yaml.safe_load(Path(path).read_text()) or {}
         except (OSError, yaml.YAMLError) as e:
@@ -69,7 +69,7 @@ class TrainConfig:
         return cls.from_dict({**data, **overrides}, where=str(path))
 
     @classmethod
-    def from_dict(cls, data: dict, where: str = "config") -> "TrainConfig":
+    def from_dict(cls, data: dict, where: str = "config") -> TrainConfig:
         known = {f.name for f in fields(cls)}
         unknown = sorted(set(data) - known)
         if unknown:

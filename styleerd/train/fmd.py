@@ -11,9 +11,9 @@ import torch
 from tqdm import tqdm
 
 from styleerd.model import checkpoint as ckpt
-from styleerd.models import FMD, MODELS_DIR
 from styleerd.model import torch_quat
 from styleerd.model.fmd import MotionAutoencoder
+from styleerd.models import FMD, MODELS_DIR
 from styleerd.train.batches import TrainingData, WindowSet, window_rotations, windows
 from styleerd.train.config import TrainConfig
 from styleerd.train.trainer import setup

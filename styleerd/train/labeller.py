@@ -25,9 +25,9 @@ from styleerd.data.cache import FeatureSet
 from styleerd.data.features import features_to_motion, motion_features
 from styleerd.data.windows import window_starts
 from styleerd.model import checkpoint as ckpt
-from styleerd.models import LABELLER, MODELS_DIR
 from styleerd.model.labeller import OnlineLabeller
 from styleerd.model.stored import toward_neutral
+from styleerd.models import LABELLER, MODELS_DIR
 from styleerd.train.batches import TrainingData, windows
 from styleerd.train.config import TrainConfig
 from styleerd.train.trainer import setup

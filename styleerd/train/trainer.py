@@ -31,17 +31,16 @@ from styleerd.data.datasets import file_digest
 from styleerd.data.features import FeatureLayout
 from styleerd.errors import StyleERDError
 from styleerd.model import checkpoint as ckpt
-from styleerd.models import MODELS_DIR, RECOGNISERS
 from styleerd.model.classifiers import WindowClassifier
 from styleerd.model.discriminator import Discriminator
 from styleerd.model.fmd import MotionAutoencoder
 from styleerd.model.generator import GeneratorConfig, StyleERD
+from styleerd.models import MODELS_DIR, RECOGNISERS
 from styleerd.train import losses
 from styleerd.train.batches import TrainingData, WindowSet, training_data, windows
 from styleerd.train.classifiers import accuracy, train_classifier
 from styleerd.train.config import TrainConfig
 from styleerd.train.validation import realism_margin, transfer_quality, transfers, validate
-
 
 # what --export writes: the best validation epoch by SRA + CRA, the last epoch (a fixed budget),
 # or the validation epoch most realistic in its worst target style (train.validation.realism_margin)
