@@ -146,7 +146,9 @@ def stages(steps: int) -> dict:
 def worker(tree: Path, steps: int) -> dict:
     env = dict(os.environ, PYTHONPATH=str(tree))
     code = f"import json, sys; sys.path.insert(0, {str(ROOT / 'benchmarks')!r}); from bench_engine import measure; print(json.dumps(measure({steps})))"
-    result = subprocess.run([sys.executable, "-c", code], cwd=tree, env=env, capture_output=True, text=True)
+    result = subprocess.run(
+        [sys.executable, "-c", code], cwd=tree, env=env, capture_output=True, text=True, check=False
+    )
     if result.returncode:
         raise SystemExit(f"worker in {tree} failed:\n{result.stderr[-3000:]}")
     return json.loads(result.stdout.strip().splitlines()[-1])

@@ -66,7 +66,10 @@ def main() -> None:
         cold, warm = timed(transfer, work), timed(transfer, work)
         numba = [*transfer[:-2], "--backend", "numba", "-o", work / f"out-{name}-numba.bvh"]
         numba_cold, numba_warm = timed(numba, work), timed(numba, work)
-        has_torch = subprocess.run([venv / "bin/python", "-c", "import torch"], capture_output=True).returncode == 0
+        has_torch = (
+            subprocess.run([venv / "bin/python", "-c", "import torch"], capture_output=True, check=False).returncode
+            == 0
+        )
         report["installs"][name] = {
             "requirements": [str(r).replace(str(wheel), "styleerd.whl") for r in requirements],
             "venv_mb": round(size_mb(venv), 1),

@@ -123,7 +123,7 @@ def make(work: Path) -> dict:
     bpy.ops.export_scene.fbx(
         filepath=str(work / "walk.fbx"), bake_anim=True, bake_anim_simplify_factor=0.0, add_leaf_bones=False
     )
-    names, made = world_rest_relative(arm, range(1, walk.n_frames + 1))
+    _names, made = world_rest_relative(arm, range(1, walk.n_frames + 1))
     _, truth = bvh_world(work / "walk.bvh")
     # the character as made moves like the BVH (checks this script's own keying)
     return {"frames": walk.n_frames, "keyed_error_deg": float(np.degrees(quat.angle_between(made, truth)).max())}

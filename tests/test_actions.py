@@ -43,7 +43,7 @@ def test_the_measures_on_hand_made_cases(demo_walk):
     # the style change is read in the body's own frame: the same bent elbow on a body turned by 1.2
     # rad about the vertical gives the same change
     bend = quat.from_angle_axis(np.array([0.5]), np.array([0.0, 0.6, 0.8]))  # not about the forearm itself
-    elbow = m.skeleton.names.index(dict((jm.target.names[t], m.skeleton.names[s]) for t, s in jm.pairs)["LowerArm_L"])
+    elbow = m.skeleton.names.index({jm.target.names[t]: m.skeleton.names[s] for t, s in jm.pairs}["LowerArm_L"])
 
     def bent(motion: Motion) -> Motion:
         rot = motion.rotations.copy()

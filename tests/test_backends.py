@@ -227,7 +227,7 @@ from threadpoolctl import threadpool_info
 loaded = {i["filepath"] for i in threadpool_info() if i["user_api"] == "blas"}
 assert loaded <= held, (loaded, held)
 """
-    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
+    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120, check=False)
     assert done.returncode == 0, done.stderr
 
 
@@ -345,6 +345,7 @@ def test_onnx_profile_bench_accounts_for_every_node(model, tmp_path):
         capture_output=True,
         text=True,
         timeout=300,
+        check=False,
     )
     assert done.returncode == 0, done.stderr
     report = json.loads(out.read_text())

@@ -196,6 +196,7 @@ def test_cli_prints_one_line_exits_2_and_writes_nothing(case, tmp_path):
         [sys.executable, "-m", "styleerd.cli", "resample", str(src), "--fps", "60", "-o", str(out)],
         capture_output=True,
         text=True,
+        check=False,
     )
     assert r.returncode == 2
     assert r.stdout == "" and len(r.stderr.strip().splitlines()) == 1, r.stderr
@@ -217,7 +218,7 @@ def test_streamed_reading_reports_the_same_problems(case, tmp_path):
     text, line, problem = BAD[case]
     (tmp_path / "bad.bvh").write_text(text)
     with pytest.raises(BVHError) as err:
-        header, frames = bvh.stream(tmp_path / "bad.bvh", chunk=1)
+        _header, frames = bvh.stream(tmp_path / "bad.bvh", chunk=1)
         for _ in frames:
             pass
     assert err.value.line == line and problem in err.value.problem, str(err.value)

@@ -92,7 +92,7 @@ def test_compiled_stream_features_flag_values_past_the_limit():
     pos = np.repeat(m.positions[:1], 2, 0)
     pos[1, 0] = [0.0, 0.0, 1e9]  # a root a million km away moved there in one frame
     previous = np.repeat(m.positions[:1], 2, 0)
-    x, *_, ok = stream_features(
+    _x, *_, ok = stream_features(
         np.repeat(m.rotations[:1], 2, 0),
         pos,
         previous,

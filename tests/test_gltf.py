@@ -61,7 +61,7 @@ def test_transfer_writes_the_same_motion_as_glb_and_bvh(tmp_path):
     from styleerd.motion import bvh
     from styleerd.runtime.offline import TransferOptions, transfer_file
 
-    model, meta = load_generator()
+    model, _meta = load_generator()
     bvh.write(tmp_path / "in.bvh", walk(1.0))
     transfer_file(
         tmp_path / "in.bvh",

@@ -137,6 +137,7 @@ def _refused(args: list, tmp_path: Path, text: str) -> None:
         capture_output=True,
         text=True,
         timeout=120,
+        check=False,
     )
     lines = done.stderr.strip().splitlines()
     assert done.returncode == 2 and len(lines) == 1 and "Traceback" not in done.stderr, (

@@ -523,7 +523,7 @@ def test_a_watcher_with_a_non_ascii_token_locks_nobody_out(server, clip):
     registration, each keeping its slot, until the server was full for everyone. Now each private
     hello (more than the server's 40 slots) is taken and released, and the probe goes on."""
     url = server[0]
-    m, values, _ = clip
+    m, _values, _ = clip
     watcher = connect(url, open_timeout=20, legacy=True)
     watcher.send(json.dumps({"type": "watch", "token": "é"}))
     assert json.loads(watcher.recv(timeout=20))["type"] == "waiting"
@@ -602,7 +602,7 @@ def test_a_watcher_flood_is_capped_and_the_probe_goes_on(server, clip):
 
 def test_stats_count_no_private_stream_but_the_askers_own(server, clip):
     url = server[0]
-    m, values, _ = clip
+    m, _values, _ = clip
     secret = connect(url, open_timeout=20, legacy=True)
     secret.send(json.dumps({**hello(m, 30.0, "elderly", 1.0, None, "hidden"), "private": True}))
     assert json.loads(secret.recv(timeout=20))["type"] == "ready"

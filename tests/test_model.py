@@ -46,8 +46,8 @@ def test_step_equals_forward_with_mixed_targets(setup):
             r, v, state = model.step(x[:, t], s, c, target, state)
             assert torch.allclose(r, rot[:, t], atol=1e-5) and torch.allclose(v, vel[:, t], atol=1e-5)
         # chunked forward with carried state == one forward
-        r1, v1, st = model(x[:, :13], s, c, target)
-        r2, v2, _ = model(x[:, 13:], s, c, target, st)
+        r1, _v1, st = model(x[:, :13], s, c, target)
+        r2, _v2, _ = model(x[:, 13:], s, c, target, st)
         assert torch.allclose(torch.cat([r1, r2], 1), rot, atol=1e-5)
     assert torch.allclose(rot.norm(dim=-1), torch.ones(()), atol=1e-5)
 
@@ -103,7 +103,7 @@ def test_only_needed_branches_run(setup):
 
 
 def test_learned_initial_state_selected_by_content(setup):
-    _, _, model, x = setup
+    _, _, model, _x = setup
     st = model.initial_state(torch.eye(2)[[0, 1]])
     assert torch.equal(st.neutral[0][:, 0], model.neutral_h0[0]) and torch.equal(
         st.neutral[0][:, 1], model.neutral_h0[1]
@@ -117,7 +117,7 @@ def test_learned_initial_state_selected_by_content(setup):
 
 
 def test_motion_channels_of_input_rotations_reproduce_input_positions(setup):
-    m, stats, model, x = setup
+    m, _stats, model, x = setup
     rot = model.raw_rotations(x)
     ch = model.motion_channels(rot, x[..., model.layout.velocities])
     J = m.skeleton.n_joints

@@ -49,7 +49,7 @@ def test_swing_twist_matches_scipy():
     swing, twist = quat.swing_twist(q, axis)
     assert np.allclose(quat.mul(swing, twist) * np.sign(quat.mul(swing, twist)[:, :1]), quat.positive_w(q), atol=1e-12)
     for k in range(0, 500, 50):
-        total, s, t = scipy_swing_twist_degrees(
+        _total, s, t = scipy_swing_twist_degrees(
             Rotation.identity(1), Rotation.from_quat(q[k : k + 1], scalar_first=True), axis[k]
         )
         assert np.isclose(np.degrees(quat.angle_between(quat.identity(), swing[k])), s[0], atol=1e-6)
@@ -169,7 +169,7 @@ def test_a_live_stream_on_a_rolled_rig_takes_its_bone_frames_from_its_first_fram
     frame, and then gives exactly what the file transfer gives."""
     from styleerd.runtime.channels import ChannelStylizer
 
-    g, meta = model
+    g, _meta = model
     rolled = rig_variants(walk(2.0, fps=30.0))["joint frames rolled about their bones"]
     live = ChannelStylizer(g, rolled.skeleton, {"elderly": 1.0}, "normal", "walk", fps=30.0)
     assert live.map.wants_first_frame

@@ -37,7 +37,7 @@ def test_offline_equals_streaming_and_keeps_the_root_trajectory(model):
     out = stylise_motion(model, m, "normal", "walk", {"old": 1.0})
     s = StreamStylizer(model, "normal", "walk", {"old": 1.0})
     for t in range(40):
-        r, p = s.step(m.rotations[t], m.positions[t])
+        r, _p = s.step(m.rotations[t], m.positions[t])
         assert np.abs(r[0] - out.rotations[t]).max() <= 1e-6
     _, g_in = forward_kinematics(m.rotations, m.positions, m.skeleton.parents)
     _, g_out = forward_kinematics(out.rotations, out.positions, m.skeleton.parents)

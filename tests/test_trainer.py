@@ -17,16 +17,16 @@ from styleerd.train.config import TrainConfig
 
 pytestmark = pytest.mark.slow
 
-TINY = dict(
-    max_train_clips=40,
-    neutral_layers=2,
-    style_layers=1,
-    batch_size=16,
-    val_windows=64,
-    classifier_epochs=1,
-    threads=1,
-    val_every=1,
-)
+TINY = {
+    "max_train_clips": 40,
+    "neutral_layers": 2,
+    "style_layers": 1,
+    "batch_size": 16,
+    "val_windows": 64,
+    "classifier_epochs": 1,
+    "threads": 1,
+    "val_every": 1,
+}
 
 
 def write_config(path, **kw):
@@ -88,11 +88,11 @@ def test_resume_refuses_a_different_config_but_allows_more_epochs(shared_data, t
 @pytest.mark.parametrize(
     "ablation",
     [
-        dict(use_adv=False, use_per=False),
-        dict(use_per=False),
-        dict(use_adv=False),
-        dict(attention=False),
-        dict(learned_init=False),
+        {"use_adv": False, "use_per": False},
+        {"use_per": False},
+        {"use_adv": False},
+        {"attention": False},
+        {"learned_init": False},
     ],
 )
 def test_ablation_switches_train(shared_data, tmp_path, ablation):
@@ -165,6 +165,7 @@ def test_data_parallel_two_processes_with_torchrun(shared_data, tmp_path):
         text=True,
         env=env,
         timeout=900,
+        check=False,
     )
     assert p.returncode == 0, p.stdout[-3000:] + p.stderr[-3000:]
     assert epochs_done(tmp_path / "ddp") == 2
@@ -178,7 +179,7 @@ def test_recognisers_read_positions_and_velocities_and_report_the_ceiling(shared
 
     report = train_recognisers(TrainConfig(**TINY), out=tmp_path / "rec", progress=False)
     assert set(report) == {"style", "content"} and 0.0 <= report["style"]["test_accuracy"] <= 1.0
-    style, content, meta = ckpt.load_recognisers(tmp_path / "rec")
+    style, _content, meta = ckpt.load_recognisers(tmp_path / "rec")
     layout = FeatureLayout(21)
     assert style.first_channel == layout.positions.start and style.in_dim == 6 * 21
     assert meta["content"]["labels"][0] == "raise-up-both-hands" and len(meta["style"]["labels"]) == 7
@@ -382,7 +383,7 @@ def test_bench_train_step_times_the_trainers_own_step_of_two_recipes(shared_data
     after = write_config(tmp_path / "after.yaml", critic_rotations=True, batch_size=12)  # its own batch
     out = tmp_path / "step.json"
     bench = subprocess.run([sys.executable, "benchmarks/bench_train_step.py", "--steps", "4", "--threads", "1", "--before", before, "--before-code", "HEAD", "--after", after, "--json", out],
-                           capture_output=True, text=True, timeout=600, cwd=os.path.dirname(os.path.dirname(__file__)))  # fmt: skip
+                           capture_output=True, text=True, timeout=600, cwd=os.path.dirname(os.path.dirname(__file__)), check=False)  # fmt: skip
     assert bench.returncode == 0, bench.stderr
     r = json.loads(out.read_text())
     assert "cycle pass + loss" in r["before"]["parts_ms"] and "cycle pass + loss" not in r["after"]["parts_ms"]
@@ -408,7 +409,7 @@ def test_bench_train_parallel_times_real_epochs_in_one_and_two_processes(shared_
     cfg = write_config(tmp_path / "c.yaml")
     out = tmp_path / "parallel.json"
     bench = subprocess.run([sys.executable, "benchmarks/bench_train_parallel.py", "--config", cfg, "--clips", "40", "--rounds", "1", "--data", shared_data, "--json", out],
-                           capture_output=True, text=True, timeout=900, cwd=os.path.dirname(os.path.dirname(__file__)))  # fmt: skip
+                           capture_output=True, text=True, timeout=900, cwd=os.path.dirname(os.path.dirname(__file__)), check=False)  # fmt: skip
     assert bench.returncode == 0, bench.stdout[-2000:] + bench.stderr[-2000:]
     r = json.loads(out.read_text())
     forms = r["forms"]

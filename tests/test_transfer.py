@@ -89,7 +89,7 @@ def test_xia_clips_into_every_style_keep_skeleton_frames_and_root(shared_data, m
 
 
 def test_unmappable_skeleton_and_bad_labels_fail_cleanly(shared_data, model, tmp_path):
-    g, meta = model
+    g, _meta = model
     xia = shared_data / "xia-sample" / "angry_13_000.bvh"
     text = xia.read_text().replace("LeftHand", "Paw").replace("LeftForeArm", "Wrist2")
     (tmp_path / "odd.bvh").write_text(text)
@@ -126,6 +126,7 @@ def test_unmappable_skeleton_and_bad_labels_fail_cleanly(shared_data, model, tmp
         ],
         capture_output=True,
         text=True,
+        check=False,
     )
     assert r.returncode == 0 and "LowerArm_L <- Wrist2" in r.stdout and (tmp_path / "x.bvh").is_file()
     clip = find_clips(shared_data, "bandai-namco-2")[0]
@@ -147,6 +148,7 @@ def test_unmappable_skeleton_and_bad_labels_fail_cleanly(shared_data, model, tmp
         ],
         capture_output=True,
         text=True,
+        check=False,
     )
     assert r.returncode == 2 and "valid: active, elderly" in r.stderr and len(r.stderr.strip().splitlines()) == 1
     assert not (tmp_path / "y.bvh").exists()
@@ -156,7 +158,7 @@ def test_channel_stream_equals_the_file_transfer_on_a_stream_at_model_rate(model
     from styleerd.motion.procedural import walk
     from styleerd.runtime.channels import ChannelStylizer
 
-    g, meta = model
+    g, _meta = model
     source = walk(2.0, fps=30.0)
     bvh.write(tmp_path / "in.bvh", source)
     src = bvh.read(tmp_path / "in.bvh")
@@ -300,6 +302,7 @@ def test_bad_files_fail_with_one_line_and_nothing_written(model, tmp_path, case)
         [sys.executable, "-m", "styleerd.cli", "transfer", str(path), "--style", "elderly", "-o", str(out)],
         capture_output=True,
         text=True,
+        check=False,
     )
     assert r.returncode == 2 and expected in r.stderr and len(r.stderr.strip().splitlines()) == 1, r.stderr
     assert not out.exists() and sorted(p.name for p in tmp_path.iterdir()) == ["in.bvh"]
@@ -403,6 +406,7 @@ def test_root_speed_gives_an_elderly_walk_the_normal_pace_with_feet_planted(shar
         capture_output=True,
         text=True,
         timeout=300,
+        check=False,
     )
     assert done.returncode == 0, done.stderr
     out = bvh.read(tmp_path / "out.bvh")

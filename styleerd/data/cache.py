@@ -212,9 +212,11 @@ def summary(fs: FeatureSet) -> str:
     splits = Counter(fs.splits.tolist())
     total = int(fs.source_frames.sum())
     out = [
-        f"{fs.dataset}: {len(fs.names):,} clips, {len(styles)} styles x {len(contents)} contents, {total:,} frames "
-        f"({len(fs.features):,} at {fs.params.fps:g} fps); split train/val/test = "
-        f"{splits['train']}/{splits['val']}/{splits['test']} clips"
+        (
+            f"{fs.dataset}: {len(fs.names):,} clips, {len(styles)} styles x {len(contents)} contents, {total:,} frames "
+            f"({len(fs.features):,} at {fs.params.fps:g} fps); split train/val/test = "
+            f"{splits['train']}/{splits['val']}/{splits['test']} clips"
+        )
     ]
     w = min(10, max(8, *(len(s) for s in styles))) + 1
     cw = max(len(c) for c in contents) + 1

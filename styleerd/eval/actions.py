@@ -402,8 +402,8 @@ def markdown(report: dict) -> str:
     """The action table (per clip: identity error and correlation, per style correlation, cosine
     and size ratio of its change against the walks') per pose path, and the feet table."""
     styles = report["styles"]
-    lines = [f"Clips cut to {report['seconds']:g} s; errors in cm of a {report['body_cm']:g} cm body; per style: velocity correlation / "
-             "cosine of the style's change against the walks' / its size over the walks'.", ""]  # fmt: skip
+    lines = [(f"Clips cut to {report['seconds']:g} s; errors in cm of a {report['body_cm']:g} cm body; per style: velocity correlation / "
+             "cosine of the style's change against the walks' / its size over the walks'."), ""]  # fmt: skip
     for pose, r in report["poses"].items():
         lines += [f"### Pose `{pose}`", "", "| clip | action | identity cm | identity corr | " + " | ".join(styles) + " |",
                   "|---|---|---:|---:|" + "---:|" * len(styles)]  # fmt: skip
@@ -439,8 +439,8 @@ def markdown(report: dict) -> str:
         lines.append("")
     if report.get("feet"):
         keys = [k for k in next(iter(report["feet"].values())) if k.startswith("pose")]
-        lines += ["### Feet and pace", "", "Worst over the target styles: cm below the input's floor; planted feet's slide (cm/s, input's in brackets); "
-                  "stride (cm, input's in brackets), smallest over the styles; what the labeller reads.", "",
+        lines += ["### Feet and pace", "", ("Worst over the target styles: cm below the input's floor; planted feet's slide (cm/s, input's in brackets); "
+                  "stride (cm, input's in brackets), smallest over the styles; what the labeller reads."), "",
                   "| clip | labeller reads | " + " | ".join(keys) + " |", "|---|---|" + "---|" * len(keys)]  # fmt: skip
         for name, row in report["feet"].items():
             cells = []

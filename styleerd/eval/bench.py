@@ -245,10 +245,10 @@ def flops_per_frame(model: StyleERD) -> int:
     c = model.config
     D, nS, nC, H, J = c.feature_dim, len(c.input_styles), len(c.contents), c.hidden, c.n_joints
     sizes = [D + nS + nC, *c.encoder]
-    macs = sum(a * b for a, b in zip(sizes, sizes[1:]))
+    macs = sum(a * b for a, b in itertools.pairwise(sizes))
     macs += (c.neutral_layers + c.style_layers) * (2 * H * 4 * H)
     dec = [H + nS, *c.decoder, 7 * J]
-    macs += sum(a * b for a, b in zip(dec, dec[1:]))
+    macs += sum(a * b for a, b in itertools.pairwise(dec))
     return 2 * macs
 
 
@@ -342,8 +342,8 @@ def table(report: dict) -> str:
             f"| {label} | " + " | ".join(f(report["backends"][n]) for n in names) + f" | {paper.get(label, '')} |"
         )
     mem = report["memory_per_stream_bytes"]
-    lines += ["", f"FLOPs per frame: {report['flops_per_frame']:,}; float32 matmul peak measured here: {report['matmul_peak_gflops_2_threads']} GFLOP/s (2 threads, {report['cpu_count']} cores; the best of "
-              f"{', '.join(map(str, report.get('matmul_peak_gflops_each_measure', [])))}, measured before each backend's throughput);",
+    lines += ["", (f"FLOPs per frame: {report['flops_per_frame']:,}; float32 matmul peak measured here: {report['matmul_peak_gflops_2_threads']} GFLOP/s (2 threads, {report['cpu_count']} cores; the best of "
+              f"{', '.join(map(str, report.get('matmul_peak_gflops_each_measure', [])))}, measured before each backend's throughput);"),
               f"memory per stream: {mem['total']:,} bytes ({mem['recurrent_state']:,} recurrent state); startup latency: {report['startup_latency_frames']} frame (the paper: 1).", TARGETS]  # fmt: skip
     return "\n".join(lines) + "\n"
 

@@ -161,8 +161,10 @@ def _streamed_cells(r: dict) -> str:
 
 def markdown(rows: dict) -> str:
     lines = [
-        "| model | config | minutes | steps to the best epoch | FMD / floor | CRA / ceiling | SRA | worst style FMD / floor | worst style CRA / ceiling "
-        "| back to neutral, given / inferred | into styles, given / inferred | the same with --root-speed |",
+        (
+            "| model | config | minutes | steps to the best epoch | FMD / floor | CRA / ceiling | SRA | worst style FMD / floor | worst style CRA / ceiling "
+            "| back to neutral, given / inferred | into styles, given / inferred | the same with --root-speed |"
+        ),
         "|" + " --- |" * 12,
     ]
     for name, r in rows.items():

@@ -257,7 +257,7 @@ output, per joint, in the body's frame, averaged over the clip) against the same
         for what in ("to_neutral_mean", "into_styles_mean"):
             rows.append(f"| streamed, {what.replace('_', ' ')} (labels given / inferred) | "
                         + " | ".join(f"{100 * st[p][what]['given']:.1f} / {100 * st[p][what]['inferred']:.1f}" for p in ("network", "input")) + " |")  # fmt: skip
-        for source, r in st["network"]["to_neutral"].items():
+        for source in st["network"]["to_neutral"]:
             rows.append(f"| streamed, {source} -> normal (given / inferred) | "
                         + " | ".join(f"{100 * st[p]['to_neutral'][source]['given']:.1f} / {100 * st[p]['to_neutral'][source]['inferred']:.1f}" for p in ("network", "input")) + " |")  # fmt: skip
         text += (

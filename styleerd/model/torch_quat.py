@@ -4,6 +4,7 @@ Same convention as ``styleerd.motion.quat``: (w, x, y, z), ``mul(a, b)`` applies
 from __future__ import annotations
 
 import functools
+import itertools
 
 import torch
 
@@ -90,7 +91,7 @@ def _depth_levels(parents: tuple[int, ...]) -> tuple[list[int], list[torch.Tenso
     by_depth = [j for level in levels for j in level]
     if sorted(by_depth) != list(range(len(parents))):
         raise ValueError(f"parents {list(parents)} do not form one tree rooted at joint 0")
-    slots = [torch.tensor([above.index(parents[j]) for j in level]) for above, level in zip(levels, levels[1:])]
+    slots = [torch.tensor([above.index(parents[j]) for j in level]) for above, level in itertools.pairwise(levels)]
     return (
         [len(level) for level in levels],
         slots,

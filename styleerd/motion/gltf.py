@@ -31,7 +31,7 @@ from styleerd.motion.skeleton import POSITION_CHANNELS, Skeleton, find_role
 def guess_metres_per_unit(motion: Motion) -> float:
     sk = motion.skeleton
     try:
-        hip, knee, foot = (find_role(sk, f"left_{p}") for p in ("hip", "knee", "foot"))
+        _hip, knee, foot = (find_role(sk, f"left_{p}") for p in ("hip", "knee", "foot"))
         leg = float(np.linalg.norm(sk.offsets[knee]) + np.linalg.norm(sk.offsets[foot]))
     except KeyError:
         _, g = forward_kinematics(motion.rotations[:1], motion.positions[:1], sk.parents)
@@ -161,7 +161,7 @@ def write_glb(
         joints[:, 0] = joint
         weights = np.zeros((len(v), 4), np.float32)
         weights[:, 0] = 1.0
-        vertex = dict(target=gl.ARRAY_BUFFER)
+        vertex = {"target": gl.ARRAY_BUFFER}
         attributes = gl.Attributes(POSITION=add(v, gl.VEC3, True, **vertex), NORMAL=add(n, gl.VEC3, **vertex),
                                    JOINTS_0=add(joints, gl.VEC4, component=gl.UNSIGNED_SHORT, **vertex), WEIGHTS_0=add(weights, gl.VEC4, **vertex))  # fmt: skip
         indices = add(tri.reshape(-1), gl.SCALAR, component=gl.UNSIGNED_INT, target=gl.ELEMENT_ARRAY_BUFFER)

@@ -21,6 +21,7 @@ lengths. BVH world axes are assumed Y up (the convention of CMU, Xia, Mixamo and
 
 from __future__ import annotations
 
+import itertools
 from dataclasses import dataclass
 from functools import cached_property
 
@@ -308,7 +309,7 @@ def tpose_rotations(
     body = _body_frames(P, parts, shared)
     turn: dict[str, np.ndarray] = {}  # part -> world rotation [3, 3] from the reference pose to the T-pose
     for chain in CHAINS:
-        for above, part in zip(chain, chain[1:]):
+        for above, part in itertools.pairwise(chain):
             for p in (above, part) if above not in turn else (part,):
                 if (
                     p in turn

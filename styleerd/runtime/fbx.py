@@ -167,7 +167,7 @@ def armature_from_motion(motion: Motion, name: str = "styleerd"):
     heads = np.zeros((sk.n_joints, 3))
     for j in range(sk.n_joints):
         heads[j] = sk.offsets[j] + (heads[sk.parents[j]] if j else 0.0)
-    ends = dict((j, off) for j, off in sk.end_sites)
+    ends = {j: off for j, off in sk.end_sites}
     edit = []
     for j, joint in enumerate(sk.names):
         kids = sk.children(j)

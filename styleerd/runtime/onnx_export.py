@@ -229,7 +229,7 @@ def _lstm_form(
     # side, each column weighted (1 for the neutral branch's, w_k for branch k's, 0 for others),
     # and the decoder's first weight repeated for each last layer's columns
     last = [("neutral", c.neutral_layers - 1)] + [(f"branches.{k}", c.style_layers - 1) for k, _ in branches]
-    held = dict((out_of[member][0], out_of[member][2]) for member in last)  # op output -> width, in order
+    held = {out_of[member][0]: out_of[member][2] for member in last}  # op output -> width, in order
     offsets = dict(zip(held, np.cumsum([0, *held.values()])))
     K = sum(held.values())
     weigh, ones, copies = np.zeros((nS, K), np.float32), np.zeros(K, np.float32), np.zeros((K, H), np.float32)
@@ -364,7 +364,7 @@ def step_graph(
         raise ValueError(f"unknown ONNX form {form!r}; valid: {', '.join(FORMS)}")
     model = generator_weights(model)
     w, arrays, c = step_weights(model), model.arrays, model.config
-    unknown = set(styles or ()) - set(c.styles[s] for s in c.branch_styles)
+    unknown = set(styles or ()) - {c.styles[s] for s in c.branch_styles}
     if unknown:
         raise StyleERDError(
             f"no style branch for {', '.join(sorted(unknown))}; the model's: {', '.join(c.styles[s] for s in c.branch_styles)}"

@@ -47,7 +47,7 @@ def validate(
         sl = slice(i, i + batch)
         x = data.gather(ws.starts[sl])
         s, c = data.onehot_style(ws.style[sl]), data.onehot_content(ws.content[sl])
-        rot, vel, _ = model(x, s, c, s)
+        rot, _vel, _ = model(x, s, c, s)
         target = model.raw_rotations(x)
         d = (rot * target).sum(-1).abs().clamp(max=1.0)
         deg += float(torch.rad2deg(2 * torch.acos(d)).mean(dim=(1, 2)).sum())
