@@ -3,13 +3,11 @@ commits in alternating rounds on this machine (a shared machine's speed drifts u
 minutes; alternating puts both under the same conditions); the median over rounds is kept, and
 each figure's best round (the one least disturbed by other work on the machine).
 
-Per commit: the network step at batch 1 (numba backend, and the ONNX graphs in onnxruntime
-through ``OnnxBackend``: the graph of every style's branches, and of one style's), end to end at batch 1 (raw
-BVH channel values in and out of a 22-joint Mixamo-named skeleton: retargeting both ways,
-features, network, foot cleanup; numba and numpy backends), 64 and 256 streams on 2 threads
-(numba, end to end), and 1,000 streams on 2 threads
-(numba: end to end, and the network alone; numpy and ONNX: the network alone) against the float32 matrix-multiply peak measured in
-the same process.
+Per commit: the network step at batch 1 (numba backend, and the ONNX graphs in onnxruntime through ``OnnxBackend``: the
+graph of every style's branches, and of one style's), end to end at batch 1 (raw BVH channel values in and out of a
+22-joint Mixamo-named skeleton: retargeting both ways, features, network, foot cleanup; numba and numpy backends), 64
+and 256 streams on 2 threads (numba, end to end), and 1,000 streams on 2 threads (numba: end to end, and the network
+alone; numpy and ONNX: the network alone) against the float32 matrix-multiply peak measured in the same process.
 
     python benchmarks/bench_engine.py [--before COMMIT] [--rounds 3]
 
@@ -31,11 +29,24 @@ import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
 BEFORE = "bc2080d"  # the last commit before the compiled per-frame path and the batched ONNX graphs
-FIGURES = ("step_us numba", "step_us onnx", "step_us onnx one style", "step_us onnx-plain", "step_us onnx-plain one style",
-           "end_to_end_us numba", "end_to_end_us numpy", "frames_per_s 1000 streams numba", "fraction_of_peak 1000 streams numba",
-           "frames_per_s 1000 streams numba, network alone", "fraction_of_peak 1000 streams numba, network alone",
-           "frames_per_s 1000 streams numpy, network alone", "frames_per_s 1000 streams onnx, network alone",
-           "fraction_of_peak 1000 streams numba, products alone", "frames_per_s 64 streams numba", "frames_per_s 256 streams numba")  # fmt: skip
+FIGURES = (
+    "step_us numba",
+    "step_us onnx",
+    "step_us onnx one style",
+    "step_us onnx-plain",
+    "step_us onnx-plain one style",
+    "end_to_end_us numba",
+    "end_to_end_us numpy",
+    "frames_per_s 1000 streams numba",
+    "fraction_of_peak 1000 streams numba",
+    "frames_per_s 1000 streams numba, network alone",
+    "fraction_of_peak 1000 streams numba, network alone",
+    "frames_per_s 1000 streams numpy, network alone",
+    "frames_per_s 1000 streams onnx, network alone",
+    "fraction_of_peak 1000 streams numba, products alone",
+    "frames_per_s 64 streams numba",
+    "frames_per_s 256 streams numba",
+)
 
 
 def measure(steps: int) -> dict:
@@ -165,8 +176,15 @@ def summary(rounds: dict[str, list[dict]]) -> tuple[dict, dict]:
         name: {k: round(float(np.median([achieved(m, k) for m in ms])), 4) for k in ms[0]}
         for name, ms in rounds.items()
     }
-    best = {name: {k: round(float((max if k.startswith(("frames", "fraction", "matmul")) else min)(achieved(m, k) for m in ms)), 4) for k in ms[0]}
-            for name, ms in rounds.items()}  # fmt: skip
+    best = {
+        name: {
+            k: round(
+                float((max if k.startswith(("frames", "fraction", "matmul")) else min)(achieved(m, k) for m in ms)), 4
+            )
+            for k in ms[0]
+        }
+        for name, ms in rounds.items()
+    }
     return median, best
 
 

@@ -3,11 +3,11 @@
     light: pip install styleerd.whl            (numpy, numba, ...; no torch)
     full:  pip install torch==2.13.0 'styleerd.whl[train]'
 
-Each goes into a fresh virtualenv outside the checkout. Cold start: ``styleerd transfer`` of a
-10-second walk (30 fps, generated) run right after the install (numba compiles and caches its
-kernels in site-packages on that first run), then the same command again (warm: the cache on
-disk); the same with ``--backend numba`` (its step kernels compile on their first use). Sizes are of the whole virtualenv, with a bare virtualenv (pip alone) given for scale.
-Writes docs/install.json.
+Each goes into a fresh virtualenv outside the checkout. Cold start: ``styleerd transfer`` of a 10-second walk (30 fps,
+generated) run right after the install (numba compiles and caches its kernels in site-packages on that first run), then
+the same command again (warm: the cache on disk); the same with ``--backend numba`` (its step kernels compile on their
+first use). Sizes are of the whole virtualenv, with a bare virtualenv (pip alone) given for scale. Writes
+docs/install.json.
 
     python benchmarks/bench_install.py
 """
@@ -53,8 +53,13 @@ def main() -> None:
     bvh.write(clip, procedural.walk(seconds=10.0, fps=30.0))
     bare = work / "bare"
     run([sys.executable, "-m", "venv", bare])
-    report = {"machine": f"{platform.machine()}, {platform.python_version()}", "wheel_mb": round(wheel.stat().st_size / 1e6, 2),
-              "bare_venv_mb": round(size_mb(bare), 1), "clip": "10 s walk, 30 fps, 22 joints (generated)", "installs": {}}  # fmt: skip
+    report = {
+        "machine": f"{platform.machine()}, {platform.python_version()}",
+        "wheel_mb": round(wheel.stat().st_size / 1e6, 2),
+        "bare_venv_mb": round(size_mb(bare), 1),
+        "clip": "10 s walk, 30 fps, 22 joints (generated)",
+        "installs": {},
+    }
     for name, requirements in (("light", [wheel]), ("full", ["torch==2.13.0", f"{wheel}[train]"])):
         venv = work / name
         run([sys.executable, "-m", "venv", venv])
@@ -87,8 +92,10 @@ def main() -> None:
         f"{'install':<7} {'venv MB':>8} {'torch':>6} {'transfer cold s':>16} {'warm s':>7} {'numba cold s':>13} {'numba warm s':>13} {'--help s':>9}"
     )
     for name, r in report["installs"].items():
-        print(f"{name:<7} {r['venv_mb']:>8.0f} {r['torch_installed']!s:>6} {r['transfer_cold_s']:>16.2f} {r['transfer_warm_s']:>7.2f} "
-              f"{r['transfer_numba_cold_s']:>13.2f} {r['transfer_numba_warm_s']:>13.2f} {r['help_s']:>9.2f}")  # fmt: skip
+        print(
+            f"{name:<7} {r['venv_mb']:>8.0f} {r['torch_installed']!s:>6} {r['transfer_cold_s']:>16.2f} {r['transfer_warm_s']:>7.2f} "
+            f"{r['transfer_numba_cold_s']:>13.2f} {r['transfer_numba_warm_s']:>13.2f} {r['help_s']:>9.2f}"
+        )
     print(f"bare venv {report['bare_venv_mb']:.0f} MB; wheel {report['wheel_mb']} MB; wrote {out}")
 
 

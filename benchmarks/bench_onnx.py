@@ -147,12 +147,17 @@ def main() -> None:
         s2 = session(graph, 2)
         steps[(name, "run")] = lambda s1=s1, f1=f1: s1.run(None, f1)
         steps[(name, "bound")] = bound(s1, f1)
-        report["graphs"][name] = {"nodes": len(onnx.load_from_string(graph).graph.node),
-                                  "frames_per_s_1000_streams_1_thread": rate(lambda: s1.run(None, f1000), 1000),
-                                  "frames_per_s_1000_streams_2_threads": rate(lambda: s2.run(None, f1000), 1000)}  # fmt: skip
+        report["graphs"][name] = {
+            "nodes": len(onnx.load_from_string(graph).graph.node),
+            "frames_per_s_1000_streams_1_thread": rate(lambda: s1.run(None, f1000), 1000),
+            "frames_per_s_1000_streams_2_threads": rate(lambda: s2.run(None, f1000), 1000),
+        }
         print(name, report["graphs"][name], flush=True)
-    labels = lambda n: (np.eye(len(c.styles), dtype=np.float32)[[c.neutral_index] * n], np.eye(len(c.contents), dtype=np.float32)[[0] * n],
-                        np.eye(len(c.styles), dtype=np.float32)[[c.branch_styles[0]] * n])  # fmt: skip
+    labels = lambda n: (
+        np.eye(len(c.styles), dtype=np.float32)[[c.neutral_index] * n],
+        np.eye(len(c.contents), dtype=np.float32)[[0] * n],
+        np.eye(len(c.styles), dtype=np.float32)[[c.branch_styles[0]] * n],
+    )
     x1, x1000 = (np.zeros((n, c.feature_dim), np.float32) for n in (1, 1000))
     with threadpool_limits(1):
         for name in ("numpy", "numba"):
@@ -180,8 +185,10 @@ def main() -> None:
         f"\n| graph (onnxruntime {ort.__version__}) | nodes | batch 1 p50 / p99 (us, 1 thread): session.run | I/O binding | 1,000 streams, frames/s (1 thread / 2 threads) |\n| --- | --- | --- | --- | --- |"
     )
     for name, r in report["graphs"].items():
-        print(f"| {name} | {r['nodes']} | {r['batch_1_run']['p50_us']:.0f} / {r['batch_1_run']['p99_us']:.0f} | {r['batch_1_bound']['p50_us']:.0f} / {r['batch_1_bound']['p99_us']:.0f} "
-              f"| {r['frames_per_s_1000_streams_1_thread']:,} / {r['frames_per_s_1000_streams_2_threads']:,} |")  # fmt: skip
+        print(
+            f"| {name} | {r['nodes']} | {r['batch_1_run']['p50_us']:.0f} / {r['batch_1_run']['p99_us']:.0f} | {r['batch_1_bound']['p50_us']:.0f} / {r['batch_1_bound']['p99_us']:.0f} "
+            f"| {r['frames_per_s_1000_streams_1_thread']:,} / {r['frames_per_s_1000_streams_2_threads']:,} |"
+        )
     for name, r in report["backends"].items():
         print(
             f"| {name} backend (network step) | | {r['batch_1_backend']['p50_us']:.0f} / {r['batch_1_backend']['p99_us']:.0f} | | {r['frames_per_s_1000_streams_1_thread']:,} / |"

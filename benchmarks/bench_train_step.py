@@ -51,8 +51,10 @@ def worker(config_path: str, threads: int, batch: int | None) -> None:
     if hasattr(trainer, "make_optimisers"):
         opts = trainer.make_optimisers(config, G, D)
     else:  # the trainer's optimisers before make_optimisers
-        opts = (torch.optim.Adam([p for p in G.parameters() if p.requires_grad], lr=config.lr_g, betas=(0.5, 0.999)),
-                torch.optim.Adam(D.parameters(), lr=config.lr_d, betas=(0.5, 0.999)))  # fmt: skip
+        opts = (
+            torch.optim.Adam([p for p in G.parameters() if p.requires_grad], lr=config.lr_g, betas=(0.5, 0.999)),
+            torch.optim.Adam(D.parameters(), lr=config.lr_d, betas=(0.5, 0.999)),
+        )
     rng = np.random.default_rng(0)  # the same batches in both processes
     times: dict[str, float] = {}
     print(
@@ -157,8 +159,15 @@ def main() -> None:
         step, B = sum(mean.values()), info[name]["batch"]
         steps = info[name]["windows"] // B
         epoch[name] = steps * step / 1000
-        report[name] = {"config": getattr(args, name), "code": code[name], "batch": B, "parts_ms": {k: round(v, 2) for k, v in mean.items()},
-                        "step_ms": round(step, 2), "steps_per_epoch": steps, "epoch_s": round(epoch[name], 3)}  # fmt: skip
+        report[name] = {
+            "config": getattr(args, name),
+            "code": code[name],
+            "batch": B,
+            "parts_ms": {k: round(v, 2) for k, v in mean.items()},
+            "step_ms": round(step, 2),
+            "steps_per_epoch": steps,
+            "epoch_s": round(epoch[name], 3),
+        }
         print(f"{name}: {getattr(args, name)} on the trainer of {code[name]} (batch {B})")
         for k, v in mean.items():
             print(f"  {k:38s} {v:7.2f} ms")

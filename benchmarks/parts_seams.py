@@ -73,8 +73,11 @@ def main() -> None:
     (ROOT / "docs" / "parts.json").write_text(json.dumps(report, indent=1) + "\n")
     print(json.dumps(report, indent=1))
     k = next(i for i, (s, c) in enumerate(zip(styles, contents)) if c == "walk" and s == model.config.neutral_style)
-    rows = [(f"input ({styles[k]})", Motion(sk, rot[k], pos[k], 30.0)), (f"target {args.style}", Motion(sk, whole[k], pos[k], 30.0)),
-            (f"target {args.style}, --parts {args.parts}", Motion(sk, mixed[k], pos[k], 30.0))]  # fmt: skip
+    rows = [
+        (f"input ({styles[k]})", Motion(sk, rot[k], pos[k], 30.0)),
+        (f"target {args.style}", Motion(sk, whole[k], pos[k], 30.0)),
+        (f"target {args.style}, --parts {args.parts}", Motion(sk, mixed[k], pos[k], 30.0)),
+    ]
     filmstrip(rows, ROOT / "docs" / "parts-bandai2.png", title="style per body part (styleerd transfer --parts)")
     print("wrote docs/parts.json and docs/parts-bandai2.png")
 

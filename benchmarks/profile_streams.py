@@ -3,7 +3,8 @@ streams on 2 threads, each compiled kernel call timed from Python (the features,
 the root put back on its heading) and the rest (the stylizer's Python, the backend's arrays,
 the BLAS limit), in microseconds per step, over several rounds.
 
-    python benchmarks/profile_streams.py [--streams 1000] [--threads 2] [--steps 400] [--rounds 3] [--json docs/stream-profile.json]
+    python benchmarks/profile_streams.py [--streams 1000] [--threads 2] [--steps 400] [--rounds 3] [--json
+    docs/stream-profile.json]
 """
 
 from __future__ import annotations
@@ -54,9 +55,14 @@ def main() -> None:
         step(t)
     # wrapped once compiled (a kernel compiled later would find a Python function among its
     # callees); the serial kernels too: below data.parallel.PARALLEL_FROM streams, or on one thread
-    for module, name, label in ((features, "_stream_features_on_shards", "features"), (features, "_stream_features_kernel", "features"),
-                                (compiled, "compiled_step_on_shards", "network"), (compiled, "compiled_step", "network"),
-                                (stylizer, "_root_on_heading_on_shards", "root_on_heading"), (stylizer, "_root_on_heading", "root_on_heading")):  # fmt: skip
+    for module, name, label in (
+        (features, "_stream_features_on_shards", "features"),
+        (features, "_stream_features_kernel", "features"),
+        (compiled, "compiled_step_on_shards", "network"),
+        (compiled, "compiled_step", "network"),
+        (stylizer, "_root_on_heading_on_shards", "root_on_heading"),
+        (stylizer, "_root_on_heading", "root_on_heading"),
+    ):
         timed(module, name, label)
     peak = matmul_peak(args.threads)
     print(f"{N:,} streams, {args.threads} threads; matmul peak {peak / 1e9:.1f} GFLOP/s")
@@ -79,8 +85,15 @@ def main() -> None:
         print(
             f"| {r + 1} | {total:.0f} | {cells} | {rest:.0f} ({100 * rest / total:.0f} %) | {fps:,.0f} | {fps * flops_per_frame(model) / peak:.3f} |"
         )
-        rounds.append({"step_us": round(total, 1), **{f"{k}_us": round(v, 1) for k, v in parts.items()}, "rest_us": round(rest, 1),
-                       "frames_per_s": round(fps), "fraction_of_peak": round(fps * flops_per_frame(model) / peak, 4)})  # fmt: skip
+        rounds.append(
+            {
+                "step_us": round(total, 1),
+                **{f"{k}_us": round(v, 1) for k, v in parts.items()},
+                "rest_us": round(rest, 1),
+                "frames_per_s": round(fps),
+                "fraction_of_peak": round(fps * flops_per_frame(model) / peak, 4),
+            }
+        )
     if args.json:
         report = {
             "streams": N,

@@ -237,8 +237,11 @@ def main() -> None:
         )
         for s in args.styles
     }
-    report["recogniser"] = {"trained_on": "the kept-back Bandai-1 clips of all 15 styles", "windows": len(held_ws.starts),
-                            "accuracy_on_adaptation_clips_overall": round(accuracy(recogniser, data, adapt_ws, "style"), 4)}  # fmt: skip
+    report["recogniser"] = {
+        "trained_on": "the kept-back Bandai-1 clips of all 15 styles",
+        "windows": len(held_ws.starts),
+        "accuracy_on_adaptation_clips_overall": round(accuracy(recogniser, data, adapt_ws, "style"), 4),
+    }
     _, content_rec, _ = ckpt.load_recognisers()
     fmd, _ = ckpt.load_fmd()
     reference = torch.as_tensor(base.stats().reference, dtype=torch.float32)

@@ -30,8 +30,15 @@ import onnxruntime as ort
 def qmul(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     aw, ax, ay, az = a[..., 0], a[..., 1], a[..., 2], a[..., 3]
     bw, bx, by, bz = b[..., 0], b[..., 1], b[..., 2], b[..., 3]
-    return np.stack([aw * bw - ax * bx - ay * by - az * bz, aw * bx + ax * bw + ay * bz - az * by,
-                     aw * by - ax * bz + ay * bw + az * bx, aw * bz + ax * by - ay * bx + az * bw], -1)  # fmt: skip
+    return np.stack(
+        [
+            aw * bw - ax * bx - ay * by - az * bz,
+            aw * bx + ax * bw + ay * bz - az * by,
+            aw * by - ax * bz + ay * bw + az * bx,
+            aw * bz + ax * by - ay * bx + az * bw,
+        ],
+        -1,
+    )
 
 
 def qrot(q: np.ndarray, v: np.ndarray) -> np.ndarray:
@@ -138,8 +145,18 @@ class Host:
         poses = {}
         for key, target in (("target", self.target), ("identity", self.identity)):
             h, c = self.state[key]
-            out, _, h, c = self.session.run(None, {"features": x, "style": self.style, "content": self.content, "target": target,
-                                                   "first_frame": first, "h": h, "c": c})  # fmt: skip
+            out, _, h, c = self.session.run(
+                None,
+                {
+                    "features": x,
+                    "style": self.style,
+                    "content": self.content,
+                    "target": target,
+                    "first_frame": first,
+                    "h": h,
+                    "c": c,
+                },
+            )
             self.state[key] = [h, c]
             out = out[0].astype(np.float64)
             out[0] = qmul(heading, out[0])  # the root back from the heading frame

@@ -114,8 +114,20 @@ class Model:
         if isinstance(skeleton, Motion):
             fps = fps or skeleton.fps
             skeleton = skeleton.skeleton
-        channels = ChannelStylizer(self.weights, skeleton, self.target(style, intensity, mix), input_style, content, fps or self.fps,
-                                   explicit_map=joint_map, cleanup=cleanup, backend=backend, parts=parts, root_speed=root_speed, pose=pose)  # fmt: skip
+        channels = ChannelStylizer(
+            self.weights,
+            skeleton,
+            self.target(style, intensity, mix),
+            input_style,
+            content,
+            fps or self.fps,
+            explicit_map=joint_map,
+            cleanup=cleanup,
+            backend=backend,
+            parts=parts,
+            root_speed=root_speed,
+            pose=pose,
+        )
         return Stylizer(self, channels)
 
     def transfer(

@@ -425,9 +425,20 @@ def _filmstrip(args: argparse.Namespace) -> None:
 def _serve(args: argparse.Namespace) -> None:
     from styleerd.serve.server import ServeConfig, serve_forever
 
-    config = ServeConfig(host=args.host, port=args.port, max_streams=args.max_streams, max_watchers=args.max_watchers, max_message=args.max_message, queue=args.queue,
-                         backend=args.backend, data=args.data, max_joints=args.max_joints, origins=tuple(args.allow_origin),
-                         hosts=tuple(args.allow_host), model=args.model)  # fmt: skip
+    config = ServeConfig(
+        host=args.host,
+        port=args.port,
+        max_streams=args.max_streams,
+        max_watchers=args.max_watchers,
+        max_message=args.max_message,
+        queue=args.queue,
+        backend=args.backend,
+        data=args.data,
+        max_joints=args.max_joints,
+        origins=tuple(args.allow_origin),
+        hosts=tuple(args.allow_host),
+        model=args.model,
+    )
     serve_forever(config, args.workers)
 
 

@@ -179,8 +179,14 @@ def main() -> None:
         arm.styleerd.style = "elderly"  # labels inferred, as the command line's reference run does
         status = bpy.ops.styleerd.stylise_action()
         action = arm.animation_data.action
-        result = {"status": sorted(status), "original": original, "action": action.name, "actions": sorted(a.name for a in bpy.data.actions),
-                  "original_kept": bpy.data.actions[original].use_fake_user, **compare(work, arm, frames)}  # fmt: skip
+        result = {
+            "status": sorted(status),
+            "original": original,
+            "action": action.name,
+            "actions": sorted(a.name for a in bpy.data.actions),
+            "original_kept": bpy.data.actions[original].use_fake_user,
+            **compare(work, arm, frames),
+        }
         addon.unregister()
     print("RESULT " + json.dumps(result))
 

@@ -259,8 +259,26 @@ def test_add_style_trains_from_clips_on_another_skeleton(tmp_path, shared_data):
         clips.append(tmp_path / f"{name.split(',')[0].replace(' ', '-')}.bvh")
         bvh.write(clips[-1], variants[name])
     stem = tmp_path / "mine"
-    r = subprocess.run([*CLI, "add-style", "stiff", *map(str, clips), "--content", "walk", "--steps", "6", "--data", str(shared_data), "-o", str(stem)],
-                       capture_output=True, text=True, timeout=900, check=False)  # fmt: skip
+    r = subprocess.run(
+        [
+            *CLI,
+            "add-style",
+            "stiff",
+            *map(str, clips),
+            "--content",
+            "walk",
+            "--steps",
+            "6",
+            "--data",
+            str(shared_data),
+            "-o",
+            str(stem),
+        ],
+        capture_output=True,
+        text=True,
+        timeout=900,
+        check=False,
+    )
     assert r.returncode == 0, r.stderr[-3000:]
     assert "added stiff from 2 clips" in r.stdout
     w = load_generator_weights(stem)

@@ -172,7 +172,8 @@ def test_shards_of_streams_stepped_at_once_equal_one_step_of_all(model, name):
             x = rng.normal(0, 1, (n, c.feature_dim)).astype(np.float32)
             want = whole.step(x, style, content, target)
             got = list(pool.map(lambda s: sharded.step(x[s], style[s], content[s], target[s], s), shards))
-            # not bit for bit: BLAS may sum a 350-row product in another order than a 700-row one (OpenBLAS's Haswell kernels do)
+            # not bit for bit: BLAS may sum a 350-row product in another order than a 700-row one (OpenBLAS's Haswell
+            # kernels do)
             assert np.abs(np.concatenate([r for r, _ in got]) - want[0]).max() <= 1e-5, t
     for state in ("h", "c") if name == "onnx" else ("h", "hb"):  # the onnx backend's h, c hold every branch's rows
         assert np.abs(getattr(whole, state) - getattr(sharded, state)).max() <= 1e-5, state
@@ -189,8 +190,13 @@ def test_numba_backend_refuses_inputs_that_do_not_fit_its_state(model, n, thread
     one = lambda k: np.eye(k, dtype=np.float32)[np.zeros(n, int)]
     style, content, target = one(len(c.input_styles)), one(len(c.contents)), one(len(c.styles))
     b.step(x, style, content, target)
-    for bad in ((x[:-1], style, content, target), (x, style, content, target[:-1]), (x[:, :-1], style, content, target),
-                (x, style, content, target[:, :-1]), (x[:2], style[:2], content[:2], target[:2], np.array([0]))):  # fmt: skip
+    for bad in (
+        (x[:-1], style, content, target),
+        (x, style, content, target[:-1]),
+        (x[:, :-1], style, content, target),
+        (x, style, content, target[:, :-1]),
+        (x[:2], style[:2], content[:2], target[:2], np.array([0])),
+    ):
         with pytest.raises(ValueError, match="do not fit"):
             b.step(*bad)
 

@@ -133,8 +133,13 @@ def test_a_killed_worker_costs_its_file_and_sigterm_stops_everything_cleanly(tmp
     import time
 
     _walks(tmp_path / "in", 6, seconds=90.0)
-    proc = subprocess.Popen([*CLI, "transfer", "in", "--style", "elderly", "--jobs", "2", "-o", "out"], cwd=tmp_path,
-                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)  # fmt: skip
+    proc = subprocess.Popen(
+        [*CLI, "transfer", "in", "--style", "elderly", "--jobs", "2", "-o", "out"],
+        cwd=tmp_path,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
     deadline = time.time() + 120
     while time.time() < deadline and not (tmp_path / "out").is_dir():  # the workers are at work
         time.sleep(0.2)
@@ -149,8 +154,13 @@ def test_a_killed_worker_costs_its_file_and_sigterm_stops_everything_cleanly(tmp
     assert "wrote 5 of 6 files" in out
     assert not [p for p in (tmp_path / "out").iterdir() if p.suffix != ".bvh"]
 
-    proc = subprocess.Popen([*CLI, "transfer", "in", "--style", "exhausted", "--jobs", "2", "-o", "out2"], cwd=tmp_path,
-                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)  # fmt: skip
+    proc = subprocess.Popen(
+        [*CLI, "transfer", "in", "--style", "exhausted", "--jobs", "2", "-o", "out2"],
+        cwd=tmp_path,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
     while time.time() < deadline + 120 and not (tmp_path / "out2").is_dir():
         time.sleep(0.2)
     time.sleep(1.0)

@@ -26,8 +26,18 @@ VRM_BONES = {
 }
 for side in ("Left", "Right"):
     s = side.lower()
-    VRM_BONES.update({f"{side}Shoulder": f"{s}Shoulder", f"{side}Arm": f"{s}UpperArm", f"{side}ForeArm": f"{s}LowerArm", f"{side}Hand": f"{s}Hand",
-                      f"{side}UpLeg": f"{s}UpperLeg", f"{side}Leg": f"{s}LowerLeg", f"{side}Foot": f"{s}Foot", f"{side}ToeBase": f"{s}Toes"})  # fmt: skip
+    VRM_BONES.update(
+        {
+            f"{side}Shoulder": f"{s}Shoulder",
+            f"{side}Arm": f"{s}UpperArm",
+            f"{side}ForeArm": f"{s}LowerArm",
+            f"{side}Hand": f"{s}Hand",
+            f"{side}UpLeg": f"{s}UpperLeg",
+            f"{side}Leg": f"{s}LowerLeg",
+            f"{side}Foot": f"{s}Foot",
+            f"{side}ToeBase": f"{s}Toes",
+        }
+    )
 
 
 def vrm_character(path, seconds: float = 3.0, seed: int = 0):
@@ -50,8 +60,13 @@ def vrm_character(path, seconds: float = 3.0, seed: int = 0):
     doc = gl.GLTF2().load_binary(str(path))
     bones = {VRM_BONES[n]: {"node": j} for j, n in enumerate(sk.names)}
     doc.extensionsUsed = ["VRMC_vrm"]
-    doc.extensions = {"VRMC_vrm": {"specVersion": "1.0", "meta": {"name": "test", "licenseUrl": "https://example.invalid", "avatarPermission": "onlyAuthor"},
-                                   "humanoid": {"humanBones": bones}}}  # fmt: skip
+    doc.extensions = {
+        "VRMC_vrm": {
+            "specVersion": "1.0",
+            "meta": {"name": "test", "licenseUrl": "https://example.invalid", "avatarPermission": "onlyAuthor"},
+            "humanoid": {"humanBones": bones},
+        }
+    }
     doc.save_binary(str(path))
     return original
 

@@ -140,8 +140,16 @@ def test_three_gltf_loader_skins_and_plays_the_body(model, tmp_path):
     threading.Thread(target=server.serve_forever, daemon=True).start()
     try:
         with sync_playwright() as p:
-            browser = p.chromium.launch(executable_path=CHROMIUM, args=["--no-sandbox", "--use-angle=swiftshader", "--enable-unsafe-swiftshader",
-                                                                         "--no-first-run", "--disable-background-networking"])  # fmt: skip
+            browser = p.chromium.launch(
+                executable_path=CHROMIUM,
+                args=[
+                    "--no-sandbox",
+                    "--use-angle=swiftshader",
+                    "--enable-unsafe-swiftshader",
+                    "--no-first-run",
+                    "--disable-background-networking",
+                ],
+            )
             page = browser.new_page(viewport={"width": 640, "height": 480})
             problems = []
             page.on("pageerror", lambda e: problems.append(str(e)))

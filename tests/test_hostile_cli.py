@@ -367,8 +367,40 @@ def test_info_reads_a_long_file_in_bounded_memory(tmp_path, capsys):
 
 # ---- the reader, fuzzed: any mutation of a good file is read or refused with a BVHError
 
-_TOKENS = ["{", "}", "JOINT", "ROOT", "End", "Site", "OFFSET", "CHANNELS", "MOTION", "Frames:", "Frame", "Time:", "nan", "inf", "-inf", "1e400",
-           "-1", "0", "7", "3.5", "Xrotation", "Zposition", "\n", "\t", " ", "", "\x00", "é", "Hips", "-0", "1e-320", "99999999999999999999"]  # fmt: skip
+_TOKENS = [
+    "{",
+    "}",
+    "JOINT",
+    "ROOT",
+    "End",
+    "Site",
+    "OFFSET",
+    "CHANNELS",
+    "MOTION",
+    "Frames:",
+    "Frame",
+    "Time:",
+    "nan",
+    "inf",
+    "-inf",
+    "1e400",
+    "-1",
+    "0",
+    "7",
+    "3.5",
+    "Xrotation",
+    "Zposition",
+    "\n",
+    "\t",
+    " ",
+    "",
+    "\x00",
+    "é",
+    "Hips",
+    "-0",
+    "1e-320",
+    "99999999999999999999",
+]
 
 
 @st.composite

@@ -200,12 +200,20 @@ def test_fuzzed_gltf_documents_read_or_fail_with_the_readers_own_error(good, tmp
     from hypothesis import HealthCheck, given, settings
     from hypothesis import strategies as st
 
-    values = st.none() | st.booleans() | st.integers(-(2**40), 2**40) | st.floats(allow_nan=True, allow_infinity=True) | st.text(max_size=4) \
-        | st.lists(st.integers(-3, 40) | st.floats(allow_nan=True), max_size=5)  # fmt: skip
-    fields = st.sampled_from([("accessors", k) for k in ("bufferView", "byteOffset", "componentType", "count", "type", "normalized")]
-                             + [("bufferViews", k) for k in ("byteOffset", "byteLength", "byteStride", "buffer")]
-                             + [("nodes", k) for k in ("children", "translation", "rotation", "scale", "matrix")]
-                             + [("skins", "joints")])  # fmt: skip
+    values = (
+        st.none()
+        | st.booleans()
+        | st.integers(-(2**40), 2**40)
+        | st.floats(allow_nan=True, allow_infinity=True)
+        | st.text(max_size=4)
+        | st.lists(st.integers(-3, 40) | st.floats(allow_nan=True), max_size=5)
+    )
+    fields = st.sampled_from(
+        [("accessors", k) for k in ("bufferView", "byteOffset", "componentType", "count", "type", "normalized")]
+        + [("bufferViews", k) for k in ("byteOffset", "byteLength", "byteStride", "buffer")]
+        + [("nodes", k) for k in ("children", "translation", "rotation", "scale", "matrix")]
+        + [("skins", "joints")]
+    )
     base = json.loads(good.to_json())
     blob = good.binary_blob()
     path = tmp_path / "fuzz.glb"

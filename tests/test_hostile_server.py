@@ -499,9 +499,23 @@ def test_fuzzed_messages_on_an_open_stream_are_taken_or_refused_clearly(style_se
     server, loop = style_server
     stream = loop.run_until_complete(server._open_stream(_FakeConnection(), json.loads(_hello())))
     n = stream.pool.stylizer.n_channels
-    messages = (st.binary(max_size=4 + 4 * n + 8) | st.builds(lambda v: frame(0, np.asarray(v, np.float32)), st.lists(st.floats(width=32), min_size=n, max_size=n))
-                | st.builds(json.dumps, st.dictionaries(st.sampled_from(["type", "seq", "values", "style", "mix", "intensity"]), _json_values(), max_size=4))
-                | st.builds(lambda t, v: json.dumps({"type": t, "values": v}), st.sampled_from(["frame", "set", "reset", "stats"]), _json_values()))  # fmt: skip
+    messages = (
+        st.binary(max_size=4 + 4 * n + 8)
+        | st.builds(
+            lambda v: frame(0, np.asarray(v, np.float32)), st.lists(st.floats(width=32), min_size=n, max_size=n)
+        )
+        | st.builds(
+            json.dumps,
+            st.dictionaries(
+                st.sampled_from(["type", "seq", "values", "style", "mix", "intensity"]), _json_values(), max_size=4
+            ),
+        )
+        | st.builds(
+            lambda t, v: json.dumps({"type": t, "values": v}),
+            st.sampled_from(["frame", "set", "reset", "stats"]),
+            _json_values(),
+        )
+    )
 
     @settings(max_examples=400, deadline=None, suppress_health_check=list(HealthCheck), derandomize=True)
     @given(messages)

@@ -30,8 +30,27 @@ def test_reference_host_loop_equals_the_stylizer(tmp_path, form):
     source = walk(seconds=3.0, fps=30.0)
     on_model = to_target(source, map_skeleton(source.skeleton, model, first_pose=source.rotations[0]))
     np.savez(tmp_path / "poses.npz", rotations=on_model.rotations, positions=on_model.positions, fps=on_model.fps)
-    done = subprocess.run([sys.executable, "-c", WITHOUT_STYLEERD, str(HOST), str(tmp_path / "stylizer.onnx"), str(tmp_path / "poses.npz"), str(tmp_path / "out.npz"),
-                           "--style", "elderly", "--input-style", "normal", "--content", "walk"], capture_output=True, text=True, timeout=300, check=False)  # fmt: skip
+    done = subprocess.run(
+        [
+            sys.executable,
+            "-c",
+            WITHOUT_STYLEERD,
+            str(HOST),
+            str(tmp_path / "stylizer.onnx"),
+            str(tmp_path / "poses.npz"),
+            str(tmp_path / "out.npz"),
+            "--style",
+            "elderly",
+            "--input-style",
+            "normal",
+            "--content",
+            "walk",
+        ],
+        capture_output=True,
+        text=True,
+        timeout=300,
+        check=False,
+    )
     assert done.returncode == 0, done.stderr
     host = np.load(tmp_path / "out.npz")["rotations"]
     ours = run_stream(

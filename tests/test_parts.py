@@ -80,13 +80,16 @@ def test_parts_stay_online(model, walk):
     assert np.array_equal(base[:15], other[:15]) and not np.allclose(base[15:], other[15:])
 
 
-@pytest.mark.parametrize("spec, message", [
-    ("tail=elderly", "unknown body part 'tail'"),
-    ("legs", "give part=style"),
-    ("legs=angry", "unknown style 'angry'"),
-    ("legs=elderly:lots", "intensity 'lots' is not a number"),
-    ("legs=elderly:3", "intensity 3 is outside"),
-])  # fmt: skip
+@pytest.mark.parametrize(
+    "spec, message",
+    [
+        ("tail=elderly", "unknown body part 'tail'"),
+        ("legs", "give part=style"),
+        ("legs=angry", "unknown style 'angry'"),
+        ("legs=elderly:lots", "intensity 'lots' is not a number"),
+        ("legs=elderly:3", "intensity 3 is outside"),
+    ],
+)
 def test_bad_part_specs_are_named(model, spec, message):
     with pytest.raises(StyleERDError, match=message):
         part_targets(model, spec)
@@ -98,11 +101,43 @@ def test_cli_transfer_with_parts(tmp_path):
     src = tmp_path / "walk.bvh"
     bvh.write(src, walk(seconds=1.0, fps=30.0))
     out = tmp_path / "out.bvh"
-    ok = subprocess.run([sys.executable, "-m", "styleerd.cli", "transfer", str(src), "--style", "exhausted", "--parts", "legs=elderly,arms=input", "-o", str(out)],
-                        capture_output=True, text=True, check=False)  # fmt: skip
+    ok = subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "styleerd.cli",
+            "transfer",
+            str(src),
+            "--style",
+            "exhausted",
+            "--parts",
+            "legs=elderly,arms=input",
+            "-o",
+            str(out),
+        ],
+        capture_output=True,
+        text=True,
+        check=False,
+    )
     assert ok.returncode == 0, ok.stderr
     assert bvh.read(out).n_frames == bvh.read(src).n_frames
-    bad = subprocess.run([sys.executable, "-m", "styleerd.cli", "transfer", str(src), "--style", "exhausted", "--parts", "wings=elderly", "-o", str(tmp_path / "bad.bvh")],
-                         capture_output=True, text=True, check=False)  # fmt: skip
+    bad = subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "styleerd.cli",
+            "transfer",
+            str(src),
+            "--style",
+            "exhausted",
+            "--parts",
+            "wings=elderly",
+            "-o",
+            str(tmp_path / "bad.bvh"),
+        ],
+        capture_output=True,
+        text=True,
+        check=False,
+    )
     assert bad.returncode == 2 and "unknown body part 'wings'" in bad.stderr and "Traceback" not in bad.stderr
     assert not (tmp_path / "bad.bvh").exists()

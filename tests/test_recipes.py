@@ -14,12 +14,24 @@ STYLES = ("active", "elderly", "normal")
 
 def quality(scale: float) -> dict:
     return {
-        "transfers": 300, "sra": 0.98, "cra": 0.9 * scale, "content_ceiling": 0.95, "fmd": 0.05, "fmd_floor": 0.02, "fmd_over_floor": 2.5,
+        "transfers": 300,
+        "sra": 0.98,
+        "cra": 0.9 * scale,
+        "content_ceiling": 0.95,
+        "fmd": 0.05,
+        "fmd_floor": 0.02,
+        "fmd_over_floor": 2.5,
         "spread": {"sra": 0.004, "cra": 0.01, "fmd": 0.003},
-        "fmd_per_style": {s: 0.05 * (k + 1) for k, s in enumerate(STYLES)}, "fmd_floor_per_style": {s: 0.02 for s in STYLES},
-        "cra_per_style": {s: 0.9 * scale for s in STYLES}, "content_ceiling_per_style": {s: 0.95 for s in STYLES},
-        "sra_per_style": {s: 0.98 for s in STYLES}, "rec_deg": 7.0, "jitter_ratio": 2.0, "sra_first_10": 0.9, "fmd_first_10": 0.05,
-    }  # fmt: skip
+        "fmd_per_style": {s: 0.05 * (k + 1) for k, s in enumerate(STYLES)},
+        "fmd_floor_per_style": {s: 0.02 for s in STYLES},
+        "cra_per_style": {s: 0.9 * scale for s in STYLES},
+        "content_ceiling_per_style": {s: 0.95 for s in STYLES},
+        "sra_per_style": {s: 0.98 for s in STYLES},
+        "rec_deg": 7.0,
+        "jitter_ratio": 2.0,
+        "sra_first_10": 0.9,
+        "fmd_first_10": 0.05,
+    }
 
 
 def streamed() -> dict:
@@ -48,9 +60,18 @@ def test_per_style_ratios_and_neutralisation_summary():
 
 def test_recipe_table_and_tradeoff_plot(tmp_path):
     rows = {
-        name: {"model": name, "config": name, "minutes": 40.0, "steps": 1000, "quality": quality(s), "per_style": per_style(quality(s)), "neutralisation": neutralisation(streamed(), "normal"), "neutralisation_root_speed": neutralisation(streamed(), "normal")}
+        name: {
+            "model": name,
+            "config": name,
+            "minutes": 40.0,
+            "steps": 1000,
+            "quality": quality(s),
+            "per_style": per_style(quality(s)),
+            "neutralisation": neutralisation(streamed(), "normal"),
+            "neutralisation_root_speed": neutralisation(streamed(), "normal"),
+        }
         for name, s in (("shipped", 1.0), ("older", 0.95))
-    }  # fmt: skip
+    }
     rows["ablation: rec only"] = {
         "model": "a",
         "config": "a",
@@ -108,9 +129,25 @@ def test_results_section_from_the_recipe_table_and_the_step_timing(tmp_path):
 
     assert recipes_section(tmp_path) == ""  # nothing measured yet: no section
     (tmp_path / "recipes.md").write_text("| model | x |\n| --- | --- |\n| shipped | 1 |\n")
-    step = {"threads": 2, "steps": 40, "speedup": 1.67,
-            "before": {"config": "a.yaml", "batch": 32, "parts_ms": {"generator forward (B + B)": 30.0, "cycle pass + loss": 40.0}, "step_ms": 300.0, "epoch_s": 120.0},
-            "after": {"config": "b.yaml", "batch": 32, "parts_ms": {"generator forward (B + B)": 25.0}, "step_ms": 180.0, "epoch_s": 72.0}}  # fmt: skip
+    step = {
+        "threads": 2,
+        "steps": 40,
+        "speedup": 1.67,
+        "before": {
+            "config": "a.yaml",
+            "batch": 32,
+            "parts_ms": {"generator forward (B + B)": 30.0, "cycle pass + loss": 40.0},
+            "step_ms": 300.0,
+            "epoch_s": 120.0,
+        },
+        "after": {
+            "config": "b.yaml",
+            "batch": 32,
+            "parts_ms": {"generator forward (B + B)": 25.0},
+            "step_ms": 180.0,
+            "epoch_s": 72.0,
+        },
+    }
     (tmp_path / "train-step.json").write_text(json.dumps(step))
     text = recipes_section(tmp_path)
     assert "| shipped | 1 |" in text and "(recipes.png)" in text
@@ -172,8 +209,16 @@ def test_eval_recipes_only_remeasures_the_named_rows_and_keeps_the_others(tmp_pa
     from styleerd.eval import recipes
 
     def row(name, s):
-        return {"model": name, "config": name, "minutes": 40.0, "steps": 1000, "quality": quality(s), "per_style": per_style(quality(s)),
-                "neutralisation": neutralisation(streamed(), "normal"), "neutralisation_root_speed": neutralisation(streamed(), "normal")}  # fmt: skip
+        return {
+            "model": name,
+            "config": name,
+            "minutes": 40.0,
+            "steps": 1000,
+            "quality": quality(s),
+            "per_style": per_style(quality(s)),
+            "neutralisation": neutralisation(streamed(), "normal"),
+            "neutralisation_root_speed": neutralisation(streamed(), "normal"),
+        }
 
     monkeypatch.setattr(
         recipes, "recipe_models", lambda: {"shipped": None, "older": tmp_path / "older", "other": tmp_path / "other"}

@@ -13,12 +13,28 @@ from styleerd.motion.retarget import body_parts, joint_map, to_source, to_target
 from styleerd.motion.skeleton import Skeleton
 
 MIXAMO = {
-    "Hips": "Hips", "Spine": "Spine", "Chest": "Spine2", "Neck": "Neck", "Head": "Head",
-    "Shoulder_L": "LeftShoulder", "UpperArm_L": "LeftArm", "LowerArm_L": "LeftForeArm", "Hand_L": "LeftHand",
-    "Shoulder_R": "RightShoulder", "UpperArm_R": "RightArm", "LowerArm_R": "RightForeArm", "Hand_R": "RightHand",
-    "UpperLeg_L": "LeftUpLeg", "LowerLeg_L": "LeftLeg", "Foot_L": "LeftFoot", "Toes_L": "LeftToeBase",
-    "UpperLeg_R": "RightUpLeg", "LowerLeg_R": "RightLeg", "Foot_R": "RightFoot", "Toes_R": "RightToeBase",
-}  # fmt: skip
+    "Hips": "Hips",
+    "Spine": "Spine",
+    "Chest": "Spine2",
+    "Neck": "Neck",
+    "Head": "Head",
+    "Shoulder_L": "LeftShoulder",
+    "UpperArm_L": "LeftArm",
+    "LowerArm_L": "LeftForeArm",
+    "Hand_L": "LeftHand",
+    "Shoulder_R": "RightShoulder",
+    "UpperArm_R": "RightArm",
+    "LowerArm_R": "RightForeArm",
+    "Hand_R": "RightHand",
+    "UpperLeg_L": "LeftUpLeg",
+    "LowerLeg_L": "LeftLeg",
+    "Foot_L": "LeftFoot",
+    "Toes_L": "LeftToeBase",
+    "UpperLeg_R": "RightUpLeg",
+    "LowerLeg_R": "RightLeg",
+    "Foot_R": "RightFoot",
+    "Toes_R": "RightToeBase",
+}
 
 
 @pytest.fixture(scope="module")

@@ -321,15 +321,37 @@ def test_a_faulty_client_is_closed_with_a_clear_code_and_others_go_on(server, cl
 def test_hello_problems_and_a_full_server(server, clip):
     url, _port = server
     m, _ = clip
-    for msg, code, text in [({"type": "hello", "fps": 30}, 1008, "needs 'skeleton'"),
-                            ({**hello(m, 30.0, "zombie", 1.0, None, None)}, 1008, "unknown style 'zombie'"),
-                            ({**hello(m, 5.0, "elderly", 1.0, None, None)}, 1008, "'fps' must be a number in [10, 480]"),
-                            ({"type": "hello", "skeleton": "HIERARCHY\nROOT Hips\n{\n OFFSET 0 0\n}\n", "fps": 30, "style": "elderly"}, 1008, "handshake skeleton:5: joint 'Hips' OFFSET"),
-                            ({"type": "hello", "preset": "model", "fps": 30, "style": "elderly", "input_style": "sleepy"}, 1008, "unknown input_style"),
-                            ({"type": "hello", "preset": "model", "fps": 30, "style": "elderly", "parts": {"wings": "elderly"}}, 1008, "unknown body part 'wings'"),
-                            ({"type": "hello", "preset": "model", "fps": 30, "style": "elderly", "parts": {"legs": {"elderly": "lots"}}}, 1008, "mixture weights must be"),
-                            ({"type": "hello", "preset": "model", "fps": 30, "style": "elderly", "parts": [1, 2]}, 1008, "parts: give"),
-                            ({"type": "hello", "preset": "model", "fps": 30, "style": "elderly", "root_speed": "yes"}, 1008, "'root_speed' must be true or false")]:  # fmt: skip
+    for msg, code, text in [
+        ({"type": "hello", "fps": 30}, 1008, "needs 'skeleton'"),
+        ({**hello(m, 30.0, "zombie", 1.0, None, None)}, 1008, "unknown style 'zombie'"),
+        ({**hello(m, 5.0, "elderly", 1.0, None, None)}, 1008, "'fps' must be a number in [10, 480]"),
+        (
+            {"type": "hello", "skeleton": "HIERARCHY\nROOT Hips\n{\n OFFSET 0 0\n}\n", "fps": 30, "style": "elderly"},
+            1008,
+            "handshake skeleton:5: joint 'Hips' OFFSET",
+        ),
+        (
+            {"type": "hello", "preset": "model", "fps": 30, "style": "elderly", "input_style": "sleepy"},
+            1008,
+            "unknown input_style",
+        ),
+        (
+            {"type": "hello", "preset": "model", "fps": 30, "style": "elderly", "parts": {"wings": "elderly"}},
+            1008,
+            "unknown body part 'wings'",
+        ),
+        (
+            {"type": "hello", "preset": "model", "fps": 30, "style": "elderly", "parts": {"legs": {"elderly": "lots"}}},
+            1008,
+            "mixture weights must be",
+        ),
+        ({"type": "hello", "preset": "model", "fps": 30, "style": "elderly", "parts": [1, 2]}, 1008, "parts: give"),
+        (
+            {"type": "hello", "preset": "model", "fps": 30, "style": "elderly", "root_speed": "yes"},
+            1008,
+            "'root_speed' must be true or false",
+        ),
+    ]:
         ws = connect(url, open_timeout=20, legacy=True)
         ws.send(json.dumps(msg))
         got, texts = closed_with(ws)
@@ -354,8 +376,10 @@ class RawClient:
         self.sock = socket.create_connection(("127.0.0.1", port))
         self.sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 4096)
         key = base64.b64encode(os.urandom(16)).decode()
-        self.sock.sendall(f"GET / HTTP/1.1\r\nHost: 127.0.0.1:{port}\r\nUpgrade: websocket\r\nConnection: Upgrade\r\n"
-                          f"Sec-WebSocket-Key: {key}\r\nSec-WebSocket-Version: 13\r\n\r\n".encode())  # fmt: skip
+        self.sock.sendall(
+            f"GET / HTTP/1.1\r\nHost: 127.0.0.1:{port}\r\nUpgrade: websocket\r\nConnection: Upgrade\r\n"
+            f"Sec-WebSocket-Key: {key}\r\nSec-WebSocket-Version: 13\r\n\r\n".encode()
+        )
         response = b""
         while b"\r\n\r\n" not in response:
             response += self.sock.recv(1)
@@ -461,14 +485,55 @@ def test_stream_bvh_writes_the_stylised_stream(server, tmp_path):
     url, _ = server
     source = walk(2.0, fps=30.0)
     bvh.write(tmp_path / "in.bvh", source)
-    r = subprocess.run([sys.executable, "-m", "styleerd.cli", "stream-bvh", str(tmp_path / "in.bvh"), "--to", url, "--style", "elderly",
-                        "--input-style", "normal", "--content", "walk", "-o", str(tmp_path / "out.bvh")], capture_output=True, text=True, check=False)  # fmt: skip
+    r = subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "styleerd.cli",
+            "stream-bvh",
+            str(tmp_path / "in.bvh"),
+            "--to",
+            url,
+            "--style",
+            "elderly",
+            "--input-style",
+            "normal",
+            "--content",
+            "walk",
+            "-o",
+            str(tmp_path / "out.bvh"),
+        ],
+        capture_output=True,
+        text=True,
+        check=False,
+    )
     assert r.returncode == 0 and f"received {source.n_frames}, reordered 0" in r.stdout, r.stdout + r.stderr
     out = bvh.read(tmp_path / "out.bvh")
     assert out.n_frames == source.n_frames and out.skeleton.names == source.skeleton.names
     assert np.allclose(out.positions[:, 0], source.positions[:, 0], atol=1e-3)  # root trajectory kept
-    r = subprocess.run([sys.executable, "-m", "styleerd.cli", "stream-bvh", str(tmp_path / "in.bvh"), "--to", url, "--style", "elderly",
-                        "--input-style", "normal", "--content", "walk", "--root-speed", "-o", str(tmp_path / "paced.bvh")], capture_output=True, text=True, check=False)  # fmt: skip
+    r = subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "styleerd.cli",
+            "stream-bvh",
+            str(tmp_path / "in.bvh"),
+            "--to",
+            url,
+            "--style",
+            "elderly",
+            "--input-style",
+            "normal",
+            "--content",
+            "walk",
+            "--root-speed",
+            "-o",
+            str(tmp_path / "paced.bvh"),
+        ],
+        capture_output=True,
+        text=True,
+        check=False,
+    )
     assert r.returncode == 0, r.stdout + r.stderr
     paced = bvh.read(tmp_path / "paced.bvh").positions[:, 0]
     ground = (
@@ -478,8 +543,22 @@ def test_stream_bvh_writes_the_stylised_stream(server, tmp_path):
     assert ground < 0.97 and np.allclose(
         paced[:, 1], source.positions[:, 0, 1], atol=1e-3
     )  # an elderly pace, the input's height
-    r = subprocess.run([sys.executable, "-m", "styleerd.cli", "stream-bvh", str(tmp_path / "in.bvh"), "--to", "ws://127.0.0.1:9/", "--style", "elderly"],
-                       capture_output=True, text=True, check=False)  # fmt: skip
+    r = subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "styleerd.cli",
+            "stream-bvh",
+            str(tmp_path / "in.bvh"),
+            "--to",
+            "ws://127.0.0.1:9/",
+            "--style",
+            "elderly",
+        ],
+        capture_output=True,
+        text=True,
+        check=False,
+    )
     assert r.returncode == 2 and "cannot connect" in r.stderr and "Traceback" not in r.stderr
 
 

@@ -85,8 +85,17 @@ def test_stream_equals_the_generator_forward_on_whole_clip_features(model, backe
             weight[t] = max(weight[t], weight[t - 1] - stylizer.RELEASE)
         assert 0 < weight.mean() < 1 and ((weight > 0) & (weight < 1)).any()
         turned = (scipy(m.rotations) * scipy(same).inv() * scipy(want)).as_quat(scalar_first=True).reshape(want.shape)
-        want = np.stack([np.stack([Slerp([0, 1], scipy(np.stack([want[t, j], turned[t, j]])))(weight[t]).as_quat(scalar_first=True)
-                                   for j in range(want.shape[1])]) for t in range(30)])  # fmt: skip
+        want = np.stack(
+            [
+                np.stack(
+                    [
+                        Slerp([0, 1], scipy(np.stack([want[t, j], turned[t, j]])))(weight[t]).as_quat(scalar_first=True)
+                        for j in range(want.shape[1])
+                    ]
+                )
+                for t in range(30)
+            ]
+        )
     s = StreamStylizer(model, "normal", "walk", {"old": 1.0}, backend=backend, pose=pose)
     got = np.stack([s.step(m.rotations[t], m.positions[t])[0][0] for t in range(30)])
     if pose == "network":
@@ -354,8 +363,17 @@ def test_numba_kernels_on_threads_with_parts_root_speed_and_some_rows_equal_one_
         np.stack([m.rotations[t] for m in ms])[rows],
         np.stack([m.positions[t] for m in ms])[rows],
     )
-    make = lambda threads: StreamStylizer(model, "normal", "walk", {"old": 1.0}, n_streams=n, backend="numba", threads=threads,
-                                          parts="legs=angry,arms=input", root_speed=True)  # fmt: skip
+    make = lambda threads: StreamStylizer(
+        model,
+        "normal",
+        "walk",
+        {"old": 1.0},
+        n_streams=n,
+        backend="numba",
+        threads=threads,
+        parts="legs=angry,arms=input",
+        root_speed=True,
+    )
     one, two = make(1), make(2)
     some = np.arange(0, n, 3)  # 16 streams: below PARALLEL_FROM
     most = np.arange(40)  # 40: at or above it

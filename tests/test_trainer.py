@@ -332,8 +332,12 @@ def test_moving_average_of_the_weights_follows_its_formula():
 def test_realism_margin_is_the_worst_styles_distance_inside_both_bars():
     from styleerd.train.validation import realism_margin
 
-    q = {"fmd_per_style": {"a": 0.03, "b": 0.02}, "fmd_floor_per_style": {"a": 0.02, "b": 0.02},
-         "cra_per_style": {"a": 0.9, "b": 0.95}, "content_ceiling_per_style": {"a": 1.0, "b": 0.95}}  # fmt: skip
+    q = {
+        "fmd_per_style": {"a": 0.03, "b": 0.02},
+        "fmd_floor_per_style": {"a": 0.02, "b": 0.02},
+        "cra_per_style": {"a": 0.9, "b": 0.95},
+        "content_ceiling_per_style": {"a": 1.0, "b": 0.95},
+    }
     m = realism_margin(q)  # a: FMD 1.5 x (margin 2), CRA 90 % (margin 0.947); b: FMD 1 x, CRA 100 %
     assert m == {"worst_fmd_over_floor": 1.5, "worst_cra_of_ceiling": 0.9, "realism_margin": round(0.9 / 0.95, 4)}
     q["fmd_per_style"]["b"] = 0.08  # 4 x its floor: the worst margin is now b's FMD, 3 / 4
@@ -382,8 +386,29 @@ def test_bench_train_step_times_the_trainers_own_step_of_two_recipes(shared_data
     before = write_config(tmp_path / "before.yaml", w_cyc=1.0, w_cls=0.3, w_per=0.5)
     after = write_config(tmp_path / "after.yaml", critic_rotations=True, batch_size=12)  # its own batch
     out = tmp_path / "step.json"
-    bench = subprocess.run([sys.executable, "benchmarks/bench_train_step.py", "--steps", "4", "--threads", "1", "--before", before, "--before-code", "HEAD", "--after", after, "--json", out],
-                           capture_output=True, text=True, timeout=600, cwd=os.path.dirname(os.path.dirname(__file__)), check=False)  # fmt: skip
+    bench = subprocess.run(
+        [
+            sys.executable,
+            "benchmarks/bench_train_step.py",
+            "--steps",
+            "4",
+            "--threads",
+            "1",
+            "--before",
+            before,
+            "--before-code",
+            "HEAD",
+            "--after",
+            after,
+            "--json",
+            out,
+        ],
+        capture_output=True,
+        text=True,
+        timeout=600,
+        cwd=os.path.dirname(os.path.dirname(__file__)),
+        check=False,
+    )
     assert bench.returncode == 0, bench.stderr
     r = json.loads(out.read_text())
     assert "cycle pass + loss" in r["before"]["parts_ms"] and "cycle pass + loss" not in r["after"]["parts_ms"]
@@ -408,8 +433,27 @@ def test_bench_train_parallel_times_real_epochs_in_one_and_two_processes(shared_
 
     cfg = write_config(tmp_path / "c.yaml")
     out = tmp_path / "parallel.json"
-    bench = subprocess.run([sys.executable, "benchmarks/bench_train_parallel.py", "--config", cfg, "--clips", "40", "--rounds", "1", "--data", shared_data, "--json", out],
-                           capture_output=True, text=True, timeout=900, cwd=os.path.dirname(os.path.dirname(__file__)), check=False)  # fmt: skip
+    bench = subprocess.run(
+        [
+            sys.executable,
+            "benchmarks/bench_train_parallel.py",
+            "--config",
+            cfg,
+            "--clips",
+            "40",
+            "--rounds",
+            "1",
+            "--data",
+            shared_data,
+            "--json",
+            out,
+        ],
+        capture_output=True,
+        text=True,
+        timeout=900,
+        cwd=os.path.dirname(os.path.dirname(__file__)),
+        check=False,
+    )
     assert bench.returncode == 0, bench.stdout[-2000:] + bench.stderr[-2000:]
     r = json.loads(out.read_text())
     forms = r["forms"]

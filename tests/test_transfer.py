@@ -287,8 +287,13 @@ def test_bad_files_fail_with_one_line_and_nothing_written(model, tmp_path, case)
 
     m = walk(1.0, fps=30.0)
     path, out = tmp_path / "in.bvh", tmp_path / "out.bvh"
-    expected = {"empty": "the motion has no frames", "slow": "5 fps is outside [10, 480]", "fast": "500 fps is outside [10, 480]",
-                "not bvh": "not a text file", "bad output": "the output must be .bvh, .glb or .fbx"}[case]  # fmt: skip
+    expected = {
+        "empty": "the motion has no frames",
+        "slow": "5 fps is outside [10, 480]",
+        "fast": "500 fps is outside [10, 480]",
+        "not bvh": "not a text file",
+        "bad output": "the output must be .bvh, .glb or .fbx",
+    }[case]
     if case == "empty":
         bvh.write(path, m[:0])
     elif case in ("slow", "fast"):

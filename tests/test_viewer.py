@@ -14,8 +14,16 @@ import pytest
 from styleerd.serve.loadtest import free_port, start_server, stop_server
 
 CHROMIUM = shutil.which("chromium") or "/usr/bin/chromium"
-ARGS = ["--no-sandbox", "--disable-gpu", "--use-angle=swiftshader", "--enable-unsafe-swiftshader", "--no-first-run",
-        "--disable-background-networking", "--disable-component-update", "--disable-sync"]  # fmt: skip
+ARGS = [
+    "--no-sandbox",
+    "--disable-gpu",
+    "--use-angle=swiftshader",
+    "--enable-unsafe-swiftshader",
+    "--no-first-run",
+    "--disable-background-networking",
+    "--disable-component-update",
+    "--disable-sync",
+]
 
 pytestmark = pytest.mark.skipif(
     not Path(CHROMIUM).exists(), reason="Chromium not installed (.ci/run installs Debian's chromium)"
@@ -108,8 +116,22 @@ def test_live_mode_shows_a_stream_from_another_client(page, tmp_path):
     bvh.write(tmp_path / "walk.bvh", walk(8.0, fps=30.0))
     page.click("#live")
     page.wait_for_function("window.viewer.mode === 'live' && window.viewer.ready", timeout=20000)
-    source = subprocess.Popen([sys.executable, "-m", "styleerd.cli", "stream-bvh", str(tmp_path / "walk.bvh"), "--to", f"ws://127.0.0.1:{page.port}/",
-                               "--style", "feminine"], stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)  # fmt: skip
+    source = subprocess.Popen(
+        [
+            sys.executable,
+            "-m",
+            "styleerd.cli",
+            "stream-bvh",
+            str(tmp_path / "walk.bvh"),
+            "--to",
+            f"ws://127.0.0.1:{page.port}/",
+            "--style",
+            "feminine",
+        ],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.STDOUT,
+        text=True,
+    )
     try:
         page.wait_for_function("window.viewer.stream === 'walk'", timeout=30000)
         before = page.evaluate("window.viewer.framesDrawn")

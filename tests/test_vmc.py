@@ -30,8 +30,15 @@ from styleerd.serve.vmc import (
 )
 
 MIRROR = np.diag([-1.0, 1.0, 1.0])
-UNITY_NAMES = {"Spine1": "Chest", "Spine2": "UpperChest", "LeftArm": "LeftUpperArm", "LeftForeArm": "LeftLowerArm", "LeftUpLeg": "LeftUpperLeg",
-               "LeftLeg": "LeftLowerLeg", "LeftToeBase": "LeftToes"}  # fmt: skip
+UNITY_NAMES = {
+    "Spine1": "Chest",
+    "Spine2": "UpperChest",
+    "LeftArm": "LeftUpperArm",
+    "LeftForeArm": "LeftLowerArm",
+    "LeftUpLeg": "LeftUpperLeg",
+    "LeftLeg": "LeftLowerLeg",
+    "LeftToeBase": "LeftToes",
+}
 UNITY_NAMES |= {k.replace("Left", "Right"): v.replace("Left", "Right") for k, v in UNITY_NAMES.items() if "Left" in k}
 
 
@@ -199,8 +206,23 @@ def test_vmc_command_over_udp():
     rx.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 1 << 22)  # read after sending: keep every reply
     rx.bind(("127.0.0.1", send))
     rx.settimeout(30)
-    proc = subprocess.Popen([sys.executable, "-m", "styleerd.cli", "vmc", "--listen", str(listen), "--send", str(send), "--style", "feminine"],
-                            stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)  # fmt: skip
+    proc = subprocess.Popen(
+        [
+            sys.executable,
+            "-m",
+            "styleerd.cli",
+            "vmc",
+            "--listen",
+            str(listen),
+            "--send",
+            str(send),
+            "--style",
+            "feminine",
+        ],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.STDOUT,
+        text=True,
+    )
     try:
         m, names, frames = _unity_frames(2.0)
         tx = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
@@ -313,8 +335,14 @@ def test_fuzzed_datagrams_never_stop_the_bridge(model, examples):
     for datagrams in frames:
         for d in datagrams:
             bridge.feed(d)
-    args = st.one_of(st.floats(allow_nan=True, allow_infinity=True, width=32), st.integers(-(2**31), 2**31 - 1), st.text(max_size=8),
-                     st.booleans(), st.binary(min_size=1, max_size=8), st.sampled_from(names))  # fmt: skip
+    args = st.one_of(
+        st.floats(allow_nan=True, allow_infinity=True, width=32),
+        st.integers(-(2**31), 2**31 - 1),
+        st.text(max_size=8),
+        st.booleans(),
+        st.binary(min_size=1, max_size=8),
+        st.sampled_from(names),
+    )
 
     def built(address, xs) -> bytes:
         try:
@@ -376,6 +404,11 @@ def test_a_first_frame_without_hips_waits_and_a_new_avatar_is_mapped_again(model
 
 
 def test_vmc_refuses_to_send_where_it_listens():
-    done = subprocess.run([sys.executable, "-m", "styleerd.cli", "vmc", "--listen", "39539", "--send", "39539", "--style", "elderly"],
-                          capture_output=True, text=True, timeout=120, check=False)  # fmt: skip
+    done = subprocess.run(
+        [sys.executable, "-m", "styleerd.cli", "vmc", "--listen", "39539", "--send", "39539", "--style", "elderly"],
+        capture_output=True,
+        text=True,
+        timeout=120,
+        check=False,
+    )
     assert done.returncode == 2 and "would receive what it sends" in done.stderr and "Traceback" not in done.stderr

@@ -125,8 +125,26 @@ def stream_features(
     x, traj = np.empty((N, FeatureLayout(J).dim), np.float32), np.empty((N, 7))
     g, facing, ok = np.empty((N, J, 3)), np.empty((N, 3)), np.empty(N, np.bool_)
     shards = kernel_threads(threads, N)
-    args = (rot, pos, np.ascontiguousarray(previous_global, dtype=np.float64), np.ascontiguousarray(previous_facing, dtype=np.float64), np.ascontiguousarray(started, dtype=np.bool_),
-            skeleton.parents, roles.joint_arrays, float(fps), contact_speed * roles.leg_length, stats.mean, stats.std, stats.reference, float(limit), x, traj, g, facing, ok)  # fmt: skip
+    args = (
+        rot,
+        pos,
+        np.ascontiguousarray(previous_global, dtype=np.float64),
+        np.ascontiguousarray(previous_facing, dtype=np.float64),
+        np.ascontiguousarray(started, dtype=np.bool_),
+        skeleton.parents,
+        roles.joint_arrays,
+        float(fps),
+        contact_speed * roles.leg_length,
+        stats.mean,
+        stats.std,
+        stats.reference,
+        float(limit),
+        x,
+        traj,
+        g,
+        facing,
+        ok,
+    )
     if shards > 1:
         _stream_features_on_shards(shards, *args)
     else:
@@ -160,8 +178,26 @@ def _stream_features_on_shards(
     N = rot.shape[0]
     for k in nb.prange(shards):
         s, e = N * k // shards, N * (k + 1) // shards
-        _stream_features_kernel(rot[s:e], pos[s:e], previous[s:e], previous_facing[s:e], started[s:e], parents, roles, fps, max_speed, mean, std, reference,
-                                limit, x[s:e], traj[s:e], g[s:e], facing[s:e], ok[s:e])  # fmt: skip
+        _stream_features_kernel(
+            rot[s:e],
+            pos[s:e],
+            previous[s:e],
+            previous_facing[s:e],
+            started[s:e],
+            parents,
+            roles,
+            fps,
+            max_speed,
+            mean,
+            std,
+            reference,
+            limit,
+            x[s:e],
+            traj[s:e],
+            g[s:e],
+            facing[s:e],
+            ok[s:e],
+        )
 
 
 @nb.njit(cache=True, nogil=True)

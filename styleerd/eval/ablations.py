@@ -94,9 +94,9 @@ def at_budget(name: str, epochs: int) -> bool:
 
 
 def train_ablations(root: Path, data_dir: str | None = None, threads: int = 1, device: str = "cpu") -> dict[str, Path]:
-    """Train (or resume, or skip when its model is at the budget) every ablation in run folders
-    under ``root`` on ``device`` and export each best model to ``model_stem(name)``. Several processes may run this at once
-    (one per core): each takes the ablations no other process holds (a lock file per run)."""
+    """Train (or resume, or skip when its model is at the budget) every ablation in run folders under ``root`` on
+    ``device`` and export each best model to ``model_stem(name)``. Several processes may run this at once (one per
+    core): each takes the ablations no other process holds (a lock file per run)."""
     stems = {}
     root.mkdir(parents=True, exist_ok=True)
     epochs = shipped_budget()[1]
@@ -140,9 +140,15 @@ PAPER_FMD = {
     "zero initial states": 309.70,
 }
 COLUMNS = [
-    ("FMD", "fmd"), ("FMD / floor", "fmd_over_floor"), ("SRA", "sra"), ("CRA", "cra"),
-    ("SRA first 10", "sra_first_10"), ("FMD first 10", "fmd_first_10"), ("rec. deg", "rec_deg"), ("jitter", "jitter_ratio"),
-]  # fmt: skip
+    ("FMD", "fmd"),
+    ("FMD / floor", "fmd_over_floor"),
+    ("SRA", "sra"),
+    ("CRA", "cra"),
+    ("SRA first 10", "sra_first_10"),
+    ("FMD first 10", "fmd_first_10"),
+    ("rec. deg", "rec_deg"),
+    ("jitter", "jitter_ratio"),
+]
 
 
 def ablation_table(data_dir: str | None = None, names: list[str] | None = None) -> dict:

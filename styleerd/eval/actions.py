@@ -47,16 +47,47 @@ SECONDS = 12.0  # of each clip, from its start: long enough for several steps or
 # Joint maps (model joint -> the rig's joint) for the two rig families of cmu-sample, which the
 # automatic mapping does not know yet (Character Creator, CMU ASF names)
 RIG_MAPS = {
-    "cc-base": {"Hips": "CC_Base_Hip", "Spine": "CC_Base_Spine01", "Chest": "CC_Base_Spine02", "Neck": "CC_Base_NeckTwist01", "Head": "CC_Base_Head",
-                **{f"{m}_{s}": f"CC_Base_{s}_{c}" for s in "LR" for m, c in (("Shoulder", "Clavicle"), ("UpperArm", "Upperarm"), ("LowerArm", "Forearm"),
-                                                                             ("Hand", "Hand"), ("UpperLeg", "Thigh"), ("LowerLeg", "Calf"),
-                                                                             ("Foot", "Foot"), ("Toes", "ToeBase"))}},
-    "cmu-asf": {"Spine": "lowerback", "Chest": "Chest2", "Neck": "Neck",
-                **{f"{m}_{s}": f"{side}{c}" for s, side in (("L", "Left"), ("R", "Right")) for m, c in (("Shoulder", "Collar"), ("UpperArm", "Shoulder"),
-                                                                                                          ("LowerArm", "Elbow"), ("Hand", "Wrist"),
-                                                                                                          ("UpperLeg", "Hip"), ("LowerLeg", "Knee"),
-                                                                                                          ("Foot", "Ankle"), ("Toes", "Toe"))}},
-}  # fmt: skip
+    "cc-base": {
+        "Hips": "CC_Base_Hip",
+        "Spine": "CC_Base_Spine01",
+        "Chest": "CC_Base_Spine02",
+        "Neck": "CC_Base_NeckTwist01",
+        "Head": "CC_Base_Head",
+        **{
+            f"{m}_{s}": f"CC_Base_{s}_{c}"
+            for s in "LR"
+            for m, c in (
+                ("Shoulder", "Clavicle"),
+                ("UpperArm", "Upperarm"),
+                ("LowerArm", "Forearm"),
+                ("Hand", "Hand"),
+                ("UpperLeg", "Thigh"),
+                ("LowerLeg", "Calf"),
+                ("Foot", "Foot"),
+                ("Toes", "ToeBase"),
+            )
+        },
+    },
+    "cmu-asf": {
+        "Spine": "lowerback",
+        "Chest": "Chest2",
+        "Neck": "Neck",
+        **{
+            f"{m}_{s}": f"{side}{c}"
+            for s, side in (("L", "Left"), ("R", "Right"))
+            for m, c in (
+                ("Shoulder", "Collar"),
+                ("UpperArm", "Shoulder"),
+                ("LowerArm", "Elbow"),
+                ("Hand", "Wrist"),
+                ("UpperLeg", "Hip"),
+                ("LowerLeg", "Knee"),
+                ("Foot", "Ankle"),
+                ("Toes", "Toe"),
+            )
+        },
+    },
+}
 # Held out of every training run, whole subjects or whole actions: (source, file stems)
 CMU_HELD_OUT = {"iclone": ("002_",), "asf-names": ("126_",)}
 CMU_REPORTED_SWIMS = (
@@ -67,8 +98,18 @@ CMU_REPORTED_SWIMS = (
 BANDAI1_ACTIONS = ("call", "dance-long", "dance-short", "kick", "punch", "respond", "slash")
 XIA_ACTIONS = {"16": "jump", "18": "punch"}
 # CMU subject 2's takes (the database's own descriptions)
-CMU_ACTIONS = {"002_01": "walk", "002_02": "walk", "002_03": "run", "002_04": "jump, balance", "002_05": "punch, strike", "002_06": "punch, strike",
-               "002_07": "swordplay", "002_08": "swordplay", "002_09": "wash self", "002_10": "wash self"}  # fmt: skip
+CMU_ACTIONS = {
+    "002_01": "walk",
+    "002_02": "walk",
+    "002_03": "run",
+    "002_04": "jump, balance",
+    "002_05": "punch, strike",
+    "002_06": "punch, strike",
+    "002_07": "swordplay",
+    "002_08": "swordplay",
+    "002_09": "wash self",
+    "002_10": "wash self",
+}
 HANDS_FEET = ("Hand_L", "Hand_R", "Foot_L", "Foot_R")
 
 
@@ -107,8 +148,16 @@ def held_out_clips(data_dir: str | None = None) -> list[ActionClip]:
             if p.stem.startswith(prefixes) and (folder != "asf-names" or p.stem in CMU_REPORTED_SWIMS)
         ):
             action = CMU_ACTIONS.get(path.stem, "swim" if folder == "asf-names" else "other")
-            out.append(ActionClip(f"cmu {path.stem}", action, f"cmu-sample/{folder}", _trimmed(bvh.read(path)), "normal",
-                                  RIG_MAPS["cc-base" if folder == "iclone" else "cmu-asf"]))  # fmt: skip
+            out.append(
+                ActionClip(
+                    f"cmu {path.stem}",
+                    action,
+                    f"cmu-sample/{folder}",
+                    _trimmed(bvh.read(path)),
+                    "normal",
+                    RIG_MAPS["cc-base" if folder == "iclone" else "cmu-asf"],
+                )
+            )
     for c in find_clips(root, "bandai-namco-1"):
         if held_out(c.name, c.dataset, c.content, c.style):
             out.append(
@@ -231,8 +280,13 @@ def _transfers(
     return identity, {t: run(t, clip.input_style) for t in targets}
 
 
-def evaluate_actions(model: GeneratorWeights, data_dir: str | None = None, poses: tuple[str, ...] = ("input", "network"), walks: int = 8,
-                     progress: Callable[[str], None] | None = None) -> dict:  # fmt: skip
+def evaluate_actions(
+    model: GeneratorWeights,
+    data_dir: str | None = None,
+    poses: tuple[str, ...] = ("input", "network"),
+    walks: int = 8,
+    progress: Callable[[str], None] | None = None,
+) -> dict:
     """The action table: per held-out clip and pose path, identity error and correlation, and per
     style its correlation and change against the walks' (cosine, size ratio); the same figures on
     Bandai-Namco-2 test walks beside them."""
@@ -249,8 +303,15 @@ def evaluate_actions(model: GeneratorWeights, data_dir: str | None = None, poses
                 scale = _body_scale(clip.motion.skeleton, jm)
                 identity, styled = _transfers(clip, model, styles, pose)
                 err, corr = action_kept(clip.motion, identity, jm, scale)
-                row = {"group": group, "action": clip.action, "source": clip.source, "frames": clip.motion.n_frames, "fps": round(clip.motion.fps, 3),
-                       "identity": {"error_cm": round(err, 2), "correlation": round(corr, 3)}, "styles": {}}  # fmt: skip
+                row = {
+                    "group": group,
+                    "action": clip.action,
+                    "source": clip.source,
+                    "frames": clip.motion.n_frames,
+                    "fps": round(clip.motion.fps, 3),
+                    "identity": {"error_cm": round(err, 2), "correlation": round(corr, 3)},
+                    "styles": {},
+                }
                 for s, m in styled.items():
                     change = style_change(clip.motion, m, identity, jm, scale)
                     if group == "walks":
@@ -277,23 +338,37 @@ def _summary(rows: dict[str, dict], styles: list[str]) -> dict:
     for group in ("walks", "actions"):
         rs = [r for r in rows.values() if r["group"] == group]
         ids = np.array([(r["identity"]["error_cm"], r["identity"]["correlation"]) for r in rs])
-        g = {"clips": len(rs), "identity_error_cm": {"mean": round(float(ids[:, 0].mean()), 2), "worst": round(float(ids[:, 0].max()), 2)},
-             "identity_correlation": {"mean": round(float(ids[:, 1].mean()), 3), "worst": round(float(ids[:, 1].min()), 3)}, "styles": {}}  # fmt: skip
+        g = {
+            "clips": len(rs),
+            "identity_error_cm": {"mean": round(float(ids[:, 0].mean()), 2), "worst": round(float(ids[:, 0].max()), 2)},
+            "identity_correlation": {
+                "mean": round(float(ids[:, 1].mean()), 3),
+                "worst": round(float(ids[:, 1].min()), 3),
+            },
+            "styles": {},
+        }
         for s in styles:
             v = np.array(
                 [(r["styles"][s]["correlation"], r["styles"][s]["cosine"], r["styles"][s]["size_ratio"]) for r in rs]
             )
-            g["styles"][s] = {"correlation": round(float(v[:, 0].mean()), 3), "correlation_worst": round(float(v[:, 0].min()), 3),
-                              "cosine": round(float(v[:, 1].mean()), 3), "cosine_worst": round(float(v[:, 1].min()), 3),
-                              "size_ratio": round(float(v[:, 2].mean()), 3), "size_ratio_worst": round(float(v[:, 2].min()), 3)}  # fmt: skip
+            g["styles"][s] = {
+                "correlation": round(float(v[:, 0].mean()), 3),
+                "correlation_worst": round(float(v[:, 0].min()), 3),
+                "cosine": round(float(v[:, 1].mean()), 3),
+                "cosine_worst": round(float(v[:, 1].min()), 3),
+                "size_ratio": round(float(v[:, 2].mean()), 3),
+                "size_ratio_worst": round(float(v[:, 2].min()), 3),
+            }
         out[group] = g
     return out
 
 
 def json_summary(summary: dict) -> str:
     a, w = summary["actions"], summary["walks"]
-    return (f"held-out actions: identity {a['identity_error_cm']['mean']} cm, correlation {a['identity_correlation']['mean']} "
-            f"(worst {a['identity_correlation']['worst']}); walks: {w['identity_error_cm']['mean']} cm, {w['identity_correlation']['mean']}")  # fmt: skip
+    return (
+        f"held-out actions: identity {a['identity_error_cm']['mean']} cm, correlation {a['identity_correlation']['mean']} "
+        f"(worst {a['identity_correlation']['worst']}); walks: {w['identity_error_cm']['mean']} cm, {w['identity_correlation']['mean']}"
+    )
 
 
 # ---------------------------------------------------------------- feet and pace
@@ -353,9 +428,14 @@ def feet_figures(given: Motion, output: Motion, jm: JointMap, scale: float) -> d
     s_in, s_out = speed(ain), speed(aout)
     planted = s_in < 0.15 * 0.45 * BODY_CM  # a leg is about 0.45 of the body
     gap = lambda a: np.percentile(np.linalg.norm(a[:, 0, [0, 2]] - a[:, 1, [0, 2]], axis=-1), 95) * scale
-    return {"below_floor_cm": round(below, 2), "slide_cm_s": {"input": round(float(np.median(s_in[planted])), 2) if planted.any() else None,
-            "output": round(float(np.median(s_out[planted])), 2) if planted.any() else None},
-            "stride_cm": {"input": round(float(gap(ain)), 1), "output": round(float(gap(aout)), 1)}}  # fmt: skip
+    return {
+        "below_floor_cm": round(below, 2),
+        "slide_cm_s": {
+            "input": round(float(np.median(s_in[planted])), 2) if planted.any() else None,
+            "output": round(float(np.median(s_out[planted])), 2) if planted.any() else None,
+        },
+        "stride_cm": {"input": round(float(gap(ain)), 1), "output": round(float(gap(aout)), 1)},
+    }
 
 
 def evaluate_feet(
@@ -402,11 +482,20 @@ def markdown(report: dict) -> str:
     """The action table (per clip: identity error and correlation, per style correlation, cosine
     and size ratio of its change against the walks') per pose path, and the feet table."""
     styles = report["styles"]
-    lines = [(f"Clips cut to {report['seconds']:g} s; errors in cm of a {report['body_cm']:g} cm body; per style: velocity correlation / "
-             "cosine of the style's change against the walks' / its size over the walks'."), ""]  # fmt: skip
+    lines = [
+        (
+            f"Clips cut to {report['seconds']:g} s; errors in cm of a {report['body_cm']:g} cm body; per style: velocity correlation / "
+            "cosine of the style's change against the walks' / its size over the walks'."
+        ),
+        "",
+    ]
     for pose, r in report["poses"].items():
-        lines += [f"### Pose `{pose}`", "", "| clip | action | identity cm | identity corr | " + " | ".join(styles) + " |",
-                  "|---|---|---:|---:|" + "---:|" * len(styles)]  # fmt: skip
+        lines += [
+            f"### Pose `{pose}`",
+            "",
+            "| clip | action | identity cm | identity corr | " + " | ".join(styles) + " |",
+            "|---|---|---:|---:|" + "---:|" * len(styles),
+        ]
         for name, row in r["clips"].items():
             cells = [
                 f"{row['styles'][s]['correlation']:.2f} / {row['styles'][s]['cosine']:.2f} / {row['styles'][s]['size_ratio']:.2f}"
@@ -439,9 +528,17 @@ def markdown(report: dict) -> str:
         lines.append("")
     if report.get("feet"):
         keys = [k for k in next(iter(report["feet"].values())) if k.startswith("pose")]
-        lines += ["### Feet and pace", "", ("Worst over the target styles: cm below the input's floor; planted feet's slide (cm/s, input's in brackets); "
-                  "stride (cm, input's in brackets), smallest over the styles; what the labeller reads."), "",
-                  "| clip | labeller reads | " + " | ".join(keys) + " |", "|---|---|" + "---|" * len(keys)]  # fmt: skip
+        lines += [
+            "### Feet and pace",
+            "",
+            (
+                "Worst over the target styles: cm below the input's floor; planted feet's slide (cm/s, input's in brackets); "
+                "stride (cm, input's in brackets), smallest over the styles; what the labeller reads."
+            ),
+            "",
+            "| clip | labeller reads | " + " | ".join(keys) + " |",
+            "|---|---|" + "---|" * len(keys),
+        ]
         for name, row in report["feet"].items():
             cells = []
             for k in keys:
@@ -451,16 +548,24 @@ def markdown(report: dict) -> str:
                 slide_in = next(iter(row[k].values()))["slide_cm_s"]["input"]
                 stride = min(x["stride_cm"]["output"] for x in f)
                 stride_in = next(iter(row[k].values()))["stride_cm"]["input"]
-                cells.append(f"{below:.1f} cm; slide {max(slides):.1f} ({slide_in}); stride {stride:.0f} ({stride_in:.0f})" if slides
-                             else f"{below:.1f} cm; stride {stride:.0f} ({stride_in:.0f})")  # fmt: skip
+                cells.append(
+                    f"{below:.1f} cm; slide {max(slides):.1f} ({slide_in}); stride {stride:.0f} ({stride_in:.0f})"
+                    if slides
+                    else f"{below:.1f} cm; stride {stride:.0f} ({stride_in:.0f})"
+                )
             reads = "/".join(row["labeller_reads"]) if row["labeller_reads"] else "(given)"
             lines.append(f"| {name} | {reads} | " + " | ".join(cells) + " |")
         lines.append("")
     return "\n".join(lines)
 
 
-def action_filmstrips(model: GeneratorWeights, folder: Path, data_dir: str | None = None, names: tuple[str, ...] = ("dance-short_normal_001", "kick_normal_001"),
-                      styles: tuple[str, str] = ("elderly", "exhausted")) -> list[Path]:  # fmt: skip
+def action_filmstrips(
+    model: GeneratorWeights,
+    folder: Path,
+    data_dir: str | None = None,
+    names: tuple[str, ...] = ("dance-short_normal_001", "kick_normal_001"),
+    styles: tuple[str, str] = ("elderly", "exhausted"),
+) -> list[Path]:
     """Per clip (Bandai-Namco-1's dance and kick), a filmstrip: the input, the identity transfer and
     two styles with each pose path (``docs/actions-*.png``)."""
     from styleerd.eval.plots import filmstrip  # matplotlib: only for the pictures

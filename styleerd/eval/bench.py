@@ -276,8 +276,14 @@ def state_bytes(model: StyleERD) -> dict:
 
 
 def run_bench(model: StyleERD, steps: int = 2000, streams: tuple[int, ...] = STREAMS, progress=print) -> dict:
-    report: dict = {"cpu_count": os.cpu_count(), "flops_per_frame": flops_per_frame(model), "memory_per_stream_bytes": state_bytes(model),
-                    "startup_latency_frames": 1, "paper_gtx1060_ms": PAPER_GTX1060_MS, "backends": {}}  # fmt: skip
+    report: dict = {
+        "cpu_count": os.cpu_count(),
+        "flops_per_frame": flops_per_frame(model),
+        "memory_per_stream_bytes": state_bytes(model),
+        "startup_latency_frames": 1,
+        "paper_gtx1060_ms": PAPER_GTX1060_MS,
+        "backends": {},
+    }
     peaks = [matmul_peak(2)]  # measured again before each backend's throughput; the best is the peak
     for name in BACKENDS:
         set_threads(1)
@@ -296,8 +302,10 @@ def run_bench(model: StyleERD, steps: int = 2000, streams: tuple[int, ...] = STR
         if name == "numba":  # the ceiling: its matrix products alone, same calls and shapes
             r["products_alone_1000_streams"] = {"frames_per_second": round(products_alone(model, windows=WINDOWS_1000))}
         report["backends"][name] = r
-        progress(f"{name}: step p50 {r['network_step']['p50_us']:.0f} us, end-to-end p50 {r['end_to_end']['p50_us']:.0f} us, "
-                 f"{max(r['frames_per_second'].values()):,} frames/s at best")  # fmt: skip
+        progress(
+            f"{name}: step p50 {r['network_step']['p50_us']:.0f} us, end-to-end p50 {r['end_to_end']['p50_us']:.0f} us, "
+            f"{max(r['frames_per_second'].values()):,} frames/s at best"
+        )
     # fractions of the best peak seen in the run: a peak measured while the machine was busy
     # would flatter every fraction
     peak = report["matmul_peak_gflops_2_threads"] = round(max(peaks) / 1e9, 1)
@@ -319,17 +327,55 @@ def run_bench(model: StyleERD, steps: int = 2000, streams: tuple[int, ...] = STR
 
 def table(report: dict) -> str:
     names = list(report["backends"])
-    rows = [("network step p50 / p99 (us, batch 1, 1 thread)", lambda r: f"{r['network_step']['p50_us']:.0f} / {r['network_step']['p99_us']:.0f}"),
-            ("network step, ONNX graph of every style's branches, p50 / p99 (us)", lambda r: f"{r['network_step_every_branch_graph']['p50_us']:.0f} / {r['network_step_every_branch_graph']['p99_us']:.0f}" if "network_step_every_branch_graph" in r else ""),
-            ("end to end p50 / p99 (us, batch 1, 1 thread)", lambda r: f"{r['end_to_end']['p50_us']:.0f} / {r['end_to_end']['p99_us']:.0f}"),
-            *[(f"whole clip {k} (ms)", lambda r, k=k: f"{r['whole_clip_ms'][k]:.1f}") for k in ("L=60", "L=90", "L=120")],
-            *[(f"frames/s, {int(n):,} streams (2 threads)", lambda r, n=n: f"{r['frames_per_second'][n]:,}") for n in next(iter(report['backends'].values()))['frames_per_second']],
-            ("achieved GFLOP/s at the best number of streams (fraction of matmul peak)", lambda r: f"{r['achieved_gflops']:.2f} ({100 * r['fraction_of_peak']:.1f} %)"),
-            (f"1,000 streams (2 threads; each rate the best of {WINDOWS_1000} windows): fraction of matmul peak", lambda r: f"{100 * r['fraction_of_peak_1000_streams']:.1f} %" if "fraction_of_peak_1000_streams" in r else ""),
-            ("network alone, 1,000 streams (2 threads): frames/s (fraction of matmul peak)",
-             lambda r: f"{r['network_only_1000_streams']['frames_per_second']:,} ({100 * r['network_only_1000_streams']['fraction_of_peak']:.1f} %)" if "network_only_1000_streams" in r else ""),
-            ("the network's matrix products alone (same BLAS calls and shapes, nothing else), 1,000 streams: frames/s (fraction of matmul peak)",
-             lambda r: f"{r['products_alone_1000_streams']['frames_per_second']:,} ({100 * r['products_alone_1000_streams']['fraction_of_peak']:.1f} %)" if "products_alone_1000_streams" in r else "")]  # fmt: skip
+    rows = [
+        (
+            "network step p50 / p99 (us, batch 1, 1 thread)",
+            lambda r: f"{r['network_step']['p50_us']:.0f} / {r['network_step']['p99_us']:.0f}",
+        ),
+        (
+            "network step, ONNX graph of every style's branches, p50 / p99 (us)",
+            lambda r: (
+                f"{r['network_step_every_branch_graph']['p50_us']:.0f} / {r['network_step_every_branch_graph']['p99_us']:.0f}"
+                if "network_step_every_branch_graph" in r
+                else ""
+            ),
+        ),
+        (
+            "end to end p50 / p99 (us, batch 1, 1 thread)",
+            lambda r: f"{r['end_to_end']['p50_us']:.0f} / {r['end_to_end']['p99_us']:.0f}",
+        ),
+        *[(f"whole clip {k} (ms)", lambda r, k=k: f"{r['whole_clip_ms'][k]:.1f}") for k in ("L=60", "L=90", "L=120")],
+        *[
+            (f"frames/s, {int(n):,} streams (2 threads)", lambda r, n=n: f"{r['frames_per_second'][n]:,}")
+            for n in next(iter(report["backends"].values()))["frames_per_second"]
+        ],
+        (
+            "achieved GFLOP/s at the best number of streams (fraction of matmul peak)",
+            lambda r: f"{r['achieved_gflops']:.2f} ({100 * r['fraction_of_peak']:.1f} %)",
+        ),
+        (
+            f"1,000 streams (2 threads; each rate the best of {WINDOWS_1000} windows): fraction of matmul peak",
+            lambda r: (
+                f"{100 * r['fraction_of_peak_1000_streams']:.1f} %" if "fraction_of_peak_1000_streams" in r else ""
+            ),
+        ),
+        (
+            "network alone, 1,000 streams (2 threads): frames/s (fraction of matmul peak)",
+            lambda r: (
+                f"{r['network_only_1000_streams']['frames_per_second']:,} ({100 * r['network_only_1000_streams']['fraction_of_peak']:.1f} %)"
+                if "network_only_1000_streams" in r
+                else ""
+            ),
+        ),
+        (
+            "the network's matrix products alone (same BLAS calls and shapes, nothing else), 1,000 streams: frames/s (fraction of matmul peak)",
+            lambda r: (
+                f"{r['products_alone_1000_streams']['frames_per_second']:,} ({100 * r['products_alone_1000_streams']['fraction_of_peak']:.1f} %)"
+                if "products_alone_1000_streams" in r
+                else ""
+            ),
+        ),
+    ]
     paper = {
         "network step p50 / p99 (us, batch 1, 1 thread)": "1,730 (online per frame)",
         "whole clip L=60 (ms)": "7.47",
@@ -342,9 +388,15 @@ def table(report: dict) -> str:
             f"| {label} | " + " | ".join(f(report["backends"][n]) for n in names) + f" | {paper.get(label, '')} |"
         )
     mem = report["memory_per_stream_bytes"]
-    lines += ["", (f"FLOPs per frame: {report['flops_per_frame']:,}; float32 matmul peak measured here: {report['matmul_peak_gflops_2_threads']} GFLOP/s (2 threads, {report['cpu_count']} cores; the best of "
-              f"{', '.join(map(str, report.get('matmul_peak_gflops_each_measure', [])))}, measured before each backend's throughput);"),
-              f"memory per stream: {mem['total']:,} bytes ({mem['recurrent_state']:,} recurrent state); startup latency: {report['startup_latency_frames']} frame (the paper: 1).", TARGETS]  # fmt: skip
+    lines += [
+        "",
+        (
+            f"FLOPs per frame: {report['flops_per_frame']:,}; float32 matmul peak measured here: {report['matmul_peak_gflops_2_threads']} GFLOP/s (2 threads, {report['cpu_count']} cores; the best of "
+            f"{', '.join(map(str, report.get('matmul_peak_gflops_each_measure', [])))}, measured before each backend's throughput);"
+        ),
+        f"memory per stream: {mem['total']:,} bytes ({mem['recurrent_state']:,} recurrent state); startup latency: {report['startup_latency_frames']} frame (the paper: 1).",
+        TARGETS,
+    ]
     return "\n".join(lines) + "\n"
 
 

@@ -46,8 +46,10 @@ def run_demo(out: Path, data_dir: str | None = None) -> str:
         pass
     targets = [(style, style, {style: 1.0}) for style in c.styles if style != c.neutral_style]
     if {"elderly", "feminine", "exhausted"} <= set(c.styles):
-        targets += [("elderly at intensity 0.5", "elderly-0.5", {"elderly": 0.5, c.neutral_style: 0.5}),
-                    ("mix feminine + exhausted", "feminine+exhausted", {"feminine": 0.5, "exhausted": 0.5})]  # fmt: skip
+        targets += [
+            ("elderly at intensity 0.5", "elderly-0.5", {"elderly": 0.5, c.neutral_style: 0.5}),
+            ("mix feminine + exhausted", "feminine+exhausted", {"feminine": 0.5, "exhausted": 0.5}),
+        ]
     lines = [f"{'input':<28} {'output':<34} {'frames':>6} {'fps':>4} {'mean joint change':>18}"]
     rows = []
     for label, path, style, content in inputs:

@@ -224,9 +224,11 @@ def runtime_report(
     model: StyleERD, labeller, data_dir: str | None = None, frames: int = 90, blend_frames: int = 8
 ) -> dict:
     s = setup(TrainConfig(), data_dir, progress=False)
-    report: dict = {"labels": stream_accuracy(labeller, s.fs, s.data, "test", neutral=model.config.neutral_style),
-                    "labels_raw": stream_accuracy(labeller, s.fs, s.data, "test"),
-                    "xia_labels": other_performer_labels(model, labeller, data_dir)}  # fmt: skip
+    report: dict = {
+        "labels": stream_accuracy(labeller, s.fs, s.data, "test", neutral=model.config.neutral_style),
+        "labels_raw": stream_accuracy(labeller, s.fs, s.data, "test"),
+        "xia_labels": other_performer_labels(model, labeller, data_dir),
+    }
     rot, pos, styles, contents, targets = _streams(model, data_dir, frames)
     sk = model.skeleton
     roles = BodyRoles.of(sk)
@@ -316,8 +318,19 @@ def played_channels(model: StyleERD, rotations: np.ndarray, positions: np.ndarra
 
 
 @torch.no_grad()
-def runtime_transfers(model: StyleERD, labeller, style_rec, content_rec, data_dir: str | None = None, dataset: str = "bandai-namco-2",
-                      window: int = 24, stride: int = 12, split: str = "test", root_speed: bool = False, pose: str = "input") -> dict:  # fmt: skip
+def runtime_transfers(
+    model: StyleERD,
+    labeller,
+    style_rec,
+    content_rec,
+    data_dir: str | None = None,
+    dataset: str = "bandai-namco-2",
+    window: int = 24,
+    stride: int = 12,
+    split: str = "test",
+    root_speed: bool = False,
+    pose: str = "input",
+) -> dict:
     """Every ``split`` clip streamed frame by frame through ``StreamStylizer`` (what
     ``transfer`` runs): styled clips back to neutral, neutral clips into every other style;
     each with its labels given and with its labels inferred online by ``labeller``. The

@@ -49,15 +49,23 @@ def pictures(docs: Path, data_dir: str | None) -> dict[str, str]:
     ]
     filmstrip(rows, docs / "intensity-bandai2.png", title=f"Intensity (the paper's Fig. 5): {clip.name}")
     out["intensity"] = "intensity-bandai2.png"
-    rows = [(name, stylise_motion(model, motion, c.neutral_style, "walk", w)) for name, w in (
-        ("elderly", {"elderly": 1.0}), ("elderly 0.5 + feminine 0.5", {"elderly": 0.5, "feminine": 0.5}), ("feminine", {"feminine": 1.0}))]  # fmt: skip
+    rows = [
+        (name, stylise_motion(model, motion, c.neutral_style, "walk", w))
+        for name, w in (
+            ("elderly", {"elderly": 1.0}),
+            ("elderly 0.5 + feminine 0.5", {"elderly": 0.5, "feminine": 0.5}),
+            ("feminine", {"feminine": 1.0}),
+        )
+    ]
     filmstrip(rows, docs / "mixture-bandai2.png", title="A two-style mixture")
     out["mixture"] = "mixture-bandai2.png"
     zero, _ = load_generator(model_stem("zero initial states"))
     first = motion[:10]
-    rows = [("input, first 10 frames", first),
-            ("full model -> elderly", stylise_motion(model, first, c.neutral_style, "walk", {"elderly": 1.0})),
-            ("zero initial states -> elderly", stylise_motion(zero, first, c.neutral_style, "walk", {"elderly": 1.0}))]  # fmt: skip
+    rows = [
+        ("input, first 10 frames", first),
+        ("full model -> elderly", stylise_motion(model, first, c.neutral_style, "walk", {"elderly": 1.0})),
+        ("zero initial states -> elderly", stylise_motion(zero, first, c.neutral_style, "walk", {"elderly": 1.0})),
+    ]
     filmstrip(
         rows,
         docs / "first-frames-bandai2.png",
@@ -81,8 +89,14 @@ def measured(docs: Path, name: str, keep: tuple[str, ...], measure) -> dict:
     return figures
 
 
-def write_report(docs: Path = Path("docs"), data_dir: str | None = None, bench_steps: int = 2000, bench_streams: tuple[int, ...] = STREAMS, progress=print,
-                 keep: tuple[str, ...] = ()) -> Path:  # fmt: skip
+def write_report(
+    docs: Path = Path("docs"),
+    data_dir: str | None = None,
+    bench_steps: int = 2000,
+    bench_streams: tuple[int, ...] = STREAMS,
+    progress=print,
+    keep: tuple[str, ...] = (),
+) -> Path:
     """``keep``: parts ("ablations", "bench") read from their JSON in ``docs`` instead of measured again."""
     docs.mkdir(parents=True, exist_ok=True)
     model, meta = load_generator()
@@ -248,18 +262,42 @@ output, per joint, in the body's frame, averaged over the clip) against the same
     if quality.is_file() and streamed.is_file():
         q, st = json.loads(quality.read_text()), json.loads(streamed.read_text())
         rows = ["| figure | pose network | pose input |", "| --- | ---: | ---: |"]
-        for label, key, scale in (("SRA", "sra", 100), ("CRA", "cra", 100), ("FMD", "fmd", 1), ("FMD / floor, worst style", "worst_fmd_over_floor", 1),
-                                  ("CRA / ceiling, worst style", "worst_cra_of_ceiling", 100), ("jitter ratio", "jitter_ratio", 1)):  # fmt: skip
+        for label, key, scale in (
+            ("SRA", "sra", 100),
+            ("CRA", "cra", 100),
+            ("FMD", "fmd", 1),
+            ("FMD / floor, worst style", "worst_fmd_over_floor", 1),
+            ("CRA / ceiling, worst style", "worst_cra_of_ceiling", 100),
+            ("jitter ratio", "jitter_ratio", 1),
+        ):
             rows.append(f"| {label} | {scale * q['network'][key]:.3g} | {scale * q['input'][key]:.3g} |")
         for style in q["network"]["sra_per_style"]:
-            rows.append(f"| {style}: SRA / CRA / FMD (floor {q['network']['fmd_floor_per_style'][style]:.3f}) | "
-                        + " | ".join(f"{100 * q[p]['sra_per_style'][style]:.1f} / {100 * q[p]['cra_per_style'][style]:.1f} / {q[p]['fmd_per_style'][style]:.3f}" for p in ("network", "input")) + " |")  # fmt: skip
+            rows.append(
+                f"| {style}: SRA / CRA / FMD (floor {q['network']['fmd_floor_per_style'][style]:.3f}) | "
+                + " | ".join(
+                    f"{100 * q[p]['sra_per_style'][style]:.1f} / {100 * q[p]['cra_per_style'][style]:.1f} / {q[p]['fmd_per_style'][style]:.3f}"
+                    for p in ("network", "input")
+                )
+                + " |"
+            )
         for what in ("to_neutral_mean", "into_styles_mean"):
-            rows.append(f"| streamed, {what.replace('_', ' ')} (labels given / inferred) | "
-                        + " | ".join(f"{100 * st[p][what]['given']:.1f} / {100 * st[p][what]['inferred']:.1f}" for p in ("network", "input")) + " |")  # fmt: skip
+            rows.append(
+                f"| streamed, {what.replace('_', ' ')} (labels given / inferred) | "
+                + " | ".join(
+                    f"{100 * st[p][what]['given']:.1f} / {100 * st[p][what]['inferred']:.1f}"
+                    for p in ("network", "input")
+                )
+                + " |"
+            )
         for source in st["network"]["to_neutral"]:
-            rows.append(f"| streamed, {source} -> normal (given / inferred) | "
-                        + " | ".join(f"{100 * st[p]['to_neutral'][source]['given']:.1f} / {100 * st[p]['to_neutral'][source]['inferred']:.1f}" for p in ("network", "input")) + " |")  # fmt: skip
+            rows.append(
+                f"| streamed, {source} -> normal (given / inferred) | "
+                + " | ".join(
+                    f"{100 * st[p]['to_neutral'][source]['given']:.1f} / {100 * st[p]['to_neutral'][source]['inferred']:.1f}"
+                    for p in ("network", "input")
+                )
+                + " |"
+            )
         text += (
             """
 ### The same model on Bandai-Namco-2's test split, each pose path

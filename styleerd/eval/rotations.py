@@ -26,8 +26,11 @@ from styleerd.motion.procedural import rig_variants
 from styleerd.motion.retarget import body_parts
 from styleerd.runtime.offline import TransferOptions, transfer_motion
 
-BODY_PARTS = ("hips", "spine", "chest", "neck", "head") + tuple(f"{side}_{p}" for side in ("left", "right")
-                                                                for p in ("collar", "shoulder", "elbow", "hand", "hip", "knee", "foot", "toe"))  # fmt: skip
+BODY_PARTS = ("hips", "spine", "chest", "neck", "head") + tuple(
+    f"{side}_{p}"
+    for side in ("left", "right")
+    for p in ("collar", "shoulder", "elbow", "hand", "hip", "knee", "foot", "toe")
+)
 
 
 def bone_axes(skeleton) -> np.ndarray:
@@ -98,8 +101,14 @@ def _inputs(model: StyleERD, data_dir: str | None, clips_per_set: int) -> list[t
     return out
 
 
-def rotation_report(model: StyleERD, fps: float, data_dir: str | None = None, clips_per_set: int = 14, stylised: str = "elderly",
-                    progress: Callable = tqdm) -> dict:  # fmt: skip
+def rotation_report(
+    model: StyleERD,
+    fps: float,
+    data_dir: str | None = None,
+    clips_per_set: int = 14,
+    stylised: str = "elderly",
+    progress: Callable = tqdm,
+) -> dict:
     """Per input: the worst mapped joint's median angle (swing, twist) between input and output
     with target style = input style at intensity 0 (the round trip: ideally nothing changes),
     and the same between input and the ``stylised`` transfer (the change a style makes)."""
@@ -110,9 +119,20 @@ def rotation_report(model: StyleERD, fps: float, data_dir: str | None = None, cl
         styled = transfer_motion(motion, model, fps, TransferOptions({stylised: 1.0}, input_style=style, cleanup=False))
         round_trip, change = rotation_errors(motion, same, joints), rotation_errors(motion, styled, joints)
         parts = {p: motion.skeleton.names[j] for p, j in body_parts(motion.skeleton).items()}
-        rows.append({"group": group, "input": name, "input_style": style, "frames": motion.n_frames, "fps": motion.fps, "parts": parts,
-                     "round_trip": round_trip, "stylised": change,
-                     "round_trip_worst": worst(round_trip), "stylised_worst": worst(change)})  # fmt: skip
+        rows.append(
+            {
+                "group": group,
+                "input": name,
+                "input_style": style,
+                "frames": motion.n_frames,
+                "fps": motion.fps,
+                "parts": parts,
+                "round_trip": round_trip,
+                "stylised": change,
+                "round_trip_worst": worst(round_trip),
+                "stylised_worst": worst(change),
+            }
+        )
     return {"stylised_target": stylised, "rows": rows}
 
 
@@ -140,8 +160,13 @@ def markdown(report: dict) -> str:
             f"| {group} | all mapped | {per('round_trip', 1):.1f} / {per('round_trip', 2):.1f} | {per('stylised', 1):.1f} / {per('stylised', 2):.1f} |"
         )
     names = list(groups)
-    lines += ["", "Per body part, the median over a group's clips of the joint's median angle, swing / twist (round trip | into the style):", "",
-              "| body part | " + " | ".join(names) + " |", "| --- |" + " --- |" * len(names)]  # fmt: skip
+    lines += [
+        "",
+        "Per body part, the median over a group's clips of the joint's median angle, swing / twist (round trip | into the style):",
+        "",
+        "| body part | " + " | ".join(names) + " |",
+        "| --- |" + " --- |" * len(names),
+    ]
     for part in BODY_PARTS:
         cells = []
         for group in names:

@@ -122,8 +122,16 @@ def write_html(
         m = resample(motion, fps) if not np.isclose(motion.fps, fps) else motion
         g_rot, g = forward_kinematics(m.rotations, m.positions, m.skeleton.parents)
         height = max(height, float(np.ptp(g[0, :, 1])))
-        entries.append({"label": label, "parents": m.skeleton.parents.tolist(), "frames": _rounded(g, height),
-                        "fronts": np.round(quat.mul_vec(g_rot[:, np.maximum(m.skeleton.parents, 0)], bone_fronts(m.skeleton)), 2).tolist()})  # fmt: skip
+        entries.append(
+            {
+                "label": label,
+                "parents": m.skeleton.parents.tolist(),
+                "frames": _rounded(g, height),
+                "fronts": np.round(
+                    quat.mul_vec(g_rot[:, np.maximum(m.skeleton.parents, 0)], bone_fronts(m.skeleton)), 2
+                ).tolist(),
+            }
+        )
     data = json.dumps({"fps": fps, "height": height * 1.1, "motions": entries}, separators=(",", ":"))
     page = (
         _PAGE.replace("__TITLE__", html.escape(title))

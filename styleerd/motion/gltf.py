@@ -43,8 +43,16 @@ def guess_metres_per_unit(motion: Motion) -> float:
     return 0.9 / max(leg, 1e-9)
 
 
-def _append(views: list, accessors: list, blob: bytearray, array: np.ndarray, kind: str, with_bounds: bool = False,
-            component: int = gl.FLOAT, target: int | None = None) -> int:  # fmt: skip
+def _append(
+    views: list,
+    accessors: list,
+    blob: bytearray,
+    array: np.ndarray,
+    kind: str,
+    with_bounds: bool = False,
+    component: int = gl.FLOAT,
+    target: int | None = None,
+) -> int:
     """Append ``array`` to ``blob`` (4-byte aligned) with a buffer view and an accessor of
     buffer 0; returns the accessor's index."""
     dtype = {gl.FLOAT: np.float32, gl.UNSIGNED_SHORT: np.uint16, gl.UNSIGNED_INT: np.uint32}[component]
@@ -162,8 +170,12 @@ def write_glb(
         weights = np.zeros((len(v), 4), np.float32)
         weights[:, 0] = 1.0
         vertex = {"target": gl.ARRAY_BUFFER}
-        attributes = gl.Attributes(POSITION=add(v, gl.VEC3, True, **vertex), NORMAL=add(n, gl.VEC3, **vertex),
-                                   JOINTS_0=add(joints, gl.VEC4, component=gl.UNSIGNED_SHORT, **vertex), WEIGHTS_0=add(weights, gl.VEC4, **vertex))  # fmt: skip
+        attributes = gl.Attributes(
+            POSITION=add(v, gl.VEC3, True, **vertex),
+            NORMAL=add(n, gl.VEC3, **vertex),
+            JOINTS_0=add(joints, gl.VEC4, component=gl.UNSIGNED_SHORT, **vertex),
+            WEIGHTS_0=add(weights, gl.VEC4, **vertex),
+        )
         indices = add(tri.reshape(-1), gl.SCALAR, component=gl.UNSIGNED_INT, target=gl.ELEMENT_ARRAY_BUFFER)
         meshes = [gl.Mesh(name="body", primitives=[gl.Primitive(attributes=attributes, indices=indices, material=0)])]
         nodes.append(gl.Node(name="body", mesh=0, skin=0))
@@ -202,9 +214,18 @@ def write_glb(
 # chest where both exist, since the arms branch off it
 VRM_PARTS = {"hips": "hips", "spine": "spine", "chest": "chest", "upperChest": "chest", "neck": "neck", "head": "head"}
 for _side in ("left", "right"):
-    VRM_PARTS.update({f"{_side}Shoulder": f"{_side}_collar", f"{_side}UpperArm": f"{_side}_shoulder", f"{_side}LowerArm": f"{_side}_elbow",
-                      f"{_side}Hand": f"{_side}_hand", f"{_side}UpperLeg": f"{_side}_hip", f"{_side}LowerLeg": f"{_side}_knee",
-                      f"{_side}Foot": f"{_side}_foot", f"{_side}Toes": f"{_side}_toe"})  # fmt: skip
+    VRM_PARTS.update(
+        {
+            f"{_side}Shoulder": f"{_side}_collar",
+            f"{_side}UpperArm": f"{_side}_shoulder",
+            f"{_side}LowerArm": f"{_side}_elbow",
+            f"{_side}Hand": f"{_side}_hand",
+            f"{_side}UpperLeg": f"{_side}_hip",
+            f"{_side}LowerLeg": f"{_side}_knee",
+            f"{_side}Foot": f"{_side}_foot",
+            f"{_side}Toes": f"{_side}_toe",
+        }
+    )
 MAX_SECONDS = 3600.0  # of an animation: an hour (a key time of 1e7 s would ask for 197 GiB)
 MAX_DEPTH = 256  # of a node tree, as the BVH reader's
 MAX_VALUES = (

@@ -43,10 +43,14 @@ def tpose_skeleton() -> Skeleton:
         parents=np.array([-1 if p is None else names.index(p) for _, p, _ in _JOINTS]),
         offsets=np.array([o for _, _, o in _JOINTS], dtype=np.float64),
         channels=tuple(POSITION_CHANNELS + _ROT if p is None else _ROT for _, p, _ in _JOINTS),
-        end_sites=((names.index("Head"), np.array([0, 12.0, 0])), (names.index("LeftHand"), np.array([10.0, 0, 0])),
-                   (names.index("RightHand"), np.array([-10.0, 0, 0])), (names.index("LeftToeBase"), np.array([0, 0, 6.0])),
-                   (names.index("RightToeBase"), np.array([0, 0, 6.0]))),
-    )  # fmt: skip
+        end_sites=(
+            (names.index("Head"), np.array([0, 12.0, 0])),
+            (names.index("LeftHand"), np.array([10.0, 0, 0])),
+            (names.index("RightHand"), np.array([-10.0, 0, 0])),
+            (names.index("LeftToeBase"), np.array([0, 0, 6.0])),
+            (names.index("RightToeBase"), np.array([0, 0, 6.0])),
+        ),
+    )
 
 
 def with_extra_joints(skeleton: Skeleton, extra: int, chain: int = 20) -> Skeleton:
@@ -132,9 +136,18 @@ def with_rest_frames(
 
 _BLENDER = {"Hips": "hips", "Spine": "spine", "Spine1": "spine.001", "Spine2": "chest", "Neck": "neck", "Head": "head"}
 for _side, _s in (("Left", "L"), ("Right", "R")):
-    _BLENDER.update({f"{_side}Shoulder": f"shoulder.{_s}", f"{_side}Arm": f"upper_arm.{_s}", f"{_side}ForeArm": f"forearm.{_s}",
-                     f"{_side}Hand": f"hand.{_s}", f"{_side}UpLeg": f"thigh.{_s}", f"{_side}Leg": f"shin.{_s}",
-                     f"{_side}Foot": f"foot.{_s}", f"{_side}ToeBase": f"toe.{_s}"})  # fmt: skip
+    _BLENDER.update(
+        {
+            f"{_side}Shoulder": f"shoulder.{_s}",
+            f"{_side}Arm": f"upper_arm.{_s}",
+            f"{_side}ForeArm": f"forearm.{_s}",
+            f"{_side}Hand": f"hand.{_s}",
+            f"{_side}UpLeg": f"thigh.{_s}",
+            f"{_side}Leg": f"shin.{_s}",
+            f"{_side}Foot": f"foot.{_s}",
+            f"{_side}ToeBase": f"toe.{_s}",
+        }
+    )
 
 
 def rig_variants(motion: Motion | None = None, seed: int = 0) -> dict[str, Motion]:

@@ -30,10 +30,14 @@ def identity(shape: tuple[int, ...] = ()) -> np.ndarray:
 def _hamilton_table() -> np.ndarray:
     """``[16, 4]``: mul(a, b)[k] = sum over i, j of a[i] b[j] table[4 i + j, k]."""
     t = np.zeros((4, 4, 4))
-    for k, terms in enumerate((((1, 0, 0), (-1, 1, 1), (-1, 2, 2), (-1, 3, 3)),
-                               ((1, 0, 1), (1, 1, 0), (1, 2, 3), (-1, 3, 2)),
-                               ((1, 0, 2), (-1, 1, 3), (1, 2, 0), (1, 3, 1)),
-                               ((1, 0, 3), (1, 1, 2), (-1, 2, 1), (1, 3, 0)))):  # fmt: skip
+    for k, terms in enumerate(
+        (
+            ((1, 0, 0), (-1, 1, 1), (-1, 2, 2), (-1, 3, 3)),
+            ((1, 0, 1), (1, 1, 0), (1, 2, 3), (-1, 3, 2)),
+            ((1, 0, 2), (-1, 1, 3), (1, 2, 0), (1, 3, 1)),
+            ((1, 0, 3), (1, 1, 2), (-1, 2, 1), (1, 3, 0)),
+        )
+    ):
         for sign, i, j in terms:
             t[i, j, k] = sign
     return t.reshape(16, 4)
@@ -138,8 +142,12 @@ def from_euler(e: np.ndarray, order: str) -> np.ndarray:
 @nb.njit(cache=True)
 def mul_scalars(aw, ax, ay, az, bw, bx, by, bz):
     """``mul`` of two quaternions given as scalars, for compiled loops (no arrays allocated)."""
-    return (aw * bw - ax * bx - ay * by - az * bz, aw * bx + ax * bw + ay * bz - az * by,
-            aw * by - ax * bz + ay * bw + az * bx, aw * bz + ax * by - ay * bx + az * bw)  # fmt: skip
+    return (
+        aw * bw - ax * bx - ay * by - az * bz,
+        aw * bx + ax * bw + ay * bz - az * by,
+        aw * by - ax * bz + ay * bw + az * bx,
+        aw * bz + ax * by - ay * bx + az * bw,
+    )
 
 
 @nb.njit(cache=True)
@@ -172,9 +180,17 @@ def _xform_table() -> np.ndarray:
     """``[16, 9]``: to_xform(q) = I + (q q^T, flattened) @ table, the terms below."""
     t = np.zeros((4, 4, 3, 3))
     w, x, y, z = range(4)
-    for (r, c), terms in {(0, 0): ((-2, y, y), (-2, z, z)), (0, 1): ((2, x, y), (-2, w, z)), (0, 2): ((2, x, z), (2, w, y)),
-                          (1, 0): ((2, x, y), (2, w, z)), (1, 1): ((-2, x, x), (-2, z, z)), (1, 2): ((2, y, z), (-2, w, x)),
-                          (2, 0): ((2, x, z), (-2, w, y)), (2, 1): ((2, y, z), (2, w, x)), (2, 2): ((-2, x, x), (-2, y, y))}.items():  # fmt: skip
+    for (r, c), terms in {
+        (0, 0): ((-2, y, y), (-2, z, z)),
+        (0, 1): ((2, x, y), (-2, w, z)),
+        (0, 2): ((2, x, z), (2, w, y)),
+        (1, 0): ((2, x, y), (2, w, z)),
+        (1, 1): ((-2, x, x), (-2, z, z)),
+        (1, 2): ((2, y, z), (-2, w, x)),
+        (2, 0): ((2, x, z), (-2, w, y)),
+        (2, 1): ((2, y, z), (2, w, x)),
+        (2, 2): ((-2, x, x), (-2, y, y)),
+    }.items():
         for sign, i, j in terms:
             t[i, j, r, c] = sign
     return t.reshape(16, 9)
@@ -267,9 +283,11 @@ def to_euler(q: np.ndarray, order: str) -> np.ndarray:
 def quat_scalars_to_euler(w, x, y, z, i, j, k):
     """``to_euler`` of one quaternion about axes (i, j, k), for compiled loops."""
     s = 1.0 if (j - i) % 3 == 1 else -1.0  # +1 when (i, j, k) is a cyclic permutation of (x, y, z)
-    m = ((1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)),
-         (2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)),
-         (2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)))  # fmt: skip
+    m = (
+        (1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)),
+        (2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)),
+        (2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)),
+    )
     sin_b = min(1.0, max(-1.0, s * m[i][k]))
     if abs(sin_b) > 1.0 - 1e-10:  # gimbal lock: the last angle is zero
         return np.arctan2(s * m[k][j], m[j][j]), np.arcsin(sin_b), 0.0

@@ -42,21 +42,44 @@ CHAINS = (
     ("hips", "right_hip", "right_knee", "right_foot", "right_toe"),
 )
 REQUIRED = (
-    "hips", "chest", "head",
-    "left_shoulder", "left_elbow", "left_hand", "right_shoulder", "right_elbow", "right_hand",
-    "left_hip", "left_knee", "left_foot", "right_hip", "right_knee", "right_foot",
-)  # fmt: skip
+    "hips",
+    "chest",
+    "head",
+    "left_shoulder",
+    "left_elbow",
+    "left_hand",
+    "right_shoulder",
+    "right_elbow",
+    "right_hand",
+    "left_hip",
+    "left_knee",
+    "left_foot",
+    "right_hip",
+    "right_knee",
+    "right_foot",
+)
 OPTIONAL = ("spine", "neck", "left_collar", "right_collar", "left_toe", "right_toe")
 
 UP, DOWN, LEFT, RIGHT, FORWARD = np.eye(3)[1], -np.eye(3)[1], np.eye(3)[0], -np.eye(3)[0], np.eye(3)[2]
 # Where each part's bone (towards the next part of its chain) points in the T-pose.
 TPOSE_DIRECTIONS = {
-    "hips": UP, "spine": UP, "chest": UP, "neck": UP,
-    "left_collar": LEFT, "left_shoulder": LEFT, "left_elbow": LEFT,
-    "right_collar": RIGHT, "right_shoulder": RIGHT, "right_elbow": RIGHT,
-    "left_hip": DOWN, "left_knee": DOWN, "left_foot": FORWARD,
-    "right_hip": DOWN, "right_knee": DOWN, "right_foot": FORWARD,
-}  # fmt: skip
+    "hips": UP,
+    "spine": UP,
+    "chest": UP,
+    "neck": UP,
+    "left_collar": LEFT,
+    "left_shoulder": LEFT,
+    "left_elbow": LEFT,
+    "right_collar": RIGHT,
+    "right_shoulder": RIGHT,
+    "right_elbow": RIGHT,
+    "left_hip": DOWN,
+    "left_knee": DOWN,
+    "left_foot": FORWARD,
+    "right_hip": DOWN,
+    "right_knee": DOWN,
+    "right_foot": FORWARD,
+}
 # Parts whose twist is fixed by a second, sideways direction (left minus right -> +X): the
 # first part of each side's chain that does not sit on the part itself.
 ACROSS = {
@@ -124,8 +147,11 @@ def part_joints(skeleton: Skeleton) -> dict[str, np.ndarray]:
     collars (or shoulders) out, head from the neck (or head) up, torso the rest (root, spine,
     chest). Every joint is in exactly one part."""
     parts = body_parts(skeleton)
-    start = {"legs": ["left_hip", "right_hip"], "arms": [next(p for p in (f"{s}_collar", f"{s}_shoulder") if p in parts) for s in ("left", "right")],
-             "head": ["neck" if "neck" in parts else "head"]}  # fmt: skip
+    start = {
+        "legs": ["left_hip", "right_hip"],
+        "arms": [next(p for p in (f"{s}_collar", f"{s}_shoulder") if p in parts) for s in ("left", "right")],
+        "head": ["neck" if "neck" in parts else "head"],
+    }
     owner = np.full(skeleton.n_joints, -1)
     for j in range(skeleton.n_joints):  # parents come first: a joint is in its part, or in its parent's
         for k, part in enumerate(BODY_PARTS):
@@ -354,8 +380,20 @@ def natural_rest(skeleton: Skeleton, parts: dict[str, int], shared: set[str]) ->
         30
     ):
         return False
-    limits = {"spine": 40, "neck": 40, "left_hip": 40, "left_knee": 40, "right_hip": 40, "right_knee": 40, "left_foot": 60, "right_foot": 60,
-              "left_shoulder": 60, "left_elbow": 60, "right_shoulder": 60, "right_elbow": 60}  # fmt: skip
+    limits = {
+        "spine": 40,
+        "neck": 40,
+        "left_hip": 40,
+        "left_knee": 40,
+        "right_hip": 40,
+        "right_knee": 40,
+        "left_foot": 60,
+        "right_foot": 60,
+        "left_shoulder": 60,
+        "left_elbow": 60,
+        "right_shoulder": 60,
+        "right_elbow": 60,
+    }
     for part, limit in limits.items():
         if part in shared and (bone := _bone(P, parts, part, shared)) is not None:
             aligned = body["hips" if part in ("spine",) or part.endswith(("hip", "knee", "foot")) else "chest"] @ bone
@@ -471,7 +509,20 @@ def to_target(motion: Motion, jm: JointMap) -> Motion:
     src, tgt = jm.source, jm.target
     t_idx, s_idx = jm.joints
     rot, pos = np.empty((motion.n_frames, tgt.n_joints, 4)), np.empty((motion.n_frames, tgt.n_joints, 3))
-    _to_target_kernel(np.ascontiguousarray(motion.rotations), np.ascontiguousarray(motion.positions), src.parents, tgt.parents, t_idx, s_idx, jm.to_target_offsets, *jm.target_only_arrays, tgt.offsets, jm.scale, rot, pos)  # fmt: skip
+    _to_target_kernel(
+        np.ascontiguousarray(motion.rotations),
+        np.ascontiguousarray(motion.positions),
+        src.parents,
+        tgt.parents,
+        t_idx,
+        s_idx,
+        jm.to_target_offsets,
+        *jm.target_only_arrays,
+        tgt.offsets,
+        jm.scale,
+        rot,
+        pos,
+    )
     return Motion(tgt, rot, pos, motion.fps)
 
 
@@ -545,8 +596,18 @@ def to_source(target_motion: Motion, jm: JointMap, source_motion: Motion) -> Mot
     src, tgt = jm.source, jm.target
     t_idx, s_idx = jm.joints
     rot = np.empty((target_motion.n_frames, src.n_joints, 4))
-    _to_source_kernel(np.ascontiguousarray(target_motion.rotations), np.ascontiguousarray(target_motion.positions), tgt.parents, src.parents, t_idx, s_idx,
-                      jm.to_source_offsets, jm.unmapped_source, np.ascontiguousarray(source_motion.rotations), rot)  # fmt: skip
+    _to_source_kernel(
+        np.ascontiguousarray(target_motion.rotations),
+        np.ascontiguousarray(target_motion.positions),
+        tgt.parents,
+        src.parents,
+        t_idx,
+        s_idx,
+        jm.to_source_offsets,
+        jm.unmapped_source,
+        np.ascontiguousarray(source_motion.rotations),
+        rot,
+    )
     return Motion(src, rot, source_motion.positions.copy(), target_motion.fps, source_motion.euler_hint)
 
 

@@ -130,8 +130,15 @@ class _Worker:
         self.conn.close()
 
 
-def transfer_batch(pairs: list[tuple[Path, Path]], model_name: str | None, options: TransferOptions, workers: int | None = None,
-                   timeout: float = 600.0, max_memory_gb: float | None = None, resume: bool = False) -> list[tuple[Path, str]]:  # fmt: skip
+def transfer_batch(
+    pairs: list[tuple[Path, Path]],
+    model_name: str | None,
+    options: TransferOptions,
+    workers: int | None = None,
+    timeout: float = 600.0,
+    max_memory_gb: float | None = None,
+    resume: bool = False,
+) -> list[tuple[Path, str]]:
     """Every (input, output) pair through ``transfer_one`` on worker processes, with a progress
     bar; -> the (input, reason) of the files that failed (the others are written). A file that
     takes longer than ``timeout`` seconds, needs more than ``max_memory_gb``, or crashes its worker

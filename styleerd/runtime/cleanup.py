@@ -81,15 +81,54 @@ class FootLock:
         f64 = lambda a: np.ascontiguousarray(a, dtype=np.float64)
         out = f64(rotations).copy()
         state = np.arange(self.n)[slice(None) if rows is None else np.asarray(rows, dtype=int)]
-        _foot_lock_kernel(f64(positions), f64(input_rotations), f64(input_positions), state, self.skeleton.parents, self.legs, self.toes, self.across[0], self.across[1],
-                          float(self.fps), float(self.max_speed), int(self.release_frames), bool(self.enabled),
-                          self.previous, self.anchor, self.since_release, self.planted, self.started, self.floor, out)  # fmt: skip
+        _foot_lock_kernel(
+            f64(positions),
+            f64(input_rotations),
+            f64(input_positions),
+            state,
+            self.skeleton.parents,
+            self.legs,
+            self.toes,
+            self.across[0],
+            self.across[1],
+            float(self.fps),
+            float(self.max_speed),
+            int(self.release_frames),
+            bool(self.enabled),
+            self.previous,
+            self.anchor,
+            self.since_release,
+            self.planted,
+            self.started,
+            self.floor,
+            out,
+        )
         return out
 
 
 @nb.njit(cache=True)
-def _foot_lock_kernel(positions, in_rot, in_pos, state, parents, legs, toes, across_l, across_r, fps, max_speed, release, enabled,
-                      previous, anchor, since_release, planted, started, floor, out):  # fmt: skip
+def _foot_lock_kernel(
+    positions,
+    in_rot,
+    in_pos,
+    state,
+    parents,
+    legs,
+    toes,
+    across_l,
+    across_r,
+    fps,
+    max_speed,
+    release,
+    enabled,
+    previous,
+    anchor,
+    since_release,
+    planted,
+    started,
+    floor,
+    out,
+):
     """Per stream (row ``state[i]`` of the state arrays): contacts from the input's ankles,
     anchors and release weights, the input's floor, then IK of each leg with a weight and a lift
     (``out``: local rotations, cleaned in place)."""

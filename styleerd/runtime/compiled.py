@@ -28,7 +28,8 @@ from styleerd.runtime.numpy_step import NumpyBackend, StepWeights, one_blas_thre
 # activations stay in cache from one layer to the next (500 streams, 1 thread, alternating
 # rounds: blocks of 32 1.15-1.18x the frames/s of all 500 at once, 64 1.09x, 128 1.12x, 16 as 32).
 BLOCK_ROWS = 32
-LOOPS_UP_TO = 1  # streams per step (measured, 1 thread, us per step with loops / BLAS: 1 stream 17.5 / 19.5, 2: 26.0 / 21.5, 8: 81 / 48)
+# streams per step (measured, 1 thread, us per step with loops / BLAS: 1 stream 17.5 / 19.5, 2: 26.0 / 21.5, 8: 81 / 48)
+LOOPS_UP_TO = 1
 
 
 # BLAS sgemm called by name from compiled code (resolved when the code is linked, so it caches):
@@ -48,8 +49,21 @@ def _gemm(x, W, y, beta):
     )
     scalars = np.array([1.0, beta], np.float32)
     no_transpose = np.array([78], np.uint8)  # "N"
-    _sgemm(no_transpose.ctypes, no_transpose.ctypes, ints.ctypes, ints[1:].ctypes, ints[2:].ctypes, scalars.ctypes, W.ctypes, ints[3:].ctypes,
-           x.ctypes, ints[4:].ctypes, scalars[1:].ctypes, y.ctypes, ints[5:].ctypes)  # fmt: skip
+    _sgemm(
+        no_transpose.ctypes,
+        no_transpose.ctypes,
+        ints.ctypes,
+        ints[1:].ctypes,
+        ints[2:].ctypes,
+        scalars.ctypes,
+        W.ctypes,
+        ints[3:].ctypes,
+        x.ctypes,
+        ints[4:].ctypes,
+        scalars[1:].ctypes,
+        y.ctypes,
+        ints[5:].ctypes,
+    )
 
 
 # tanh as a rational function (the odd 13/6 polynomial pair Eigen uses for float32), clamped
@@ -232,9 +246,20 @@ def compiled_step_on_shards(
 def _refuse_unless_fitting(x, style, content, target, table, sizes, h, c, hb, cb, first, rot, vel):
     # no bounds are checked in the step: inputs that do not fit would read or write past them
     N = x.shape[0]
-    if not (style.shape[0] == N and content.shape[0] == N and target.shape[0] == N and h.shape[0] == N and c.shape[0] == N
-            and hb.shape[0] == N and cb.shape[0] == N and first.shape[0] == N and rot.shape[0] == N and vel.shape[0] == N
-            and x.shape[1] + style.shape[1] + content.shape[1] == table[0, 1] and target.shape[1] == sizes[6]):  # fmt: skip
+    if not (
+        style.shape[0] == N
+        and content.shape[0] == N
+        and target.shape[0] == N
+        and h.shape[0] == N
+        and c.shape[0] == N
+        and hb.shape[0] == N
+        and cb.shape[0] == N
+        and first.shape[0] == N
+        and rot.shape[0] == N
+        and vel.shape[0] == N
+        and x.shape[1] + style.shape[1] + content.shape[1] == table[0, 1]
+        and target.shape[1] == sizes[6]
+    ):
         raise ValueError("the step's inputs do not fit its state (rows: one per stream stepped; widths: the model's)")
 
 

@@ -86,8 +86,13 @@ def read_armature(arm, frames: range, fps: float) -> Motion:
     offsets = heads - np.where(parents[:, None] >= 0, heads[np.maximum(parents, 0)], 0.0)
     leaves = [i for i in range(len(bones)) if not bones[i].children]
     tails = {i: (world[:3, :3] @ np.array(bones[i].tail_local) + world[:3, 3]) @ Y_UP.T - heads[i] for i in leaves}
-    skeleton = Skeleton(tuple(b.name for b in bones), parents, offsets, tuple(CHANNELS[:3] + ROTATIONS if p < 0 else ROTATIONS for p in parents),
-                        tuple((i, tails[i]) for i in leaves))  # fmt: skip
+    skeleton = Skeleton(
+        tuple(b.name for b in bones),
+        parents,
+        offsets,
+        tuple(CHANNELS[:3] + ROTATIONS if p < 0 else ROTATIONS for p in parents),
+        tuple((i, tails[i]) for i in leaves),
+    )
     pose = [arm.pose.bones[b.name] for b in bones]
     T, J = len(frames), len(bones)
     g, root = np.empty((T, J, 3, 3)), np.empty((T, 3))
@@ -270,8 +275,15 @@ def export_fbx(path: Path, arm, frames: range, fps: float) -> None:
     scene.frame_set(rest_frame)
 
     def write(tmp: str) -> None:
-        bpy.ops.export_scene.fbx(filepath=tmp, use_selection=False, bake_anim=True, bake_anim_use_all_actions=False,
-                                 bake_anim_use_nla_strips=False, bake_anim_simplify_factor=0.0, add_leaf_bones=False)  # fmt: skip
+        bpy.ops.export_scene.fbx(
+            filepath=tmp,
+            use_selection=False,
+            bake_anim=True,
+            bake_anim_use_all_actions=False,
+            bake_anim_use_nla_strips=False,
+            bake_anim_simplify_factor=0.0,
+            add_leaf_bones=False,
+        )
 
     try:
         atomic_write(path, write, suffix=".fbx")

@@ -143,8 +143,18 @@ def _initial_states(w, rows: list[tuple[str, int]], n_contents: int) -> np.ndarr
     """The learned initial states as one product's weights ``[nC, 2 S H]``: the h rows, then the
     c rows, each (branch, layer) of ``rows`` H wide; the neutral rows by content, a branch's the
     same for every content (so ``content @ table`` is every stream's first state)."""
-    return np.concatenate([(init[:, i] if prefix == "neutral" else np.broadcast_to(branch_init[int(prefix.split(".")[1]), i], (n_contents, init.shape[-1]))).astype(np.float32)
-                           for init, branch_init in zip(w.neutral_init, w.branch_init) for prefix, i in rows], 1)  # fmt: skip
+    return np.concatenate(
+        [
+            (
+                init[:, i]
+                if prefix == "neutral"
+                else np.broadcast_to(branch_init[int(prefix.split(".")[1]), i], (n_contents, init.shape[-1]))
+            ).astype(np.float32)
+            for init, branch_init in zip(w.neutral_init, w.branch_init)
+            for prefix, i in rows
+        ],
+        1,
+    )
 
 
 def _lstm_form(
@@ -201,8 +211,14 @@ def _lstm_form(
                 bias[0, to], bias[1, to] = arrays[f"{prefix}.bias_ih_l{i}"][src], arrays[f"{prefix}.bias_hh_l{i}"][src]
         g.count += 1
         h_new, c_new = f"lstm{g.count}_h", f"lstm{g.count}_c"
-        g.nodes.append(helper.make_node("LSTM", [x, g.const(W[None]), g.const(R[None]), g.const(bias.reshape(1, -1)), "", parts["h"][k], parts["c"][k]],
-                                        ["", h_new, c_new], hidden_size=B * H))  # fmt: skip
+        g.nodes.append(
+            helper.make_node(
+                "LSTM",
+                [x, g.const(W[None]), g.const(R[None]), g.const(bias.reshape(1, -1)), "", parts["h"][k], parts["c"][k]],
+                ["", h_new, c_new],
+                hidden_size=B * H,
+            )
+        )
         new["h"].append(h_new)
         new["c"].append(c_new)
         for m, member in enumerate(members):
@@ -404,11 +420,28 @@ def step_graph(
     g.nodes.append(helper.make_node("Div", [q, norm], ["rotations"]))
 
     f32, state = TensorProto.FLOAT, list(state_shape(model, form, styles))
-    inputs = [helper.make_tensor_value_info(name, f32, shape) for name, shape in
-              (("features", ["N", D]), ("style", ["N", nI]), ("content", ["N", nC]), ("target", ["N", nS]), ("first_frame", ["N", 1]), ("h", state), ("c", state))
-              if not (grouped and name == "first_frame")]  # fmt: skip
-    outputs = [helper.make_tensor_value_info(name, f32, shape) for name, shape in
-               (("rotations", ["N", J, 4]), ("velocities", ["N", 3 * J]), ("h_out", state), ("c_out", state))]  # fmt: skip
+    inputs = [
+        helper.make_tensor_value_info(name, f32, shape)
+        for name, shape in (
+            ("features", ["N", D]),
+            ("style", ["N", nI]),
+            ("content", ["N", nC]),
+            ("target", ["N", nS]),
+            ("first_frame", ["N", 1]),
+            ("h", state),
+            ("c", state),
+        )
+        if not (grouped and name == "first_frame")
+    ]
+    outputs = [
+        helper.make_tensor_value_info(name, f32, shape)
+        for name, shape in (
+            ("rotations", ["N", J, 4]),
+            ("velocities", ["N", 3 * J]),
+            ("h_out", state),
+            ("c_out", state),
+        )
+    ]
     graph = helper.make_graph(g.nodes, f"styleerd_step_{form}", inputs, outputs, g.initializers)
     proto = helper.make_model(graph, opset_imports=[helper.make_opsetid("", OPSET)], producer_name="styleerd")
     proto.ir_version = 8  # readable by onnxruntime 1.14+, onnxruntime-web and the engines

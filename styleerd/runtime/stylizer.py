@@ -55,7 +55,8 @@ MAX_FEATURE = 1e6
 # threads, frames/s serial vs split: 500 streams 197k vs 190k, 1,000: 202k vs 250k; small shards
 # lose to the GIL: 100 streams 160k vs 71k). onnxruntime's step is one call however many nodes,
 # so smaller shards pay (network alone, 2 threads: 256 streams 82k split vs 57k on one thread and
-# 60k on its own 2 intra-op threads; 64 streams 51k vs 57k and 56k). The numba backend's threads are inside its compiled kernels
+# 60k on its own 2 intra-op threads; 64 streams 51k vs 57k and 56k). The numba backend's threads are inside its compiled
+# kernels
 # instead (``data.parallel``: no GIL, no pool handoffs; 1,000 streams 1.09x the frames/s of
 # these shards, medians of 5 alternating rounds of benchmarks/bench_engine.py).
 SHARD_FROM = {"onnx": 128, "onnx-plain": 128}  # per backend; numpy 600
@@ -63,7 +64,8 @@ POSES = ("input", "network")  # what a stylised pose is built on (module docstri
 OWN_THREADS = (
     "torch",
     "numba",
-)  # backends whose steps run on threads of their own (torch's pool, numba's parallel loops), never on the stylizer's pool
+    # backends whose steps run on threads of their own (torch's pool, numba's parallel loops), never on the stylizer's pool
+)
 _ALL = slice(None)  # every stream (state rows as views)
 
 

@@ -38,8 +38,16 @@ class StreamResult:
     max_error: float = 0.0  # largest difference from ``reference`` (float32 on the wire), when given
 
 
-def hello(motion: Motion, fps: float, style: str | None, intensity: float, mix: dict[str, float] | None, name: str | None,
-          input_style: str | None = None, content: str | None = None) -> dict:  # fmt: skip
+def hello(
+    motion: Motion,
+    fps: float,
+    style: str | None,
+    intensity: float,
+    mix: dict[str, float] | None,
+    name: str | None,
+    input_style: str | None = None,
+    content: str | None = None,
+) -> dict:
     msg = {
         "type": "hello",
         "skeleton": bvh.format_header(motion.skeleton, 0, fps),
@@ -59,8 +67,15 @@ def hello(motion: Motion, fps: float, style: str | None, intensity: float, mix: 
     return msg
 
 
-async def play(url: str, motion: Motion, hello_msg: dict, seconds: float | None = None, keep: bool = False, realtime: bool = True,
-               reference: np.ndarray | None = None) -> StreamResult:  # fmt: skip
+async def play(
+    url: str,
+    motion: Motion,
+    hello_msg: dict,
+    seconds: float | None = None,
+    keep: bool = False,
+    realtime: bool = True,
+    reference: np.ndarray | None = None,
+) -> StreamResult:
     """Send the motion's frames (looped until ``seconds`` when given) at its frame rate (or,
     not ``realtime``, as fast as replies come: at most ``IN_FLIGHT`` unanswered), one binary
     frame each, and collect the replies; returns what was sent and received, and how far the
@@ -146,8 +161,18 @@ async def play(url: str, motion: Motion, hello_msg: dict, seconds: float | None 
     return result
 
 
-def stream_bvh(path: str, url: str, style: str | None, intensity: float, mix: dict[str, float] | None, output: str | None = None,
-               input_style: str | None = None, content: str | None = None, realtime: bool = True, root_speed: bool = False) -> str:  # fmt: skip
+def stream_bvh(
+    path: str,
+    url: str,
+    style: str | None,
+    intensity: float,
+    mix: dict[str, float] | None,
+    output: str | None = None,
+    input_style: str | None = None,
+    content: str | None = None,
+    realtime: bool = True,
+    root_speed: bool = False,
+) -> str:
     """``styleerd stream-bvh``: play a BVH file to the server in real time; optionally write
     the stylised stream as a BVH. Returns a summary."""
     motion = bvh.read(path)
@@ -163,8 +188,11 @@ def stream_bvh(path: str, url: str, style: str | None, intensity: float, mix: di
         out = bvh.motion_from_channels(motion.skeleton, result.output, motion.fps)
         bvh.write(output, out)
     lat = np.array(result.latencies_ms) if result.latencies_ms else np.zeros(1)
-    return (f"{path}: sent {result.sent} frames at {motion.fps:g} fps, received {result.received}, reordered {result.reordered}; "
-            f"latency p50 {np.percentile(lat, 50):.2f} ms, p99 {np.percentile(lat, 99):.2f} ms" + (f"; wrote {output}" if output else ""))  # fmt: skip
+    return (
+        f"{path}: sent {result.sent} frames at {motion.fps:g} fps, received {result.received}, reordered {result.reordered}; "
+        f"latency p50 {np.percentile(lat, 50):.2f} ms, p99 {np.percentile(lat, 99):.2f} ms"
+        + (f"; wrote {output}" if output else "")
+    )
 
 
 async def server_stats(url: str) -> dict:
@@ -182,8 +210,13 @@ async def server_stats(url: str) -> dict:
 
 
 FAULTS = ("malformed frame", "slow reader", "vanishes", "bad hello")
-_BAD_MESSAGES = (lambda n: SEQ.pack(0) + b"\0" * (4 * n - 2), lambda n: SEQ.pack(0) + np.full(n, np.nan, "<f4").tobytes(), lambda n: "{not json",
-                 lambda n: json.dumps({"type": "frame", "seq": 2**40, "values": [0.0] * n}), lambda n: json.dumps({"type": "set", "style": "zombie"}))  # fmt: skip
+_BAD_MESSAGES = (
+    lambda n: SEQ.pack(0) + b"\0" * (4 * n - 2),
+    lambda n: SEQ.pack(0) + np.full(n, np.nan, "<f4").tobytes(),
+    lambda n: "{not json",
+    lambda n: json.dumps({"type": "frame", "seq": 2**40, "values": [0.0] * n}),
+    lambda n: json.dumps({"type": "set", "style": "zombie"}),
+)
 
 
 async def faulty_client(url: str, motion: Motion, kind: str, seed: int) -> dict:
@@ -246,8 +279,16 @@ async def _faulty_loop(url: str, motion: Motion, deadline: float, index: int) ->
     return episodes
 
 
-async def load_test(url: str, motion: Motion, clients: int, seconds: float, fps: float = 30.0, style: str = "elderly",
-                    faulty: int = 0, reference: np.ndarray | None = None) -> dict:  # fmt: skip
+async def load_test(
+    url: str,
+    motion: Motion,
+    clients: int,
+    seconds: float,
+    fps: float = 30.0,
+    style: str = "elderly",
+    faulty: int = 0,
+    reference: np.ndarray | None = None,
+) -> dict:
     """``clients`` concurrent real-time streams of ``seconds`` each, and ``faulty`` clients
     misbehaving in turn (``FAULTS``) meanwhile; latency percentiles, dropped and reordered
     frames, the largest difference from ``reference`` (the expected output of the looped
@@ -284,14 +325,27 @@ async def load_test(url: str, motion: Motion, clients: int, seconds: float, fps:
         kind = outcomes.setdefault(e["kind"], {})
         kind[str(e["code"])] = kind.get(str(e["code"]), 0) + 1
     return {
-        "clients": clients, "seconds": seconds, "fps": fps, "frames_sent": sent,
-        "frames_received": sum(r.received for r in results), "dropped": sent - sum(r.received for r in results),
-        "reordered": sum(r.reordered for r in results), "errors": [r.error for r in results if r.error],
-        "errors_at_s": sorted(round(r.error_at, 1) for r in results if r.error), "client_loop_stalls": stalls,
+        "clients": clients,
+        "seconds": seconds,
+        "fps": fps,
+        "frames_sent": sent,
+        "frames_received": sum(r.received for r in results),
+        "dropped": sent - sum(r.received for r in results),
+        "reordered": sum(r.reordered for r in results),
+        "errors": [r.error for r in results if r.error],
+        "errors_at_s": sorted(round(r.error_at, 1) for r in results if r.error),
+        "client_loop_stalls": stalls,
         "max_error_deg": max((r.max_error for r in results), default=0.0) if reference is not None else None,
         "late_client_sends": sum(r.late_sends for r in results),
-        "latency_ms_p50": float(np.percentile(lat, 50)), "latency_ms_p99": float(np.percentile(lat, 99)), "latency_ms_max": float(lat.max()),
-        "server_cpu_cores": (after["cpu_seconds"] - before["cpu_seconds"]) / wall, "wall_s": wall,
-        "server_frames": after["frames"] - before["frames"], "mean_batch": (after["frames"] - before["frames"]) / max(1, after["steps"] - before["steps"]),
-        "faulty_clients": faulty, "faulty_episodes": len(episodes), "faulty_outcomes": outcomes, "streams_left": after["streams"] - 1,
-    }  # fmt: skip
+        "latency_ms_p50": float(np.percentile(lat, 50)),
+        "latency_ms_p99": float(np.percentile(lat, 99)),
+        "latency_ms_max": float(lat.max()),
+        "server_cpu_cores": (after["cpu_seconds"] - before["cpu_seconds"]) / wall,
+        "wall_s": wall,
+        "server_frames": after["frames"] - before["frames"],
+        "mean_batch": (after["frames"] - before["frames"]) / max(1, after["steps"] - before["steps"]),
+        "faulty_clients": faulty,
+        "faulty_episodes": len(episodes),
+        "faulty_outcomes": outcomes,
+        "streams_left": after["streams"] - 1,
+    }

@@ -65,7 +65,14 @@ def reference_clip(model: GeneratorWeights, style: str) -> bytes:
     source = walk(seconds=4.0, fps=30.0)
     on_model = to_target(source, map_skeleton(source.skeleton, model, first_pose=source.rotations[0]))
     stylised = run_stream(StreamStylizer(model, c.neutral_style, "walk", {style: 1.0}, fps=on_model.fps), on_model)
-    body = {"frames": on_model.n_frames, "fps": on_model.fps, "input_style": c.neutral_style, "content": "walk", "style": style,
-            "rotations": on_model.rotations.ravel().round(8).tolist(), "positions": on_model.positions.ravel().round(6).tolist(),
-            "stylised": stylised.rotations.ravel().round(8).tolist()}  # fmt: skip
+    body = {
+        "frames": on_model.n_frames,
+        "fps": on_model.fps,
+        "input_style": c.neutral_style,
+        "content": "walk",
+        "style": style,
+        "rotations": on_model.rotations.ravel().round(8).tolist(),
+        "positions": on_model.positions.ravel().round(6).tolist(),
+        "stylised": stylised.rotations.ravel().round(8).tolist(),
+    }
     return json.dumps(body).encode()

@@ -132,8 +132,19 @@ class Pool:
     """The streams of one skeleton, frame rate, cleanup and root-speed settings and body-part
     targets: a slot each in one ChannelStylizer, stepped together."""
 
-    def __init__(self, model: GeneratorWeights, skeleton: Skeleton, fps: float, cleanup: bool, capacity: int, backend: str, key: tuple, parts: dict | None = None,
-                 root_speed: bool = False, pose: str = "input"):  # fmt: skip
+    def __init__(
+        self,
+        model: GeneratorWeights,
+        skeleton: Skeleton,
+        fps: float,
+        cleanup: bool,
+        capacity: int,
+        backend: str,
+        key: tuple,
+        parts: dict | None = None,
+        root_speed: bool = False,
+        pose: str = "input",
+    ):
         neutral = model.config.neutral_style
         self.stylizer = ChannelStylizer(
             model,
@@ -271,9 +282,19 @@ class StyleServer:
         pool.stylizer.configure([row], labels["input_style"], labels["content"], target)
         self.next_id += 1
         name = msg.get("name")
-        stream = Stream(self.next_id, name[:200] if isinstance(name, str) and name else f"stream-{self.next_id}", ws, pool, row, fmt == "binary",
-                        bool(msg.get("positions", False)), asyncio.Queue(self.config.queue), bool(msg.get("fronts", False)),
-                        private=bool(msg.get("private", False)), token=secrets.token_urlsafe(16))  # fmt: skip
+        stream = Stream(
+            self.next_id,
+            name[:200] if isinstance(name, str) and name else f"stream-{self.next_id}",
+            ws,
+            pool,
+            row,
+            fmt == "binary",
+            bool(msg.get("positions", False)),
+            asyncio.Queue(self.config.queue),
+            bool(msg.get("fronts", False)),
+            private=bool(msg.get("private", False)),
+            token=secrets.token_urlsafe(16),
+        )
         pool.streams[row] = stream
         self.streams[stream.id] = stream
         try:  # from here the stream holds a slot: anything that fails gives it back
@@ -341,10 +362,26 @@ class StyleServer:
     def _ready(self, stream: Stream) -> dict:
         sk, c = stream.pool.skeleton, self.model.config
         private = {"token": stream.token} if stream.private else {}
-        return {"type": "ready", "stream": stream.name, "id": stream.id, **private, "channels": stream.pool.stylizer.n_channels,
-                "fps": stream.pool.stylizer.fps, "joints": list(sk.names), "parents": [int(p) for p in sk.parents],
-                "styles": list(c.styles), "input_styles": list(c.input_styles), "contents": list(c.contents), "neutral": c.neutral_style,
-                "target": self._weights(stream), "parts": stream.pool.parts, "root_speed": stream.pool.stylizer.stylizer.root_speed, "pose": stream.pool.stylizer.stylizer.pose, "mapping": stream.pool.stylizer.map.describe(), "queue": self.config.queue}  # fmt: skip
+        return {
+            "type": "ready",
+            "stream": stream.name,
+            "id": stream.id,
+            **private,
+            "channels": stream.pool.stylizer.n_channels,
+            "fps": stream.pool.stylizer.fps,
+            "joints": list(sk.names),
+            "parents": [int(p) for p in sk.parents],
+            "styles": list(c.styles),
+            "input_styles": list(c.input_styles),
+            "contents": list(c.contents),
+            "neutral": c.neutral_style,
+            "target": self._weights(stream),
+            "parts": stream.pool.parts,
+            "root_speed": stream.pool.stylizer.stylizer.root_speed,
+            "pose": stream.pool.stylizer.stylizer.pose,
+            "mapping": stream.pool.stylizer.map.describe(),
+            "queue": self.config.queue,
+        }
 
     def _weights(self, stream: Stream) -> dict[str, float]:
         w = stream.pool.stylizer.stylizer.blend.end[stream.row]
@@ -440,8 +477,14 @@ class StyleServer:
         """The server's figures; private streams other than the asker's own are not counted (their
         number is nobody else's business)."""
         streams = sum(1 for s in self.streams.values() if not s.private or s is asking)
-        return {"type": "stats", "streams": streams, "frames": self.frames, "steps": self.steps,
-                "cpu_seconds": time.process_time(), "pools": len(self.pools)}  # fmt: skip
+        return {
+            "type": "stats",
+            "streams": streams,
+            "frames": self.frames,
+            "steps": self.steps,
+            "cpu_seconds": time.process_time(),
+            "pools": len(self.pools),
+        }
 
     # ---- stepping ----
 
@@ -564,8 +607,19 @@ class StyleServer:
         watcher.stream = stream
         stream.watchers.add(watcher)
         sk = stream.pool.skeleton
-        _offer(watcher.outbox, json.dumps({"type": "watching", "stream": stream.name, "joints": list(sk.names),
-                                           "parents": [int(p) for p in sk.parents], "target": self._weights(stream)}), drop_oldest=True)  # fmt: skip
+        _offer(
+            watcher.outbox,
+            json.dumps(
+                {
+                    "type": "watching",
+                    "stream": stream.name,
+                    "joints": list(sk.names),
+                    "parents": [int(p) for p in sk.parents],
+                    "target": self._weights(stream),
+                }
+            ),
+            drop_oldest=True,
+        )
 
     async def _watch(self, ws: ServerConnection, msg: dict) -> None:
         name, token = msg.get("stream"), msg.get("token", "")
@@ -789,9 +843,18 @@ async def run_server(
     stop = asyncio.get_running_loop().create_future()
     for sig in (signal.SIGINT, signal.SIGTERM):
         asyncio.get_running_loop().add_signal_handler(sig, lambda: stop.done() or stop.set_result(None))
-    async with serve(server.handle, config.host, config.port, process_request=server.http, max_size=config.max_message,
-                     max_queue=config.queue, reuse_port=reuse_port, ping_interval=20, close_timeout=2,
-                     compression=None) as ws_server:  # float frames barely compress; deflate cost a fifth of the CPU  # fmt: skip
+    async with serve(
+        server.handle,
+        config.host,
+        config.port,
+        process_request=server.http,
+        max_size=config.max_message,
+        max_queue=config.queue,
+        reuse_port=reuse_port,
+        ping_interval=20,
+        close_timeout=2,
+        compression=None,
+    ) as ws_server:  # float frames barely compress; deflate cost a fifth of the CPU
         announce(
             f"styleerd serve: ws://{config.host}:{config.port}/  viewer: http://{config.host}:{config.port}/  ({config.backend} backend)"
         )

@@ -112,15 +112,27 @@ def humanoid_skeleton(bones: dict[str, np.ndarray]) -> Skeleton:
     if orphans:
         raise StyleERDError(f"VMC: bones without their parent bone: {', '.join(orphans)}")
     rot = ("Zrotation", "Xrotation", "Yrotation")
-    return Skeleton(tuple(names), np.array(parents), np.array([bones[b] for b in names]),
-                    tuple(POSITION_CHANNELS + rot if p < 0 else rot for p in parents))  # fmt: skip
+    return Skeleton(
+        tuple(names),
+        np.array(parents),
+        np.array([bones[b] for b in names]),
+        tuple(POSITION_CHANNELS + rot if p < 0 else rot for p in parents),
+    )
 
 
 class VMCBridge:
     """Datagrams in, datagrams out (no sockets here: ``run_bridge`` owns them)."""
 
-    def __init__(self, model: GeneratorWeights, target: dict[str, float], fps: float = 30.0, cleanup: bool = True, report=print, parts: str | dict | None = None,
-                 root_speed: bool = False):  # fmt: skip
+    def __init__(
+        self,
+        model: GeneratorWeights,
+        target: dict[str, float],
+        fps: float = 30.0,
+        cleanup: bool = True,
+        report=print,
+        parts: str | dict | None = None,
+        root_speed: bool = False,
+    ):
         self.model, self.target, self.fps, self.cleanup, self.report = model, target, fps, cleanup, report
         self.root_speed = root_speed  # the hips move at the style's pace (their path drifts from the performer's)
         self.parts = part_targets(
@@ -265,8 +277,18 @@ def _message(address: str, params: list):
     return builder.build()
 
 
-def run_bridge(listen: int, send: int, style: str | None, intensity: float, mix: dict[str, float] | None, host: str = "127.0.0.1", fps: float = 30.0,
-               parts: str | None = None, model_name: str | None = None, root_speed: bool = False) -> None:  # fmt: skip
+def run_bridge(
+    listen: int,
+    send: int,
+    style: str | None,
+    intensity: float,
+    mix: dict[str, float] | None,
+    host: str = "127.0.0.1",
+    fps: float = 30.0,
+    parts: str | None = None,
+    model_name: str | None = None,
+    root_speed: bool = False,
+) -> None:
     """``styleerd vmc``: receive on ``host:listen``, send the stylised stream to ``host:send``."""
     if listen == send:
         raise StyleERDError(f"VMC: --send {send} is --listen {listen}: the bridge would receive what it sends, forever")
@@ -307,8 +329,11 @@ def run_bridge(listen: int, send: int, style: str | None, intensity: float, mix:
                     tx.sendto(out, (host, send))
             if time.time() - last > 5:
                 last = time.time()
-                print(f"frames {bridge.frames}, rejected {bridge.rejected}, malformed {bridge.malformed}, remapped {bridge.remapped}, "
-                      f"dropped (backlog over {BACKLOG}) {dropped}", flush=True)  # fmt: skip
+                print(
+                    f"frames {bridge.frames}, rejected {bridge.rejected}, malformed {bridge.malformed}, remapped {bridge.remapped}, "
+                    f"dropped (backlog over {BACKLOG}) {dropped}",
+                    flush=True,
+                )
     finally:
         rx.close()
         tx.close()

@@ -46,8 +46,12 @@ class TrainConfig:
     r1_every: int = 4  # lazy R1: every k critic steps, weighted by k
     # optimisation
     init_from: str = ""  # fine-tune: a saved generator (stem or shipped name) whose weights start the run
-    ema: float = 0.0  # > 0: validate and export a moving average of the generator's weights, this decay per step; 0 = the weights themselves
-    keep: str = "best"  # what --export writes: "best" (validation SRA + CRA), "last" (the final epoch: a fixed budget) or "realistic" (validation realism per style)
+    # > 0: validate and export a moving average of the generator's weights, this decay per step; 0 = the weights
+    # themselves
+    ema: float = 0.0
+    # what --export writes: "best" (validation SRA + CRA), "last" (the final epoch: a fixed budget) or "realistic"
+    # (validation realism per style)
+    keep: str = "best"
     batch_size: int = 32
     lr_g: float = 1e-4
     lr_d: float = 5e-5

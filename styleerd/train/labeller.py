@@ -36,8 +36,14 @@ AFTER_FRAMES = (1, 10, 30)
 
 
 @torch.no_grad()
-def stream_accuracy(model: OnlineLabeller, fs: FeatureSet, data: TrainingData, split: str, after: tuple[int, ...] = AFTER_FRAMES,
-                    neutral: str | None = None) -> dict[int, dict[str, float]]:  # fmt: skip
+def stream_accuracy(
+    model: OnlineLabeller,
+    fs: FeatureSet,
+    data: TrainingData,
+    split: str,
+    after: tuple[int, ...] = AFTER_FRAMES,
+    neutral: str | None = None,
+) -> dict[int, dict[str, float]]:
     """{n: {"style": acc, "content": acc, "streams": k}}: labels right after n frames of a
     stream that starts at a clip's first frame (clips shorter than n frames not counted).
     With ``neutral``, unsure style posteriors lean to it first, as the stylizer does."""
@@ -92,8 +98,20 @@ def augmented_clips(
     return torch.from_numpy(np.concatenate(frames)), np.array(starts), np.array(styles), np.array(contents)
 
 
-def train_labeller(fs: FeatureSet, data: TrainingData, epochs: int = 6, length: int = 40, stride: int = 4, batch: int = 64, lr: float = 2e-3, seed: int = 0,
-                   max_clips: int = 0, progress: bool = True, copies: int = 2, reference_pose: np.ndarray | None = None) -> tuple[OnlineLabeller, dict]:  # fmt: skip
+def train_labeller(
+    fs: FeatureSet,
+    data: TrainingData,
+    epochs: int = 6,
+    length: int = 40,
+    stride: int = 4,
+    batch: int = 64,
+    lr: float = 2e-3,
+    seed: int = 0,
+    max_clips: int = 0,
+    progress: bool = True,
+    copies: int = 2,
+    reference_pose: np.ndarray | None = None,
+) -> tuple[OnlineLabeller, dict]:
     """Train; keep the epoch whose validation streams are labelled best after 30 frames.
     ``copies`` other-performer versions of each training clip join the clips themselves
     (``reference_pose``: a natural pose of the skeleton, for mirroring; default its average)."""

@@ -235,8 +235,19 @@ def make_optimisers(config: TrainConfig, G: StyleERD, D: Discriminator) -> tuple
     )
 
 
-def train_step(G: StyleERD, D: Discriminator, opt_g: torch.optim.Optimizer, opt_d: torch.optim.Optimizer, per_classifier: WindowClassifier | None,
-               config: TrainConfig, s: Setup, rows: np.ndarray, target: np.ndarray, step: int, tick=lambda part: None) -> dict[str, float]:  # fmt: skip
+def train_step(
+    G: StyleERD,
+    D: Discriminator,
+    opt_g: torch.optim.Optimizer,
+    opt_d: torch.optim.Optimizer,
+    per_classifier: WindowClassifier | None,
+    config: TrainConfig,
+    s: Setup,
+    rows: np.ndarray,
+    target: np.ndarray,
+    step: int,
+    tick=lambda part: None,
+) -> dict[str, float]:
     """One optimisation step of the generator, then of the critic, on the training windows
     ``rows`` sent to the styles ``target``; returns the losses it computed. ``tick(part)`` is
     called as each part of the step ends (benchmarks/bench_train_step.py times them)."""

@@ -126,8 +126,17 @@ def bootstrap_spread(n: int, statistic, resamples: int = 200, seed: int = 0) -> 
 
 
 @torch.no_grad()
-def transfer_quality(model: StyleERD, data: TrainingData, test: WindowSet, style_rec: WindowClassifier, content_rec: WindowClassifier, fmd: MotionAutoencoder, batch: int = 256, resamples: int = 200,
-                     pose: str = "network") -> dict:  # fmt: skip
+def transfer_quality(
+    model: StyleERD,
+    data: TrainingData,
+    test: WindowSet,
+    style_rec: WindowClassifier,
+    content_rec: WindowClassifier,
+    fmd: MotionAutoencoder,
+    batch: int = 256,
+    resamples: int = 200,
+    pose: str = "network",
+) -> dict:
     """Every quality figure of the transfers of ``test``'s windows (see ``styleerd.eval.metrics``);
     ``resamples`` 0 leaves out the bootstrap spreads (model selection during training)."""
     model.eval()
