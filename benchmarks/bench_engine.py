@@ -156,7 +156,10 @@ def stages(steps: int) -> dict:
 
 def worker(tree: Path, steps: int) -> dict:
     env = dict(os.environ, PYTHONPATH=str(tree))
-    code = f"import json, sys; sys.path.insert(0, {str(ROOT / 'benchmarks')!r}); from bench_engine import measure; print(json.dumps(measure({steps})))"
+    code = (
+        f"import json, sys; sys.path.insert(0, {str(ROOT / 'benchmarks')!r}); from bench_engine import measure; "
+        f"print(json.dumps(measure({steps})))"
+    )
     result = subprocess.run(
         [sys.executable, "-c", code], cwd=tree, env=env, capture_output=True, text=True, check=False
     )
@@ -226,21 +229,24 @@ def main() -> None:
     b, a = median.values()
     bb, ab = best.values()
     print(
-        f"\n| figure ({args.rounds} alternating rounds) | {' | '.join(median)}: median | speed-up | best round: {' | '.join(best)} | speed-up |\n| --- | --- | --- | --- | --- | --- | --- |"
+        f"\n| figure ({args.rounds} alternating rounds) | {' | '.join(median)}: median | speed-up | best round: "
+        f"{' | '.join(best)} | speed-up |\n| --- | --- | --- | --- | --- | --- | --- |"
     )
     for k in FIGURES:
         if k not in b or k not in a:
             continue
         up = k.startswith(("frames", "fraction"))
         print(
-            f"| {k} | {b[k]:,} | {a[k]:,} | {(a[k] / b[k] if up else b[k] / a[k]):.2f}x | {bb[k]:,} | {ab[k]:,} | {(ab[k] / bb[k] if up else bb[k] / ab[k]):.2f}x |"
+            f"| {k} | {b[k]:,} | {a[k]:,} | {(a[k] / b[k] if up else b[k] / a[k]):.2f}x | {bb[k]:,} | {ab[k]:,} | "
+            f"{(ab[k] / bb[k] if up else bb[k] / ab[k]):.2f}x |"
         )
     print(f"matmul peak (GFLOP/s, 2 threads): {b['matmul_peak_gflops']} / {a['matmul_peak_gflops']}")
     print(f"\n| end to end, batch 1, numba: stage (us, median of rounds) | {' | '.join(median)} |\n| --- | --- | --- |")
     for k in STAGES:
         print(f"| {k} | {b['stage_us ' + k]:.1f} | {a['stage_us ' + k]:.1f} |")
     print(
-        f"| sum of the stages | {sum(b['stage_us ' + k] for k in STAGES):.1f} | {sum(a['stage_us ' + k] for k in STAGES):.1f} |\nwrote {out}"
+        f"| sum of the stages | {sum(b['stage_us ' + k] for k in STAGES):.1f} | "
+        f"{sum(a['stage_us ' + k] for k in STAGES):.1f} |\nwrote {out}"
     )
 
 

@@ -26,7 +26,7 @@ ROOT = Path(__file__).resolve().parents[1]
 
 
 def run(args: list, **kw) -> subprocess.CompletedProcess:
-    done = subprocess.run([str(a) for a in args], capture_output=True, text=True, **kw)
+    done = subprocess.run([str(a) for a in args], capture_output=True, text=True, check=False, **kw)
     if done.returncode:
         sys.exit(f"{args}: {done.stderr[-3000:]}")
     return done
@@ -89,11 +89,13 @@ def main() -> None:
     out = ROOT / "docs" / "install.json"
     out.write_text(json.dumps(report, indent=1) + "\n")
     print(
-        f"{'install':<7} {'venv MB':>8} {'torch':>6} {'transfer cold s':>16} {'warm s':>7} {'numba cold s':>13} {'numba warm s':>13} {'--help s':>9}"
+        f"{'install':<7} {'venv MB':>8} {'torch':>6} {'transfer cold s':>16} {'warm s':>7} {'numba cold s':>13} "
+        f"{'numba warm s':>13} {'--help s':>9}"
     )
     for name, r in report["installs"].items():
         print(
-            f"{name:<7} {r['venv_mb']:>8.0f} {r['torch_installed']!s:>6} {r['transfer_cold_s']:>16.2f} {r['transfer_warm_s']:>7.2f} "
+            f"{name:<7} {r['venv_mb']:>8.0f} {r['torch_installed']!s:>6} {r['transfer_cold_s']:>16.2f} "
+            f"{r['transfer_warm_s']:>7.2f} "
             f"{r['transfer_numba_cold_s']:>13.2f} {r['transfer_numba_warm_s']:>13.2f} {r['help_s']:>9.2f}"
         )
     print(f"bare venv {report['bare_venv_mb']:.0f} MB; wheel {report['wheel_mb']} MB; wrote {out}")

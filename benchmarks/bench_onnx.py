@@ -49,10 +49,10 @@ def graph_at(commit: str, model, *args) -> bytes | None:
         check=True,
     ).stdout
     module = types.ModuleType("onnx_export_before")
-    exec(compile(source, f"{commit}:onnx_export.py", "exec"), module.__dict__)
+    exec(compile(source, f"{commit}:onnx_export.py", "exec"), module.__dict__)  # noqa: S102  this repository's own code
     try:
         return module.step_graph(model, *args).SerializeToString()
-    except Exception as e:  # old code on today's weights: leave that graph out, say why
+    except Exception as e:  # noqa: BLE001  old code on today's weights: leave that graph out, say why
         print(
             f"left out: the export at {commit} {args or ''} cannot read today's model ({type(e).__name__}: {e})",
             flush=True,
@@ -149,8 +149,8 @@ def main() -> None:
         steps[(name, "bound")] = bound(s1, f1)
         report["graphs"][name] = {
             "nodes": len(onnx.load_from_string(graph).graph.node),
-            "frames_per_s_1000_streams_1_thread": rate(lambda: s1.run(None, f1000), 1000),
-            "frames_per_s_1000_streams_2_threads": rate(lambda: s2.run(None, f1000), 1000),
+            "frames_per_s_1000_streams_1_thread": rate(lambda s1=s1, f1000=f1000: s1.run(None, f1000), 1000),
+            "frames_per_s_1000_streams_2_threads": rate(lambda s2=s2, f1000=f1000: s2.run(None, f1000), 1000),
         }
         print(name, report["graphs"][name], flush=True)
     labels = lambda n: (
@@ -164,7 +164,7 @@ def main() -> None:
             b1, b1000 = make_backend(name, model, 1), make_backend(name, model, 1000)
             steps[(name, "backend")] = lambda b1=b1: b1.step(x1, *labels(1))
             report["backends"][name] = {
-                "frames_per_s_1000_streams_1_thread": rate(lambda: b1000.step(x1000, *labels(1000)), 1000)
+                "frames_per_s_1000_streams_1_thread": rate(lambda b1000=b1000: b1000.step(x1000, *labels(1000)), 1000)
             }
         timed = {}
         for how in ("run", "bound"):
@@ -182,16 +182,19 @@ def main() -> None:
     out = ROOT / "docs" / "onnx-bench.json"
     out.write_text(json.dumps(report, indent=1) + "\n")
     print(
-        f"\n| graph (onnxruntime {ort.__version__}) | nodes | batch 1 p50 / p99 (us, 1 thread): session.run | I/O binding | 1,000 streams, frames/s (1 thread / 2 threads) |\n| --- | --- | --- | --- | --- |"
+        f"\n| graph (onnxruntime {ort.__version__}) | nodes | batch 1 p50 / p99 (us, 1 thread): session.run | I/O "
+        "binding | 1,000 streams, frames/s (1 thread / 2 threads) |\n| --- | --- | --- | --- | --- |"
     )
     for name, r in report["graphs"].items():
         print(
-            f"| {name} | {r['nodes']} | {r['batch_1_run']['p50_us']:.0f} / {r['batch_1_run']['p99_us']:.0f} | {r['batch_1_bound']['p50_us']:.0f} / {r['batch_1_bound']['p99_us']:.0f} "
+            f"| {name} | {r['nodes']} | {r['batch_1_run']['p50_us']:.0f} / {r['batch_1_run']['p99_us']:.0f} | "
+            f"{r['batch_1_bound']['p50_us']:.0f} / {r['batch_1_bound']['p99_us']:.0f} "
             f"| {r['frames_per_s_1000_streams_1_thread']:,} / {r['frames_per_s_1000_streams_2_threads']:,} |"
         )
     for name, r in report["backends"].items():
         print(
-            f"| {name} backend (network step) | | {r['batch_1_backend']['p50_us']:.0f} / {r['batch_1_backend']['p99_us']:.0f} | | {r['frames_per_s_1000_streams_1_thread']:,} / |"
+            f"| {name} backend (network step) | | {r['batch_1_backend']['p50_us']:.0f} / "
+            f"{r['batch_1_backend']['p99_us']:.0f} | | {r['frames_per_s_1000_streams_1_thread']:,} / |"
         )
     print(f"wrote {out}")
 

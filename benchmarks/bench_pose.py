@@ -37,7 +37,11 @@ def main() -> None:
             set_threads(2)
             rows[pose]["frames_per_s_1000_streams"].append(throughput(model, "numba", 1000, seconds=1.0, pose=pose))
     cpu = next(
-        (line.split(":", 1)[1].strip() for line in open("/proc/cpuinfo") if line.startswith("model name")),
+        (
+            line.split(":", 1)[1].strip()
+            for line in Path("/proc/cpuinfo").read_text().splitlines()
+            if line.startswith("model name")
+        ),
         platform.processor(),
     )
     out = {

@@ -54,7 +54,7 @@ def epoch_seconds(config: dict, processes: int, threads: int, work: Path, data: 
     p = subprocess.run([sys.executable, *cli], capture_output=True, text=True, env=env, check=False)
     if p.returncode != 0:
         raise SystemExit(f"training failed ({processes} x {threads}):\n{p.stdout[-2000:]}{p.stderr[-2000:]}")
-    rows = list(csv.DictReader(open(out / "metrics.csv")))
+    rows = list(csv.DictReader((out / "metrics.csv").read_text().splitlines()))
     later = len(rows) - 1
     return 60 * (float(rows[-1]["minutes"]) - float(rows[0]["minutes"])) / later, (
         int(rows[-1]["steps"]) - int(rows[0]["steps"])

@@ -68,23 +68,26 @@ def worker(config_path: str, threads: int, batch: int | None) -> None:
         ),
         flush=True,
     )
-    i = 0
-    for line in sys.stdin:
-        if line.strip() == "report":
-            print(json.dumps(times), flush=True)
-            return
+
+    def timer(step: int):
+        """A tick that adds the time since the last tick to ``part``, after the warm-up steps."""
         clock = [time.perf_counter()]
 
         def tick(part: str) -> None:
             t = time.perf_counter()
-            if i >= WARM_UP:
+            if step >= WARM_UP:
                 times[part] = times.get(part, 0.0) + (t - clock[0]) * 1000
             clock[0] = t
 
+        return tick
+
+    for i, line in enumerate(sys.stdin):
+        if line.strip() == "report":
+            print(json.dumps(times), flush=True)
+            return
         B = config.batch_size
         rows = rng.choice(len(s.train.starts), B)
-        trainer.train_step(G, D, *opts, C, config, s, rows, rng.integers(0, len(s.data.styles), B), i, tick)
-        i += 1
+        trainer.train_step(G, D, *opts, C, config, s, rows, rng.integers(0, len(s.data.styles), B), i, timer(i))
         print("done", flush=True)
 
 
@@ -181,11 +184,13 @@ def main() -> None:
                 "training_min": round(epochs * epoch[name] / 60, 2),
             }
             print(
-                f"  its kept model {report[name]['model']}: {epochs} epochs -> {report[name]['training_min']:.1f} min of training steps here"
+                f"  its kept model {report[name]['model']}: {epochs} epochs -> {report[name]['training_min']:.1f} min "
+                "of training steps here"
             )
     report["speedup"] = round(epoch["before"] / epoch["after"], 3)
     print(
-        f"after / before epoch time: {epoch['after'] / epoch['before']:.3f} ({report['speedup']:.2f}x the training windows per minute)"
+        f"after / before epoch time: {epoch['after'] / epoch['before']:.3f} ({report['speedup']:.2f}x the training "
+        "windows per minute)"
     )
     if "training_min" in report["before"] and "training_min" in report["after"]:
         report["training_ratio"] = round(report["after"]["training_min"] / report["before"]["training_min"], 3)

@@ -68,7 +68,8 @@ def main() -> None:
     print(f"{N:,} streams, {args.threads} threads; matmul peak {peak / 1e9:.1f} GFLOP/s")
     rounds = []
     print(
-        "| round | step (us) | features | network | root on heading | the rest | frames/s | fraction of peak |\n| --- | --- | --- | --- | --- | --- | --- | --- |"
+        "| round | step (us) | features | network | root on heading | the rest | frames/s | fraction of peak |\n| --- "
+        "| --- | --- | --- | --- | --- | --- | --- |"
     )
     for r in range(args.rounds):
         spent.clear()
@@ -83,7 +84,8 @@ def main() -> None:
             f"{parts[k]:.0f} ({100 * parts[k] / total:.0f} %)" for k in ("features", "network", "root_on_heading")
         )
         print(
-            f"| {r + 1} | {total:.0f} | {cells} | {rest:.0f} ({100 * rest / total:.0f} %) | {fps:,.0f} | {fps * flops_per_frame(model) / peak:.3f} |"
+            f"| {r + 1} | {total:.0f} | {cells} | {rest:.0f} ({100 * rest / total:.0f} %) | {fps:,.0f} | "
+            f"{fps * flops_per_frame(model) / peak:.3f} |"
         )
         rounds.append(
             {

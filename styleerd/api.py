@@ -70,7 +70,10 @@ class Model:
         self.fps: float = float(weights.meta.get("data", {}).get("fps", 30.0))
 
     def __repr__(self) -> str:
-        return f"<styleerd model: styles {', '.join(self.styles)}; {len(self.contents)} contents; {self.skeleton.n_joints} joints at {self.fps:g} fps>"
+        return (
+            f"<styleerd model: styles {', '.join(self.styles)}; {len(self.contents)} contents; "
+            f"{self.skeleton.n_joints} joints at {self.fps:g} fps>"
+        )
 
     def target(
         self, style: str | None = None, intensity: float = 1.0, mix: dict[str, float] | None = None

@@ -79,7 +79,7 @@ class STYLEERD_OT_stylise_action(bpy.types.Operator):
 
     bl_idname = "styleerd.stylise_action"
     bl_label = "Stylise action"
-    bl_options = {"REGISTER", "UNDO"}
+    bl_options = {"REGISTER", "UNDO"}  # noqa: RUF012  Blender reads it as a class attribute
 
     @classmethod
     def poll(cls, context) -> bool:

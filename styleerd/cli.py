@@ -210,7 +210,8 @@ def _add_style(args: argparse.Namespace) -> None:
     explicit = _read_joint_map(args.joint_map) if args.joint_map else None
     added = add_style(args.model, args.name, args.clips, out, args.content, args.like, config, args.data, explicit)
     print(
-        f"added {added['name']} from {len(added['clips'])} clips ({added['frames']} frames, starting like {added['started_like']}): "
+        f"added {added['name']} from {len(added['clips'])} clips ({added['frames']} frames, starting like "
+        f"{added['started_like']}): "
         f"{added['steps']} steps, {added['minutes']:.1f} min; wrote {out}.safetensors"
     )
 
@@ -245,11 +246,13 @@ def _model_styles(name: str | None) -> None:
     print(f"styles:   {', '.join(c.styles)} (neutral: {c.neutral_style})")
     for added in meta.get("added_styles", []):
         print(
-            f"added:    {added['name']} (a target only), from {len(added['clips'])} clips ({added['frames']} frames) in {added['minutes']:.1f} min"
+            f"added:    {added['name']} (a target only), from {len(added['clips'])} clips ({added['frames']} frames) "
+            f"in {added['minutes']:.1f} min"
         )
     print(f"contents: {', '.join(model.config.contents)}")
     print(
-        f"skeleton: {model.skeleton.n_joints} joints, trained at {meta['data']['fps']:g} fps on {meta['data']['dataset']}"
+        f"skeleton: {model.skeleton.n_joints} joints, trained at {meta['data']['fps']:g} fps on "
+        f"{meta['data']['dataset']}"
     )
     print(f"licence:  {meta.get('licence', LICENCE)}")
 
@@ -535,7 +538,10 @@ class _Parser(argparse.ArgumentParser):
 
 
 POSES = ("input", "network")  # runtime.stylizer.POSES, here without importing numba
-POSE_HELP = "what the output's poses are built on: input (default), the input's own pose plus the style's change, which keeps any action; network, the network's pose (the paper's output)"
+POSE_HELP = (
+    "what the output's poses are built on: input (default), the input's own pose plus the style's change, "
+    "which keeps any action; network, the network's pose (the paper's output)"
+)
 MODEL_HELP = "a model file, or a model name in $STYLEERD_MODELS or among the shipped ones (default: styleerd-bandai2)"
 GROUPS = {
     "use": ("transfer", "styles", "info", "resample", "export-onnx", "demo"),
@@ -654,17 +660,20 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument(
         "input",
         nargs="+",
-        help="IN.bvh, IN.glb / .gltf / .vrm (its first skin and animation; written back as the same file) or IN.fbx (through Blender: styleerd[blender]); several files or folders with -o DIR",
+        help="IN.bvh, IN.glb / .gltf / .vrm (its first skin and animation; written back as the same file) or IN.fbx "
+        "(through Blender: styleerd[blender]); several files or folders with -o DIR",
     )
     p.add_argument(
         "--style",
-        help=f"target style; the shipped model's: {', '.join(shipped_styles())} ('styleerd styles --model M' for another)",
+        help=f"target style; the shipped model's: {', '.join(shipped_styles())} ('styleerd styles --model M' for "
+        "another)",
     )
     p.add_argument("--intensity", type=float, default=1.0, help="0 = neutral, 1 = full style, up to 2")
     p.add_argument("--mix", help="a mixture instead of --style, e.g. elderly=0.5,feminine=0.5 (scaled by --intensity)")
     p.add_argument(
         "--parts",
-        help="body parts with targets of their own, the others following --style/--mix: PART=STYLE[:INTENSITY] or PART=input (its own motion), "
+        help="body parts with targets of their own, the others following --style/--mix: PART=STYLE[:INTENSITY] or "
+        "PART=input (its own motion), "
         "parts legs, torso, head, arms; e.g. legs=elderly,torso=exhausted:0.5,arms=input",
     )
     p.add_argument("--input-style", help="the input's style (default: inferred online from the frames)")
@@ -683,7 +692,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument(
         "--root-speed",
         action="store_true",
-        help="the root's ground speed in the target style too (from the network; default: the input's root path as it is)",
+        help="the root's ground speed in the target style too (from the network; default: the input's root path as it "
+        "is)",
     )
     p.add_argument("--pose", choices=POSES, default="input", help=POSE_HELP)
     p.add_argument(
@@ -694,7 +704,8 @@ def build_parser() -> argparse.ArgumentParser:
         "-o",
         "--output",
         required=True,
-        help="OUT.bvh (the input's skeleton and channel layout), OUT.glb, OUT.fbx, or from a glTF input OUT.glb/.vrm (the input file, animation replaced); a folder for several inputs",
+        help="OUT.bvh (the input's skeleton and channel layout), OUT.glb, OUT.fbx, or from a glTF input OUT.glb/.vrm "
+        "(the input file, animation replaced); a folder for several inputs",
     )
     p.add_argument("--jobs", type=_whole(1), help="with several inputs: worker processes (default: one per core)")
     p.add_argument(
@@ -785,7 +796,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.set_defaults(func=_eval_quality)
     p = ev.add_parser(
         "streamed",
-        help="whole test clips streamed as `transfer` runs them: styled -> neutral, neutral -> each style, labels given and inferred, judged as played",
+        help="whole test clips streamed as `transfer` runs them: styled -> neutral, neutral -> each style, labels "
+        "given and inferred, judged as played",
     )
     p.add_argument("--model", help=MODEL_HELP)
     p.add_argument(
@@ -797,7 +809,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.set_defaults(func=_eval_streamed)
     p = ev.add_parser(
         "recipes",
-        help="every kept model (shipped, models/recipes, ablations) side by side: FMD vs CRA per style, back to neutral; JSON, table, trade-off plot",
+        help="every kept model (shipped, models/recipes, ablations) side by side: FMD vs CRA per style, back to "
+        "neutral; JSON, table, trade-off plot",
     )
     p.add_argument("--out", default="docs/recipes.md", help="Markdown table (a .json and the .png plot beside it)")
     p.add_argument(
@@ -809,7 +822,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.set_defaults(func=_eval_recipes)
     p = ev.add_parser(
         "rotations",
-        help="joint rotations on other skeletons, swing and twist: round trip at intensity 0, and the change a style makes",
+        help="joint rotations on other skeletons, swing and twist: round trip at intensity 0, and the change a style "
+        "makes",
     )
     p.add_argument("--model", help=MODEL_HELP)
     p.add_argument("--style", default="elderly", help="the style whose change is measured (default elderly)")
@@ -818,7 +832,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.set_defaults(func=_eval_rotations)
     p = ev.add_parser(
         "actions",
-        help="held-out actions of other performers and skeletons (kicks, dances, swims ...): the action kept, the style's change, the feet",
+        help="held-out actions of other performers and skeletons (kicks, dances, swims ...): the action kept, the "
+        "style's change, the feet",
     )
     p.add_argument("--model", help=MODEL_HELP)
     p.add_argument("--out", default="docs/actions.md", help="Markdown tables (a .json beside it)")
@@ -938,7 +953,8 @@ def build_parser() -> argparse.ArgumentParser:
         "--faulty",
         type=_whole(0),
         default=0,
-        help="soak test: this many more clients misbehave in turn (malformed frames, slow readers, vanishing, bad hellos)",
+        help="soak test: this many more clients misbehave in turn (malformed frames, slow readers, vanishing, bad "
+        "hellos)",
     )
     p.add_argument("-o", "--output", help="write the figures as JSON")
     p.set_defaults(func=_load_test)
@@ -953,7 +969,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--fps", type=_positive, default=30.0, help="the sender's frame rate (velocities are per second)")
     p.add_argument(
         "--parts",
-        help="body parts with targets of their own, as for transfer: e.g. arms=input (tracked hands keep their own motion)",
+        help="body parts with targets of their own, as for transfer: e.g. arms=input (tracked hands keep their own "
+        "motion)",
     )
     p.add_argument(
         "--root-speed",

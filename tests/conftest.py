@@ -20,7 +20,7 @@ ROOT = Path(__file__).resolve().parents[1]
 
 def run_checked(args: list, **kw) -> subprocess.CompletedProcess:
     """A command that must succeed; its output tail is the failure message."""
-    done = subprocess.run([str(a) for a in args], capture_output=True, text=True, timeout=900, **kw)
+    done = subprocess.run([str(a) for a in args], capture_output=True, text=True, timeout=900, check=False, **kw)
     assert done.returncode == 0, f"{args}: {done.stdout[-2000:]}\n{done.stderr[-4000:]}"
     return done
 

@@ -171,7 +171,7 @@ def test_shards_of_streams_stepped_at_once_equal_one_step_of_all(model, name):
         for t in range(4):
             x = rng.normal(0, 1, (n, c.feature_dim)).astype(np.float32)
             want = whole.step(x, style, content, target)
-            got = list(pool.map(lambda s: sharded.step(x[s], style[s], content[s], target[s], s), shards))
+            got = list(pool.map(lambda s, x=x: sharded.step(x[s], style[s], content[s], target[s], s), shards))
             # not bit for bit: BLAS may sum a 350-row product in another order than a 700-row one (OpenBLAS's Haswell
             # kernels do)
             assert np.abs(np.concatenate([r for r, _ in got]) - want[0]).max() <= 1e-5, t
@@ -292,7 +292,9 @@ def test_a_stylizer_on_threads_runs_onnxruntime_on_them(model):
     for name in ("onnx", "onnx-plain"):
         st = StreamStylizer(model, "normal", "walk", {"elderly": 1.0}, n_streams=300, backend=name, threads=2)
         calls, step = [], st.backend.step
-        st.backend.step = lambda *a: calls.append((threading.current_thread().name, len(a[0]))) or step(*a)
+        st.backend.step = lambda *a, calls=calls, step=step: (
+            calls.append((threading.current_thread().name, len(a[0]))) or step(*a)
+        )
         st.step(np.zeros((300, J, 4)) + [1, 0, 0, 0], np.zeros((300, J, 3)))
         # two threads: the caller's and one of the stylizer's pool
         assert sorted(n for _, n in calls) == [150, 150] and sorted(

@@ -28,7 +28,8 @@ TOLERANCE_DEG = 0.1
 def blender_venv(wheel, tmp_path_factory) -> Path:
     if sys.version_info[:2] != (3, 11) or platform.machine() not in ("x86_64", "AMD64", "arm64"):
         pytest.skip(
-            f"bpy 4.2-5.0 is built for Python 3.11 on x86_64 / Apple arm64 only, not Python {sys.version_info[0]}.{sys.version_info[1]} on {platform.machine()}"
+            "bpy 4.2-5.0 is built for Python 3.11 on x86_64 / Apple arm64 only, not Python "
+            f"{sys.version_info[0]}.{sys.version_info[1]} on {platform.machine()}"
         )
     venv = tmp_path_factory.mktemp("blender") / "venv"
     run_checked([sys.executable, "-m", "venv", venv])

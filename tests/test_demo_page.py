@@ -55,7 +55,8 @@ def canvas_difference(page, a: int, b: int) -> float:
         const x = c[{a}].getContext('2d').getImageData(0, 0, c[{a}].width, c[{a}].height).data;
         const y = c[{b}].getContext('2d').getImageData(0, 0, c[{b}].width, c[{b}].height).data;
         let n = 0; for (let i = 0; i < x.length; i += 4)
-          n += Math.abs(x[i] - y[i]) + Math.abs(x[i + 1] - y[i + 1]) + Math.abs(x[i + 2] - y[i + 2]) + Math.abs(x[i + 3] - y[i + 3]) > 60;
+          n += Math.abs(x[i] - y[i]) + Math.abs(x[i + 1] - y[i + 1])
+             + Math.abs(x[i + 2] - y[i + 2]) + Math.abs(x[i + 3] - y[i + 3]) > 60;
         return n / (x.length / 4); }}""")
 
 

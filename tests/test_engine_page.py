@@ -34,8 +34,10 @@ def test_the_browser_step_equals_the_server_and_draws(style, tmp_path):
             page.wait_for_function("window.result !== undefined", timeout=120000)
             result = page.evaluate("window.result")
             pixels = np.frombuffer(page.locator("#view").screenshot(path=str(tmp_path / "engine.png")), np.uint8)
-            drawn = page.evaluate("""() => { const c = document.getElementById('view'), d = c.getContext('2d').getImageData(0, 0, c.width, c.height).data;
-                                             let n = 0; for (let i = 0; i < d.length; i += 4) if (d[i] > 150 && d[i + 1] < 100) n++; return n; }""")
+            drawn = page.evaluate("""() => {
+                const c = document.getElementById('view');
+                const d = c.getContext('2d').getImageData(0, 0, c.width, c.height).data;
+                let n = 0; for (let i = 0; i < d.length; i += 4) if (d[i] > 150 && d[i + 1] < 100) n++; return n; }""")
             browser.close()
     finally:
         assert stop_server(server) == 0

@@ -89,7 +89,9 @@ def test_mesh_glb_of_real_clips_passes_the_validator(model, tmp_path, shared_dat
 
 
 PAGE = """<!doctype html><html><head><meta charset="utf-8">
-<script type="importmap">{"imports": {"three": "./three/build/three.module.js", "three/addons/": "./three/examples/jsm/"}}</script>
+<script type="importmap">
+{"imports": {"three": "./three/build/three.module.js", "three/addons/": "./three/examples/jsm/"}}
+</script>
 </head><body style="margin:0;background:#fff"><canvas id="c" width="640" height="480"></canvas>
 <script type="module">
 import * as THREE from "three";
@@ -160,10 +162,12 @@ def test_three_gltf_loader_skins_and_plays_the_body(model, tmp_path):
             assert result["bones"] == walk.skeleton.n_joints
             assert 1.4 < result["height"] < 2.2  # metres: a person's height, skinned and posed
             assert abs(result["duration"] - (walk.n_frames - 1) / walk.fps) < 1e-3
-            covered = page.evaluate("""() => { const c = document.getElementById('c'), x = document.createElement('canvas');
+            covered = page.evaluate("""() => {
+                const c = document.getElementById('c'), x = document.createElement('canvas');
                 x.width = c.width; x.height = c.height; const k = x.getContext('2d'); k.drawImage(c, 0, 0);
                 const d = k.getImageData(0, 0, c.width, c.height).data; let n = 0;
-                for (let i = 0; i < d.length; i += 4) n += d[i] + d[i + 1] + d[i + 2] < 700; return n / (d.length / 4); }""")
+                for (let i = 0; i < d.length; i += 4) n += d[i] + d[i + 1] + d[i + 2] < 700;
+                return n / (d.length / 4); }""")
             assert covered > 0.02, covered  # the body is drawn
             shot = Path(os.environ.get("STYLEERD_GLB_SCREENSHOT") or tmp_path / "glb.png")
             page.screenshot(path=str(shot))

@@ -252,7 +252,7 @@ def _bytes(path: Path, data: bytes) -> Path:
 
 
 def _run(argv: list[str], **kw) -> subprocess.CompletedProcess:
-    return subprocess.run(CLI + argv, capture_output=True, text=True, timeout=120, **kw)
+    return subprocess.run(CLI + argv, capture_output=True, text=True, timeout=120, check=False, **kw)
 
 
 @pytest.mark.parametrize("case", CASES)
@@ -299,7 +299,10 @@ def test_a_reader_that_leaves_ends_the_command_quietly(tmp_path):
 def test_a_temporary_file_of_a_killed_writer_is_removed_by_the_next_write(tmp_path):
     """kill -9 during a checkpoint write leaves its temporary file; the next write of the same
     file removes it (a live writer's is left alone)."""
-    script = "import sys, time; from styleerd.atomic import atomic_write; atomic_write(sys.argv[1], lambda tmp: (open(tmp, 'w').write('half'), print('writing', flush=True), time.sleep(60)))"
+    script = (
+        "import sys, time; from styleerd.atomic import atomic_write; atomic_write(sys.argv[1], lambda tmp: "
+        "(open(tmp, 'w').write('half'), print('writing', flush=True), time.sleep(60)))"
+    )
     p = subprocess.Popen(
         [sys.executable, "-c", script, str(tmp_path / "best.safetensors")], stdout=subprocess.PIPE, text=True
     )

@@ -20,7 +20,10 @@ from styleerd.runtime.stylizer import StreamStylizer
 
 HOST = Path(__file__).resolve().parents[1] / "examples" / "onnx_host.py"
 # the script runs with styleerd blocked: an import of it anywhere fails
-WITHOUT_STYLEERD = "import runpy, sys; sys.modules['styleerd'] = None; sys.argv = sys.argv[1:]; runpy.run_path(sys.argv[0], run_name='__main__')"
+WITHOUT_STYLEERD = (
+    "import runpy, sys; sys.modules['styleerd'] = None; sys.argv = sys.argv[1:]; "
+    "runpy.run_path(sys.argv[0], run_name='__main__')"
+)
 
 
 @pytest.mark.parametrize("form", ["lstm", "plain"])

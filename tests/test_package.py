@@ -107,7 +107,10 @@ def test_light_install_runs_transfer_export_and_api_without_torch(light_install,
         assert done.returncode == 2 and "styleerd[train]" in done.stderr and "Traceback" not in done.stderr, done.stderr
     _run([cli, "export-onnx", "-o", "step.onnx"], cwd=tmp_path, env=env)
     assert json.loads((tmp_path / "step.json").read_text())["styles"]
-    api = "import styleerd, sys; m = styleerd.load(); print(styleerd.transfer('walk.bvh', 'feminine').n_frames, 'torch' in sys.modules, styleerd.__file__)"
+    api = (
+        "import styleerd, sys; m = styleerd.load(); print(styleerd.transfer('walk.bvh', 'feminine').n_frames, "
+        "'torch' in sys.modules, styleerd.__file__)"
+    )
     frames, torch_loaded, where = _run([python, "-c", api], cwd=tmp_path, env=env).stdout.split()
     assert frames == str(bvh.read(tmp_path / "walk.bvh").n_frames) and torch_loaded == "False"
     assert Path(where).is_relative_to(light_install) and not Path(where).is_relative_to(ROOT)

@@ -111,7 +111,8 @@ def test_ablation_table_with_spreads_orders_only_models_at_the_budget():
     text = ablation_markdown(rows, 40)
     assert (
         "| full |  | 40 | 0.050 ± 0.003 |" in text
-        and "Not yet at the full budget (earlier models, kept until theirs are trained; `styleerd eval ablations` trains them): rec + per, no attention, zero initial states."
+        and "Not yet at the full budget (earlier models, kept until theirs are trained; `styleerd eval ablations` "
+        "trains them): rec + per, no attention, zero initial states."
         in text
     )
     assert "Ordering by FMD here (models at the full budget): full < rec only < rec + adv." in text

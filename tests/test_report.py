@@ -20,8 +20,8 @@ def test_report_regenerates_results_with_the_commands_figures(shared_data, tmp_p
     text = path.read_text()
     q = evaluate_model(load_generator()[0], str(shared_data))
     assert (
-        f"| SRA (transfers: neutral -> each style, styled -> neutral; {q['transfers']:,} windows) | {100 * q['sra']:.2f} % |"
-        in text
+        f"| SRA (transfers: neutral -> each style, styled -> neutral; {q['transfers']:,} windows) | "
+        f"{100 * q['sra']:.2f} % |" in text
     )
     assert f"{q['fmd']:.3f} ({q['fmd_floor']:.3f})" in text
     ablations = json.loads((tmp_path / "ablations.json").read_text())

@@ -274,7 +274,7 @@ def test_fine_tune_from_a_saved_generator_with_a_critic_that_sees_rotations(shar
         progress=False,
         export=tmp_path / "realistic",
     )
-    rows = list(csv.DictReader(open(tmp_path / "r" / "metrics.csv")))
+    rows = list(csv.DictReader((tmp_path / "r" / "metrics.csv").read_text().splitlines()))
     margins = [float(r["realism_margin"]) for r in rows]
     assert len(margins) == 3 and all(0 < m < 10 for m in margins)
     assert all(float(r["worst_fmd_over_floor"]) > 0 and 0 < float(r["worst_cra_of_ceiling"]) <= 1.5 for r in rows)
@@ -306,7 +306,7 @@ def test_fine_tune_from_a_saved_generator_with_a_critic_that_sees_rotations(shar
         tmp_path / "m",
         progress=False,
     )
-    assert len(list(csv.DictReader(open(tmp_path / "m" / "metrics.csv")))) == 2
+    assert len(list(csv.DictReader((tmp_path / "m" / "metrics.csv").read_text().splitlines()))) == 2
     with pytest.raises(StyleERDError, match="device 'no-such-device' cannot be used"):
         train(TrainConfig(**TINY, epochs=1, device="no-such-device"), tmp_path / "g", progress=False)
 

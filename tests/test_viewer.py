@@ -80,7 +80,8 @@ def test_body_parts_restart_the_stream_with_targets_of_their_own(page):
     base = drawn_after_restart(page, "exhausted")
     page.select_option("#part-legs", "elderly")
     page.wait_for_function(
-        "window.viewer.ready && window.viewer.parts && window.viewer.parts.legs && window.viewer.parts.legs.elderly === 1",
+        "window.viewer.ready && window.viewer.parts && window.viewer.parts.legs && window.viewer.parts.legs.elderly "
+        "=== 1",
         timeout=30000,
     )
     page.wait_for_function("window.viewer.drawn.has(40)", timeout=30000)

@@ -26,7 +26,7 @@ def _threadsafe_layer() -> bool:
     for layer in ("tbbpool", "omppool"):
         try:
             importlib.import_module(f"numba.np.ufunc.{layer}")
-        except Exception:  # a missing or unloadable library, whatever numba raises for it: not this layer
+        except Exception:  # noqa: BLE001, S112  a missing or unloadable library, whatever numba raises: not this layer
             continue
         if nb.config.THREADING_LAYER == "default":
             nb.config.THREADING_LAYER = "threadsafe"

@@ -224,12 +224,14 @@ def markdown(rows: dict, epochs: int) -> str:
                 else "within the spread (undecided)"
             )
             lines.append(
-                f"- full {f['fmd']:.3f} ± {f['spread']['fmd']:.3f} vs {name} {r['fmd']:.3f} ± {r['spread']['fmd']:.3f}: {verdict}."
+                f"- full {f['fmd']:.3f} ± {f['spread']['fmd']:.3f} vs {name} {r['fmd']:.3f} ± "
+                f"{r['spread']['fmd']:.3f}: {verdict}."
             )
     short = [n for n in rows if n not in at_budget]
     if short:
         lines.append(
-            f"Not yet at the full budget (earlier models, kept until theirs are trained; `styleerd eval ablations` trains them): {', '.join(short)}."
+            "Not yet at the full budget (earlier models, kept until theirs are trained; `styleerd eval ablations` "
+            f"trains them): {', '.join(short)}."
         )
     if missing:
         lines.append(f"Not trained yet (`styleerd eval ablations` resumes them): {', '.join(missing)}.")

@@ -366,8 +366,10 @@ def _summary(rows: dict[str, dict], styles: list[str]) -> dict:
 def json_summary(summary: dict) -> str:
     a, w = summary["actions"], summary["walks"]
     return (
-        f"held-out actions: identity {a['identity_error_cm']['mean']} cm, correlation {a['identity_correlation']['mean']} "
-        f"(worst {a['identity_correlation']['worst']}); walks: {w['identity_error_cm']['mean']} cm, {w['identity_correlation']['mean']}"
+        f"held-out actions: identity {a['identity_error_cm']['mean']} cm, correlation "
+        f"{a['identity_correlation']['mean']} "
+        f"(worst {a['identity_correlation']['worst']}); walks: {w['identity_error_cm']['mean']} cm, "
+        f"{w['identity_correlation']['mean']}"
     )
 
 
@@ -484,7 +486,8 @@ def markdown(report: dict) -> str:
     styles = report["styles"]
     lines = [
         (
-            f"Clips cut to {report['seconds']:g} s; errors in cm of a {report['body_cm']:g} cm body; per style: velocity correlation / "
+            f"Clips cut to {report['seconds']:g} s; errors in cm of a {report['body_cm']:g} cm body; per style: "
+            "velocity correlation / "
             "cosine of the style's change against the walks' / its size over the walks'."
         ),
         "",
@@ -498,32 +501,32 @@ def markdown(report: dict) -> str:
         ]
         for name, row in r["clips"].items():
             cells = [
-                f"{row['styles'][s]['correlation']:.2f} / {row['styles'][s]['cosine']:.2f} / {row['styles'][s]['size_ratio']:.2f}"
+                f"{row['styles'][s]['correlation']:.2f} / {row['styles'][s]['cosine']:.2f} / "
+                f"{row['styles'][s]['size_ratio']:.2f}"
                 for s in styles
             ]
             lines.append(
-                f"| {name} | {row['action']} | {row['identity']['error_cm']:.1f} | {row['identity']['correlation']:.2f} | "
-                + " | ".join(cells)
-                + " |"
+                f"| {name} | {row['action']} | {row['identity']['error_cm']:.1f} | "
+                f"{row['identity']['correlation']:.2f} | " + " | ".join(cells) + " |"
             )
         for group, g in r["summary"].items():
             cells = [
-                f"{g['styles'][s]['correlation']:.2f} / {g['styles'][s]['cosine']:.2f} / {g['styles'][s]['size_ratio']:.2f}"
+                f"{g['styles'][s]['correlation']:.2f} / {g['styles'][s]['cosine']:.2f} / "
+                f"{g['styles'][s]['size_ratio']:.2f}"
                 for s in styles
             ]
             lines.append(
-                f"| **{group}: mean** | {g['clips']} clips | {g['identity_error_cm']['mean']:.1f} | {g['identity_correlation']['mean']:.2f} | "
-                + " | ".join(cells)
-                + " |"
+                f"| **{group}: mean** | {g['clips']} clips | {g['identity_error_cm']['mean']:.1f} | "
+                f"{g['identity_correlation']['mean']:.2f} | " + " | ".join(cells) + " |"
             )
             cells = [
-                f"{g['styles'][s]['correlation_worst']:.2f} / {g['styles'][s]['cosine_worst']:.2f} / {g['styles'][s]['size_ratio_worst']:.2f}"
+                f"{g['styles'][s]['correlation_worst']:.2f} / {g['styles'][s]['cosine_worst']:.2f} / "
+                f"{g['styles'][s]['size_ratio_worst']:.2f}"
                 for s in styles
             ]
             lines.append(
-                f"| **{group}: worst** | | {g['identity_error_cm']['worst']:.1f} | {g['identity_correlation']['worst']:.2f} | "
-                + " | ".join(cells)
-                + " |"
+                f"| **{group}: worst** | | {g['identity_error_cm']['worst']:.1f} | "
+                f"{g['identity_correlation']['worst']:.2f} | " + " | ".join(cells) + " |"
             )
         lines.append("")
     if report.get("feet"):
@@ -532,7 +535,8 @@ def markdown(report: dict) -> str:
             "### Feet and pace",
             "",
             (
-                "Worst over the target styles: cm below the input's floor; planted feet's slide (cm/s, input's in brackets); "
+                "Worst over the target styles: cm below the input's floor; planted feet's slide (cm/s, input's in "
+                "brackets); "
                 "stride (cm, input's in brackets), smallest over the styles; what the labeller reads."
             ),
             "",
@@ -583,7 +587,8 @@ def action_filmstrips(
             rows,
             path,
             frames=8,
-            title=f"{clip.action}: the paper's output (pose network) against the input's pose plus the style's change (pose input)",
+            title=f"{clip.action}: the paper's output (pose network) against the input's pose plus the style's change "
+            "(pose input)",
         )
         paths.append(path)
     return paths

@@ -47,8 +47,10 @@ STREAMS = (1, 4, 10, 16, 64, 100, 256, 1000, 4096)  # the throughput curve's poi
 WARMUP_S = 0.3
 WINDOWS_1000 = 3  # timed windows of each 1,000-stream rate (issue 18's target), the best kept
 TARGETS = (
-    "targets (issue 4): step p50 <= 100 us, end-to-end p50 <= 300 us, >= 200,000 frames/s at 1,000 streams; (issue 18, numba): step p50 <= 20 us,\n"
-    "end to end p50 <= 100 us, 1,000 streams >= 50 % of the matmul peak (under the products-alone row); (issue 18, onnx) 1,000 streams >= the numpy backend.\n"
+    "targets (issue 4): step p50 <= 100 us, end-to-end p50 <= 300 us, >= 200,000 frames/s at 1,000 streams; (issue "
+    "18, numba): step p50 <= 20 us,\n"
+    "end to end p50 <= 100 us, 1,000 streams >= 50 % of the matmul peak (under the products-alone row); (issue 18, "
+    "onnx) 1,000 streams >= the numpy backend.\n"
     "This machine's speed wanders 2-4x: benchmarks/bench_engine.py compares commits in alternating rounds"
 )
 
@@ -303,7 +305,8 @@ def run_bench(model: StyleERD, steps: int = 2000, streams: tuple[int, ...] = STR
             r["products_alone_1000_streams"] = {"frames_per_second": round(products_alone(model, windows=WINDOWS_1000))}
         report["backends"][name] = r
         progress(
-            f"{name}: step p50 {r['network_step']['p50_us']:.0f} us, end-to-end p50 {r['end_to_end']['p50_us']:.0f} us, "
+            f"{name}: step p50 {r['network_step']['p50_us']:.0f} us, end-to-end p50 {r['end_to_end']['p50_us']:.0f} "
+            "us, "
             f"{max(r['frames_per_second'].values()):,} frames/s at best"
         )
     # fractions of the best peak seen in the run: a peak measured while the machine was busy
@@ -335,7 +338,8 @@ def table(report: dict) -> str:
         (
             "network step, ONNX graph of every style's branches, p50 / p99 (us)",
             lambda r: (
-                f"{r['network_step_every_branch_graph']['p50_us']:.0f} / {r['network_step_every_branch_graph']['p99_us']:.0f}"
+                f"{r['network_step_every_branch_graph']['p50_us']:.0f} / "
+                f"{r['network_step_every_branch_graph']['p99_us']:.0f}"
                 if "network_step_every_branch_graph" in r
                 else ""
             ),
@@ -362,15 +366,20 @@ def table(report: dict) -> str:
         (
             "network alone, 1,000 streams (2 threads): frames/s (fraction of matmul peak)",
             lambda r: (
-                f"{r['network_only_1000_streams']['frames_per_second']:,} ({100 * r['network_only_1000_streams']['fraction_of_peak']:.1f} %)"
+                f"{r['network_only_1000_streams']['frames_per_second']:,} "
+                f"({100 * r['network_only_1000_streams']['fraction_of_peak']:.1f} %)"
                 if "network_only_1000_streams" in r
                 else ""
             ),
         ),
         (
-            "the network's matrix products alone (same BLAS calls and shapes, nothing else), 1,000 streams: frames/s (fraction of matmul peak)",
+            (
+                "the network's matrix products alone (same BLAS calls and shapes, nothing else), 1,000 streams: "
+                "frames/s (fraction of matmul peak)"
+            ),
             lambda r: (
-                f"{r['products_alone_1000_streams']['frames_per_second']:,} ({100 * r['products_alone_1000_streams']['fraction_of_peak']:.1f} %)"
+                f"{r['products_alone_1000_streams']['frames_per_second']:,} "
+                f"({100 * r['products_alone_1000_streams']['fraction_of_peak']:.1f} %)"
                 if "products_alone_1000_streams" in r
                 else ""
             ),
@@ -391,10 +400,15 @@ def table(report: dict) -> str:
     lines += [
         "",
         (
-            f"FLOPs per frame: {report['flops_per_frame']:,}; float32 matmul peak measured here: {report['matmul_peak_gflops_2_threads']} GFLOP/s (2 threads, {report['cpu_count']} cores; the best of "
-            f"{', '.join(map(str, report.get('matmul_peak_gflops_each_measure', [])))}, measured before each backend's throughput);"
+            f"FLOPs per frame: {report['flops_per_frame']:,}; float32 matmul peak measured here: "
+            f"{report['matmul_peak_gflops_2_threads']} GFLOP/s (2 threads, {report['cpu_count']} cores; the best of "
+            f"{', '.join(map(str, report.get('matmul_peak_gflops_each_measure', [])))}, measured before each "
+            "backend's throughput);"
         ),
-        f"memory per stream: {mem['total']:,} bytes ({mem['recurrent_state']:,} recurrent state); startup latency: {report['startup_latency_frames']} frame (the paper: 1).",
+        (
+            f"memory per stream: {mem['total']:,} bytes ({mem['recurrent_state']:,} recurrent state); startup latency: "
+            f"{report['startup_latency_frames']} frame (the paper: 1)."
+        ),
         TARGETS,
     ]
     return "\n".join(lines) + "\n"

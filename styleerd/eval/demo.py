@@ -64,7 +64,8 @@ def run_demo(out: Path, data_dir: str | None = None) -> str:
             result = bvh.read(target)
             rows.append((f"-> {name}", result))
             lines.append(
-                f"{label[:28]:<28} {target.name:<34} {result.n_frames:>6} {result.fps:>4.0f} {_mean_change_cm(source, result):>15.1f} cm"
+                f"{label[:28]:<28} {target.name:<34} {result.n_frames:>6} {result.fps:>4.0f} "
+                f"{_mean_change_cm(source, result):>15.1f} cm"
             )
     write_html(
         out / "index.html",

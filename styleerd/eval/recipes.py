@@ -156,13 +156,17 @@ def _streamed_cells(r: dict) -> str:
     def pair(v: dict) -> str:
         return f"{100 * v['given']:.1f} / {100 * v['inferred']:.1f} %"
 
-    return f"{pair(n['to_neutral_mean'])} | {pair(n['into_styles_mean'])} | {pair(ns['to_neutral_mean'])}; {pair(ns['into_styles_mean'])}"
+    return (
+        f"{pair(n['to_neutral_mean'])} | {pair(n['into_styles_mean'])} | {pair(ns['to_neutral_mean'])}; "
+        f"{pair(ns['into_styles_mean'])}"
+    )
 
 
 def markdown(rows: dict) -> str:
     lines = [
         (
-            "| model | config | minutes | steps to the best epoch | FMD / floor | CRA / ceiling | SRA | worst style FMD / floor | worst style CRA / ceiling "
+            "| model | config | minutes | steps to the best epoch | FMD / floor | CRA / ceiling | SRA | worst style "
+            "FMD / floor | worst style CRA / ceiling "
             "| back to neutral, given / inferred | into styles, given / inferred | the same with --root-speed |"
         ),
         "|" + " --- |" * 12,
@@ -173,8 +177,10 @@ def markdown(rows: dict) -> str:
         worst_c = min(ps, key=lambda k: ps[k]["cra_of_ceiling"])
         lines.append(
             f"| {name} | {r['config']} | {r['minutes']} | {r['steps']} "
-            f"| {q['fmd_over_floor']:.2f} (± {q['spread']['fmd'] / q['fmd_floor']:.2f}) | {100 * q['cra'] / q['content_ceiling']:.1f} % (± {100 * q['spread']['cra'] / q['content_ceiling']:.1f}) "
-            f"| {100 * q['sra']:.1f} % | {worst_f} {ps[worst_f]['fmd_over_floor']:.2f} | {worst_c} {100 * ps[worst_c]['cra_of_ceiling']:.1f} % "
+            f"| {q['fmd_over_floor']:.2f} (± {q['spread']['fmd'] / q['fmd_floor']:.2f}) | "
+            f"{100 * q['cra'] / q['content_ceiling']:.1f} % (± {100 * q['spread']['cra'] / q['content_ceiling']:.1f}) "
+            f"| {100 * q['sra']:.1f} % | {worst_f} {ps[worst_f]['fmd_over_floor']:.2f} | {worst_c} "
+            f"{100 * ps[worst_c]['cra_of_ceiling']:.1f} % "
             f"| {_streamed_cells(r)} |"
         )
     lines.append("")
@@ -183,7 +189,10 @@ def markdown(rows: dict) -> str:
             continue
         ps = r["per_style"]
         lines += [
-            f"**{name}** per target style (FMD / floor, CRA / ceiling) and, labels given / inferred, back to neutral per source style and into each style:",
+            (
+                f"**{name}** per target style (FMD / floor, CRA / ceiling) and, labels given / inferred, back to "
+                "neutral per source style and into each style:"
+            ),
             "",
         ]
         lines.append("| | " + " | ".join(ps) + " |")
@@ -194,11 +203,11 @@ def markdown(rows: dict) -> str:
         )
         for key, how in (("neutralisation", ""), ("neutralisation_root_speed", ", --root-speed")):
             n = r[key]
-            for what, rows in ((f"back to neutral{how}", n["to_neutral"]), (f"into the style{how}", n["into_styles"])):
+            for what, rates in ((f"back to neutral{how}", n["to_neutral"]), (f"into the style{how}", n["into_styles"])):
                 lines.append(
                     f"| {what} | "
                     + " | ".join(
-                        f"{100 * rows[k]['given']:.1f} / {100 * rows[k]['inferred']:.1f} %" if k in rows else ""
+                        f"{100 * rates[k]['given']:.1f} / {100 * rates[k]['inferred']:.1f} %" if k in rates else ""
                         for k in ps
                     )
                     + " |"

@@ -138,7 +138,10 @@ def rotation_report(
 
 def markdown(report: dict) -> str:
     lines = [
-        f"| input | group | round trip: worst joint, median angle (swing / twist) | into {report['stylised_target']}: worst joint (swing / twist) |",
+        (
+            f"| input | group | round trip: worst joint, median angle (swing / twist) | "
+            f"into {report['stylised_target']}: worst joint (swing / twist) |"
+        ),
         "| --- | --- | --- | --- |",
     ]
     for r in report["rows"]:
@@ -151,18 +154,25 @@ def markdown(report: dict) -> str:
         groups.setdefault(r["group"], []).append(r)
     lines += [
         "",
-        "| group | joints | median over clips of the per-joint median angle, round trip: swing / twist | into the style: swing / twist |",
+        (
+            "| group | joints | median over clips of the per-joint median angle, round trip: swing / twist | into the "
+            "style: swing / twist |"
+        ),
         "| --- | --- | --- | --- |",
     ]
     for group, rows in groups.items():
-        per = lambda key, k: np.median([np.median([v[k] for v in r[key].values()]) for r in rows])
+        per = lambda key, k, rows=rows: np.median([np.median([v[k] for v in r[key].values()]) for r in rows])
         lines.append(
-            f"| {group} | all mapped | {per('round_trip', 1):.1f} / {per('round_trip', 2):.1f} | {per('stylised', 1):.1f} / {per('stylised', 2):.1f} |"
+            f"| {group} | all mapped | {per('round_trip', 1):.1f} / {per('round_trip', 2):.1f} | "
+            f"{per('stylised', 1):.1f} / {per('stylised', 2):.1f} |"
         )
     names = list(groups)
     lines += [
         "",
-        "Per body part, the median over a group's clips of the joint's median angle, swing / twist (round trip | into the style):",
+        (
+            "Per body part, the median over a group's clips of the joint's median angle, swing / twist (round trip "
+            "| into the style):"
+        ),
         "",
         "| body part | " + " | ".join(names) + " |",
         "| --- |" + " --- |" * len(names),

@@ -47,7 +47,8 @@ const views = DATA.motions.map((m, i) => {
   const cap = document.createElement("figcaption"); cap.textContent = m.label;
   const cv = document.createElement("canvas"); cv.width = 520; cv.height = 560;
   fig.appendChild(cap); fig.appendChild(cv); grid.appendChild(fig);
-  return { m, ctx: cv.getContext("2d"), color: ["#1f77b4", "#d62728", "#2ca02c", "#9467bd", "#ff7f0e", "#8c564b", "#e377c2", "#17becf"][i % 8] };
+  const colors = ["#1f77b4", "#d62728", "#2ca02c", "#9467bd", "#ff7f0e", "#8c564b", "#e377c2", "#17becf"];
+  return { m, ctx: cv.getContext("2d"), color: colors[i % 8] };
 });
 function project(p, root, c, s, scale, w, h) {
   const x = p[0] - root[0], z = p[2] - root[2];
@@ -76,16 +77,22 @@ function draw(t) {
       const len = Math.hypot(b[0] - a[0], b[1] - a[1], b[2] - a[2]);
       if (len < 1e-6) continue;
       const w = 0.35 * Math.min(len, DATA.height * 0.12);
-      const a2 = [a[0] + f[0] * w, a[1] + f[1] * w, a[2] + f[2] * w], b2 = [b[0] + f[0] * w, b[1] + f[1] * w, b[2] + f[2] * w];
+      const a2 = [a[0] + f[0] * w, a[1] + f[1] * w, a[2] + f[2] * w];
+      const b2 = [b[0] + f[0] * w, b[1] + f[1] * w, b[2] + f[2] * w];
       const q = [a, b, b2, a2].map(x => project(x, root, c, s, scale, W, H));
       ctx.fillStyle = v.color + "55"; ctx.beginPath(); ctx.moveTo(q[0][0], q[0][1]);
       for (const r of q.slice(1)) ctx.lineTo(r[0], r[1]);
       ctx.closePath(); ctx.fill();
-      ctx.strokeStyle = v.color; ctx.lineWidth = 5; ctx.beginPath(); ctx.moveTo(q[0][0], q[0][1]); ctx.lineTo(q[1][0], q[1][1]); ctx.stroke();
-      ctx.strokeStyle = "#222"; ctx.lineWidth = 2; ctx.beginPath(); ctx.moveTo(q[3][0], q[3][1]); ctx.lineTo(q[2][0], q[2][1]); ctx.stroke();
+      ctx.strokeStyle = v.color; ctx.lineWidth = 5;
+      ctx.beginPath(); ctx.moveTo(q[0][0], q[0][1]); ctx.lineTo(q[1][0], q[1][1]); ctx.stroke();
+      ctx.strokeStyle = "#222"; ctx.lineWidth = 2;
+      ctx.beginPath(); ctx.moveTo(q[3][0], q[3][1]); ctx.lineTo(q[2][0], q[2][1]); ctx.stroke();
     }
     ctx.fillStyle = "#333";
-    for (const p of P) { const q = project(p, root, c, s, scale, W, H); ctx.beginPath(); ctx.arc(q[0], q[1], 3.5, 0, 7); ctx.fill(); }
+    for (const p of P) {
+      const q = project(p, root, c, s, scale, W, H);
+      ctx.beginPath(); ctx.arc(q[0], q[1], 3.5, 0, 7); ctx.fill();
+    }
   }
   timeLabel.textContent = `${(t / DATA.fps).toFixed(2)} s / ${((T - 1) / DATA.fps).toFixed(2)} s`;
   window.framesDrawn = (window.framesDrawn || 0) + 1;  // for tests
@@ -99,7 +106,9 @@ function tick(now) {
   requestAnimationFrame(tick);
 }
 
-play.onclick = () => { playing = !playing; play.textContent = playing ? "Pause" : "Play"; start = +frame.value; t0 = null; };
+play.onclick = () => {
+  playing = !playing; play.textContent = playing ? "Pause" : "Play"; start = +frame.value; t0 = null;
+};
 frame.oninput = () => { playing = false; play.textContent = "Play"; draw(+frame.value); };
 yaw.oninput = () => draw(+frame.value);
 requestAnimationFrame(tick);

@@ -78,7 +78,8 @@ def loaded(name: str | Path | None, default: str, build):
     except (KeyError, TypeError, ValueError, AttributeError, RuntimeError) as e:
         problem = f"missing {e}" if isinstance(e, KeyError) else str(e).splitlines()[0]
         raise StyleERDError(
-            f"cannot load model {path.with_suffix('.safetensors')}: its configuration or weights are incomplete ({problem})"
+            f"cannot load model {path.with_suffix('.safetensors')}: its configuration or weights are incomplete "
+            f"({problem})"
         ) from None
 
 
@@ -182,7 +183,8 @@ def load_labeller_weights(name: str | Path | None = None) -> LabellerWeights:
         weights = {k[len("labeller.") :]: v for k, v in arrays.items() if k.startswith("labeller.")}
         if weights["inp.0.weight"].shape != (config["hidden"], config["in_dim"]):
             raise ValueError(
-                f"inp.0.weight has shape {weights['inp.0.weight'].shape}, the configuration says {(config['hidden'], config['in_dim'])}"
+                f"inp.0.weight has shape {weights['inp.0.weight'].shape}, the configuration says "
+                f"{(config['hidden'], config['in_dim'])}"
             )
         return LabellerWeights(config, weights)
 

@@ -283,7 +283,8 @@ def stream(path: str | os.PathLike, chunk: int = 1024) -> tuple[Header, Iterator
     same checks as ``read``; a problem in the frame data raises when its chunk is read."""
     path = str(path)
     try:
-        f = open(path, "r", encoding="utf-8-sig", errors="strict")  # -sig: a byte-order mark some Windows tools write
+        # -sig: a byte-order mark some Windows tools write; the generator below closes the file
+        f = open(path, encoding="utf-8-sig", errors="strict")  # noqa: SIM115
     except OSError as e:
         raise BVHError(path, None, e.strerror or str(e)) from None
     try:

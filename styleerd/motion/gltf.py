@@ -325,7 +325,7 @@ def _load(path: Path) -> tuple[gl.GLTF2, bytes]:
         blob = doc.binary_blob() or b""
     except StyleERDError:
         raise
-    except Exception as e:  # pygltflib raises whatever its parser meets
+    except Exception as e:  # noqa: BLE001  pygltflib raises whatever its parser meets
         raise StyleERDError(f"{path}: not a readable glTF file ({type(e).__name__}: {str(e)[:200]})") from None
     return doc, blob
 
@@ -347,9 +347,8 @@ def _node_trs(node: gl.Node, n: int = 0) -> tuple[np.ndarray, np.ndarray, np.nda
             values = [r, t, s]
     except (TypeError, ValueError):
         raise ValueError(
-            f"node {n} ({node.name!r}): its matrix, rotation, translation or scale is not a list of numbers of the right length"[
-                :200
-            ]
+            f"node {n} ({node.name!r}): its matrix, rotation, translation or scale is not a list of numbers of the "
+            "right length"[:200]
         ) from None
     if not all(np.isfinite(v).all() for v in values):
         raise ValueError(f"node {n} ({node.name!r}): its transform has a NaN or infinite value"[:200])
@@ -388,7 +387,8 @@ def _tree(doc: gl.GLTF2) -> dict[int, int]:
             c = _whole(c, f"node {i}'s child", 0, len(doc.nodes) - 1)
             if c == i or c in parent:
                 raise ValueError(
-                    f"node {c} is {'its own child' if c == i else f'a child of both node {parent[c]} and node {i}'}: the nodes must form a tree"
+                    f"node {c} is {'its own child' if c == i else f'a child of both node {parent[c]} and node {i}'}: "
+                    "the nodes must form a tree"
                 )
             parent[c] = i
     depth: dict[int, int] = {}
@@ -475,7 +475,8 @@ def _read(doc: gl.GLTF2, blob: bytes, animation: int, fps: float | None) -> Gltf
                 raise ValueError(f"animation channel of node {ch.target.node}: a key time or value is NaN or infinite")
             if times[0] < 0 or times[-1] > MAX_SECONDS or (np.diff(times) < 0).any():
                 raise ValueError(
-                    f"animation channel of node {ch.target.node}: key times must rise from 0 to at most {MAX_SECONDS:g} s"
+                    f"animation channel of node {ch.target.node}: key times must rise from 0 to at most "
+                    f"{MAX_SECONDS:g} s"
                 )
             if sampler.interpolation == "CUBICSPLINE":
                 values = values[1::3]  # (in-tangent, value, out-tangent): the values, linearly

@@ -483,7 +483,8 @@ def joint_map(
             for p in missing
         ]
         raise ValueError(
-            f"cannot map the skeleton: no joint found for {', '.join(named)}; name them with --joint-map, a JSON object of model joint -> your joint"
+            f"cannot map the skeleton: no joint found for {', '.join(named)}; name them with --joint-map, a JSON "
+            "object of model joint -> your joint"
         )
     if tp["hips"] != 0:
         raise ValueError(f"the model skeleton's root {target.names[0]!r} is not its hips")

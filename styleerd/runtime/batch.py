@@ -111,7 +111,7 @@ def _serve(conn, model_name: str | None, memory_bytes: int | None) -> None:
             conn.send((False, str(e)))
         except MemoryError:
             conn.send((False, f"more memory than --max-memory {memory_bytes / 2**30:g} GiB"))
-        except Exception as e:  # a bug costs its file only
+        except Exception as e:  # noqa: BLE001  a bug costs its file only
             conn.send((False, f"{type(e).__name__}: {e}"))
 
 

@@ -383,7 +383,8 @@ def step_graph(
     unknown = set(styles or ()) - {c.styles[s] for s in c.branch_styles}
     if unknown:
         raise StyleERDError(
-            f"no style branch for {', '.join(sorted(unknown))}; the model's: {', '.join(c.styles[s] for s in c.branch_styles)}"
+            f"no style branch for {', '.join(sorted(unknown))}; the model's: "
+            f"{', '.join(c.styles[s] for s in c.branch_styles)}"
         )
     branches = _branches(c, styles)
     depths = _depths(c, branches)

@@ -50,22 +50,13 @@ from styleerd.runtime.backends import make_backend
 from styleerd.runtime.numpy_step import NumpyLabeller, one_blas_thread
 
 MAX_FEATURE = 1e6
-# streams per step from which a numpy or onnx step is split over the stylizer's threads, a shard
-# of streams per thread of a pool (measured with the numba step when it was split so, 2
-# threads, frames/s serial vs split: 500 streams 197k vs 190k, 1,000: 202k vs 250k; small shards
-# lose to the GIL: 100 streams 160k vs 71k). onnxruntime's step is one call however many nodes,
-# so smaller shards pay (network alone, 2 threads: 256 streams 82k split vs 57k on one thread and
-# 60k on its own 2 intra-op threads; 64 streams 51k vs 57k and 56k). The numba backend's threads are inside its compiled
-# kernels
-# instead (``data.parallel``: no GIL, no pool handoffs; 1,000 streams 1.09x the frames/s of
-# these shards, medians of 5 alternating rounds of benchmarks/bench_engine.py).
+# Streams per step from which a numpy or onnx step is split into one shard per thread of the stylizer's pool: below it
+# the GIL and onnxruntime's cost per call make shards lose (measurements: docs/benchmarks.md, "Shards of streams").
+# The numba backend's threads run inside its compiled kernels instead (``data.parallel``).
 SHARD_FROM = {"onnx": 128, "onnx-plain": 128}  # per backend; numpy 600
 POSES = ("input", "network")  # what a stylised pose is built on (module docstring)
-OWN_THREADS = (
-    "torch",
-    "numba",
-    # backends whose steps run on threads of their own (torch's pool, numba's parallel loops), never on the stylizer's pool
-)
+# backends whose steps run on threads of their own (torch's pool, numba's parallel loops), never on the stylizer's pool
+OWN_THREADS = ("torch", "numba")
 _ALL = slice(None)  # every stream (state rows as views)
 
 
@@ -125,7 +116,8 @@ def part_targets(model: GeneratorWeights, parts: str | dict | None) -> dict[str,
         items = [item.partition("=")[::2] for item in parts.split(",") if item.strip()]
         if any(not value for _, value in items):
             raise StyleERDError(
-                f"--parts: give part=style, part=style:intensity or part=input, e.g. legs=elderly,arms=input; got {parts!r}"
+                "--parts: give part=style, part=style:intensity or part=input, e.g. legs=elderly,arms=input; got "
+                f"{parts!r}"
             )
         parts = {k.strip(): v.strip() for k, v in items}
     out: dict[str, dict[str, float] | None] = {}
@@ -303,7 +295,8 @@ class StreamStylizer:
         added = set(_per_stream(input_style, len(rows))) & set(c.added_styles)  # checked before any state changes
         if added:
             raise StyleERDError(
-                f"style {added.pop()!r} was added to this model as a target only; an input's style is one of: {', '.join(c.input_styles)} (or left to be inferred)"
+                f"style {added.pop()!r} was added to this model as a target only; an input's style is one of: "
+                f"{', '.join(c.input_styles)} (or left to be inferred)"
             )
         for labels, names, what, given, known in (
             (input_style, c.input_styles, "input style", self.given_style, self.known_style),
@@ -430,7 +423,8 @@ class StreamStylizer:
         bad = np.argwhere(~np.isfinite(rotations).all(-1) | ~np.isfinite(positions).all(-1))
         if len(bad):
             raise StyleERDError(
-                f"frame rejected: stream {streams[bad[0][0]]}, joint {self.skeleton.names[bad[0][1]]!r} has a NaN or infinite value"
+                f"frame rejected: stream {streams[bad[0][0]]}, joint {self.skeleton.names[bad[0][1]]!r} has a NaN or "
+                "infinite value"
             )
         raise StyleERDError(
             f"frame rejected: stream {streams[np.nonzero(~ok)[0][0]]}: its values are too large to stylise"

@@ -189,7 +189,8 @@ def stream_bvh(
         bvh.write(output, out)
     lat = np.array(result.latencies_ms) if result.latencies_ms else np.zeros(1)
     return (
-        f"{path}: sent {result.sent} frames at {motion.fps:g} fps, received {result.received}, reordered {result.reordered}; "
+        f"{path}: sent {result.sent} frames at {motion.fps:g} fps, received {result.received}, reordered "
+        f"{result.reordered}; "
         f"latency p50 {np.percentile(lat, 50):.2f} ms, p99 {np.percentile(lat, 99):.2f} ms"
         + (f"; wrote {output}" if output else "")
     )

@@ -34,7 +34,8 @@ def free_port() -> int:
 
 def start_server(port: int, *args: str) -> subprocess.Popen:
     """``styleerd serve`` on ``port`` in a new process; returns once it accepts connections."""
-    log = tempfile.TemporaryFile("w+")  # a file, not a pipe: a chatty server never blocks on it
+    # a file, not a pipe: a chatty server never blocks on it; closed with the process
+    log = tempfile.TemporaryFile("w+")  # noqa: SIM115
     proc = subprocess.Popen(
         [sys.executable, "-m", "styleerd.cli", "serve", "--port", str(port), *args],
         stdout=log,
@@ -128,18 +129,25 @@ def run_load_test(clients: int, seconds: float, workers: int = 1, output: str | 
     lines = [
         f"{clients} clients x {seconds:g} s at {figures['fps']:g} fps on loopback ({workers} server worker(s))",
         (
-            f"frames sent {figures['frames_sent']}, received {figures['frames_received']}, dropped {figures['dropped']}, reordered {figures['reordered']}, "
+            f"frames sent {figures['frames_sent']}, received {figures['frames_received']}, dropped "
+            f"{figures['dropped']}, reordered {figures['reordered']}, "
             f"largest difference from a local run {figures['max_error_deg']:.2g} deg"
         ),
-        f"latency p50 {figures['latency_ms_p50']:.2f} ms, p99 {figures['latency_ms_p99']:.2f} ms, max {figures['latency_ms_max']:.2f} ms",
         (
-            f"server CPU {figures['server_cpu_cores']:.2f} cores, mean batch {figures['mean_batch']:.1f} streams per step, "
-            f"memory {figures['server_rss_mb'][0]:.0f} -> {figures['server_rss_mb'][-1]:.0f} MB (peak {max(figures['server_rss_mb']):.0f}), tracebacks {figures['server_tracebacks']}, "
+            f"latency p50 {figures['latency_ms_p50']:.2f} ms, p99 {figures['latency_ms_p99']:.2f} ms, max "
+            f"{figures['latency_ms_max']:.2f} ms"
+        ),
+        (
+            f"server CPU {figures['server_cpu_cores']:.2f} cores, mean batch {figures['mean_batch']:.1f} streams per "
+            "step, "
+            f"memory {figures['server_rss_mb'][0]:.0f} -> {figures['server_rss_mb'][-1]:.0f} MB (peak "
+            f"{max(figures['server_rss_mb']):.0f}), tracebacks {figures['server_tracebacks']}, "
             f"client late sends {figures['late_client_sends']}, errors {len(figures['errors'])}"
         ),
     ]
     if faulty:
         lines.append(
-            f"{faulty} faulty clients, {figures['faulty_episodes']} episodes: {json.dumps(figures['faulty_outcomes'])}; streams left open {figures['streams_left']}"
+            f"{faulty} faulty clients, {figures['faulty_episodes']} episodes: "
+            f"{json.dumps(figures['faulty_outcomes'])}; streams left open {figures['streams_left']}"
         )
     return "\n".join(lines)

@@ -427,7 +427,8 @@ class StyleServer:
             if len(message) != SEQ.size + 4 * n:
                 raise ClientError(
                     POLICY,
-                    f"a binary frame is 4 + 4 x {n} = {SEQ.size + 4 * n} bytes (sequence number + {n} float32 channel values), got {len(message)}",
+                    f"a binary frame is 4 + 4 x {n} = {SEQ.size + 4 * n} bytes (sequence number + {n} float32 channel "
+                    f"values), got {len(message)}",
                 )
             self._enqueue(stream, SEQ.unpack_from(message)[0], np.frombuffer(message, "<f4", offset=SEQ.size))
             return
@@ -462,12 +463,14 @@ class StyleServer:
             if ahead > self.config.queue:
                 raise ClientError(
                     POLICY,
-                    f"more than {self.config.queue} frames waiting, {ahead:.0f} ahead of real time: send no faster than the stream's frame rate",
+                    f"more than {self.config.queue} frames waiting, {ahead:.0f} ahead of real time: send no faster "
+                    "than the stream's frame rate",
                 )
             if len(stream.pending) >= OVERLOAD * self.config.queue:
                 raise ClientError(
                     TRY_LATER,
-                    f"more than {OVERLOAD * self.config.queue} frames waiting: the server is overloaded; try again later",
+                    f"more than {OVERLOAD * self.config.queue} frames waiting: the server is overloaded; try again "
+                    "later",
                 )
         stream.pending.append((seq, values, time.perf_counter()))
         stream.frames += 1
@@ -856,7 +859,8 @@ async def run_server(
         compression=None,
     ) as ws_server:  # float frames barely compress; deflate cost a fifth of the CPU
         announce(
-            f"styleerd serve: ws://{config.host}:{config.port}/  viewer: http://{config.host}:{config.port}/  ({config.backend} backend)"
+            f"styleerd serve: ws://{config.host}:{config.port}/  viewer: http://{config.host}:{config.port}/  "
+            f"({config.backend} backend)"
         )
         if ready is not None:
             ready.set()

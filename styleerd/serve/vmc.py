@@ -308,7 +308,8 @@ def run_bridge(
         raise StyleERDError(f"VMC: cannot listen on {host}:{listen} ({e.strerror})") from None
     tx = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
     print(
-        f"styleerd vmc: receiving VMC on {host}:{listen}, sending the stylised stream to {host}:{send}, target {target}",
+        f"styleerd vmc: receiving VMC on {host}:{listen}, sending the stylised stream to {host}:{send}, target "
+        f"{target}",
         flush=True,
     )
     last, dropped, waiting = time.time(), 0, deque(maxlen=BACKLOG)
@@ -330,7 +331,8 @@ def run_bridge(
             if time.time() - last > 5:
                 last = time.time()
                 print(
-                    f"frames {bridge.frames}, rejected {bridge.rejected}, malformed {bridge.malformed}, remapped {bridge.remapped}, "
+                    f"frames {bridge.frames}, rejected {bridge.rejected}, malformed {bridge.malformed}, remapped "
+                    f"{bridge.remapped}, "
                     f"dropped (backlog over {BACKLOG}) {dropped}",
                     flush=True,
                 )

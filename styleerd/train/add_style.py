@@ -46,7 +46,7 @@ MAX_CLIPS = 20
 NAME = re.compile(r"[a-z][a-z0-9_-]{0,31}")
 
 
-@dataclass
+@dataclass(frozen=True)
 class AddStyleConfig:
     steps: int = 1200
     max_minutes: float = 8.0  # stop early when training has taken this long
@@ -66,6 +66,9 @@ class AddStyleConfig:
     # the critic reads joint rotations too (None: as the model's own recipe did; on the shipped
     # model, docs/RESULTS.md: rotations lower FMD, 0.59 against 0.77 over nine unseen styles)
     critic_rotations: bool | None = None
+
+
+DEFAULT_CONFIG = AddStyleConfig()
 
 
 @dataclass
@@ -181,7 +184,7 @@ def add_style(
     out: Path,
     contents: list[str] | None = None,
     like: str | None = None,
-    config: AddStyleConfig = AddStyleConfig(),
+    config: AddStyleConfig = DEFAULT_CONFIG,
     data_dir: str | None = None,
     explicit_map: dict[str, str] | None = None,
     progress: bool = True,
@@ -200,7 +203,8 @@ def add_style(
         raise StyleERDError(f"the model already has a style {name!r}; its styles: {', '.join(c.styles)}")
     if like is not None and (like not in c.styles or like == c.neutral_style):
         raise StyleERDError(
-            f"--like {like!r} must be one of the model's styles other than {c.neutral_style}: {', '.join(s for s in c.styles if s != c.neutral_style)}"
+            f"--like {like!r} must be one of the model's styles other than {c.neutral_style}: "
+            f"{', '.join(s for s in c.styles if s != c.neutral_style)}"
         )
     train_config = TrainConfig.from_dict(meta["training"]["config"], where="the model's training config")
     new = style_clips(clips, G, train_config.window, config.stride, contents, explicit_map)
@@ -213,7 +217,8 @@ def add_style(
     s = setup(replace(train_config, stride=config.content_stride), data_dir, progress)
     if not np.allclose(s.data.stats.mean, G.mean.double().numpy(), atol=1e-5):
         raise StyleERDError(
-            f"the cached {train_config.dataset} features are not normalised as the model was trained (another data version?)"
+            f"the cached {train_config.dataset} features are not normalised as the model was trained (another data "
+            "version?)"
         )
     neutral_rows = np.nonzero(s.train.style == s.data.styles.index(c.neutral_style))[0]
     xc = s.data.gather(s.train.starts[neutral_rows])

@@ -457,7 +457,8 @@ def train(
             tensors, meta = ckpt.load_tensors(out / "best")
             if config.keep == "realistic":
                 meta["training"]["kept"] = (
-                    f"epoch {meta['training']['best']['epoch']} of {done}: the validation epoch whose worst target style is furthest inside the realism bars"
+                    f"epoch {meta['training']['best']['epoch']} of {done}: the validation epoch whose worst target "
+                    "style is furthest inside the realism bars"
                 )
         meta["training"]["wall_minutes"] = round(elapsed / 60, 2)
         meta["training"]["epochs_trained"] = done  # the run's budget (its ablations train as many)
