@@ -7,6 +7,7 @@ import json
 import math
 import os
 import sys
+from collections.abc import Callable
 from pathlib import Path
 
 from styleerd.atomic import check_output
@@ -567,92 +568,9 @@ def _grouped(helps: dict[str, str]) -> str:
     return "\n".join(lines) + "\n\n'styleerd COMMAND -h' for a command's options."
 
 
-def build_parser() -> argparse.ArgumentParser:
-    from styleerd.models import LICENCE, shipped_styles
-
-    parser = _Parser(
-        prog="styleerd",
-        description="Online motion style transfer (Style-ERD), frame by frame, on a CPU.",
-        formatter_class=argparse.RawDescriptionHelpFormatter,
-    )
-    sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND", help="one of the commands below")
-    helps: dict[str, str] = {}
-
-    def command(name: str, text: str) -> argparse.ArgumentParser:
-        helps[name] = text
-        return sub.add_parser(name, description=text)
-
-    data = command("data", "datasets").add_subparsers(dest="data_command", required=True)
-    p = data.add_parser("prepare", help="unpack, parse and cache features; print clips and frames per style x content")
-    p.add_argument("--data", help="data folder (default: $STYLEERD_DATA, else ../shared/data)")
-    p.add_argument("--cache", help="cache folder (default: $STYLEERD_CACHE, else ~/.cache/styleerd)")
-    p.add_argument("--datasets", nargs="+", metavar="NAME", help="subset of: bandai-namco-2 bandai-namco-1 xia-sample")
-    p.add_argument("--fps", type=_positive, default=30.0, help="frame rate of the features (default 30)")
-    p.add_argument("--workers", type=_whole(1), help="processes (default: one per core)")
-    p.set_defaults(func=_data_prepare)
-
-    p = command("info", "describe a BVH file")
-    p.add_argument("file")
-    p.set_defaults(func=_info)
-
-    p = command("resample", "change a BVH file's frame rate")
-    p.add_argument("input")
-    p.add_argument("--fps", type=float, required=True)
-    p.add_argument("-o", "--output", required=True)
-    p.set_defaults(func=_resample)
-
-    p = command("train", "train a Style-ERD model (resumable: rerun the same command)")
-    p.add_argument("--config", required=True, help="YAML file of TrainConfig fields (see configs/)")
-    p.add_argument("--out", help="run folder (default runs/<name>)")
-    p.add_argument("--data", help="data folder")
-    p.add_argument("--export", help="also write the best generator to this model path (no suffix)")
-    p.add_argument(
-        "--device", help="train on this torch device (e.g. cuda) instead of the config's; a run may resume on another"
-    )
-    p.set_defaults(func=_train)
-
-    p = command(
-        "add-style",
-        "a new style from 1 to 20 clips of it, on any skeleton: trains one more branch, every old style unchanged",
-    )
-    p.add_argument("name", help="the new style's name (lower case, e.g. sneaky)")
-    p.add_argument(
-        "clips",
-        nargs="+",
-        help="BVH or glTF/VRM clips of the style (any humanoid skeleton and frame rate, retargeted as transfer does)",
-    )
-    p.add_argument(
-        "-o", "--output", required=True, help="the new model file (e.g. models/mine): the old model plus the new style"
-    )
-    p.add_argument("--model", help=MODEL_HELP)
-    p.add_argument(
-        "--content",
-        nargs="+",
-        help="the clips' content, e.g. walk (one for all, or one per clip; default: inferred online)",
-    )
-    p.add_argument(
-        "--like", help="start the new branch from this style's (default: the style the labeller finds closest)"
-    )
-    p.add_argument("--steps", type=_whole(1), default=1200, help="training steps (default 1200)")
-    p.add_argument(
-        "--minutes", type=_positive, default=8.0, help="stop after this many minutes of training (default 8)"
-    )
-    p.add_argument("--joint-map", help="JSON object {model joint: clip joint} completing the automatic mapping")
-    p.add_argument("--data", help="data folder (the neutral clips of the model's dataset are the content to stylise)")
-    p.set_defaults(func=_add_style)
-
-    p = command("soup", "one model from several fine-tuned from the same start: the weighted average of their weights")
-    p.add_argument("models", nargs="+", help="saved generators (stems or shipped names), fine-tuned from one start")
-    p.add_argument("-o", "--output", required=True, help="the averaged model (no suffix)")
-    p.add_argument("--weights", nargs="+", type=float, help="one per model, summing to 1 (default: equal)")
-    p.set_defaults(func=_soup)
-
-    for name, (text, default, _) in HELPER_MODELS.items():
-        p = command(name, text)
-        p.add_argument("--config", help="YAML TrainConfig (dataset, seed, threads, window, classifier_* fields)")
-        p.add_argument("--out", help=f"model path without suffix (default models/{default})")
-        p.add_argument("--data", help="data folder")
-        p.set_defaults(func=_train_helper)
+def _transfer_command(command: Callable[[str, str], argparse.ArgumentParser]) -> None:
+    """``styleerd transfer``: one file, or many in a process pool."""
+    from styleerd.models import shipped_styles
 
     p = command(
         "transfer", "stylise BVH, glTF/VRM or FBX motion on any humanoid skeleton; several files or folders at once"
@@ -734,6 +652,25 @@ def build_parser() -> argparse.ArgumentParser:
     )
     p.set_defaults(func=_transfer)
 
+
+def _use_commands(command: Callable[[str, str], argparse.ArgumentParser]) -> None:
+    """Commands that stylise and inspect motion: transfer, styles, info, resample, export-onnx, demo."""
+    _transfer_command(command)
+
+    p = command("styles", "styles and contents of each shipped model (or of --model)")
+    p.add_argument("--model", help=MODEL_HELP)
+    p.set_defaults(func=_styles)
+
+    p = command("info", "describe a BVH file")
+    p.add_argument("file")
+    p.set_defaults(func=_info)
+
+    p = command("resample", "change a BVH file's frame rate")
+    p.add_argument("input")
+    p.add_argument("--fps", type=float, required=True)
+    p.add_argument("-o", "--output", required=True)
+    p.set_defaults(func=_resample)
+
     p = command(
         "export-onnx", "the network step as an ONNX graph (LSTM ops, opset 15) with explicit state, for engines"
     )
@@ -750,149 +687,14 @@ def build_parser() -> argparse.ArgumentParser:
     )
     p.set_defaults(func=_export_onnx)
 
-    p = command("styles", "styles and contents of each shipped model (or of --model)")
-    p.add_argument("--model", help=MODEL_HELP)
-    p.set_defaults(func=_styles)
+    p = command("demo", "the main job on a bundled input: every style, BVH files + an HTML page to watch them")
+    p.add_argument("--out", default="out/demo", help="output folder (default out/demo)")
+    p.add_argument("--data", help="data folder (optional: adds a real test clip)")
+    p.set_defaults(func=_demo)
 
-    p = command("evaluate", "SRA, CRA and reconstruction error of a model on real test windows")
-    p.add_argument("--model", help=MODEL_HELP)
-    p.add_argument("--split", default="test", choices=["train", "val", "test"])
-    p.add_argument("--recognisers", help="recognisers path without suffix (default: the shipped ones)")
-    p.add_argument("--data", help="data folder")
-    p.add_argument("--json", help="also write the figures to this JSON file")
-    p.set_defaults(func=_evaluate)
 
-    p = command(
-        "eval-runtime", "label inference accuracy, foot skate before/after cleanup, pop at a style switch (test split)"
-    )
-    p.add_argument("--model", help=MODEL_HELP)
-    p.add_argument("--data", help="data folder")
-    p.set_defaults(func=_eval_runtime)
-
-    ev = command("eval", "quality figures: FMD, SRA, CRA, responsiveness, ablations").add_subparsers(
-        dest="eval_command", required=True
-    )
-    p = ev.add_parser(
-        "quality", help="FMD (and its floor), SRA, CRA, responsiveness, jitter, reconstruction of one model"
-    )
-    p.add_argument("--model", help=MODEL_HELP)
-    p.add_argument(
-        "--split",
-        choices=("test", "val"),
-        default="test",
-        help="val: to choose between models without looking at the test set",
-    )
-    p.add_argument("--data", help="data folder")
-    p.add_argument(
-        "--json", help="also write the figures into this JSON file, under the model's name (other entries kept)"
-    )
-    p.add_argument("--as-name", help="the entry's name in --json (default: the model's file name, or shipped)")
-    p.add_argument(
-        "--pose",
-        choices=POSES,
-        default="network",
-        help="the transfers' poses: " + POSE_HELP + " (default network: the network judged)",
-    )
-    p.set_defaults(func=_eval_quality)
-    p = ev.add_parser(
-        "streamed",
-        help="whole test clips streamed as `transfer` runs them: styled -> neutral, neutral -> each style, labels "
-        "given and inferred, judged as played",
-    )
-    p.add_argument("--model", help=MODEL_HELP)
-    p.add_argument(
-        "--root-speed", action="store_true", help="stream with the root's speed stylised (transfer --root-speed)"
-    )
-    p.add_argument("--pose", choices=POSES, default="input", help=POSE_HELP)
-    p.add_argument("--json", help="also write the figures to this JSON file")
-    p.add_argument("--data", help="data folder")
-    p.set_defaults(func=_eval_streamed)
-    p = ev.add_parser(
-        "recipes",
-        help="every kept model (shipped, models/recipes, ablations) side by side: FMD vs CRA per style, back to "
-        "neutral; JSON, table, trade-off plot",
-    )
-    p.add_argument("--out", default="docs/recipes.md", help="Markdown table (a .json and the .png plot beside it)")
-    p.add_argument(
-        "--only",
-        nargs="*",
-        help="evaluate only these names (as listed in the table); the other rows are kept from the existing JSON",
-    )
-    p.add_argument("--data", help="data folder")
-    p.set_defaults(func=_eval_recipes)
-    p = ev.add_parser(
-        "rotations",
-        help="joint rotations on other skeletons, swing and twist: round trip at intensity 0, and the change a style "
-        "makes",
-    )
-    p.add_argument("--model", help=MODEL_HELP)
-    p.add_argument("--style", default="elderly", help="the style whose change is measured (default elderly)")
-    p.add_argument("--out", default="docs/rotations.md", help="Markdown table (a .json beside it); empty: print only")
-    p.add_argument("--data", help="data folder")
-    p.set_defaults(func=_eval_rotations)
-    p = ev.add_parser(
-        "actions",
-        help="held-out actions of other performers and skeletons (kicks, dances, swims ...): the action kept, the "
-        "style's change, the feet",
-    )
-    p.add_argument("--model", help=MODEL_HELP)
-    p.add_argument("--out", default="docs/actions.md", help="Markdown tables (a .json beside it)")
-    p.add_argument("--no-feet", action="store_true", help="only the action table")
-    p.add_argument("--data", help="data folder")
-    p.set_defaults(func=_eval_actions)
-    p = ev.add_parser(
-        "ablations",
-        help="train what is missing at the shipped run's budget (resumable) and tabulate the paper's ablations",
-    )
-    p.add_argument("--threads", type=_whole(1), default=1)
-    p.add_argument(
-        "--runs", help="run folders (checkpoints; default models/ablations/training, kept in git between sessions)"
-    )
-    p.add_argument(
-        "--device", default="cpu", help="train on this torch device (e.g. cuda); a run may resume on another"
-    )
-    p.add_argument("--no-train", action="store_true", help="only evaluate the models in models/ablations/")
-    p.add_argument(
-        "--only",
-        nargs="*",
-        help="evaluate only these rows (e.g. 'rec only' full); the others are kept from the existing JSON",
-    )
-    p.add_argument("--out", default="docs/ablations.md", help="Markdown table (a .json beside it)")
-    p.add_argument("--data", help="data folder")
-    p.set_defaults(func=_eval_ablations)
-
-    p = command("bench", "runtime table: latency per backend, whole clips, throughput curve, FLOPs, memory")
-    p.add_argument("--model", help=MODEL_HELP)
-    p.add_argument("--steps", type=_whole(1), default=2000, help="frames timed per latency figure")
-    p.add_argument(
-        "--streams", type=_whole(1), nargs="+", help="concurrent streams of the throughput curve (default 1 .. 4096)"
-    )
-    p.add_argument("--json", default="docs/bench.json")
-    p.add_argument("--plot", default="docs/throughput.png")
-    p.set_defaults(func=_bench)
-
-    p = command("report", "regenerate docs/RESULTS.md: quality, ablations, runtime, online figures, pictures")
-    p.add_argument("--docs", default="docs")
-    p.add_argument("--steps", type=_whole(1), default=2000, help="frames timed per latency figure")
-    p.add_argument(
-        "--keep",
-        nargs="*",
-        default=[],
-        choices=["ablations", "bench"],
-        help="read these parts from their JSON in --docs, not measured again (their models and code unchanged since)",
-    )
-    p.add_argument("--data", help="data folder")
-    p.set_defaults(func=_report)
-
-    p = command("filmstrip", "picture: a neutral test clip and its transfer into every style")
-    p.add_argument("--model", help=MODEL_HELP)
-    p.add_argument("--clip", help="Bandai-Namco-2 clip name (default: the first neutral test clip of --content)")
-    p.add_argument("--content", default="walk")
-    p.add_argument("--data", help="data folder")
-    p.add_argument("-o", "--output", default="docs/filmstrip-bandai2.png")
-    p.add_argument("--cards", help="also one small picture per style in this folder (e.g. docs/styles)")
-    p.set_defaults(func=_filmstrip)
-
+def _live_commands(command: Callable[[str, str], argparse.ArgumentParser]) -> None:
+    """Commands for live streams: serve, stream-bvh, vmc, load-test."""
     p = command("serve", "the real-time style server (WebSocket, docs/PROTOCOL.md) and its browser viewer")
     p.add_argument("--host", default="127.0.0.1", help="address to bind (default loopback only)")
     p.add_argument("--port", type=_port, default=8765)
@@ -942,23 +744,6 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("-o", "--output", help="write the stylised stream as BVH")
     p.set_defaults(func=_stream_bvh)
 
-    p = command(
-        "load-test",
-        "N real-time stream-bvh clients against a fresh server: latency, drops, CPU (with --faulty: a soak test)",
-    )
-    p.add_argument("--clients", type=_whole(1), default=200)
-    p.add_argument("--seconds", type=_positive, default=60.0)
-    p.add_argument("--workers", type=_whole(1), default=1, help="server workers")
-    p.add_argument(
-        "--faulty",
-        type=_whole(0),
-        default=0,
-        help="soak test: this many more clients misbehave in turn (malformed frames, slow readers, vanishing, bad "
-        "hellos)",
-    )
-    p.add_argument("-o", "--output", help="write the figures as JSON")
-    p.set_defaults(func=_load_test)
-
     p = command("vmc", "VMC protocol bridge: receive bones over OSC/UDP, stylise, send them on")
     p.add_argument("--listen", type=_port, default=39539, help="UDP port to receive VMC on")
     p.add_argument("--send", type=_port, default=39540, help="UDP port to send the stylised VMC to")
@@ -980,10 +765,253 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--model", help=MODEL_HELP)
     p.set_defaults(func=_vmc)
 
-    p = command("demo", "the main job on a bundled input: every style, BVH files + an HTML page to watch them")
-    p.add_argument("--out", default="out/demo", help="output folder (default out/demo)")
-    p.add_argument("--data", help="data folder (optional: adds a real test clip)")
-    p.set_defaults(func=_demo)
+    p = command(
+        "load-test",
+        "N real-time stream-bvh clients against a fresh server: latency, drops, CPU (with --faulty: a soak test)",
+    )
+    p.add_argument("--clients", type=_whole(1), default=200)
+    p.add_argument("--seconds", type=_positive, default=60.0)
+    p.add_argument("--workers", type=_whole(1), default=1, help="server workers")
+    p.add_argument(
+        "--faulty",
+        type=_whole(0),
+        default=0,
+        help="soak test: this many more clients misbehave in turn (malformed frames, slow readers, vanishing, bad "
+        "hellos)",
+    )
+    p.add_argument("-o", "--output", help="write the figures as JSON")
+    p.set_defaults(func=_load_test)
+
+
+def _train_commands(command: Callable[[str, str], argparse.ArgumentParser]) -> None:
+    """Commands that prepare data and train models."""
+    data = command("data", "datasets").add_subparsers(dest="data_command", required=True)
+    p = data.add_parser("prepare", help="unpack, parse and cache features; print clips and frames per style x content")
+    p.add_argument("--data", help="data folder (default: $STYLEERD_DATA, else ../shared/data)")
+    p.add_argument("--cache", help="cache folder (default: $STYLEERD_CACHE, else ~/.cache/styleerd)")
+    p.add_argument("--datasets", nargs="+", metavar="NAME", help="subset of: bandai-namco-2 bandai-namco-1 xia-sample")
+    p.add_argument("--fps", type=_positive, default=30.0, help="frame rate of the features (default 30)")
+    p.add_argument("--workers", type=_whole(1), help="processes (default: one per core)")
+    p.set_defaults(func=_data_prepare)
+
+    p = command("train", "train a Style-ERD model (resumable: rerun the same command)")
+    p.add_argument("--config", required=True, help="YAML file of TrainConfig fields (see configs/)")
+    p.add_argument("--out", help="run folder (default runs/<name>)")
+    p.add_argument("--data", help="data folder")
+    p.add_argument("--export", help="also write the best generator to this model path (no suffix)")
+    p.add_argument(
+        "--device", help="train on this torch device (e.g. cuda) instead of the config's; a run may resume on another"
+    )
+    p.set_defaults(func=_train)
+
+    p = command(
+        "add-style",
+        "a new style from 1 to 20 clips of it, on any skeleton: trains one more branch, every old style unchanged",
+    )
+    p.add_argument("name", help="the new style's name (lower case, e.g. sneaky)")
+    p.add_argument(
+        "clips",
+        nargs="+",
+        help="BVH or glTF/VRM clips of the style (any humanoid skeleton and frame rate, retargeted as transfer does)",
+    )
+    p.add_argument(
+        "-o", "--output", required=True, help="the new model file (e.g. models/mine): the old model plus the new style"
+    )
+    p.add_argument("--model", help=MODEL_HELP)
+    p.add_argument(
+        "--content",
+        nargs="+",
+        help="the clips' content, e.g. walk (one for all, or one per clip; default: inferred online)",
+    )
+    p.add_argument(
+        "--like", help="start the new branch from this style's (default: the style the labeller finds closest)"
+    )
+    p.add_argument("--steps", type=_whole(1), default=1200, help="training steps (default 1200)")
+    p.add_argument(
+        "--minutes", type=_positive, default=8.0, help="stop after this many minutes of training (default 8)"
+    )
+    p.add_argument("--joint-map", help="JSON object {model joint: clip joint} completing the automatic mapping")
+    p.add_argument("--data", help="data folder (the neutral clips of the model's dataset are the content to stylise)")
+    p.set_defaults(func=_add_style)
+
+    p = command("soup", "one model from several fine-tuned from the same start: the weighted average of their weights")
+    p.add_argument("models", nargs="+", help="saved generators (stems or shipped names), fine-tuned from one start")
+    p.add_argument("-o", "--output", required=True, help="the averaged model (no suffix)")
+    p.add_argument("--weights", nargs="+", type=float, help="one per model, summing to 1 (default: equal)")
+    p.set_defaults(func=_soup)
+
+    for name, (text, default, _) in HELPER_MODELS.items():
+        p = command(name, text)
+        p.add_argument("--config", help="YAML TrainConfig (dataset, seed, threads, window, classifier_* fields)")
+        p.add_argument("--out", help=f"model path without suffix (default models/{default})")
+        p.add_argument("--data", help="data folder")
+        p.set_defaults(func=_train_helper)
+
+
+def _evaluate_commands(command: Callable[[str, str], argparse.ArgumentParser]) -> None:
+    """Commands that measure models and the runtime."""
+    p = command("evaluate", "SRA, CRA and reconstruction error of a model on real test windows")
+    p.add_argument("--model", help=MODEL_HELP)
+    p.add_argument("--split", default="test", choices=["train", "val", "test"])
+    p.add_argument("--recognisers", help="recognisers path without suffix (default: the shipped ones)")
+    p.add_argument("--data", help="data folder")
+    p.add_argument("--json", help="also write the figures to this JSON file")
+    p.set_defaults(func=_evaluate)
+
+    p = command(
+        "eval-runtime", "label inference accuracy, foot skate before/after cleanup, pop at a style switch (test split)"
+    )
+    p.add_argument("--model", help=MODEL_HELP)
+    p.add_argument("--data", help="data folder")
+    p.set_defaults(func=_eval_runtime)
+
+    p = command("bench", "runtime table: latency per backend, whole clips, throughput curve, FLOPs, memory")
+    p.add_argument("--model", help=MODEL_HELP)
+    p.add_argument("--steps", type=_whole(1), default=2000, help="frames timed per latency figure")
+    p.add_argument(
+        "--streams", type=_whole(1), nargs="+", help="concurrent streams of the throughput curve (default 1 .. 4096)"
+    )
+    p.add_argument("--json", default="docs/bench.json")
+    p.add_argument("--plot", default="docs/throughput.png")
+    p.set_defaults(func=_bench)
+
+    p = command("report", "regenerate docs/RESULTS.md: quality, ablations, runtime, online figures, pictures")
+    p.add_argument("--docs", default="docs")
+    p.add_argument("--steps", type=_whole(1), default=2000, help="frames timed per latency figure")
+    p.add_argument(
+        "--keep",
+        nargs="*",
+        default=[],
+        choices=["ablations", "bench"],
+        help="read these parts from their JSON in --docs, not measured again (their models and code unchanged since)",
+    )
+    p.add_argument("--data", help="data folder")
+    p.set_defaults(func=_report)
+
+    p = command("filmstrip", "picture: a neutral test clip and its transfer into every style")
+    p.add_argument("--model", help=MODEL_HELP)
+    p.add_argument("--clip", help="Bandai-Namco-2 clip name (default: the first neutral test clip of --content)")
+    p.add_argument("--content", default="walk")
+    p.add_argument("--data", help="data folder")
+    p.add_argument("-o", "--output", default="docs/filmstrip-bandai2.png")
+    p.add_argument("--cards", help="also one small picture per style in this folder (e.g. docs/styles)")
+    p.set_defaults(func=_filmstrip)
+
+    ev = command("eval", "quality figures: FMD, SRA, CRA, responsiveness, ablations").add_subparsers(
+        dest="eval_command", required=True
+    )
+    _eval_subcommands(ev)
+
+
+def _eval_subcommands(sub: argparse._SubParsersAction) -> None:
+    """``styleerd eval quality | streamed | recipes | rotations | actions | ablations``."""
+    p = sub.add_parser(
+        "quality", help="FMD (and its floor), SRA, CRA, responsiveness, jitter, reconstruction of one model"
+    )
+    p.add_argument("--model", help=MODEL_HELP)
+    p.add_argument(
+        "--split",
+        choices=("test", "val"),
+        default="test",
+        help="val: to choose between models without looking at the test set",
+    )
+    p.add_argument("--data", help="data folder")
+    p.add_argument(
+        "--json", help="also write the figures into this JSON file, under the model's name (other entries kept)"
+    )
+    p.add_argument("--as-name", help="the entry's name in --json (default: the model's file name, or shipped)")
+    p.add_argument(
+        "--pose",
+        choices=POSES,
+        default="network",
+        help="the transfers' poses: " + POSE_HELP + " (default network: the network judged)",
+    )
+    p.set_defaults(func=_eval_quality)
+    p = sub.add_parser(
+        "streamed",
+        help="whole test clips streamed as `transfer` runs them: styled -> neutral, neutral -> each style, labels "
+        "given and inferred, judged as played",
+    )
+    p.add_argument("--model", help=MODEL_HELP)
+    p.add_argument(
+        "--root-speed", action="store_true", help="stream with the root's speed stylised (transfer --root-speed)"
+    )
+    p.add_argument("--pose", choices=POSES, default="input", help=POSE_HELP)
+    p.add_argument("--json", help="also write the figures to this JSON file")
+    p.add_argument("--data", help="data folder")
+    p.set_defaults(func=_eval_streamed)
+    p = sub.add_parser(
+        "recipes",
+        help="every kept model (shipped, models/recipes, ablations) side by side: FMD vs CRA per style, back to "
+        "neutral; JSON, table, trade-off plot",
+    )
+    p.add_argument("--out", default="docs/recipes.md", help="Markdown table (a .json and the .png plot beside it)")
+    p.add_argument(
+        "--only",
+        nargs="*",
+        help="evaluate only these names (as listed in the table); the other rows are kept from the existing JSON",
+    )
+    p.add_argument("--data", help="data folder")
+    p.set_defaults(func=_eval_recipes)
+    p = sub.add_parser(
+        "rotations",
+        help="joint rotations on other skeletons, swing and twist: round trip at intensity 0, and the change a style "
+        "makes",
+    )
+    p.add_argument("--model", help=MODEL_HELP)
+    p.add_argument("--style", default="elderly", help="the style whose change is measured (default elderly)")
+    p.add_argument("--out", default="docs/rotations.md", help="Markdown table (a .json beside it); empty: print only")
+    p.add_argument("--data", help="data folder")
+    p.set_defaults(func=_eval_rotations)
+    p = sub.add_parser(
+        "actions",
+        help="held-out actions of other performers and skeletons (kicks, dances, swims ...): the action kept, the "
+        "style's change, the feet",
+    )
+    p.add_argument("--model", help=MODEL_HELP)
+    p.add_argument("--out", default="docs/actions.md", help="Markdown tables (a .json beside it)")
+    p.add_argument("--no-feet", action="store_true", help="only the action table")
+    p.add_argument("--data", help="data folder")
+    p.set_defaults(func=_eval_actions)
+    p = sub.add_parser(
+        "ablations",
+        help="train what is missing at the shipped run's budget (resumable) and tabulate the paper's ablations",
+    )
+    p.add_argument("--threads", type=_whole(1), default=1)
+    p.add_argument(
+        "--runs", help="run folders (checkpoints; default models/ablations/training, kept in git between sessions)"
+    )
+    p.add_argument(
+        "--device", default="cpu", help="train on this torch device (e.g. cuda); a run may resume on another"
+    )
+    p.add_argument("--no-train", action="store_true", help="only evaluate the models in models/ablations/")
+    p.add_argument(
+        "--only",
+        nargs="*",
+        help="evaluate only these rows (e.g. 'rec only' full); the others are kept from the existing JSON",
+    )
+    p.add_argument("--out", default="docs/ablations.md", help="Markdown table (a .json beside it)")
+    p.add_argument("--data", help="data folder")
+    p.set_defaults(func=_eval_ablations)
+
+
+def build_parser() -> argparse.ArgumentParser:
+    from styleerd.models import LICENCE
+
+    parser = _Parser(
+        prog="styleerd",
+        description="Online motion style transfer (Style-ERD), frame by frame, on a CPU.",
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND", help="one of the commands below")
+    helps: dict[str, str] = {}
+
+    def command(name: str, text: str) -> argparse.ArgumentParser:
+        helps[name] = text
+        return sub.add_parser(name, description=text)
+
+    for group in (_use_commands, _live_commands, _train_commands, _evaluate_commands):
+        group(command)
     parser.epilog = _grouped(helps) + f"\nShipped models: {LICENCE}."
     return parser
 

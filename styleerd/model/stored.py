@@ -54,7 +54,7 @@ def load_arrays(stem: str | Path) -> tuple[dict[str, np.ndarray], dict]:
     try:
         with safe_open(path, framework="numpy") as f:
             text = (f.metadata() or {}).get("styleerd")
-            arrays = {k: f.get_tensor(k) for k in f}
+            arrays = {k: f.get_tensor(k) for k in f.keys()}  # noqa: SIM118  safe_open is not iterable
     except (OSError, SafetensorError) as e:  # missing, a folder, truncated, not a safetensors file
         raise StyleERDError(f"cannot load model {path}: {getattr(e, 'strerror', None) or e}") from None
     if text is None:
