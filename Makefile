@@ -32,7 +32,10 @@ install: $(STAMP) $(VENDOR)/three.module.js
 demo: $(STAMP)  # no npm needed: the demo writes BVH files and a self-contained page
 	$(BIN)/styleerd demo
 
+# the lint and the documentation site (strict: a broken link or an undocumented public function fails) first
 test: install
+	$(BIN)/ruff check .
+	NO_MKDOCS_2_WARNING=1 $(BIN)/mkdocs build --strict --quiet
 	$(BIN)/python -m pytest -q
 
 bench: $(STAMP)
@@ -44,4 +47,4 @@ bench: $(STAMP)
 	$(BIN)/python benchmarks/bench_serve.py
 
 clean:
-	rm -rf $(VENV) build *.egg-info node_modules $(VENDOR)
+	rm -rf $(VENV) build site *.egg-info node_modules $(VENDOR)

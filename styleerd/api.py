@@ -47,6 +47,8 @@ class Stylizer:
     def set_style(
         self, style: str | None = None, *, intensity: float = 1.0, mix: dict[str, float] | None = None
     ) -> None:
+        """Switch the target mid-stream (a style at ``intensity``, or a ``mix`` of styles); the
+        change is blended over a few frames."""
         self.channels.stylizer.set_target(self.model.target(style, intensity, mix))
 
     def reset(self) -> None:

@@ -422,7 +422,11 @@ def _filmstrip(args: argparse.Namespace) -> None:
         ]
     if not chosen:
         raise StyleERDError(f"no clip {args.clip or f'(neutral {args.content} test clip)'} in bandai-namco-2")
-    style_filmstrip(model, chosen[0], args.output, cards=args.cards)
+    styles = args.styles.split(",") if args.styles else None
+    unknown = set(styles or ()) - set(model.config.styles)
+    if unknown:
+        raise StyleERDError(f"--styles: the model has no style {', '.join(sorted(unknown))}")
+    style_filmstrip(model, chosen[0], args.output, cards=args.cards, styles=styles)
     print(f"wrote {args.output} ({chosen[0].name})")
 
 
@@ -893,7 +897,8 @@ def _evaluate_commands(command: Callable[[str, str], argparse.ArgumentParser]) -
     p.add_argument("--clip", help="Bandai-Namco-2 clip name (default: the first neutral test clip of --content)")
     p.add_argument("--content", default="walk")
     p.add_argument("--data", help="data folder")
-    p.add_argument("-o", "--output", default="docs/filmstrip-bandai2.png")
+    p.add_argument("-o", "--output", default="docs/filmstrip-bandai2.png", help="a picture, or an animated GIF (.gif)")
+    p.add_argument("--styles", help="only these target styles, e.g. elderly,feminine (default: every other style)")
     p.add_argument("--cards", help="also one small picture per style in this folder (e.g. docs/styles)")
     p.set_defaults(func=_filmstrip)
 

@@ -8,6 +8,7 @@ import argparse
 import json
 import os
 import re
+import shlex
 import socket
 import subprocess
 import sys
@@ -25,14 +26,16 @@ from styleerd.motion import bvh, procedural
 ROOT = Path(__file__).resolve().parents[1]
 
 
-def readme_example() -> str:
-    """The first ```python block of the README's "Python API" section."""
-    section = ROOT.joinpath("README.md").read_text().split("\n## Python API\n", 1)[1]
-    return re.search(r"```python\n(.*?)```", section, re.DOTALL).group(1)
+def python_example(doc: str, section: str) -> str:
+    """The first ```python block of ``section`` in ``doc``."""
+    text = ROOT.joinpath(doc).read_text().split(f"\n## {section}\n", 1)[-1]
+    return re.search(r"```python\n(.*?)```", text, re.DOTALL).group(1)
 
 
-def test_readme_python_example_runs_as_written(tmp_path):
-    (tmp_path / "example.py").write_text(readme_example())
+@pytest.mark.parametrize(("doc", "section"), [("README.md", "Python API"), ("docs/guide/python.md", "Python API")])
+def test_python_examples_run_as_written(tmp_path, doc, section):
+    code = python_example(doc, section) + "\nprint('torch loaded' if 'torch' in sys.modules else 'no torch needed')\n"
+    (tmp_path / "example.py").write_text("import sys\n" + code)
     env = {**os.environ, "PYTHONPATH": str(ROOT)}
     done = subprocess.run(
         [sys.executable, "example.py"], cwd=tmp_path, env=env, capture_output=True, text=True, timeout=600, check=False
@@ -43,6 +46,29 @@ def test_readme_python_example_runs_as_written(tmp_path):
     source = bvh.read(tmp_path / "walk.bvh")
     assert out.n_frames == source.n_frames and out.skeleton.names == source.skeleton.names
     assert np.degrees(np.abs(out.rotations - source.rotations)).max() > 1.0  # stylised, not copied
+
+
+def readme_commands() -> list[str]:
+    """Every ``styleerd`` command line in the README's shell blocks, comments removed."""
+    blocks = re.findall(r"```\n(.*?)```", ROOT.joinpath("README.md").read_text(), re.DOTALL)
+    lines = [line.split("  #")[0].strip() for block in blocks for line in block.splitlines()]
+    return [line for line in lines if line.startswith("styleerd ")]
+
+
+def test_every_readme_command_is_one_the_cli_takes_and_the_first_runs(tmp_path):
+    from styleerd.cli import build_parser
+
+    commands = readme_commands()
+    assert len(commands) >= 6 and ROOT.joinpath("README.md").read_text().count("\nmake demo\nmake test\n") == 1
+    parser = build_parser()
+    for command in commands:
+        args = parser.parse_args(shlex.split(command)[1:])  # argparse exits on a command it does not take
+        assert args.func is not None, command
+    bvh.write(tmp_path / "walk.bvh", procedural.walk(seconds=2))
+    first = shlex.split(commands[0])
+    assert first[:3] == ["styleerd", "transfer", "walk.bvh"], first
+    _run([sys.executable, "-m", "styleerd.cli", *first[1:]], cwd=tmp_path)
+    assert bvh.read(tmp_path / first[-1]).n_frames == bvh.read(tmp_path / "walk.bvh").n_frames
 
 
 def _free_port() -> int:
@@ -210,22 +236,20 @@ def test_the_docs_name_only_styles_the_model_has():
     from styleerd.model.stored import load_generator_weights
 
     styles = set(load_generator_weights().config.styles)
-    for doc in ("README.md", "docs/PROTOCOL.md"):
-        text = "\n".join(
-            line for line in ROOT.joinpath(doc).read_text().splitlines() if "--model" not in line
-        )  # another model's styles
+    docs = ["README.md", "docs/PROTOCOL.md", "docs/ONNX.md", *map(str, sorted(ROOT.glob("docs/guide/*.md")))]
+    for doc in docs:
+        text = "\n".join(line for line in ROOT.joinpath(doc).read_text().splitlines() if "--model" not in line)
         named = set(re.findall(r'"style": "([a-z-]+)"', text)) | set(re.findall(r"--style ([a-z-]+)", text))
         named |= set(re.findall(r'\.(?:stylizer|transfer|set_style)\([^)]*?"([a-z-]+)"', text)) - {"walk.bvh"}
-        named |= {
-            name for pair in re.findall(r"--mix ([a-z=0-9.,-]+)", text) for name in re.findall(r"([a-z-]+)=", pair)
-        }
-        assert named and named <= styles, f"{doc} names styles the model does not have: {named - styles}"
+        mixes = re.findall(r"--mix ([a-z=0-9.,-]+)", text)
+        named |= {name for pair in mixes for name in re.findall(r"([a-z-]+)=", pair)}
+        assert named <= styles, f"{doc} names styles the model does not have: {named - styles}"
     for style in styles:
-        assert (
-            ROOT.joinpath("docs/styles", f"{style}.png").is_file()
-            and f"docs/styles/{style}.png" in ROOT.joinpath("README.md").read_text()
-        )
-    assert "numba" in ROOT.joinpath("README.md").read_text().split("[--backend ", 1)[1].split("]", 1)[0]
+        assert ROOT.joinpath("docs/styles", f"{style}.png").is_file()
+        for doc in ("README.md", "docs/guide/transfer.md"):
+            assert f"styles/{style}.png" in ROOT.joinpath(doc).read_text(), (doc, style)
+    transfer = ROOT.joinpath("docs/guide/transfer.md").read_text()
+    assert "numba" in transfer.split("[--backend ", 1)[1].split("]", 1)[0]
 
 
 def test_a_model_finds_the_labeller_of_its_labels(tmp_path, monkeypatch):

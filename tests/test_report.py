@@ -92,3 +92,21 @@ def test_the_added_styles_section_sets_the_critics_side_by_side(tmp_path):
     fmd = lambda runs: np.mean([v["added"]["fmd"] for v in runs.values()])
     assert f"FMD {fmd(ours):.3f} against {fmd(other):.3f}" in text
     assert "its critic\nread rotations, positions, velocities" in text
+
+
+def test_filmstrip_writes_an_animated_gif_of_some_styles(shared_data, tmp_path):
+    import subprocess
+    import sys
+
+    from PIL import Image
+
+    out = tmp_path / "walk.gif"
+    cli = [sys.executable, "-m", "styleerd.cli", "filmstrip", "--data", str(shared_data), "-o", str(out)]
+    done = subprocess.run(
+        [*cli, "--styles", "elderly,feminine"], capture_output=True, text=True, timeout=600, check=False
+    )
+    assert done.returncode == 0, done.stderr
+    with Image.open(out) as gif:
+        assert gif.format == "GIF" and gif.n_frames == 60 and gif.size[0] > 2 * gif.size[1]  # 4 s at 15 fps, 3 panels
+    wrong = subprocess.run([*cli, "--styles", "sneaky"], capture_output=True, text=True, timeout=600, check=False)
+    assert wrong.returncode == 2 and "--styles: the model has no style sneaky" in wrong.stderr

@@ -62,19 +62,60 @@ def filmstrip(rows: list[tuple[str, Motion]], path: str | Path, frames: int = 8,
     plt.close(fig)
 
 
+def animation(rows: list[tuple[str, Motion]], path: str | Path, fps: float = 15.0, seconds: float = 4.0) -> None:
+    """The motions side by side as an animated GIF, a panel each (``screen_poses``), the first
+    ``seconds`` of them at ``fps`` frames a second, looping."""
+    from PIL import Image
+
+    xys = [screen_poses(resample(m, fps), yaw_degrees=50.0)[: max(1, round(seconds * fps))] for _, m in rows]
+    lo, hi = np.min([xy.min((0, 1)) for xy in xys], 0), np.max([xy.max((0, 1)) for xy in xys], 0)
+    fig, axes = plt.subplots(1, len(rows), figsize=(2.2 * len(rows), 2.9), squeeze=False)
+    colors = plt.get_cmap("tab10")
+    images = []
+    for t in range(min(len(xy) for xy in xys)):
+        for r, ((label, motion), xy) in enumerate(zip(rows, xys)):
+            ax = axes[0, r]
+            ax.clear()
+            _draw(ax, xy[t], motion.skeleton.parents, colors(r % 10))
+            ax.set_xlim(lo[0] - 0.05 * (hi[1] - lo[1]), hi[0] + 0.05 * (hi[1] - lo[1]))
+            ax.set_ylim(lo[1], hi[1] * 1.05)
+            ax.set_aspect("equal")
+            ax.axis("off")
+            ax.set_title(label, fontsize=10)
+        fig.canvas.draw()
+        images.append(Image.fromarray(np.asarray(fig.canvas.buffer_rgba())[..., :3]).quantize(16))
+    plt.close(fig)
+    atomic_write(
+        path,
+        lambda tmp: images[0].save(
+            tmp, format="GIF", save_all=True, append_images=images[1:], duration=round(1000 / fps), loop=0
+        ),
+    )
+
+
 def style_filmstrip(
-    model: GeneratorWeights, clip: Clip, path: str | Path, frames: int = 8, cards: str | Path | None = None
+    model: GeneratorWeights,
+    clip: Clip,
+    path: str | Path,
+    frames: int = 8,
+    cards: str | Path | None = None,
+    styles: list[str] | None = None,
 ) -> None:
-    """A neutral clip and its transfer into every other style of ``model``; with ``cards``, also
-    one small picture per style there (``STYLE.png``, the input as ``STYLE.png`` of its own)."""
+    """A neutral clip and its transfer into ``styles`` (default: every other style of ``model``):
+    a filmstrip, or an animated GIF when ``path`` ends in ``.gif``; with ``cards``, also one small
+    picture per style there (``STYLE.png``, the input as ``STYLE.png`` of its own)."""
     motion = resample(load_motion(clip), 30.0)
     c = model.config
+    styles = [s for s in c.styles if s != clip.style] if styles is None else styles
     rows = [(f"input: {clip.name} ({clip.style}, {clip.content})", motion)]
-    for style in c.styles:
-        if style != clip.style:
-            rows.append((f"-> {style}", stylise_motion(model, motion, clip.style, clip.content, {style: 1.0})))
-    filmstrip(rows, path, frames, title=f"Style-ERD transfers of one test clip ({motion.n_frames} frames at 30 fps)")
+    for style in styles:
+        rows.append((f"-> {style}", stylise_motion(model, motion, clip.style, clip.content, {style: 1.0})))
+    if Path(path).suffix.lower() == ".gif":
+        animation([(f"input ({clip.style})", motion), *rows[1:]], path)
+    else:
+        title = f"Style-ERD transfers of one test clip ({motion.n_frames} frames at 30 fps)"
+        filmstrip(rows, path, frames, title=title)
     if cards:
         Path(cards).mkdir(parents=True, exist_ok=True)
-        for (label, moved), style in zip(rows, [clip.style] + [s for s in c.styles if s != clip.style]):
+        for (label, moved), style in zip(rows, [clip.style, *styles]):
             filmstrip([(label, moved)], Path(cards) / f"{style}.png", frames=5)

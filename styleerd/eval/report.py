@@ -283,8 +283,9 @@ subjects 2 and 126 from cmu-sample on their Character Creator and ASF rigs, Band
 neutral actions, xia-sample's jump and punch), streamed through `transfer` as users run it, on their
 own skeletons, beside Bandai-Namco-2 test walks. Pose `network` is the network's own pose (the
 paper's output, and this project's until now); pose `input` (the default) keeps the network's pose
-where it rebuilds the input and otherwise turns the input's own pose by the style's change (README,
-"Any action"). Correlation: of the hands' and feet's root-relative velocities, input against
+where it rebuilds the input and otherwise turns the input's own pose by the style's change ([Transfer
+and styles](guide/transfer.md#any-action-pose), "Any action"). Correlation: of the hands' and feet's
+root-relative velocities, input against
 output (1 = the same action). Cosine and size: the style's change (styled output minus identity
 output, per joint, in the body's frame, averaged over the clip) against the same on the walks.
 

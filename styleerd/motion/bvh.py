@@ -254,6 +254,8 @@ def parse(text: str, path: str = "<string>") -> Motion:
 
 @dataclass(frozen=True)
 class Header:
+    """What ``stream`` reads before the frames: the skeleton, the frame count and rate, the file."""
+
     skeleton: Skeleton
     n_frames: int
     fps: float
@@ -478,11 +480,13 @@ def format_frames(values: np.ndarray, precision: int = 9) -> str:
 
 
 def format_bvh(motion: Motion, precision: int = 9) -> str:
+    """The whole BVH text of ``motion`` (hierarchy and frames), angles to ``precision`` digits."""
     return format_header(motion.skeleton, motion.n_frames, motion.fps, precision) + format_frames(
         channel_values(motion), precision
     )
 
 
 def write(path: str | os.PathLike, motion: Motion, precision: int = 9) -> None:
+    """Write ``motion`` as a BVH file at ``path``, atomically: the file is complete or absent."""
     text = format_bvh(motion, precision)  # format fully before touching the file system
     atomic_write_text(path, text)

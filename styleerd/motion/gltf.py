@@ -29,6 +29,8 @@ from styleerd.motion.skeleton import POSITION_CHANNELS, Skeleton, find_role
 
 
 def guess_metres_per_unit(motion: Motion) -> float:
+    """Metres per unit of ``motion``'s skeleton, guessed from its leg length (centimetres or
+    metres; otherwise scaled to a 0.9 m leg)."""
     sk = motion.skeleton
     try:
         _hip, knee, foot = (find_role(sk, f"left_{p}") for p in ("hip", "knee", "foot"))

@@ -37,6 +37,7 @@ _ROT = ("Zrotation", "Xrotation", "Yrotation")
 
 
 def tpose_skeleton() -> Skeleton:
+    """A 22-joint Mixamo-named humanoid in a T-pose, in centimetres (the demo's and tests' skeleton)."""
     names = [n for n, _, _ in _JOINTS]
     return Skeleton(
         names=tuple(names),

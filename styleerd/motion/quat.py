@@ -22,6 +22,7 @@ _AXIS = {"x": 0, "y": 1, "z": 2}
 
 
 def identity(shape: tuple[int, ...] = ()) -> np.ndarray:
+    """Identity rotations of the given leading ``shape``: ``[*shape, 4]``."""
     q = np.zeros(shape + (4,))
     q[..., 0] = 1.0
     return q
@@ -48,6 +49,7 @@ SMALL = 256  # quaternions: below this, per-call overhead dominates and one matm
 
 
 def mul(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """The Hamilton product ``a * b`` (rotate by ``b``, then by ``a``), broadcast over leading axes."""
     if a.size + b.size <= 8 * SMALL:  # per-frame work: outer product and one matmul (3 numpy calls)
         ab = a[..., :, None] * b[..., None, :]
         return ab.reshape(ab.shape[:-2] + (16,)) @ _HAMILTON
@@ -70,6 +72,7 @@ def inv(q: np.ndarray) -> np.ndarray:
 
 
 def normalize(q: np.ndarray, eps: float = 1e-12) -> np.ndarray:
+    """``q`` scaled to unit length (a zero quaternion stays zero rather than dividing by zero)."""
     return q / np.maximum(
         np.sqrt(np.einsum("...i,...i->...", q, q))[..., None], eps
     )  # einsum: twice linalg.norm's speed
@@ -105,6 +108,7 @@ def from_angle_axis(angle: np.ndarray, axis: np.ndarray) -> np.ndarray:
 
 
 def to_angle_axis(q: np.ndarray, eps: float = 1e-12) -> tuple[np.ndarray, np.ndarray]:
+    """The rotation angle in ``[0, pi]`` (radians) and the unit axis of each quaternion."""
     q = positive_w(q)
     s = np.linalg.norm(q[..., 1:], axis=-1)
     angle = 2.0 * np.arctan2(s, q[..., 0])

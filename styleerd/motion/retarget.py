@@ -227,6 +227,7 @@ class JointMap:
         return [[source_of[parts[f"{side}_{p}"]] for p in ("hip", "knee", "foot")] for side in ("left", "right")]
 
     def describe(self) -> str:
+        """The mapping as text, a line per model joint, then the joints that keep their own motion."""
         lines = [f"  {self.target.names[t]:>14} <- {self.source.names[s]}" for t, s in self.pairs]
         unmapped = [n for j, n in enumerate(self.source.names) if j not in {s for _, s in self.pairs}]
         if unmapped:
@@ -420,6 +421,7 @@ def same_rest_frames(target: Skeleton, source: Skeleton, pairs: tuple[tuple[int,
 
 
 def leg_length(skeleton: Skeleton, parts: dict[str, int]) -> float:
+    """Hip to knee to foot of the left leg in the skeleton's rest pose, in its units."""
     _, P = _pose_positions(skeleton)
     hip, knee, foot = (parts[f"left_{p}"] for p in ("hip", "knee", "foot"))
     return float(np.linalg.norm(P[knee] - P[hip]) + np.linalg.norm(P[foot] - P[knee]))

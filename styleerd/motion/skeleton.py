@@ -39,12 +39,14 @@ class Skeleton:
         return len(self.names)
 
     def index(self, name: str) -> int:
+        """The index of the joint called ``name``; ``KeyError`` naming it when there is none."""
         try:
             return self.names.index(name)
         except ValueError:
             raise KeyError(f"no joint named {name!r}") from None
 
     def children(self, j: int) -> list[int]:
+        """The joints whose parent is ``j``."""
         return [int(c) for c in np.nonzero(self.parents == j)[0]]
 
     def rotation_order(self, j: int) -> str:
@@ -86,6 +88,7 @@ class Skeleton:
         return tuple(np.array(a, dtype=np.int64) for a in layout)
 
     def has_positions(self, j: int) -> bool:
+        """Whether joint ``j`` has position channels (usually only the root)."""
         return any(c in POSITION_CHANNELS for c in self.channels[j])
 
     def __eq__(self, other: object) -> bool:
@@ -98,6 +101,7 @@ class Skeleton:
         )
 
     def to_dict(self) -> dict:
+        """The skeleton as plain lists, for JSON (``from_dict`` reads it back)."""
         return {
             "names": list(self.names),
             "parents": self.parents.tolist(),
@@ -108,6 +112,7 @@ class Skeleton:
 
     @classmethod
     def from_dict(cls, d: dict) -> Skeleton:
+        """The skeleton that ``to_dict`` wrote."""
         return cls(
             names=tuple(d["names"]),
             parents=np.array(d["parents"]),
@@ -188,6 +193,8 @@ def find_role(skeleton: Skeleton, role: str) -> int:
 
 @dataclass(frozen=True)
 class BodyRoles:
+    """The joints that define facing (hips and shoulders, left and right) and the feet, and the leg length."""
+
     left: tuple[int, ...]  # hip and shoulder: the across vector that defines facing
     right: tuple[int, ...]
     feet: tuple[int, ...]  # left foot, left toe, right foot, right toe
@@ -200,6 +207,7 @@ class BodyRoles:
 
     @classmethod
     def of(cls, skeleton: Skeleton) -> BodyRoles:
+        """Find the roles in ``skeleton`` by joint name and topology; ``KeyError`` naming a role not found."""
         r = {
             role: find_role(skeleton, role)
             for role in (

@@ -18,6 +18,9 @@ from styleerd.runtime.stylizer import StreamStylizer
 
 
 class ChannelStylizer:
+    """``StreamStylizer`` on the user's skeleton: raw BVH channel values in, stylised channel
+    values out, a frame at a time (retargeting both ways, foot cleanup)."""
+
     def __init__(
         self,
         model: GeneratorWeights,
@@ -60,6 +63,7 @@ class ChannelStylizer:
         self.stylizer.configure(streams, input_style, content, target)
 
     def reset(self, streams=None) -> None:
+        """Forget the past of some (default all) streams: their next frame starts a new stream."""
         self.stylizer.reset(streams)
         if self.lock:
             self.lock.reset(streams)

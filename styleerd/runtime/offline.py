@@ -82,6 +82,8 @@ class TransferOptions:
 
 @dataclass
 class TransferReport:
+    """What a file transfer did: frames written, their rate, and the labels inferred at the end."""
+
     frames: int
     fps: float
     labels: tuple[str, str] | None  # (style, content) at the last frame, when inferred

@@ -342,6 +342,8 @@ class StreamStylizer:
         ]
 
     def current_weights(self) -> np.ndarray:
+        """Each stream's target style weights this frame ``[N, styles]``, part way through a
+        blend if one is under way."""
         if self.blend.frame.min() >= self.blend_frames:  # no blend under way (the usual case)
             return self.blend.end
         a = np.minimum(1.0, self.blend.frame / self.blend_frames)[:, None].astype(np.float32)

@@ -26,6 +26,8 @@ IN_FLIGHT = 16  # frames sent ahead of their replies when not in real time (the 
 
 @dataclass
 class StreamResult:
+    """What one client's stream to the server gave: frames sent and received, order, latency, errors."""
+
     sent: int = 0
     received: int = 0
     reordered: int = 0  # replies whose sequence number is not the next one expected
@@ -48,6 +50,7 @@ def hello(
     input_style: str | None = None,
     content: str | None = None,
 ) -> dict:
+    """The JSON hello that opens a stream of ``motion``'s skeleton at ``fps`` (``docs/PROTOCOL.md``)."""
     msg = {
         "type": "hello",
         "skeleton": bvh.format_header(motion.skeleton, 0, fps),
