@@ -14,10 +14,8 @@ from functools import cache
 
 import numba as nb
 
-# streams per step from which the kernels split over threads (numba backend, 2 threads, the
-# whole stylizer's frames/s against one thread, medians of 5 alternating rounds of
-# benchmarks/bench_engine.py: 64 streams 1.45x, 256 streams 1.74x; at 16 streams a one-off
-# measure found no gain: a shard there is half a block of the step)
+# streams per step from which the kernels split over threads: below it a shard is less than a
+# block of the step (docs/benchmarks.md, "Tuned constants")
 PARALLEL_FROM = 32
 
 

@@ -24,11 +24,10 @@ from styleerd.data.parallel import kernel_threads
 from styleerd.model.stored import GeneratorWeights
 from styleerd.runtime.numpy_step import NumpyBackend, StepWeights, one_blas_thread
 
-# Streams a step takes through the whole network at a time: a block's state, gates and
-# activations stay in cache from one layer to the next (500 streams, 1 thread, alternating
-# rounds: blocks of 32 1.15-1.18x the frames/s of all 500 at once, 64 1.09x, 128 1.12x, 16 as 32).
+# Streams a step takes through the whole network at a time, so that a block's state, gates and
+# activations stay in cache from one layer to the next (docs/benchmarks.md, "Tuned constants").
 BLOCK_ROWS = 32
-# streams per step (measured, 1 thread, us per step with loops / BLAS: 1 stream 17.5 / 19.5, 2: 26.0 / 21.5, 8: 81 / 48)
+# Up to this many streams a step's products are compiled loops, beyond it BLAS calls (the same page).
 LOOPS_UP_TO = 1
 
 
@@ -171,7 +170,7 @@ def _stack(P, table, first_entry, layers, x, hs, cs, at, g):
             for j in range(H):
                 # sigmoid(v) = (q + p) / 2q and tanh(v) = p / q for (p, q) = tanh_fraction(v / 2)
                 # and (v): c' = sigmoid_f c + sigmoid_i tanh_g and h' = sigmoid_o tanh(c') each
-                # over one division, not five divisions (1.02x the step, 500 streams)
+                # over one division, not five divisions
                 pi, qi = tanh_fraction(np.float32(0.5) * (gn[j] + bias[j]))
                 pf, qf = tanh_fraction(np.float32(0.5) * (gn[H + j] + bias[H + j]))
                 pg, qg = tanh_fraction(gn[2 * H + j] + bias[2 * H + j])

@@ -38,10 +38,9 @@ OPSET = 15  # the LSTM op with explicit state, as engines support it (Unity: ops
 FORMS = ("lstm", "plain")
 # torch packs LSTM gates as (input, forget, cell, output), ONNX as (input, output, forget, cell)
 TORCH_TO_ONNX_GATES = (0, 3, 1, 2)
-# LSTM form: with this many style branches or fewer, the layers of one depth are one op
-# (benchmarks/bench_onnx.py, 1 thread; one style: batch 1 60 vs 73 us p50, 1,000 streams 129k
-# vs 143k frames/s; all six fused: 140 vs 166 us, but 24k vs 51k frames/s: the block-diagonal
-# weights' wasted arithmetic grows as the square of the branches)
+# LSTM form: with this many style branches or fewer, the layers of one depth are one op; fusing
+# more wastes arithmetic on block-diagonal weights, growing as the square of the branches
+# (docs/benchmarks.md, "Tuned constants")
 FUSE_UP_TO = 1
 
 

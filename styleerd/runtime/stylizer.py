@@ -371,10 +371,9 @@ class StreamStylizer:
             features = self._features(rotations, positions, sel)
             self._refuse_unless(features[4], sel, rotations, positions)
             return self._advance(sel, features, self.current_weights(), rotations, positions, np.empty(rotations.shape))
-        # shards of streams, one per thread, each its features and then its network in one call
-        # (one pool phase, not two: 1,000 streams, 2 threads, 1.01-1.04x the frames/s in 8 rounds
-        # of 300 steps interleaved one by one with the two-phase step's); BLAS gets one thread per
-        # call (two callers each asking BLAS for both cores spin against each other)
+        # shards of streams, one per thread, each its features and then its network in one pool
+        # phase; BLAS gets one thread per call (two callers each asking BLAS for both cores spin
+        # against each other)
         shards = _slices(n, self.threads)
         weights, out = self.current_weights(), np.empty(rotations.shape)  # each shard writes its rows
         features: list = [None] * len(shards)
