@@ -14,6 +14,8 @@ compiled loop is a scalar libm call). Compiled on first use and cached on disk
 
 from __future__ import annotations
 
+import ctypes
+
 import llvmlite.binding as llvm
 import numba as nb
 import numpy as np
@@ -36,6 +38,26 @@ LOOPS_UP_TO = 1
 # into its output (beta = 1), so the step copies nothing into a product and makes no temporaries.
 llvm.add_symbol("styleerd_sgemm", get_cython_function_address("scipy.linalg.cython_blas", "sgemm"))
 _sgemm = types.ExternalFunction("styleerd_sgemm", types.void(*[types.voidptr] * 13))
+
+
+def _blas_threads_here_address() -> int:
+    """The address of ``int openblas_set_num_threads_local(int)`` in the BLAS behind scipy's
+    sgemm (OpenBLAS 0.3.26 or later: the BLAS threads of the calling thread alone, returning the
+    previous number), or of libc's ``abs``, which does nothing, where that BLAS has none."""
+    import scipy.linalg.cython_blas
+
+    try:  # dlsym finds a symbol in the libraries a library was linked against too
+        found = ctypes.CDLL(scipy.linalg.cython_blas.__file__).openblas_set_num_threads_local
+    except (AttributeError, OSError):
+        found = ctypes.CDLL(None).abs
+    return ctypes.cast(found, ctypes.c_void_p).value
+
+
+# Each thread of a parallel step holds BLAS to itself: a pthreads OpenBLAS asked for threads of its
+# own from inside an OpenMP region warns ("Detect OpenMP Loop ... may hang") and can deadlock, and
+# a limit set by the caller's thread (threadpoolctl) does not always reach numba's worker threads.
+llvm.add_symbol("styleerd_blas_threads_here", _blas_threads_here_address())
+_blas_threads_here = types.ExternalFunction("styleerd_blas_threads_here", types.intc(types.intc))
 
 
 @nb.njit(cache=True, nogil=True)
@@ -214,13 +236,16 @@ def compiled_step(x, style, content, target, P, table, sizes, inits, branch_styl
 def compiled_step_on_shards(
     shards, x, style, content, target, P, table, sizes, inits, branch_styles, h, c, hb, cb, first, rot, vel
 ):
-    """``compiled_step`` on ``shards`` slices of the streams at once, one per thread (the caller
-    holds BLAS to one thread). Inputs that do not fit are refused before the split (a shard of
+    """``compiled_step`` on ``shards`` slices of the streams at once, one per thread, each
+    holding BLAS to itself (``_blas_threads_here``). Inputs that do not fit are refused before the split (a shard of
     inputs that fit fits too)."""
     _refuse_unless_fitting(x, style, content, target, table, sizes, h, c, hb, cb, first, rot, vel)
     N = x.shape[0]
+    callers = _blas_threads_here(1)  # the calling thread's, given back after the loop
     for k in nb.prange(shards):
         s, e = N * k // shards, N * (k + 1) // shards
+        _blas_threads_here(1)  # numba's own threads keep it: they run nothing but parallel loops
+        _blas_threads_here(1)  # twice: a thread's first setting can be lost to OpenBLAS's own first use of it
         compiled_step(
             x[s:e],
             style[s:e],
@@ -239,6 +264,7 @@ def compiled_step_on_shards(
             rot[s:e],
             vel[s:e],
         )
+    _blas_threads_here(callers)
 
 
 @nb.njit(cache=True, nogil=True)
