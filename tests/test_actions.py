@@ -4,6 +4,7 @@ and the held-out clips through ``transfer`` as users run it."""
 import numpy as np
 import pytest
 
+from styleerd.data.outside import held_out
 from styleerd.eval import actions as A
 from styleerd.model.stored import load_generator_weights
 from styleerd.motion import quat
@@ -75,8 +76,8 @@ def test_held_out_actions_keep_their_action_with_the_input_pose(shared_data, mod
     pose (the paper's output) does not keep them. Every cmu-sample subject 2 and 126 clip and
     Bandai-Namco-1's neutral actions are held out."""
     clips = {c.name: c for c in A.held_out_clips(str(shared_data))}
-    assert all(A.held_out(n.removeprefix("cmu "), "cmu-sample") for n in clips if n.startswith("cmu "))
-    assert A.held_out("dataset-1_kick_normal_001", "bandai-namco-1", "kick", "normal") and not A.held_out(
+    assert all(held_out(n.removeprefix("cmu "), "cmu-sample") for n in clips if n.startswith("cmu "))
+    assert held_out("dataset-1_kick_normal_001", "bandai-namco-1", "kick", "normal") and not held_out(
         "x", "bandai-namco-1", "walk", "normal"
     )
     for name in ("kick_normal_001", "cmu 002_05"):

@@ -5,9 +5,13 @@ fresh state (a stream can begin anywhere in a motion); the loss is the labels' c
 at every frame, so early frames learn to guess and later ones to be sure. Beside the clips as
 recorded, ``copies`` versions of each as another performer on another rig would give it
 (``data.augment.other_performer``: proportions, speed, joint offsets, mirroring) keep the
-labeller from reading one performer's build or one rig's conventions as a style. Accuracy is
-measured on streams that start at the first frame of each clip of a split, after 1, 10 and 30
-frames.
+labeller from reading one performer's build or one rig's conventions as a style. Clips of other
+performers join them too (``outside_clips``): Bandai-Namco-1's, with its styles in the model's
+names and its styles the model does not have taught to read as unsure (the cross-entropy of
+their posterior to the uniform one, "outlier exposure", Hendrycks et al. 2019), and
+cmu-sample's other subjects as neutral; the clips ``styleerd eval labels`` measures on are kept
+out. Accuracy is measured on streams that start at the first frame of each clip of a split,
+after 1, 10 and 30 frames.
 """
 
 from __future__ import annotations
@@ -21,13 +25,18 @@ import torch.nn.functional as F
 from tqdm import tqdm
 
 from styleerd.data.augment import other_performer
-from styleerd.data.cache import FeatureSet
+from styleerd.data.cache import FeatureSet, prepare
+from styleerd.data.datasets import BANDAI1_AS_BANDAI2, bandai1_kept_back, data_root, unpack
 from styleerd.data.features import features_to_motion, motion_features
+from styleerd.data.outside import RIG_MAPS, held_out
 from styleerd.data.windows import window_starts
 from styleerd.model import checkpoint as ckpt
 from styleerd.model.labeller import OnlineLabeller
 from styleerd.model.stored import toward_neutral
 from styleerd.models import LABELLER, MODELS_DIR
+from styleerd.motion import bvh
+from styleerd.motion.resample import resample
+from styleerd.motion.retarget import joint_map, to_target
 from styleerd.train.batches import TrainingData, windows
 from styleerd.train.config import TrainConfig
 from styleerd.train.trainer import setup
@@ -98,6 +107,59 @@ def augmented_clips(
     return torch.from_numpy(np.concatenate(frames)), np.array(starts), np.array(styles), np.array(contents)
 
 
+def outside_clips(
+    fs: FeatureSet, data: TrainingData, data_dir: str | None = None, progress: bool = True
+) -> tuple[torch.Tensor, np.ndarray, np.ndarray, np.ndarray]:
+    """Other performers' clips that no evaluation uses: Bandai-Namco-1's but its kept-back and
+    held-out ones, and cmu-sample's subjects but the held-out ones (retargeted onto ``fs``'s
+    skeleton): (normalised frames ``[N, D]``, clip starts ``[C + 1]``, style and content index per
+    clip, -1 where the model has no such label: a style to be unsure of, a content not taught)."""
+    frames, starts, styles, contents = [], [0], [], []
+
+    def add(features: np.ndarray, style: str, content: str) -> None:
+        frames.append(data.stats.normalize(features).astype(np.float32))
+        starts.append(starts[-1] + len(features))
+        styles.append(data.styles.index(style) if style in data.styles else -1)
+        contents.append(data.contents.index(content) if content in data.contents else -1)
+
+    bandai1 = prepare("bandai-namco-1", data_dir, fs.params, progress=progress)
+    for c, name in enumerate(bandai1.names):
+        style, content = str(bandai1.styles[c]), str(bandai1.contents[c])
+        if not (bandai1_kept_back(name, content) or held_out(name, "bandai-namco-1", content, style)):
+            add(bandai1.features[bandai1.frames(c)], BANDAI1_AS_BANDAI2.get(style, style), content)
+    cmu = unpack(data_root(data_dir) / "cmu-sample.tar.xz") / "cmu-sample"
+    paths = [
+        (p, rig)
+        for folder, rig in (("iclone", "cc-base"), ("asf-names", "cmu-asf"))
+        for p in sorted((cmu / folder).glob("*.bvh"))
+    ]
+    for path, rig in tqdm(paths, desc="cmu-sample", disable=not progress, leave=False):
+        if held_out(path.stem, "cmu-sample"):
+            continue
+        motion = resample(bvh.read(path), fs.params.fps)
+        jm = joint_map(fs.skeleton, motion.skeleton, RIG_MAPS[rig], data.stats.reference, motion.rotations[0])
+        add(motion_features(to_target(motion, jm))[0], "normal", "")
+    return torch.from_numpy(np.concatenate(frames)), np.array(starts), np.array(styles), np.array(contents)
+
+
+def labeller_loss(
+    s_logits: torch.Tensor, c_logits: torch.Tensor, style: torch.Tensor, content: torch.Tensor, unsure: float
+) -> torch.Tensor:
+    """Cross-entropy of every frame's style and content (``[B, T, n]`` logits, ``[B]`` labels);
+    a style of -1 (one the model does not have) is the cross-entropy to the uniform posterior,
+    weighing ``unsure``; a content of -1 counts nothing."""
+    T = s_logits.shape[1]
+    style, content = style.repeat_interleave(T), content.repeat_interleave(T)
+    s_logits, c_logits = s_logits.reshape(len(style), -1), c_logits.reshape(len(content), -1)
+    known = style >= 0
+    loss = F.cross_entropy(s_logits[known], style[known], reduction="sum")
+    loss = loss - unsure * F.log_softmax(s_logits[~known], -1).mean(-1).sum()
+    told = content >= 0
+    return (
+        loss + F.cross_entropy(c_logits[told], content[told], reduction="sum") * len(style) / max(1, int(told.sum()))
+    ) / len(style)
+
+
 def train_labeller(
     fs: FeatureSet,
     data: TrainingData,
@@ -111,10 +173,16 @@ def train_labeller(
     progress: bool = True,
     copies: int = 2,
     reference_pose: np.ndarray | None = None,
+    outside: tuple[torch.Tensor, np.ndarray, np.ndarray, np.ndarray] | None = None,
+    unsure: float = 0.5,
+    outside_repeats: int = 5,
 ) -> tuple[OnlineLabeller, dict]:
     """Train; keep the epoch whose validation streams are labelled best after 30 frames.
     ``copies`` other-performer versions of each training clip join the clips themselves
-    (``reference_pose``: a natural pose of the skeleton, for mirroring; default its average)."""
+    (``reference_pose``: a natural pose of the skeleton, for mirroring; default its average), and
+    so do the ``outside`` clips (``outside_clips``, each window ``outside_repeats`` times: they are
+    few), those of a style the model does not have weighing ``unsure`` in a loss that makes their
+    posterior uniform."""
     torch.manual_seed(seed)
     rng = np.random.default_rng(seed)
     model = OnlineLabeller(data.frames.shape[1], len(data.styles), len(data.contents))
@@ -134,6 +202,13 @@ def train_labeller(
         frames = torch.cat([frames, extra])
         starts = np.concatenate([starts, s2 + len(data.frames)])
         style, content = np.concatenate([style, extra_style[c2]]), np.concatenate([content, extra_content[c2]])
+    if outside is not None:
+        extra, extra_start, extra_style, extra_content = outside
+        s2 = np.tile(window_starts(extra_start, np.arange(len(extra_start) - 1), length, stride), outside_repeats)
+        c2 = np.searchsorted(extra_start, s2, side="right") - 1
+        starts = np.concatenate([starts, s2 + len(frames)])
+        frames = torch.cat([frames, extra])
+        style, content = np.concatenate([style, extra_style[c2]]), np.concatenate([content, extra_content[c2]])
     style, content = torch.as_tensor(style), torch.as_tensor(content)
     best, best_score, history = copy.deepcopy(model), -1.0, []
     for epoch in range(epochs):
@@ -149,9 +224,7 @@ def train_labeller(
             b = order[i : i + batch]
             x = frames[torch.as_tensor(starts[b][:, None] + np.arange(length))]
             s_logits, c_logits, _ = model(x)
-            loss = F.cross_entropy(
-                s_logits.reshape(-1, len(data.styles)), style[b].repeat_interleave(length)
-            ) + F.cross_entropy(c_logits.reshape(-1, len(data.contents)), content[b].repeat_interleave(length))
+            loss = labeller_loss(s_logits, c_logits, style[b], content[b], unsure)
             opt.zero_grad()
             loss.backward()
             opt.step()
@@ -161,7 +234,10 @@ def train_labeller(
         history.append({"epoch": epoch + 1, "val": val})
         if score > best_score:
             best, best_score = copy.deepcopy(model), score
-    return best.eval(), {"history": history, "other_performer_copies": copies}
+    report = {"history": history, "other_performer_copies": copies}
+    if outside is not None:
+        report["outside"] = {"clips": len(outside[1]) - 1, "unsure_weight": unsure, "repeats": outside_repeats}
+    return best.eval(), report
 
 
 def train_and_save(
@@ -171,7 +247,10 @@ def train_and_save(
     the test split, save next to the shipped models (or at ``out``)."""
     torch.set_num_threads(config.threads)
     s = setup(config, data_dir, progress)
-    model, report = train_labeller(s.fs, s.data, seed=config.seed, max_clips=config.max_train_clips, progress=progress)
+    outside = None if config.max_train_clips else outside_clips(s.fs, s.data, data_dir, progress)  # tiny runs: without
+    model, report = train_labeller(
+        s.fs, s.data, seed=config.seed, max_clips=config.max_train_clips, progress=progress, outside=outside
+    )
     report["test"] = stream_accuracy(model, s.fs, s.data, "test")
     report["test_leaning_neutral"] = stream_accuracy(model, s.fs, s.data, "test", neutral=config.neutral_style)
     meta = {
