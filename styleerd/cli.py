@@ -366,6 +366,17 @@ def _eval_actions(args: argparse.Namespace) -> None:
         print(f"wrote {path}")
 
 
+def _eval_labels(args: argparse.Namespace) -> None:
+    from styleerd.eval.labels import evaluate_labels, markdown, write
+    from styleerd.model.stored import load_generator_weights, load_labeller_weights
+
+    out = check_output(args.out)
+    labeller = load_labeller_weights(Path(args.labeller)) if args.labeller else None
+    report = evaluate_labels(load_generator_weights(args.model), args.data, labeller)
+    write(report, out)
+    print(markdown(report))
+
+
 def _eval_ablations(args: argparse.Namespace) -> None:
     from styleerd.atomic import atomic_write_text
     from styleerd.eval.ablations import ABLATIONS, RUNS_DIR, ablation_table, markdown, shipped_budget, train_ablations
@@ -978,6 +989,16 @@ def _eval_subcommands(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--no-feet", action="store_true", help="only the action table")
     p.add_argument("--data", help="data folder")
     p.set_defaults(func=_eval_actions)
+    p = sub.add_parser(
+        "labels",
+        help="what the online labeller reads on other performers' clips (xia-sample, cmu-sample, Bandai-Namco-1): "
+        "confident wrong styles",
+    )
+    p.add_argument("--model", help=MODEL_HELP)
+    p.add_argument("--labeller", help="another labeller (a path without suffix; default: the model's)")
+    p.add_argument("--out", default="docs/labels.md", help="Markdown tables (a .json beside it)")
+    p.add_argument("--data", help="data folder")
+    p.set_defaults(func=_eval_labels)
     p = sub.add_parser(
         "ablations",
         help="train what is missing at the shipped run's budget (resumable) and tabulate the paper's ablations",

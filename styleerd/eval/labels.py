@@ -30,7 +30,7 @@ from styleerd.atomic import atomic_write_text
 from styleerd.data.datasets import BANDAI1_AS_BANDAI2, bandai1_kept_back, data_root, find_clips, load_motion, unpack
 from styleerd.data.outside import CMU_HELD_OUT, RIG_MAPS
 from styleerd.eval.actions import SECONDS
-from styleerd.model.stored import GeneratorWeights
+from styleerd.model.stored import GeneratorWeights, LabellerWeights
 from styleerd.motion import bvh
 from styleerd.motion.motion import Motion
 from styleerd.motion.resample import resample
@@ -75,13 +75,16 @@ def outside_clips(data_dir: str | None = None, per_bandai1_style: int = 2) -> li
     return out
 
 
-def told_styles(model: GeneratorWeights, clip: LabelledClip) -> tuple[np.ndarray, list[str]]:
+def told_styles(
+    model: GeneratorWeights, clip: LabelledClip, labeller: LabellerWeights | None = None
+) -> tuple[np.ndarray, list[str]]:
     """Per frame at 30 fps, the style weights the encoder is told ``[T, styles]`` (labels
-    inferred online), and the content read at each frame."""
+    inferred online by ``labeller``, default the model's), and the content read at each frame."""
     motion = resample(clip.motion, 30.0)
     jm = map_skeleton(motion.skeleton, model, clip.joint_map, clip.name, motion.rotations[0])
     on_model = to_target(motion, jm)
-    stylizer = StreamStylizer(model, None, None, {model.config.neutral_style: 1.0}, fps=30.0, pose="network")
+    target = {model.config.neutral_style: 1.0}
+    stylizer = StreamStylizer(model, None, None, target, fps=30.0, pose="network", labeller=labeller)
     styles, contents = [], []
     for t in range(on_model.n_frames):
         stylizer.step(on_model.rotations[t][None], on_model.positions[t][None])
@@ -90,10 +93,10 @@ def told_styles(model: GeneratorWeights, clip: LabelledClip) -> tuple[np.ndarray
     return np.array(styles), contents
 
 
-def clip_figures(model: GeneratorWeights, clip: LabelledClip) -> dict:
+def clip_figures(model: GeneratorWeights, clip: LabelledClip, labeller: LabellerWeights | None = None) -> dict:
     """``read``, ``confident_wrong`` and ``right_or_neutral`` of one clip (module docstring)."""
     c = model.config
-    told, contents = told_styles(model, clip)
+    told, contents = told_styles(model, clip, labeller)
     own = c.input_styles.index(clip.style) if clip.style in c.input_styles else None
     neutral = c.input_styles.index(c.neutral_style)
     top = told.argmax(-1)
@@ -108,10 +111,13 @@ def clip_figures(model: GeneratorWeights, clip: LabelledClip) -> dict:
     }
 
 
-def evaluate_labels(model: GeneratorWeights, data_dir: str | None = None) -> dict:
+def evaluate_labels(
+    model: GeneratorWeights, data_dir: str | None = None, labeller: LabellerWeights | None = None
+) -> dict:
     """``clip_figures`` of every ``outside_clips`` clip, and per group the means and the clips
-    read as a confident wrong style at their last frame."""
-    rows = {clip.name: clip_figures(model, clip) for clip in tqdm(outside_clips(data_dir), desc="labels", leave=False)}
+    read as another style at their last frame."""
+    clips = tqdm(outside_clips(data_dir), desc="labels", leave=False)
+    rows = {clip.name: clip_figures(model, clip, labeller) for clip in clips}
     groups: dict = {}
     for name, r in rows.items():
         g = groups.setdefault(

@@ -152,6 +152,7 @@ split; every figure is printed by its own command as well (named in each section
 {online_section(runtime)}
 {rotations_section(rotations)}
 {actions_section(docs)}
+{labels_section(docs)}
 {recipes_section(docs)}
 {added_styles_section(docs)}
 ## Pictures
@@ -350,6 +351,32 @@ them: the share of windows read as the target), kept in `docs/pose-quality.json`
             + "\n"
         )
     return text
+
+
+def labels_section(docs: Path) -> str:
+    """The labeller on other performers' clips (``styleerd eval labels``: docs/labels.*), before
+    and after it was fine-tuned with such clips (docs/labels-scratch.md), where they exist."""
+    labels, before = docs / "labels.md", docs / "labels-scratch.md"
+    if not labels.is_file():
+        return ""
+    text = """## The labeller on other performers (`styleerd eval labels`)
+
+What the online labeller tells the encoder when `--input-style` is not given, on clips of other
+performers and skeletons that no labeller trains on: xia-sample (its `old` is the model's
+`elderly`; angry, childlike, depressed, proud, sexy and strutting are no style of the model's),
+cmu-sample's held-out subjects (all neutral) and Bandai-Namco-1's kept-back clips (nine of its
+styles are not the model's). A confident wrong style (told with weight 0.9 or more, neither the
+clip's own nor neutral) is subtracted from the input by the network; an unsure one leans to
+neutral. The shipped labeller (`configs/labeller-outside.yaml`) is the one trained on
+Bandai-Namco-2 alone (`models/labellers/labeller-bandai2-scratch`) fine-tuned with other
+performers' clips: Bandai-Namco-1's, its styles the model lacks taught to read as unsure, and
+cmu-sample's other subjects.
+
+"""
+    text += labels.read_text()
+    if before.is_file():
+        text += "\nThe labeller trained on Bandai-Namco-2 alone, on the same clips:\n\n" + before.read_text()
+    return text + "\n"
 
 
 def recipes_section(docs: Path) -> str:

@@ -63,6 +63,11 @@ class TrainConfig:
     classifier_epochs: int = 8
     classifier_stride: int = 8
     classifier_lr: float = 1e-3
+    # the online labeller (``styleerd train-labeller``)
+    labeller_epochs: int = 6
+    labeller_lr: float = 2e-3
+    labeller_init_from: str = ""  # fine-tune: a saved labeller (a path without suffix) whose weights start the run
+    labeller_outside: bool = False  # other performers' clips join the training clips (``train.labeller.outside_clips``)
 
     @classmethod
     def from_yaml(cls, path: str | Path, **overrides) -> TrainConfig:

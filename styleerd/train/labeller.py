@@ -176,16 +176,19 @@ def train_labeller(
     outside: tuple[torch.Tensor, np.ndarray, np.ndarray, np.ndarray] | None = None,
     unsure: float = 0.5,
     outside_repeats: int = 5,
+    start: OnlineLabeller | None = None,
 ) -> tuple[OnlineLabeller, dict]:
     """Train; keep the epoch whose validation streams are labelled best after 30 frames.
     ``copies`` other-performer versions of each training clip join the clips themselves
     (``reference_pose``: a natural pose of the skeleton, for mirroring; default its average), and
     so do the ``outside`` clips (``outside_clips``, each window ``outside_repeats`` times: they are
     few), those of a style the model does not have weighing ``unsure`` in a loss that makes their
-    posterior uniform."""
+    posterior uniform. With ``start``, its weights start the run (a fine-tuning)."""
     torch.manual_seed(seed)
     rng = np.random.default_rng(seed)
     model = OnlineLabeller(data.frames.shape[1], len(data.styles), len(data.contents))
+    if start is not None:
+        model.load_state_dict(start.state_dict())
     opt = torch.optim.Adam(model.parameters(), lr=lr)
     ws = windows(fs, data, "train", stride, max_clips)
     idx = torch.as_tensor(ws.starts[:, None] + np.arange(length))
@@ -247,10 +250,21 @@ def train_and_save(
     the test split, save next to the shipped models (or at ``out``)."""
     torch.set_num_threads(config.threads)
     s = setup(config, data_dir, progress)
-    outside = None if config.max_train_clips else outside_clips(s.fs, s.data, data_dir, progress)  # tiny runs: without
+    outside = outside_clips(s.fs, s.data, data_dir, progress) if config.labeller_outside else None
+    start = ckpt.load_labeller(config.labeller_init_from)[0] if config.labeller_init_from else None
     model, report = train_labeller(
-        s.fs, s.data, seed=config.seed, max_clips=config.max_train_clips, progress=progress, outside=outside
+        s.fs,
+        s.data,
+        epochs=config.labeller_epochs,
+        lr=config.labeller_lr,
+        seed=config.seed,
+        max_clips=config.max_train_clips,
+        progress=progress,
+        outside=outside,
+        start=start,
     )
+    if start is not None:
+        report["started_from"] = config.labeller_init_from
     report["test"] = stream_accuracy(model, s.fs, s.data, "test")
     report["test_leaning_neutral"] = stream_accuracy(model, s.fs, s.data, "test", neutral=config.neutral_style)
     meta = {
