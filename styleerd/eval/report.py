@@ -395,7 +395,11 @@ of those real windows; CRA / ceiling per target style: content read on the trans
 content read on their inputs. Back to neutral / into styles: every test clip streamed frame by
 frame as `transfer` runs it (labels given / inferred online), the output cut into 24-frame
 windows as it plays and read by the style recogniser; with `--root-speed` the root moves at the
-network's pace. ± one standard deviation over 200 bootstrap resamples of the transfers.
+network's pace. ± one standard deviation over 200 bootstrap resamples of the transfers. The
+inferred labels here are the labeller's trained on Bandai-Namco-2 alone
+(`models/labellers/labeller-bandai2-scratch`, shipped until it was fine-tuned with other
+performers' clips; on Bandai-Namco-2's test clips both read the style right after 10 and after
+30 frames on every clip: `styleerd/models/labeller-bandai2.json`).
 
 """
     text += recipes.read_text() + "\n![FMD against CRA, per recipe and per style](recipes.png)\n\n"
