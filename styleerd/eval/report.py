@@ -241,8 +241,9 @@ def online_section(runtime: dict) -> str:
 {rows}
 
 The input style the encoder is told for each xia-sample clip (another performer, another
-skeleton, 120 fps; the labeller is trained on Bandai-Namco-2 only, with copies of each clip as
-other performers and rigs would give it: proportions, speed, joint offsets, mirroring), after
+skeleton, 120 fps; the labeller is trained on Bandai-Namco-2 with copies of each clip as other
+performers and rigs would give it (proportions, speed, joint offsets, mirroring), then fine-tuned
+with Bandai-Namco-1's and cmu-sample's clips; no xia-sample clip is in its training), after
 1 / 10 / 30 frames / at the end. The neutral walk must read `normal`; the xia styles (angry,
 depressed, sexy, strutting) are not the model's, and jumps (16) and punches (18) are contents
 it never saw.
