@@ -71,7 +71,8 @@ class ActionClip:
     joint_map: dict[str, str] | None = None
 
 
-def _trimmed(m: Motion) -> Motion:
+def trimmed(m: Motion) -> Motion:
+    """The first ``SECONDS`` of ``m``."""
     return m[: int(round(SECONDS * m.fps))]
 
 
@@ -92,7 +93,7 @@ def held_out_clips(data_dir: str | None = None) -> list[ActionClip]:
                     f"cmu {path.stem}",
                     action,
                     f"cmu-sample/{folder}",
-                    _trimmed(bvh.read(path)),
+                    trimmed(bvh.read(path)),
                     "normal",
                     RIG_MAPS["cc-base" if folder == "iclone" else "cmu-asf"],
                 )
@@ -101,7 +102,7 @@ def held_out_clips(data_dir: str | None = None) -> list[ActionClip]:
         if held_out(c.name, c.dataset, c.content, c.style):
             out.append(
                 ActionClip(
-                    c.name.removeprefix("dataset-1_"), c.content, "bandai-namco-1", _trimmed(load_motion(c)), "normal"
+                    c.name.removeprefix("dataset-1_"), c.content, "bandai-namco-1", trimmed(load_motion(c)), "normal"
                 )
             )
     for c in find_clips(root, "xia-sample"):
@@ -112,7 +113,7 @@ def held_out_clips(data_dir: str | None = None) -> list[ActionClip]:
                     f"xia {c.name}",
                     XIA_ACTIONS[cid],
                     "xia-sample",
-                    _trimmed(load_motion(c)),
+                    trimmed(load_motion(c)),
                     "normal" if c.name.startswith("neutral") else None,
                 )
             )
@@ -128,7 +129,7 @@ def bandai2_test_walks(data_dir: str | None = None, n: int = 8) -> list[ActionCl
     ][:n]
     return [
         ActionClip(
-            c.name.removeprefix("dataset-2_"), c.content, "bandai-namco-2 test", _trimmed(load_motion(c)), "normal"
+            c.name.removeprefix("dataset-2_"), c.content, "bandai-namco-2 test", trimmed(load_motion(c)), "normal"
         )
         for c in walks
     ]
@@ -328,7 +329,7 @@ def walk_clips(data_dir: str | None = None) -> list[ActionClip]:
     root = data_root(data_dir)
     out = []
     xia = next(c for c in find_clips(root, "xia-sample") if c.name.startswith("neutral_01"))
-    out.append(ActionClip("xia neutral walk", "walk", "xia-sample", _trimmed(load_motion(xia)), "normal"))
+    out.append(ActionClip("xia neutral walk", "walk", "xia-sample", trimmed(load_motion(xia)), "normal"))
     cmu = unpack(root / "cmu-sample.tar.xz") / "cmu-sample" / "iclone"
     for stem in ("002_01", "002_02", "002_03"):
         out.append(
@@ -336,7 +337,7 @@ def walk_clips(data_dir: str | None = None) -> list[ActionClip]:
                 f"cmu {stem}",
                 CMU_ACTIONS[stem],
                 "cmu-sample/iclone",
-                _trimmed(bvh.read(cmu / f"{stem}.bvh")),
+                trimmed(bvh.read(cmu / f"{stem}.bvh")),
                 "normal",
                 RIG_MAPS["cc-base"],
             )

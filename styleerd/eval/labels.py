@@ -29,8 +29,8 @@ from tqdm import tqdm
 from styleerd.atomic import atomic_write_text
 from styleerd.data.datasets import BANDAI1_AS_BANDAI2, bandai1_kept_back, data_root, find_clips, load_motion, unpack
 from styleerd.data.outside import CMU_HELD_OUT, RIG_MAPS
-from styleerd.eval.actions import SECONDS
-from styleerd.model.stored import GeneratorWeights, LabellerWeights
+from styleerd.eval.actions import trimmed
+from styleerd.model.stored import SURE, GeneratorWeights, LabellerWeights
 from styleerd.motion import bvh
 from styleerd.motion.motion import Motion
 from styleerd.motion.resample import resample
@@ -38,7 +38,6 @@ from styleerd.motion.retarget import to_target
 from styleerd.runtime.offline import map_skeleton
 from styleerd.runtime.stylizer import StreamStylizer
 
-SURE = 0.9  # toward_neutral keeps a style told with at least this weight as it is
 # other datasets' names for the model's styles
 SAME_STYLE = {**BANDAI1_AS_BANDAI2, "neutral": "normal"}
 
@@ -57,21 +56,20 @@ def outside_clips(data_dir: str | None = None, per_bandai1_style: int = 2) -> li
     xia-sample clip, cmu-sample's held-out subjects (``data.outside.CMU_HELD_OUT``) and the first
     ``per_bandai1_style`` kept-back clips (``bandai1_kept_back``) of each Bandai-Namco-1 style."""
     root = data_root(data_dir)
-    cut = lambda m: m[: int(round(SECONDS * m.fps))]
     out = []
     for c in find_clips(root, "xia-sample"):
-        out.append(LabelledClip(c.name, "xia-sample", SAME_STYLE.get(c.style, c.style), cut(load_motion(c))))
+        out.append(LabelledClip(c.name, "xia-sample", SAME_STYLE.get(c.style, c.style), trimmed(load_motion(c))))
     cmu = unpack(root / "cmu-sample.tar.xz") / "cmu-sample"
     for folder, rig in (("iclone", "cc-base"), ("asf-names", "cmu-asf")):
         for path in sorted(p for p in (cmu / folder).glob("*.bvh") if p.stem.startswith(CMU_HELD_OUT[folder])):
             group = f"cmu-sample {folder}"
-            out.append(LabelledClip(f"cmu {path.stem}", group, "normal", cut(bvh.read(path)), RIG_MAPS[rig]))
+            out.append(LabelledClip(f"cmu {path.stem}", group, "normal", trimmed(bvh.read(path)), RIG_MAPS[rig]))
     taken: dict[str, int] = {}
     for c in sorted(find_clips(root, "bandai-namco-1"), key=lambda c: c.name):
         if bandai1_kept_back(c.name, c.content) and taken.get(c.style, 0) < per_bandai1_style:
             taken[c.style] = taken.get(c.style, 0) + 1
             style = SAME_STYLE.get(c.style, c.style)
-            out.append(LabelledClip(c.name, "bandai-namco-1 kept back", style, cut(load_motion(c))))
+            out.append(LabelledClip(c.name, "bandai-namco-1 kept back", style, trimmed(load_motion(c))))
     return out
 
 

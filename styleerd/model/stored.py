@@ -191,7 +191,10 @@ def load_labeller_weights(name: str | Path | None = None) -> LabellerWeights:
     return loaded(name, LABELLER, build)[0]
 
 
-def toward_neutral(p_style: np.ndarray, neutral: int, unsure: float = 0.5, sure: float = 0.9) -> np.ndarray:
+SURE = 0.9  # a style told with at least this probability is kept as it is (``toward_neutral``)
+
+
+def toward_neutral(p_style: np.ndarray, neutral: int, unsure: float = 0.5, sure: float = SURE) -> np.ndarray:
     """Style posteriors ``[N, nS]`` the labeller is unsure of, leaning to the neutral style:
     a top probability at ``unsure`` or below becomes the neutral label, one at ``sure`` or above
     is kept, linearly between. Telling the encoder "neutral" when in doubt costs little (the

@@ -142,6 +142,28 @@ def outside_clips(
     return torch.from_numpy(np.concatenate(frames)), np.array(starts), np.array(styles), np.array(contents)
 
 
+def _joined(
+    windows: tuple[torch.Tensor, np.ndarray, np.ndarray, np.ndarray],
+    clips: tuple[torch.Tensor, np.ndarray, np.ndarray, np.ndarray],
+    length: int,
+    stride: int,
+    repeats: int = 1,
+) -> tuple[torch.Tensor, np.ndarray, np.ndarray, np.ndarray]:
+    """Training windows (frames, window starts, style and content per window) with every
+    ``length``-frame window of ``clips`` (frames, clip starts, style and content per clip)
+    added, each ``repeats`` times."""
+    frames, starts, style, content = windows
+    extra, extra_start, extra_style, extra_content = clips
+    more = np.tile(window_starts(extra_start, np.arange(len(extra_start) - 1), length, stride), repeats)
+    clip = np.searchsorted(extra_start, more, side="right") - 1
+    return (
+        torch.cat([frames, extra]),
+        np.concatenate([starts, more + len(frames)]),
+        np.concatenate([style, extra_style[clip]]),
+        np.concatenate([content, extra_content[clip]]),
+    )
+
+
 def labeller_loss(
     s_logits: torch.Tensor, c_logits: torch.Tensor, style: torch.Tensor, content: torch.Tensor, unsure: float
 ) -> torch.Tensor:
@@ -197,21 +219,12 @@ def train_labeller(
     frames = data.frames
     if copies:
         reference = data.stats.reference if reference_pose is None else reference_pose
-        extra, extra_start, extra_style, extra_content = augmented_clips(
-            fs, data, np.unique(ws.clip), copies, reference, seed, progress
-        )
-        s2 = window_starts(extra_start, np.arange(len(extra_start) - 1), length, stride)
-        c2 = np.searchsorted(extra_start, s2, side="right") - 1
-        frames = torch.cat([frames, extra])
-        starts = np.concatenate([starts, s2 + len(data.frames)])
-        style, content = np.concatenate([style, extra_style[c2]]), np.concatenate([content, extra_content[c2]])
+        more = augmented_clips(fs, data, np.unique(ws.clip), copies, reference, seed, progress)
+        frames, starts, style, content = _joined((frames, starts, style, content), more, length, stride)
     if outside is not None:
-        extra, extra_start, extra_style, extra_content = outside
-        s2 = np.tile(window_starts(extra_start, np.arange(len(extra_start) - 1), length, stride), outside_repeats)
-        c2 = np.searchsorted(extra_start, s2, side="right") - 1
-        starts = np.concatenate([starts, s2 + len(frames)])
-        frames = torch.cat([frames, extra])
-        style, content = np.concatenate([style, extra_style[c2]]), np.concatenate([content, extra_content[c2]])
+        frames, starts, style, content = _joined(
+            (frames, starts, style, content), outside, length, stride, outside_repeats
+        )
     style, content = torch.as_tensor(style), torch.as_tensor(content)
     best, best_score, history = copy.deepcopy(model), -1.0, []
     for epoch in range(epochs):
