@@ -110,6 +110,16 @@ def _transfer(args: argparse.Namespace) -> None:
     from styleerd.runtime.stylizer import part_targets, target_weights
 
     model = load_generator_weights(args.model)
+    if args.write_joint_map:
+        from styleerd.runtime.offline import write_guessed_joint_map
+
+        if len(args.input) != 1 or Path(args.input[0]).is_dir():
+            raise StyleERDError("--write-joint-map: name one motion file")
+        guessed, total = write_guessed_joint_map(args.input[0], args.write_joint_map, model)
+        print(f"wrote {args.write_joint_map}: {guessed} of {total} model joints guessed; edit it, then --joint-map")
+        return
+    if not args.output:
+        raise StyleERDError("transfer: -o/--output is required")
     c = model.config
     for value, names, what in (
         (args.input_style, c.input_styles, "--input-style"),
@@ -632,11 +642,16 @@ def _transfer_command(command: Callable[[str, str], argparse.ArgumentParser]) ->
     p.add_argument(
         "--joint-map", help="JSON object {model joint: input joint} completing or overriding the automatic mapping"
     )
+    p.add_argument(
+        "--write-joint-map",
+        metavar="MAP.json",
+        help='write the joint map the automatic mapping finds for the input (best guesses, "" where none) to edit '
+        "and pass back with --joint-map, and stop",
+    )
     p.add_argument("--model", help=MODEL_HELP)
     p.add_argument(
         "-o",
         "--output",
-        required=True,
         help="OUT.bvh (the input's skeleton and channel layout), OUT.glb, OUT.fbx, or from a glTF input OUT.glb/.vrm "
         "(the input file, animation replaced); a folder for several inputs",
     )

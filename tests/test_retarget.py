@@ -144,7 +144,7 @@ def test_changed_model_motion_goes_back_as_the_same_bone_directions(model_skelet
     assert np.allclose(back.rotations[:, fingers], other.rotations[:, fingers])  # no counterpart: own motion
 
 
-def test_missing_joints_are_named_and_an_explicit_map_fixes_them(model_skeleton):
+def test_unnamed_joints_are_found_down_their_limb_and_an_explicit_map_overrides(model_skeleton):
     other = generated(model_motion(model_skeleton), 0, 1.0)
     names = list(other.skeleton.names)
     names[names.index("mixamorig:LeftLeg")] = "knee_thing"
@@ -153,12 +153,12 @@ def test_missing_joints_are_named_and_an_explicit_map_fixes_them(model_skeleton)
     names[names.index("mixamorig:LeftForeArm")] = "a"
     names[names.index("mixamorig:LeftHand")] = "b"
     sk = Skeleton(tuple(names), other.skeleton.parents, other.skeleton.offsets, other.skeleton.channels)
-    with pytest.raises(
-        ValueError, match=r"no joint found for left elbow \(model joint LowerArm_L\), left hand \(model joint Hand_L\)"
-    ):
-        joint_map(model_skeleton, sk)
-    jm = joint_map(model_skeleton, sk, {"LowerArm_L": "a", "Hand_L": "b"})
+    parts = body_parts(sk)  # down the arm from the shoulder, past the finger joints' branch
+    assert (parts["left_elbow"], parts["left_hand"]) == (names.index("a"), names.index("b"))
+    jm = joint_map(model_skeleton, sk)
     assert (model_skeleton.index("Hand_L"), names.index("b")) in jm.pairs
+    jm = joint_map(model_skeleton, sk, {"Hand_L": "mixamorig:LeftHandIndex1"})
+    assert (model_skeleton.index("Hand_L"), names.index("mixamorig:LeftHandIndex1")) in jm.pairs
     with pytest.raises(ValueError, match="'nope' is not a joint of the input skeleton"):
         joint_map(model_skeleton, sk, {"Hand_L": "nope"})
 

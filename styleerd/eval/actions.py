@@ -32,7 +32,7 @@ import numpy as np
 from tqdm import tqdm
 
 from styleerd.data.datasets import Clip, data_root, find_clips, load_motion, unpack
-from styleerd.data.outside import CMU_HELD_OUT, CMU_REPORTED_SWIMS, RIG_MAPS, XIA_ACTIONS, held_out
+from styleerd.data.outside import CMU_HELD_OUT, CMU_REPORTED_SWIMS, XIA_ACTIONS, held_out
 from styleerd.data.windows import split_takes
 from styleerd.model.stored import GeneratorWeights
 from styleerd.motion import bvh, quat
@@ -68,7 +68,6 @@ class ActionClip:
     source: str  # dataset and rig
     motion: Motion
     input_style: str | None  # None: inferred
-    joint_map: dict[str, str] | None = None
 
 
 def trimmed(m: Motion) -> Motion:
@@ -95,7 +94,6 @@ def held_out_clips(data_dir: str | None = None) -> list[ActionClip]:
                     f"cmu-sample/{folder}",
                     trimmed(bvh.read(path)),
                     "normal",
-                    RIG_MAPS["cc-base" if folder == "iclone" else "cmu-asf"],
                 )
             )
     for c in find_clips(root, "bandai-namco-1"):
@@ -136,7 +134,7 @@ def bandai2_test_walks(data_dir: str | None = None, n: int = 8) -> list[ActionCl
 
 
 def _map(clip: ActionClip, model: GeneratorWeights) -> JointMap:
-    return map_skeleton(clip.motion.skeleton, model, clip.joint_map, clip.name, clip.motion.rotations[0])
+    return map_skeleton(clip.motion.skeleton, model, None, clip.name, clip.motion.rotations[0])
 
 
 def _body_scale(skeleton, jm: JointMap) -> float:
@@ -212,7 +210,7 @@ def _transfers(
             m,
             model,
             30.0,
-            TransferOptions({target: 1.0}, input_style, None, clip.joint_map, pose=pose),
+            TransferOptions({target: 1.0}, input_style, None, pose=pose),
             where=clip.name,
         )
 
@@ -339,7 +337,6 @@ def walk_clips(data_dir: str | None = None) -> list[ActionClip]:
                 "cmu-sample/iclone",
                 trimmed(bvh.read(cmu / f"{stem}.bvh")),
                 "normal",
-                RIG_MAPS["cc-base"],
             )
         )
     generated = resample(walk(SECONDS, fps=60.0, turn_degrees_per_second=0.0), 30.0)
@@ -399,7 +396,7 @@ def evaluate_feet(
             clip.motion,
             model,
             30.0,
-            TransferOptions({neutral: 1.0}, None, None, clip.joint_map),
+            TransferOptions({neutral: 1.0}),
             labels=labels,
             where=clip.name,
         )
@@ -409,7 +406,7 @@ def evaluate_feet(
                 key = f"pose {pose}" + (", root speed" if rs else "")
                 row[key] = {}
                 for style in model.config.styles:
-                    o = TransferOptions({style: 1.0}, clip.input_style, None, clip.joint_map, root_speed=rs, pose=pose)
+                    o = TransferOptions({style: 1.0}, clip.input_style, root_speed=rs, pose=pose)
                     row[key][style] = feet_figures(
                         clip.motion, transfer_motion(clip.motion, model, 30.0, o, where=clip.name), jm, scale
                     )

@@ -28,7 +28,7 @@ from tqdm import tqdm
 
 from styleerd.atomic import atomic_write_text
 from styleerd.data.datasets import BANDAI1_AS_BANDAI2, bandai1_kept_back, data_root, find_clips, load_motion, unpack
-from styleerd.data.outside import CMU_HELD_OUT, RIG_MAPS
+from styleerd.data.outside import CMU_HELD_OUT
 from styleerd.eval.actions import trimmed
 from styleerd.model.stored import SURE, GeneratorWeights, LabellerWeights
 from styleerd.motion import bvh
@@ -48,7 +48,6 @@ class LabelledClip:
     group: str
     style: str  # the clip's own style, in the model's names where the model has it
     motion: Motion
-    joint_map: dict[str, str] | None = None
 
 
 def outside_clips(data_dir: str | None = None, per_bandai1_style: int = 2) -> list[LabelledClip]:
@@ -60,10 +59,10 @@ def outside_clips(data_dir: str | None = None, per_bandai1_style: int = 2) -> li
     for c in find_clips(root, "xia-sample"):
         out.append(LabelledClip(c.name, "xia-sample", SAME_STYLE.get(c.style, c.style), trimmed(load_motion(c))))
     cmu = unpack(root / "cmu-sample.tar.xz") / "cmu-sample"
-    for folder, rig in (("iclone", "cc-base"), ("asf-names", "cmu-asf")):
+    for folder in ("iclone", "asf-names"):
         for path in sorted(p for p in (cmu / folder).glob("*.bvh") if p.stem.startswith(CMU_HELD_OUT[folder])):
             group = f"cmu-sample {folder}"
-            out.append(LabelledClip(f"cmu {path.stem}", group, "normal", trimmed(bvh.read(path)), RIG_MAPS[rig]))
+            out.append(LabelledClip(f"cmu {path.stem}", group, "normal", trimmed(bvh.read(path))))
     taken: dict[str, int] = {}
     for c in sorted(find_clips(root, "bandai-namco-1"), key=lambda c: c.name):
         if bandai1_kept_back(c.name, c.content) and taken.get(c.style, 0) < per_bandai1_style:
@@ -79,7 +78,7 @@ def told_styles(
     """Per frame at 30 fps, the style weights the encoder is told ``[T, styles]`` (labels
     inferred online by ``labeller``, default the model's), and the content read at each frame."""
     motion = resample(clip.motion, 30.0)
-    jm = map_skeleton(motion.skeleton, model, clip.joint_map, clip.name, motion.rotations[0])
+    jm = map_skeleton(motion.skeleton, model, None, clip.name, motion.rotations[0])
     on_model = to_target(motion, jm)
     target = {model.config.neutral_style: 1.0}
     stylizer = StreamStylizer(model, None, None, target, fps=30.0, pose="network", labeller=labeller)

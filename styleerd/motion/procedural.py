@@ -188,3 +188,263 @@ def rig_variants(motion: Motion | None = None, seed: int = 0) -> dict[str, Motio
         rolled[k] = quat.from_angle_axis(rng.uniform(-np.pi, np.pi), along / np.linalg.norm(along))
     out["joint frames rolled about their bones"] = with_rest_frames(motion, rolled)
     return out
+
+
+def _mixamo_side(side: str) -> dict[str, str]:
+    return {"L": "Left", "R": "Right"}[side]
+
+
+def _family_specs() -> dict[str, list[tuple]]:
+    """Rig families as (joint, parent, what it carries): a Mixamo joint of the demo skeleton
+    (its motion), ("at", joint, offset) a helper or extra joint that follows that joint at a
+    rest offset, or None a joint that never moves (an extra root)."""
+    fam: dict[str, list[tuple]] = {}
+
+    def limbs(name, parent_of, extra=lambda s, side: []):
+        out = []
+        for s in "LR":
+            side = _mixamo_side(s)
+            for mix, parent in parent_of.items():
+                new = name(s, mix)
+                if new is not None:
+                    out.append((new, name(s, parent) if parent not in ("Spine2", "Hips") else parent, f"{side}{mix}"))
+            out += extra(s, side)
+        return out
+
+    arm = {"Shoulder": "Spine2", "Arm": "Shoulder", "ForeArm": "Arm", "Hand": "ForeArm"}
+    leg = {"UpLeg": "Hips", "Leg": "UpLeg", "Foot": "Leg", "ToeBase": "Foot"}
+    cc = {
+        "Shoulder": "Clavicle", "Arm": "Upperarm", "ForeArm": "Forearm", "Hand": "Hand",
+        "UpLeg": "Thigh", "Leg": "Calf", "Foot": "Foot", "ToeBase": "ToeBase",
+    }  # fmt: skip
+
+    def cc_extra(s, side):
+        x = 1.0 if s == "L" else -1.0
+        return [
+            (f"CC_Base_{s}_UpperarmTwist01", f"CC_Base_{s}_Upperarm", ("at", f"{side}Arm", (13.0 * x, 0, 0))),
+            (f"CC_Base_{s}_ForearmTwist01", f"CC_Base_{s}_Forearm", ("at", f"{side}ForeArm", (12.0 * x, 0, 0))),
+            (f"CC_Base_{s}_ElbowShareBone", f"CC_Base_{s}_Forearm", ("at", f"{side}ForeArm", (0.0, 0, 0))),
+            (f"CC_Base_{s}_Mid1", f"CC_Base_{s}_Hand", ("at", f"{side}Hand", (9.0 * x, 0, 0))),
+            (f"CC_Base_{s}_Mid2", f"CC_Base_{s}_Mid1", ("at", f"{side}Hand", (13.0 * x, 0, 0))),
+            (f"CC_Base_{s}_Thumb1", f"CC_Base_{s}_Hand", ("at", f"{side}Hand", (3.0 * x, 0, 4))),
+            (f"CC_Base_{s}_ThighTwist01", f"CC_Base_{s}_Thigh", ("at", f"{side}UpLeg", (0.0, -20, 0))),
+            (f"CC_Base_{s}_CalfTwist01", f"CC_Base_{s}_Calf", ("at", f"{side}Leg", (0.0, -20, 0))),
+            (f"CC_Base_{s}_KneeShareBone", f"CC_Base_{s}_Calf", ("at", f"{side}Leg", (0.0, 0, 0))),
+            (f"CC_Base_{s}_ToeBaseShareBone", f"CC_Base_{s}_Foot", ("at", f"{side}Foot", (0.0, -5, 10))),
+            (f"CC_Base_{s}_BigToe1", f"CC_Base_{s}_ToeBase", ("at", f"{side}ToeBase", (-2.0 * x, 0, 4))),
+            (f"CC_Base_{s}_PinkyToe1", f"CC_Base_{s}_ToeBase", ("at", f"{side}ToeBase", (3.0 * x, 0, 3))),
+        ]
+
+    def cc_name(s, mix):
+        return f"CC_Base_{s}_{cc[mix]}"
+
+    fam["Character Creator (CC_Base_, twist and share bones, RL_BoneRoot)"] = (
+        [
+            ("RL_BoneRoot", None, None),
+            ("CC_Base_Hip", "RL_BoneRoot", "Hips"),
+            ("CC_Base_Pelvis", "CC_Base_Hip", ("at", "Hips", (0.0, 0, 0))),
+            ("CC_Base_Waist", "CC_Base_Hip", "Spine"),
+            ("CC_Base_Spine01", "CC_Base_Waist", "Spine1"),
+            ("CC_Base_Spine02", "CC_Base_Spine01", "Spine2"),
+            ("CC_Base_NeckTwist01", "CC_Base_Spine02", "Neck"),
+            ("CC_Base_NeckTwist02", "CC_Base_NeckTwist01", ("at", "Neck", (0.0, 5, 0))),
+            ("CC_Base_Head", "CC_Base_NeckTwist02", "Head"),
+            ("CC_Base_L_Eye", "CC_Base_Head", ("at", "Head", (3.0, 14, 8))),
+            ("CC_Base_R_Eye", "CC_Base_Head", ("at", "Head", (-3.0, 14, 8))),
+        ]
+        + [
+            (n, "CC_Base_Pelvis" if p == "CC_Base_Hips" or p == "Hips" else p, c)
+            for n, p, c in limbs(lambda s, m: cc_name(s, m), leg, lambda s, side: [])
+        ]
+        + [(n, "CC_Base_Spine02" if p == "Spine2" else p, c) for n, p, c in limbs(cc_name, arm, cc_extra)]
+    )
+    asf = {"Shoulder": "Collar", "Arm": "Shoulder", "ForeArm": "Elbow", "Hand": "Wrist",
+           "UpLeg": "Hip", "Leg": "Knee", "Foot": "Ankle", "ToeBase": "Toe"}  # fmt: skip
+
+    def asf_extra(s, side):
+        x = 1.0 if s == "L" else -1.0
+        return [
+            (f"{s.lower()}hand", f"{side}Wrist", ("at", f"{side}Hand", (6.0 * x, 0, 0))),
+            (f"{s}Fingers", f"{s.lower()}hand", ("at", f"{side}Hand", (12.0 * x, 0, 0))),
+            (f"{s}Thumb", f"{side}Wrist", ("at", f"{side}Hand", (3.0 * x, 0, 5))),
+        ]
+
+    def asf_name(s, mix):
+        return f"{_mixamo_side(s)}{asf[mix]}"
+
+    fam["CMU ASF names (LHipJoint, LeftHip, LeftAnkle, LeftCollar)"] = (
+        [
+            ("Hips", None, "Hips"),
+            ("lowerback", "Hips", "Spine"),
+            ("Chest", "lowerback", "Spine1"),
+            ("Chest2", "Chest", "Spine2"),
+            ("lowerneck", "Chest2", ("at", "Spine2", (0.0, 12, 0))),
+            ("Neck", "lowerneck", "Neck"),
+            ("Head", "Neck", "Head"),
+            ("LHipJoint", "Hips", ("at", "Hips", (0.0, 0, 0))),
+            ("RHipJoint", "Hips", ("at", "Hips", (0.0, 0, 0))),
+        ]
+        + [(n, f"{n[0]}HipJoint" if p == "Hips" else p, c) for n, p, c in limbs(asf_name, leg)]
+        + [(n, "Chest2" if p == "Spine2" else p, c) for n, p, c in limbs(asf_name, arm, asf_extra)]
+    )
+    style100 = {"Shoulder": "Collar", "Arm": "Shoulder", "ForeArm": "Elbow", "Hand": "Wrist",
+                "UpLeg": "Hip", "Leg": "Knee", "Foot": "Ankle", "ToeBase": "Toe"}  # fmt: skip
+    fam["100STYLE (LeftCollar, LeftShoulder, LeftElbow, LeftWrist, no Spine2)"] = [
+        ("Hips", None, "Hips"),
+        ("Chest", "Hips", "Spine"),
+        ("Chest3", "Chest", "Spine2"),
+        ("Neck", "Chest3", "Neck"),
+        ("Head", "Neck", "Head"),
+    ] + [
+        (n, "Chest3" if p == "Spine2" else p, c)
+        for n, p, c in limbs(lambda s, m: f"{_mixamo_side(s)}{style100[m]}", {**arm, **leg})
+    ]
+    robot = {"Shoulder": "Shoulder", "Arm": "UpperArm", "ForeArm": "LowerArm", "UpLeg": "UpperLeg", "Leg": "LowerLeg"}
+
+    def robot_extra(s, side):
+        x = 1.0 if s == "L" else -1.0
+        return [(f"Palm{k}.{s}", f"LowerArm.{s}", ("at", f"{side}Hand", (0.0, 0, 0))) for k in (1, 2, 3)] + [
+            (f"Middle1.{s}", f"Palm2.{s}", ("at", f"{side}Hand", (8.0 * x, 0, 0))),
+            (f"Index1.{s}", f"Palm1.{s}", ("at", f"{side}Hand", (7.0 * x, 0, 2))),
+            (f"Ring1.{s}", f"Palm3.{s}", ("at", f"{side}Hand", (7.0 * x, 0, -2))),
+            (f"Foot.{s}", "Bone", f"{side}Foot"),  # IK foot: under the root, not the leg
+            (f"PoleTarget.{s}", "Bone", ("at", "Hips", (9.0 * x, -40, 60))),
+        ]
+
+    fam["Blender names, IK feet outside the legs, no toes, no hand joint (RobotExpressive-like)"] = [
+        ("Bone", None, None),
+        ("Body", "Bone", "Hips"),
+        ("Hips", "Body", ("at", "Hips", (0.0, 2, 0))),
+        ("Abdomen", "Hips", "Spine"),
+        ("Torso", "Abdomen", "Spine2"),
+        ("Neck", "Torso", "Neck"),
+        ("Head", "Neck", "Head"),
+    ] + [
+        (n, {"Spine2": "Torso", "Hips": "Body"}.get(p, p), c)
+        for n, p, c in limbs(
+            lambda s, m: f"{robot[m]}.{s}" if m in robot else None,
+            {"Shoulder": "Spine2", "Arm": "Shoulder", "ForeArm": "Arm", "UpLeg": "Hips", "Leg": "UpLeg"},
+            robot_extra,
+        )
+    ]
+    vroid = {"Shoulder": "Shoulder", "Arm": "UpperArm", "ForeArm": "LowerArm", "Hand": "Hand",
+             "UpLeg": "UpperLeg", "Leg": "LowerLeg", "Foot": "Foot", "ToeBase": "ToeBase"}  # fmt: skip
+    fam["VRoid (J_Bip_C_Hips, J_Bip_L_UpperArm, upper chest)"] = [
+        ("Root", None, None),
+        ("J_Bip_C_Hips", "Root", "Hips"),
+        ("J_Bip_C_Spine", "J_Bip_C_Hips", "Spine"),
+        ("J_Bip_C_Chest", "J_Bip_C_Spine", "Spine1"),
+        ("J_Bip_C_UpperChest", "J_Bip_C_Chest", "Spine2"),
+        ("J_Bip_C_Neck", "J_Bip_C_UpperChest", "Neck"),
+        ("J_Bip_C_Head", "J_Bip_C_Neck", "Head"),
+    ] + [
+        (n, {"Spine2": "J_Bip_C_UpperChest", "Hips": "J_Bip_C_Hips"}.get(p, p), c)
+        for n, p, c in limbs(lambda s, m: f"J_Bip_{s}_{vroid[m]}", {**arm, **leg})
+    ]
+    unreal = {"Shoulder": "clavicle", "Arm": "upperarm", "ForeArm": "lowerarm", "Hand": "hand",
+              "UpLeg": "thigh", "Leg": "calf", "Foot": "foot", "ToeBase": "ball"}  # fmt: skip
+
+    def unreal_extra(s, side):
+        x = 1.0 if s == "L" else -1.0
+        s = s.lower()
+        return [
+            (f"upperarm_twist_01_{s}", f"upperarm_{s}", ("at", f"{side}Arm", (13.0 * x, 0, 0))),
+            (f"lowerarm_twist_01_{s}", f"lowerarm_{s}", ("at", f"{side}ForeArm", (12.0 * x, 0, 0))),
+            (f"thigh_twist_01_{s}", f"thigh_{s}", ("at", f"{side}UpLeg", (0.0, -20, 0))),
+            (f"ik_foot_{s}", "ik_foot_root", ("at", f"{side}Foot", (0.0, 0, 0))),
+        ]
+
+    fam["Unreal mannequin (pelvis, spine_01, thigh_l, ball_l, twist and IK bones)"] = [
+        ("root", None, None),
+        ("ik_foot_root", "root", ("at", "Hips", (0.0, -95, 0))),
+        ("pelvis", "root", "Hips"),
+        ("spine_01", "pelvis", "Spine"),
+        ("spine_02", "spine_01", "Spine1"),
+        ("spine_03", "spine_02", "Spine2"),
+        ("neck_01", "spine_03", "Neck"),
+        ("head", "neck_01", "Head"),
+    ] + [
+        (n, {"Spine2": "spine_03", "Hips": "pelvis"}.get(p, p), c)
+        for n, p, c in limbs(lambda s, m: f"{unreal[m]}_{s.lower()}", {**arm, **leg}, unreal_extra)
+    ]
+    numbered = {"Shoulder": "arm_joint_{s}__4_", "Arm": "arm_joint_{s}__3_", "ForeArm": "arm_joint_{s}__2_",
+                "Hand": "arm_joint_{s}__1_", "UpLeg": "leg_joint_{s}_1", "Leg": "leg_joint_{s}_2",
+                "Foot": "leg_joint_{s}_3", "ToeBase": "leg_joint_{s}_5"}  # fmt: skip
+    fam["numbered joints (CesiumMan-like: Skeleton_torso_joint_1, leg_joint_L_1)"] = [
+        ("Skeleton_torso_joint_1", None, "Hips"),
+        ("Skeleton_torso_joint_2", "Skeleton_torso_joint_1", "Spine"),
+        ("torso_joint_3", "Skeleton_torso_joint_2", "Spine2"),
+        ("Skeleton_neck_joint_1", "torso_joint_3", "Neck"),
+        ("Skeleton_neck_joint_2", "Skeleton_neck_joint_1", "Head"),
+    ] + [
+        (n, {"Spine2": "torso_joint_3", "Hips": "Skeleton_torso_joint_1"}.get(p, p), c)
+        for n, p, c in limbs(lambda s, m: "Skeleton_" + numbered[m].format(s=s), {**arm, **leg})
+    ]
+    fam["Mixamo (mixamorig:), extra Armature root"] = [("Armature", None, None)] + [
+        ("mixamorig:" + n, "mixamorig:" + p if p else "Armature", n) for n, p, _ in _JOINTS
+    ]
+    return fam
+
+
+def _depth_first(spec: list[tuple]) -> list[tuple]:
+    """The joints of a spec in depth-first order, children in the order listed (as BVH lists them)."""
+    out: list[tuple] = []
+
+    def visit(parent: str | None) -> None:
+        for joint in spec:
+            if joint[1] == parent:
+                out.append(joint)
+                visit(joint[0])
+
+    visit(None)
+    return out
+
+
+def rig_families(motion: Motion | None = None) -> dict[str, tuple[Motion, dict[str, str]]]:
+    """The demo walk (or ``motion`` on the demo skeleton) on generated rigs of the naming
+    families and quirks users bring (twist, share, IK and helper bones, extra roots, no toes,
+    no hand joint, numbered and nameless joints), each with the map {demo joint: the rig's
+    joint carrying its motion}. Every joint is where the demo's is, turned as the demo's."""
+    from styleerd.motion.kinematics import forward_kinematics
+
+    motion = motion or walk()
+    sk, T = motion.skeleton, motion.n_frames
+    G, P = forward_kinematics(motion.rotations, motion.positions, sk.parents)
+    rest = forward_kinematics(quat.identity((sk.n_joints,)), sk.offsets.copy(), sk.parents)[1]
+    specs = _family_specs()
+    numbered = specs["numbered joints (CesiumMan-like: Skeleton_torso_joint_1, leg_joint_L_1)"]
+    order = np.random.default_rng(7).permutation(len(numbered))
+    specs["nameless nodes (node<N>)"] = [
+        (f"node{order[k]}", None if p is None else f"node{order[[n for n, _, _ in numbered].index(p)]}", c)
+        for k, (_, p, c) in enumerate(numbered)
+    ]
+    out = {}
+    for family, spec in specs.items():
+        spec = _depth_first(spec)
+        names = [n for n, _, _ in spec]
+        parents = np.array([-1 if p is None else names.index(p) for _, p, _ in spec])
+        g = np.empty((T, len(spec), 4))
+        p = np.empty((T, len(spec), 3))
+        p_rest = np.empty((len(spec), 3))
+        for k, (_, _, carries) in enumerate(spec):
+            if carries is None:
+                g[:, k], p[:, k], p_rest[k] = quat.identity(), 0.0, 0.0
+            elif isinstance(carries, str):
+                j = sk.index(carries)
+                g[:, k], p[:, k], p_rest[k] = G[:, j], P[:, j], rest[j]
+            else:
+                j, off = sk.index(carries[1]), np.array(carries[2], dtype=np.float64)
+                g[:, k], p[:, k], p_rest[k] = G[:, j], P[:, j] + quat.mul_vec(G[:, j], off), rest[j] + off
+        gp = np.where((parents >= 0)[None, :, None], g[:, np.maximum(parents, 0)], quat.identity((T, len(spec))))
+        pp = np.where((parents >= 0)[None, :, None], p[:, np.maximum(parents, 0)], 0.0)
+        local = quat.mul(quat.inv(gp), g)
+        local_pos = quat.mul_vec(quat.inv(gp), p - pp)
+        offsets = p_rest - np.where((parents >= 0)[:, None], p_rest[np.maximum(parents, 0)], 0.0)
+        moves = (np.abs(local_pos - offsets).max(axis=0) > 1e-6).any(-1)
+        moves[0] = True
+        channels = tuple(POSITION_CHANNELS + _ROT if m else _ROT for m in moves)
+        skeleton = Skeleton(tuple(names), parents, offsets, channels)
+        pos = np.where(moves[None, :, None], local_pos, offsets[None])
+        expected = {c: n for n, _, c in spec if isinstance(c, str)}
+        out[family] = (Motion(skeleton, quat.normalize(local), pos, motion.fps), expected)
+    return out

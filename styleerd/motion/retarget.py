@@ -29,9 +29,10 @@ import numba as nb
 import numpy as np
 
 from styleerd.motion import quat
-from styleerd.motion.kinematics import forward_kinematics, forward_pose
+from styleerd.motion.humanoid import REQUIRED, ancestors, body_parts, joint_tree, not_humanoid, pose_positions, problems
+from styleerd.motion.kinematics import forward_pose
 from styleerd.motion.motion import Motion
-from styleerd.motion.skeleton import Skeleton, find_role
+from styleerd.motion.skeleton import Skeleton
 
 # Body parts along the chains they form, root to tip.
 CHAINS = (
@@ -41,24 +42,6 @@ CHAINS = (
     ("hips", "left_hip", "left_knee", "left_foot", "left_toe"),
     ("hips", "right_hip", "right_knee", "right_foot", "right_toe"),
 )
-REQUIRED = (
-    "hips",
-    "chest",
-    "head",
-    "left_shoulder",
-    "left_elbow",
-    "left_hand",
-    "right_shoulder",
-    "right_elbow",
-    "right_hand",
-    "left_hip",
-    "left_knee",
-    "left_foot",
-    "right_hip",
-    "right_knee",
-    "right_foot",
-)
-OPTIONAL = ("spine", "neck", "left_collar", "right_collar", "left_toe", "right_toe")
 
 UP, DOWN, LEFT, RIGHT, FORWARD = np.eye(3)[1], -np.eye(3)[1], np.eye(3)[0], -np.eye(3)[0], np.eye(3)[2]
 # Where each part's bone (towards the next part of its chain) points in the T-pose.
@@ -86,57 +69,6 @@ ACROSS = {
     "hips": (("left_hip",), ("right_hip",)),
     "chest": (("left_collar", "left_shoulder"), ("right_collar", "right_shoulder")),
 }
-
-
-def _path(skeleton: Skeleton, ancestor: int, joint: int) -> list[int]:
-    """Joints strictly between ``ancestor`` and ``joint`` (root side first); None if
-    ``ancestor`` is not an ancestor of ``joint``."""
-    path = []
-    j = int(skeleton.parents[joint])
-    while j != ancestor:
-        if j < 0:
-            return None
-        path.append(j)
-        j = int(skeleton.parents[j])
-    return path[::-1]
-
-
-def _ancestors(skeleton: Skeleton, j: int) -> list[int]:
-    out = []
-    while j >= 0:
-        out.append(j)
-        j = int(skeleton.parents[j])
-    return out
-
-
-def body_parts(skeleton: Skeleton) -> dict[str, int]:
-    """Body part -> joint index, by name (Bandai, CMU/Xia, Mixamo/Unity conventions) and,
-    where names say nothing, by topology: the chest is where the arms branch off the spine,
-    the spine lies between hips and chest, the neck between chest and head, knee and elbow
-    between the joints around them."""
-    parts: dict[str, int] = {}
-    for part in REQUIRED + OPTIONAL:
-        try:
-            parts[part] = find_role(skeleton, part)
-        except KeyError:
-            pass
-    if "chest" not in parts and "left_shoulder" in parts and "right_shoulder" in parts:
-        right = set(_ancestors(skeleton, parts["right_shoulder"]))
-        common = [j for j in _ancestors(skeleton, parts["left_shoulder"]) if j in right]
-        parts["chest"] = common[0]
-    for part, (above, below) in {"spine": ("hips", "chest"), "neck": ("chest", "head")}.items():
-        if part not in parts and above in parts and below in parts:
-            between = _path(skeleton, parts[above], parts[below]) or []
-            if between:
-                parts[part] = between[(len(between) - 1) // 2 if part == "spine" else 0]
-    for side in ("left", "right"):
-        for mid, (a, b) in {"knee": ("hip", "foot"), "elbow": ("shoulder", "hand")}.items():
-            key = f"{side}_{mid}"
-            if key not in parts and f"{side}_{a}" in parts and f"{side}_{b}" in parts:
-                between = _path(skeleton, parts[f"{side}_{a}"], parts[f"{side}_{b}"]) or []
-                if between:
-                    parts[key] = between[len(between) // 2]
-    return parts
 
 
 BODY_PARTS = ("legs", "torso", "head", "arms")
@@ -236,17 +168,6 @@ class JointMap:
         return "\n".join(lines)
 
 
-def _pose_positions(skeleton: Skeleton, rotations: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
-    """Global rotations and positions of one pose (local rotations ``[J, 4]``; None: the rest
-    pose, every rotation zero) with the rest offsets as translations."""
-    rot = (
-        quat.identity((skeleton.n_joints,))
-        if rotations is None
-        else quat.normalize(np.asarray(rotations, dtype=np.float64))
-    )
-    return forward_kinematics(rot, skeleton.offsets.copy(), skeleton.parents)
-
-
 def _unit(v: np.ndarray) -> np.ndarray:
     return v / max(float(np.linalg.norm(v)), 1e-300)
 
@@ -331,7 +252,7 @@ def tpose_rotations(
     straightened about its own hinge, so the roll follows the body's. A bone runs to the next
     part of its chain that both skeletons have (``shared``); parts without one (head, hands,
     toes) and joints that play no part keep their local rotation of the reference pose."""
-    G, P = _pose_positions(skeleton, pose)
+    G, P = pose_positions(skeleton, pose)
     Gm = quat.to_xform(G)
     body = _body_frames(P, parts, shared)
     turn: dict[str, np.ndarray] = {}  # part -> world rotation [3, 3] from the reference pose to the T-pose
@@ -353,13 +274,21 @@ def tpose_rotations(
                 if p.endswith("shoulder") and (hinge := _elbow_hinge(P, parts, p, shared)) is not None:
                     turn[p] = _roll_onto(turn[p] @ hinge, HINGES[p], TPOSE_DIRECTIONS[p]) @ turn[p]
     by_joint = {parts[p]: m for p, m in turn.items()}
+    # a part hanging outside its chain (an IK foot under the root) goes with the part above it
+    detached = {
+        parts[b]: parts[a]
+        for chain in CHAINS
+        for a, b in itertools.pairwise([p for p in chain if p in shared])
+        if parts[a] not in ancestors(skeleton, parts[b])
+    }
     T = np.empty((skeleton.n_joints, 3, 3))
-    for j in range(skeleton.n_joints):  # parents first
-        p = int(skeleton.parents[j])
-        if j in by_joint:
-            T[j] = by_joint[j] @ Gm[j]
-        else:  # the reference pose's local rotation, on the parent's T-pose frame
-            T[j] = T[p] @ Gm[p].T @ Gm[j] if p >= 0 else Gm[j]
+    for _ in range(2 if detached else 1):  # the second pass once the parts above the detached ones are known
+        for j in range(skeleton.n_joints):  # parents first
+            p = detached.get(j, int(skeleton.parents[j])) if _ else int(skeleton.parents[j])
+            if j in by_joint:
+                T[j] = by_joint[j] @ Gm[j]
+            else:  # the reference pose's local rotation, on the parent's T-pose frame
+                T[j] = T[p] @ Gm[p].T @ Gm[j] if p >= 0 else Gm[j]
     return quat.from_xform(T)
 
 
@@ -375,7 +304,7 @@ def natural_rest(skeleton: Skeleton, parts: dict[str, int], shared: set[str]) ->
     ones: spine up, legs down, feet forward, arms out to the sides (up to 60 degrees down),
     hips and chest facing the same way. A rest such as Bandai-Namco's (every bone along its
     parent's X) or one with rolled joint frames is not."""
-    _, P = _pose_positions(skeleton)
+    _, P = pose_positions(skeleton)
     body = _body_frames(P, parts, shared)
     if body is None or quat.angle_between(quat.from_xform(body["hips"]), quat.from_xform(body["chest"])) > np.radians(
         30
@@ -408,8 +337,8 @@ def same_rest_frames(target: Skeleton, source: Skeleton, pairs: tuple[tuple[int,
     """Whether the source's rest pose is the target's up to scale (same bone directions from
     the hips for every mapped joint): the same rig, renamed or rescaled, whose joint frames are
     the target's and need no turning."""
-    _, Pt = _pose_positions(target)
-    _, Ps = _pose_positions(source)
+    _, Pt = pose_positions(target)
+    _, Ps = pose_positions(source)
     (t0, s0), rest = pairs[0], pairs[1:]
     for t, s in rest:
         a, b = Pt[t] - Pt[t0], Ps[s] - Ps[s0]
@@ -422,7 +351,7 @@ def same_rest_frames(target: Skeleton, source: Skeleton, pairs: tuple[tuple[int,
 
 def leg_length(skeleton: Skeleton, parts: dict[str, int]) -> float:
     """Hip to knee to foot of the left leg in the skeleton's rest pose, in its units."""
-    _, P = _pose_positions(skeleton)
+    _, P = pose_positions(skeleton)
     hip, knee, foot = (parts[f"left_{p}"] for p in ("hip", "knee", "foot"))
     return float(np.linalg.norm(P[knee] - P[hip]) + np.linalg.norm(P[foot] - P[knee]))
 
@@ -464,9 +393,11 @@ def joint_map(
     ``[J, 4]``: the model's average pose for the model, the first frame of the motion for an
     input), otherwise the rest pose as it is. A source whose rest pose is the target's up to
     scale (the same rig renamed) shares the target's frames exactly."""
-    tp, sp = body_parts(target), body_parts(source)
+    tp, sp = body_parts(target), body_parts(source, source_pose)
     if explicit:
         for t_name, s_name in explicit.items():
+            if not s_name:
+                continue  # left blank (as --write-joint-map leaves what it could not guess): found automatically
             if t_name not in target.names:
                 raise ValueError(
                     f"joint map: {t_name!r} is not a joint of the model skeleton ({', '.join(target.names)})"
@@ -478,16 +409,28 @@ def joint_map(
             if part is None:
                 raise ValueError(f"joint map: model joint {t_name!r} plays no body part")
             sp[part] = source.index(s_name)
+        P = None if source_pose is None else pose_positions(source, source_pose)[1]
+        wrong = problems(source, sp, P, sides=True)
+        if wrong:
+            raise ValueError(f"joint map refused: {'; '.join(wrong)}")
     missing = [p for p in REQUIRED if p not in sp]
     if missing:
+        why = not_humanoid(source, source_pose)
+        if why and why.startswith("not a humanoid"):
+            raise ValueError(f"{why}; only humanoid skeletons can be mapped onto the model")
         named = [
             f"{p.replace('_', ' ')} (model joint {target.names[tp[p]]})" if p in tp else p.replace("_", " ")
             for p in missing
         ]
+        because = f" ({why})" if why else ""
         raise ValueError(
-            f"cannot map the skeleton: no joint found for {', '.join(named)}; name them with --joint-map, a JSON "
-            "object of model joint -> your joint"
+            f"cannot map the skeleton: no joint found for {', '.join(named)}{because}. Its joints (nameless glTF "
+            f"nodes are called node<N>):\n{joint_tree(source)}\nName them with --joint-map MAP.json, a JSON object "
+            "of model joint -> your joint; --write-joint-map MAP.json writes one with the best guesses filled in"
         )
+    wrong = problems(source, sp)
+    if wrong:
+        raise ValueError(f"cannot map the skeleton: {'; '.join(wrong)}; name the joints with --joint-map")
     if tp["hips"] != 0:
         raise ValueError(f"the model skeleton's root {target.names[0]!r} is not its hips")
     shared = {p for p in tp if p in sp}
@@ -505,6 +448,13 @@ def joint_map(
     else:
         source_t, reference, wants_first_frame = _source_frames(source, sp, shared, source_pose)
     return JointMap(source, target, pairs, source_t, target_t, scale, reference, wants_first_frame)
+
+
+def guessed_joint_map(target: Skeleton, source: Skeleton, source_pose: np.ndarray | None = None) -> dict[str, str]:
+    """Every model joint that plays a body part -> the source joint found for it, or "" where
+    none was: a joint map to edit and pass back (``--write-joint-map``)."""
+    tp, sp = body_parts(target), body_parts(source, source_pose)
+    return {target.names[j]: source.names[sp[p]] if p in sp else "" for p, j in tp.items()}
 
 
 def to_target(motion: Motion, jm: JointMap) -> Motion:

@@ -3,19 +3,20 @@
 from __future__ import annotations
 
 import itertools
+import json
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
 
-from styleerd.atomic import atomic_write, check_output
+from styleerd.atomic import atomic_write, atomic_write_text, check_output
 from styleerd.errors import StyleERDError
 from styleerd.model.stored import GeneratorWeights
 from styleerd.motion import bvh, quat
 from styleerd.motion.gltf import GLTF_INPUTS, read_gltf, write_glb, write_gltf_animation
 from styleerd.motion.motion import Motion
-from styleerd.motion.retarget import JointMap, body_parts, joint_map, to_source, to_target
+from styleerd.motion.retarget import JointMap, body_parts, guessed_joint_map, joint_map, to_source, to_target
 from styleerd.motion.skeleton import Skeleton
 from styleerd.runtime.cleanup import FootLock
 from styleerd.runtime.stylizer import StreamStylizer
@@ -57,6 +58,21 @@ def map_skeleton(
         return joint_map(model.skeleton, skeleton, explicit, model.stats().reference, first_pose)
     except ValueError as e:
         raise StyleERDError(f"{where}: {e}") from None
+
+
+def write_guessed_joint_map(source: str | Path, output: str | Path, model: GeneratorWeights) -> tuple[int, int]:
+    """Write the joint map the automatic mapping finds for ``source`` (BVH, glTF, GLB, VRM),
+    every model joint that plays a body part with its best guess ("" where none was found), as
+    JSON to edit and pass back with ``--joint-map``; (joints guessed, joints in the map)."""
+    check_output(output, source)
+    if Path(source).suffix.lower() in GLTF_INPUTS:
+        motion = read_gltf(source).motion
+    else:
+        header, chunks = bvh.stream(source, 1)
+        motion = bvh.motion_from_channels(header.skeleton, next(chunks), header.fps)
+    guessed = guessed_joint_map(model.skeleton, motion.skeleton, motion.rotations[0])
+    atomic_write_text(output, json.dumps(guessed, indent=2) + "\n")
+    return sum(bool(v) for v in guessed.values()), len(guessed)
 
 
 @dataclass(frozen=True)

@@ -28,7 +28,7 @@ from styleerd.data.augment import other_performer
 from styleerd.data.cache import FeatureSet, prepare
 from styleerd.data.datasets import BANDAI1_AS_BANDAI2, bandai1_kept_back, data_root, unpack
 from styleerd.data.features import features_to_motion, motion_features
-from styleerd.data.outside import RIG_MAPS, held_out
+from styleerd.data.outside import held_out
 from styleerd.data.windows import window_starts
 from styleerd.model import checkpoint as ckpt
 from styleerd.model.labeller import OnlineLabeller
@@ -128,16 +128,12 @@ def outside_clips(
         if not (bandai1_kept_back(name, content) or held_out(name, "bandai-namco-1", content, style)):
             add(bandai1.features[bandai1.frames(c)], BANDAI1_AS_BANDAI2.get(style, style), content)
     cmu = unpack(data_root(data_dir) / "cmu-sample.tar.xz") / "cmu-sample"
-    paths = [
-        (p, rig)
-        for folder, rig in (("iclone", "cc-base"), ("asf-names", "cmu-asf"))
-        for p in sorted((cmu / folder).glob("*.bvh"))
-    ]
-    for path, rig in tqdm(paths, desc="cmu-sample", disable=not progress, leave=False):
+    paths = [p for folder in ("iclone", "asf-names") for p in sorted((cmu / folder).glob("*.bvh"))]
+    for path in tqdm(paths, desc="cmu-sample", disable=not progress, leave=False):
         if held_out(path.stem, "cmu-sample"):
             continue
         motion = resample(bvh.read(path), fs.params.fps)
-        jm = joint_map(fs.skeleton, motion.skeleton, RIG_MAPS[rig], data.stats.reference, motion.rotations[0])
+        jm = joint_map(fs.skeleton, motion.skeleton, None, data.stats.reference, motion.rotations[0])
         add(motion_features(to_target(motion, jm))[0], "normal", "")
     return torch.from_numpy(np.concatenate(frames)), np.array(starts), np.array(styles), np.array(contents)
 

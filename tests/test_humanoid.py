@@ -1,0 +1,248 @@
+"""Humanoid mapping with no joint map: generated rigs of every naming family and quirk (twist,
+share, IK, pole and end bones, extra roots, no toes, no hand joint, numbered and nameless
+joints), the real cmu-sample rigs against their hand-written maps, RobotExpressive; maps that
+are wrong are refused with the reason; non-humanoids get one line."""
+
+import json
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+from scipy.spatial.transform import Rotation
+
+from styleerd.model.stored import load_generator_weights
+from styleerd.motion import bvh
+from styleerd.motion.humanoid import OPTIONAL, REQUIRED, body_parts, side_and_stem, tokens
+from styleerd.motion.kinematics import forward_kinematics
+from styleerd.motion.procedural import rig_families, tpose_skeleton
+from styleerd.motion.retarget import joint_map, to_source, to_target
+from styleerd.motion.skeleton import Skeleton
+
+# The joint maps (model joint -> the rig's joint) once written by hand for cmu-sample's two rig
+# families (Character Creator, CMU ASF names): the oracle the automatic mapping must agree with
+RIG_MAPS = {
+    "cc-base": {
+        "Hips": "CC_Base_Hip",
+        "Spine": "CC_Base_Spine01",
+        "Chest": "CC_Base_Spine02",
+        "Neck": "CC_Base_NeckTwist01",
+        "Head": "CC_Base_Head",
+        **{
+            f"{m}_{s}": f"CC_Base_{s}_{c}"
+            for s in "LR"
+            for m, c in (
+                ("Shoulder", "Clavicle"),
+                ("UpperArm", "Upperarm"),
+                ("LowerArm", "Forearm"),
+                ("Hand", "Hand"),
+                ("UpperLeg", "Thigh"),
+                ("LowerLeg", "Calf"),
+                ("Foot", "Foot"),
+                ("Toes", "ToeBase"),
+            )
+        },
+    },
+    "cmu-asf": {
+        "Spine": "lowerback",
+        "Chest": "Chest2",
+        "Neck": "Neck",
+        **{
+            f"{m}_{s}": f"{side}{c}"
+            for s, side in (("L", "Left"), ("R", "Right"))
+            for m, c in (
+                ("Shoulder", "Collar"),
+                ("UpperArm", "Shoulder"),
+                ("LowerArm", "Elbow"),
+                ("Hand", "Wrist"),
+                ("UpperLeg", "Hip"),
+                ("LowerLeg", "Knee"),
+                ("Foot", "Ankle"),
+                ("Toes", "Toe"),
+            )
+        },
+    },
+}
+FAMILIES = rig_families()
+CHECKED = REQUIRED + ("left_collar", "right_collar", "left_toe", "right_toe")
+
+
+@pytest.fixture(scope="module")
+def model():
+    return load_generator_weights()
+
+
+def global_rotations(m) -> Rotation:
+    g, _ = forward_kinematics(m.rotations, m.positions, m.skeleton.parents)
+    return Rotation.from_quat(g.reshape(-1, 4), scalar_first=True)
+
+
+def test_names_read_as_words_of_any_rig_family():
+    assert tokens("mixamorig:LeftUpLeg") == ["left", "up", "leg"]
+    assert side_and_stem("CC_Base_L_Thigh") == ("left", "thigh")
+    assert side_and_stem("UpperArm.R") == ("right", "upperarm")
+    assert side_and_stem("J_Bip_C_UpperChest") == (None, "upperchest")
+    assert side_and_stem("spine_01") == (None, "spine1")
+    assert side_and_stem("LHipJoint") == ("left", "hipjoint")  # not the hip: CMU's pelvis bone
+
+
+@pytest.mark.parametrize("family", list(FAMILIES))
+def test_every_rig_family_maps_with_no_map_and_round_trips_in_full(model, family):
+    motion, carries = FAMILIES[family]
+    sk = motion.skeleton
+    demo = body_parts(tpose_skeleton())
+    parts = body_parts(sk, motion.rotations[0])
+    expected = {p: carries.get(tpose_skeleton().names[j]) for p, j in demo.items() if p in CHECKED}
+    assert {p: sk.names[parts[p]] for p in expected if expected[p]} == {p: n for p, n in expected.items() if n}
+    jm = joint_map(model.skeleton, sk, None, model.stats().reference, motion.rotations[0])
+    back = to_source(to_target(motion, jm), jm, motion)
+    # every joint's global rotation, swing and twist, comes back (scipy as the oracle)
+    angle = (global_rotations(back) * global_rotations(motion).inv()).magnitude()
+    assert np.degrees(angle).max() < 1e-6
+
+
+def test_every_family_gives_the_model_the_same_motion_as_the_demo_rig(model):
+    """The mapping is the same whatever the rig: the model sees one motion from every family
+    (families with toes; a rig without toes leaves the foot's roll to its rest)."""
+    reference = None
+    for family, (motion, _) in FAMILIES.items():
+        jm = joint_map(model.skeleton, motion.skeleton, None, model.stats().reference, motion.rotations[0])
+        on_model = to_target(motion, jm)
+        rot = Rotation.from_quat(on_model.rotations.reshape(-1, 4), scalar_first=True)
+        if reference is None:
+            reference = rot
+        angles = np.degrees((rot * reference.inv()).magnitude()).reshape(motion.n_frames, -1)
+        feet = [model.skeleton.index(n) for n in ("Foot_L", "Foot_R", "Toes_L", "Toes_R")]
+        others = np.delete(angles, feet, axis=1) if "no toes" in family else angles
+        assert others.max() < 1e-6, family
+
+
+def test_the_real_cmu_sample_rigs_map_as_their_hand_written_maps(shared_data, model):
+    from styleerd.data.datasets import unpack
+
+    base = unpack(shared_data / "cmu-sample.tar.xz") / "cmu-sample"
+    tp = body_parts(model.skeleton)
+    for rig, folder in (("cc-base", "iclone"), ("cmu-asf", "asf-names")):
+        for clip in sorted((base / folder).glob("*.bvh"))[::10]:
+            m = bvh.read(clip)
+            parts = body_parts(m.skeleton, m.rotations[0])
+            found = {model.skeleton.names[j]: m.skeleton.names[parts[p]] for p, j in tp.items() if p in parts}
+            assert {k: found.get(k) for k in RIG_MAPS[rig]} == RIG_MAPS[rig], clip
+            assert all(p in parts for p in REQUIRED)
+
+
+def test_robot_expressive_maps_with_its_ik_feet_and_no_hand_joint(shared_data, model):
+    from styleerd.motion.gltf import read_gltf
+
+    g = read_gltf(shared_data / "characters" / "RobotExpressive.glb")
+    sk = g.motion.skeleton
+    parts = {p: sk.names[j] for p, j in body_parts(sk, g.motion.rotations[0]).items()}
+    assert parts["left_foot"] == "Foot.L" and parts["right_foot"] == "Foot.R"  # under the root, not the legs
+    assert (parts["left_hip"], parts["left_knee"], parts["left_shoulder"]) == ("UpperLeg.L", "LowerLeg.L", "UpperArm.L")
+    assert parts["left_hand"].startswith("Palm") and parts["left_collar"] == "Shoulder.L"
+    assert "PoleTarget.L" not in parts.values()
+    jm = joint_map(model.skeleton, sk, None, model.stats().reference, g.motion.rotations[0])
+    back = to_source(to_target(g.motion, jm), jm, g.motion)
+    assert np.degrees((global_rotations(back) * global_rotations(g.motion).inv()).magnitude()).max() < 1e-6
+
+
+def _creature(legs: int) -> Skeleton:
+    """A body along +Z with ``legs`` legs hanging down in pairs and a head in front: a quadruped
+    (4) or a crab (8)."""
+    names, parents, offsets = ["body"], [-1], [(0.0, 50.0, 0.0)]
+    for k in range(legs):
+        z = 30.0 - 60.0 * (k // 2) / max(legs // 2 - 1, 1)
+        x = 15.0 if k % 2 == 0 else -15.0
+        names += [f"leg{k}_upper", f"leg{k}_lower", f"leg{k}_paw"]
+        parents += [0, len(names) - 3, len(names) - 2]
+        offsets += [(x, -5.0, z), (0.0, -20.0, 0.0), (0.0, -24.0, 0.0)]
+    names += ["neck", "skull"]
+    parents += [0, len(names) - 2]
+    offsets += [(0.0, 10.0, 40.0), (0.0, 5.0, 15.0)]
+    return Skeleton(
+        tuple(names), np.array(parents), np.array(offsets), (("Zrotation", "Xrotation", "Yrotation"),) * len(names)
+    )
+
+
+@pytest.mark.parametrize("legs", [4, 8])
+def test_non_humanoids_are_refused_in_one_line(model, legs):
+    with pytest.raises(ValueError) as e:
+        joint_map(model.skeleton, _creature(legs))
+    assert str(e.value).startswith("not a humanoid") and "\n" not in str(e.value)
+
+
+def _numbered(family: str = "numbered joints (CesiumMan-like: Skeleton_torso_joint_1, leg_joint_L_1)"):
+    return FAMILIES[family][0]
+
+
+def test_wrong_maps_are_refused_with_the_reason(model):
+    mixamo = FAMILIES["Mixamo (mixamorig:), extra Armature root"][0].skeleton
+    with pytest.raises(ValueError, match="left hand and right hand are both mapped to 'mixamorig:RightHand'"):
+        joint_map(model.skeleton, mixamo, {"Hand_L": "mixamorig:RightHand"})
+    with pytest.raises(
+        ValueError, match="left elbow 'mixamorig:RightForeArm' is a right-side joint: the bone would cross"
+    ):
+        joint_map(
+            model.skeleton, mixamo, {"LowerArm_L": "mixamorig:RightForeArm", "LowerArm_R": "mixamorig:LeftForeArm"}
+        )
+    with pytest.raises(
+        ValueError, match="left hand 'mixamorig:LeftForeArm' does not hang below left elbow 'mixamorig:LeftHand'"
+    ):
+        joint_map(model.skeleton, mixamo, {"LowerArm_L": "mixamorig:LeftHand", "Hand_L": "mixamorig:LeftForeArm"})
+    nameless = FAMILIES["nameless nodes (node<N>)"][0]
+    parts = body_parts(nameless.skeleton)
+    left, right = (nameless.skeleton.names[parts[f"{s}_shoulder"]] for s in ("left", "right"))
+    swapped = {"UpperArm_L": right, "UpperArm_R": left}
+    with pytest.raises(ValueError, match="is not left of .*: the bones would cross the body"):
+        joint_map(model.skeleton, nameless.skeleton, swapped)
+
+
+def _armless(tmp_path):
+    """A numbered rig whose arms end at the elbow (nothing to find the hands by): written as BVH."""
+    m = _numbered()
+    keep = [j for j, n in enumerate(m.skeleton.names) if "arm_joint" not in n or n.endswith(("__4_", "__3_"))]
+    sk = m.skeleton
+    index = {j: k for k, j in enumerate(keep)}
+    small = Skeleton(
+        tuple(sk.names[j] for j in keep),
+        np.array([-1 if sk.parents[j] < 0 else index[int(sk.parents[j])] for j in keep]),
+        sk.offsets[keep],
+        tuple(sk.channels[j] for j in keep),
+    )
+    from styleerd.motion.motion import Motion
+
+    path = tmp_path / "armless.bvh"
+    bvh.write(path, Motion(small, m.rotations[:, keep], m.positions[:, keep], m.fps))
+    return path
+
+
+def test_an_unmappable_rig_shows_its_joint_tree_and_a_map_to_edit(tmp_path):
+    path = _armless(tmp_path)
+    run = [sys.executable, "-m", "styleerd.cli", "transfer", str(path), "--style", "elderly"]
+    r = subprocess.run([*run, "-o", str(tmp_path / "out.bvh")], check=False, capture_output=True, text=True)
+    assert r.returncode == 2 and "Traceback" not in r.stderr
+    assert "cannot map the skeleton: no joint found for left shoulder (model joint UpperArm_L)" in r.stderr
+    assert "(an arm has no elbow between the shoulder and the hand)" in r.stderr
+    assert "    Skeleton_torso_joint_2" in r.stderr  # its own tree, indented
+    assert "--write-joint-map" in r.stderr and not (tmp_path / "out.bvh").exists()
+    r = subprocess.run(
+        [*run, "--write-joint-map", str(tmp_path / "map.json")], check=False, capture_output=True, text=True
+    )
+    assert r.returncode == 0, r.stderr
+    guessed = json.loads((tmp_path / "map.json").read_text())
+    assert guessed["Hips"] == "Skeleton_torso_joint_1" and guessed["UpperLeg_L"] == "Skeleton_leg_joint_L_1"
+    assert guessed["Hand_L"] == ""
+    guessed |= {"UpperArm_L": "Skeleton_arm_joint_L__4_", "LowerArm_L": "Skeleton_arm_joint_L__3_"}
+    guessed |= {"Hand_L": "Skeleton_arm_joint_L__3_"}
+    (tmp_path / "map.json").write_text(json.dumps(guessed))
+    r = subprocess.run(
+        [*run, "-o", str(tmp_path / "out.bvh"), "--joint-map", str(tmp_path / "map.json")],
+        check=False,
+        capture_output=True,
+        text=True,
+    )
+    assert r.returncode == 2 and "both mapped to 'Skeleton_arm_joint_L__3_'" in r.stderr
+
+
+def test_optional_parts_are_a_subset_the_mapping_knows():
+    assert set(OPTIONAL).isdisjoint(REQUIRED)
