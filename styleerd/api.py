@@ -151,12 +151,16 @@ class Model:
         parts: str | dict | None = None,
         root_speed: bool = False,
         pose: str = "input",
+        animation: str = "all",
+        keep_original: bool = False,
     ) -> Motion:
         """A whole motion (a ``Motion`` or a BVH/glTF/GLB/VRM file) in the target style, on its
         own skeleton, same frames and fps; also written to ``output`` (.bvh, .glb, .vrm) when
         given (atomically: nothing is written unless the transfer succeeded). ``root_speed``:
         the root's ground speed in the target style too (else the input's root path); ``pose``: as
-        for ``stylizer``."""
+        for ``stylizer``. From a glTF/VRM file with an ``output``, every animation is stylised
+        under its own name (or only ``animation``); ``keep_original`` keeps the input's beside
+        them, named NAME-STYLE; the last one written is returned."""
         options = TransferOptions(
             self.target(style, intensity, mix),
             input_style,
@@ -167,10 +171,12 @@ class Model:
             parts=part_targets(self.weights, parts) or None,
             root_speed=root_speed,
             pose=pose,
+            animation=animation,
+            keep_original=keep_original,
         )
         if output is not None and not isinstance(source, Motion):
             transfer_file(source, output, self.weights, self.fps, options)
-            return read_motion(output)
+            return read_motion(output, -1)
         motion = source if isinstance(source, Motion) else read_motion(source)
         out = transfer_motion(motion, self.weights, self.fps, options)
         if output is not None:

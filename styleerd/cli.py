@@ -141,6 +141,8 @@ def _transfer(args: argparse.Namespace) -> None:
         parts or None,
         args.root_speed,
         args.pose,
+        args.animation,
+        args.keep_original,
     )
     out = Path(args.output)
     into_folder = len(args.input) > 1 or Path(args.input[0]).is_dir() or out.is_dir() or args.output.endswith(os.sep)
@@ -161,7 +163,8 @@ def _transfer(args: argparse.Namespace) -> None:
             if made is not None:
                 made.rmdir()
             raise
-        print(f"wrote {output}: {done.frames} frames at {done.fps:.6g} fps, target {target}")
+        clips = f" in {done.clips} animations" if done.clips > 1 else ""
+        print(f"wrote {output}: {done.frames} frames{clips} at {done.fps:.6g} fps, target {target}")
         return
     if not (0 < args.timeout < math.inf) or (args.max_memory is not None and not 0 < args.max_memory < math.inf):
         raise StyleERDError(f"--timeout {args.timeout:g} and --max-memory {args.max_memory} must be positive numbers")
@@ -639,6 +642,17 @@ def _transfer_command(command: Callable[[str, str], argparse.ArgumentParser]) ->
         "is)",
     )
     p.add_argument("--pose", choices=POSES, default="input", help=POSE_HELP)
+    p.add_argument(
+        "--animation",
+        default="all",
+        metavar="NAME|all",
+        help="glTF/GLB/VRM input: the animation to stylise, by name (default: all, each keeping its name)",
+    )
+    p.add_argument(
+        "--keep-original",
+        action="store_true",
+        help="glTF/GLB/VRM output: keep the input's animations and add the stylised ones as NAME-STYLE",
+    )
     p.add_argument(
         "--joint-map", help="JSON object {model joint: input joint} completing or overriding the automatic mapping"
     )

@@ -88,24 +88,22 @@ def test_xia_clips_into_every_style_keep_skeleton_frames_and_root(shared_data, m
     assert "Chest <- Spine1" in lines[0]
 
 
-def test_unmappable_skeleton_and_bad_labels_fail_cleanly(shared_data, model, tmp_path):
+def test_renamed_joints_are_found_and_bad_maps_and_labels_fail_cleanly(shared_data, model, tmp_path):
     g, _meta = model
     xia = shared_data / "xia-sample" / "angry_13_000.bvh"
     text = xia.read_text().replace("LeftHand", "Paw").replace("LeftForeArm", "Wrist2")
     (tmp_path / "odd.bvh").write_text(text)
-    with pytest.raises(
-        StyleERDError,
-        match=r"odd.bvh: cannot map the skeleton: no joint found for left elbow \(model joint LowerArm_L\)",
-    ):
-        transfer_file(
-            tmp_path / "odd.bvh",
-            tmp_path / "x.bvh",
-            g,
-            30.0,
-            TransferOptions({"elderly": 1.0}, input_style="normal", content="walk"),
-        )
-    assert not (tmp_path / "x.bvh").exists()
-    (tmp_path / "map.json").write_text('{"LowerArm_L": "Wrist2", "Hand_L": "Paw"}')
+    lines = []
+    transfer_file(
+        tmp_path / "odd.bvh",
+        tmp_path / "x.bvh",
+        g,
+        30.0,
+        TransferOptions({"elderly": 1.0}, input_style="normal", content="walk"),
+        report=lines.append,
+    )
+    assert "LowerArm_L <- Wrist2" in lines[0] and "Hand_L <- Paw" in lines[0]  # down the arm from its shoulder
+    (tmp_path / "map.json").write_text('{"LowerArm_L": "Wrist3"}')
     r = subprocess.run(
         [
             sys.executable,
@@ -115,20 +113,17 @@ def test_unmappable_skeleton_and_bad_labels_fail_cleanly(shared_data, model, tmp
             str(tmp_path / "odd.bvh"),
             "--style",
             "elderly",
-            "--input-style",
-            "normal",
-            "--content",
-            "walk",
             "--joint-map",
             str(tmp_path / "map.json"),
             "-o",
-            str(tmp_path / "x.bvh"),
+            str(tmp_path / "y.bvh"),
         ],
         capture_output=True,
         text=True,
         check=False,
     )
-    assert r.returncode == 0 and "LowerArm_L <- Wrist2" in r.stdout and (tmp_path / "x.bvh").is_file()
+    assert r.returncode == 2 and "'Wrist3' is not a joint of the input skeleton" in r.stderr
+    assert len(r.stderr.strip().splitlines()) == 1 and not (tmp_path / "y.bvh").exists()
     clip = find_clips(shared_data, "bandai-namco-2")[0]
     r = subprocess.run(
         [

@@ -3,9 +3,10 @@ animation (joint rotations; translations of the joints that have BVH position ch
 With ``mesh``, a simple skinned body: one prism per bone, rigidly bound to the bone, with a
 ridge on its front so a bone rolled about itself shows.
 
-Reading (``read_gltf``) takes a glTF/GLB/VRM file's skeleton and animation into a Motion whose
-rest frames are world-aligned, as BVH's are; ``write_gltf_animation`` puts a motion back into
-the same file, everything but the animation unchanged.
+Reading (``read_gltf``, ``read_gltf_clips``) takes a glTF/GLB/VRM file's skeleton and its
+animations into Motions whose rest frames are world-aligned, as BVH's are;
+``write_gltf_animations`` puts motions back into the same file as named animations, everything
+but the animations unchanged.
 
 glTF is in metres: a top node scales the skeleton by ``metres_per_unit`` (by default guessed
 from the leg length: centimetre and metre data are recognised, anything else is scaled to a
@@ -410,22 +411,48 @@ def _tree(doc: gl.GLTF2) -> dict[int, int]:
     return parent
 
 
-def read_gltf(path: str | Path, animation: int = 0, fps: float | None = None) -> GltfMotion:
-    """A glTF/GLB/VRM file's skeleton (its first skin) and animation, sampled at ``fps`` (by
-    default the animation's own key rate, within 10-120)."""
+def animation_names(doc: gl.GLTF2) -> list[str]:
+    """Each animation's name (``animation<N>`` for a nameless one)."""
+    return [a.name or f"animation{k}" for k, a in enumerate(doc.animations or [])]
+
+
+def _animation_index(doc: gl.GLTF2, animation: int | str) -> int:
+    """The index of the animation named ``animation`` (or numbered), or a ValueError listing them."""
+    names = animation_names(doc)
+    if not names:
+        raise ValueError("no animation to stylise")
+    if isinstance(animation, int) and -len(names) <= animation < len(names):
+        return animation % len(names)
+    if animation in names:
+        return names.index(animation)
+    raise ValueError(f"no animation {animation!r}; the file has: {', '.join(names)}"[:400])
+
+
+def read_gltf(path: str | Path, animation: int | str = 0, fps: float | None = None) -> GltfMotion:
+    """A glTF/GLB/VRM file's skeleton (its first skin) and one animation (by index or name),
+    sampled at ``fps`` (by default the animation's own key rate, within 10-120)."""
+    return read_gltf_clips(path, [animation], fps)[0][1]
+
+
+def read_gltf_clips(
+    path: str | Path, animations: list[int | str] | None = None, fps: float | None = None
+) -> list[tuple[str, GltfMotion]]:
+    """(name, clip) of each animation named or numbered in ``animations`` (None: every one),
+    each on the file's first skin, as ``read_gltf`` reads one."""
     path = Path(path)
     doc, blob = _load(path)
     try:
-        return _read(doc, blob, animation, fps)
+        wanted = range(len(doc.animations or [])) if animations is None else animations
+        indices = [_animation_index(doc, a) for a in wanted] or [_animation_index(doc, 0)]
+        names = animation_names(doc)
+        return [(names[k], _read(doc, blob, k, fps)) for k in indices]
     except (ValueError, KeyError, IndexError, TypeError, AttributeError) as e:
-        raise StyleERDError(f"{path}: {str(e)[:300]}") from None
+        raise StyleERDError(f"{path}: {str(e)[:400]}") from None
 
 
 def _read(doc: gl.GLTF2, blob: bytes, animation: int, fps: float | None) -> GltfMotion:
     if not doc.skins:
         raise ValueError("no skin: the file has no skeleton to stylise")
-    if not doc.animations or animation >= len(doc.animations):
-        raise ValueError("no animation to stylise")
     parent = _tree(doc)
 
     def chain(n: int) -> list[int]:
@@ -538,16 +565,30 @@ def _read(doc: gl.GLTF2, blob: bytes, animation: int, fps: float | None) -> Gltf
     return GltfMotion(doc, blob, motion, order, rest_global, (a_rot, a_pos, a_scale), parts, moved)
 
 
-def write_gltf_animation(path: str | Path, source: GltfMotion, motion: Motion) -> None:
-    """``source``'s file with its animations replaced by ``motion`` (on ``source.motion``'s
-    skeleton, same fps): same nodes, meshes, skins, materials and extensions; the rotation of
-    every joint and the translation of the root (and of joints whose translation was animated)
-    keyed at every frame."""
+def write_gltf_animations(
+    path: str | Path, source: GltfMotion, clips: list[tuple[str | None, Motion]], keep_original: bool = False
+) -> None:
+    """``source``'s file with an animation per clip (name, motion on ``source.motion``'s
+    skeleton), in place of its own animations or, with ``keep_original``, after them: same
+    nodes, meshes, skins, materials and extensions; the rotation of every joint and the
+    translation of the root (and of joints whose translation was animated) keyed at every frame.
+    Data only the replaced animations used is dropped from the buffer."""
     import copy
 
     doc = copy.deepcopy(source.doc)
     blob = bytearray(source.blob)
     blob.extend(b"\0" * (-len(blob) % 4))
+    made = [_animation(doc, blob, source, motion, name) for name, motion in clips]
+    doc.animations = (list(doc.animations or []) if keep_original else []) + made
+    blob = _compacted(doc, bytes(blob))
+    doc.buffers = [gl.Buffer(byteLength=len(blob))]
+    doc.set_binary_blob(blob)
+    atomic_write(Path(path), lambda tmp: doc.save_binary(str(tmp)))
+
+
+def _animation(doc: gl.GLTF2, blob: bytearray, source: GltfMotion, motion: Motion, name: str | None) -> gl.Animation:
+    """``motion`` (on ``source.motion``'s skeleton) as a glTF animation of ``source``'s nodes,
+    its keys appended to ``doc``'s buffer ``blob``."""
     parents, J = motion.skeleton.parents, motion.skeleton.n_joints
     a_rot, a_pos, a_scale = source.above
     parent_rest = np.where((parents >= 0)[:, None], source.rest_global[np.maximum(parents, 0)], quat.identity((J,)))
@@ -572,17 +613,86 @@ def write_gltf_animation(path: str | Path, source: GltfMotion, motion: Motion) -
             channels.append(
                 gl.AnimationChannel(sampler=len(samplers) - 1, target=gl.AnimationChannelTarget(node=node, path=target))
             )
-    doc.animations = [gl.Animation(name="styleerd", samplers=samplers, channels=channels)]
-    doc.buffers = [gl.Buffer(byteLength=len(blob))]
-    doc.set_binary_blob(bytes(blob))
-    atomic_write(Path(path), lambda tmp: doc.save_binary(str(tmp)))
+    return gl.Animation(name=name, samplers=samplers, channels=channels)
+
+
+def _fields(attributes) -> dict:
+    """A primitive's attributes or morph target as a dict that writes through (pygltflib gives
+    either an ``Attributes`` object or a plain dict)."""
+    return attributes if isinstance(attributes, dict) else vars(attributes)
+
+
+# Extensions whose data lives in buffer views this module does not follow: no compaction there.
+_OPAQUE_DATA = ("KHR_draco_mesh_compression", "EXT_meshopt_compression", "EXT_mesh_gpu_instancing")
+
+
+def _compacted(doc: gl.GLTF2, blob: bytes) -> bytes:
+    """The buffer with only the accessors and buffer views still used (by meshes, skins,
+    animations, images), ``doc``'s indices renumbered to match; unchanged where an extension
+    keeps data out of sight (Draco, meshopt, instancing)."""
+    if any(e in (doc.extensionsUsed or []) for e in _OPAQUE_DATA):
+        return blob
+    used_accessors: set[int] = set()
+    for mesh in doc.meshes or []:
+        for prim in mesh.primitives:
+            for attributes in [prim.attributes, *(prim.targets or [])]:
+                used_accessors.update(v for v in _fields(attributes).values() if isinstance(v, int))
+            if prim.indices is not None:
+                used_accessors.add(prim.indices)
+    used_accessors.update(s.inverseBindMatrices for s in doc.skins or [] if s.inverseBindMatrices is not None)
+    for anim in doc.animations or []:
+        used_accessors.update(x for s in anim.samplers for x in (s.input, s.output))
+    accessor_index = {old: new for new, old in enumerate(sorted(used_accessors))}
+    accessors = [doc.accessors[k] for k in sorted(used_accessors)]
+    views_of = [a.bufferView for a in accessors]
+    for a in accessors:
+        if a.sparse is not None:
+            views_of += [a.sparse.indices.bufferView, a.sparse.values.bufferView]
+    views_of += [im.bufferView for im in doc.images or []]
+    used_views = sorted({v for v in views_of if v is not None})
+    view_index = {old: new for new, old in enumerate(used_views)}
+    out = bytearray()
+    views = []
+    for k in used_views:
+        start = doc.bufferViews[k].byteOffset or 0
+        out.extend(b"\0" * (-len(out) % 4))
+        views.append(gl.BufferView(**{**vars(doc.bufferViews[k]), "byteOffset": len(out)}))
+        out.extend(blob[start : start + doc.bufferViews[k].byteLength])
+    for a in accessors:
+        if a.bufferView is not None:
+            a.bufferView = view_index[a.bufferView]
+        if a.sparse is not None:
+            a.sparse.indices.bufferView = view_index[a.sparse.indices.bufferView]
+            a.sparse.values.bufferView = view_index[a.sparse.values.bufferView]
+    for im in doc.images or []:
+        if im.bufferView is not None:
+            im.bufferView = view_index[im.bufferView]
+    for mesh in doc.meshes or []:
+        for prim in mesh.primitives:
+            for attributes in [prim.attributes, *(prim.targets or [])]:
+                fields = _fields(attributes)
+                for key, v in list(fields.items()):
+                    if isinstance(v, int):
+                        fields[key] = accessor_index[v]
+            if prim.indices is not None:
+                prim.indices = accessor_index[prim.indices]
+    for skin in doc.skins or []:
+        if skin.inverseBindMatrices is not None:
+            skin.inverseBindMatrices = accessor_index[skin.inverseBindMatrices]
+    for anim in doc.animations or []:
+        for sampler in anim.samplers:
+            sampler.input, sampler.output = accessor_index[sampler.input], accessor_index[sampler.output]
+    doc.accessors, doc.bufferViews = accessors, views
+    out.extend(b"\0" * (-len(out) % 4))
+    return bytes(out)
 
 
 GLTF_INPUTS = (".glb", ".gltf", ".vrm")
 
 
-def read_motion(path: str | Path) -> Motion:
-    """A motion from a BVH, glTF, GLB or VRM file (its first skin's skeleton and animation)."""
+def read_motion(path: str | Path, animation: int | str = 0) -> Motion:
+    """A motion from a BVH, glTF, GLB or VRM file (its first skin's skeleton and an animation,
+    by default the first, by index (-1: the last) or name)."""
     if Path(path).suffix.lower() in GLTF_INPUTS:
-        return read_gltf(path).motion
+        return read_gltf(path, animation).motion
     return bvh.read(path)

@@ -14,7 +14,7 @@ from styleerd.atomic import atomic_write, atomic_write_text, check_output
 from styleerd.errors import StyleERDError
 from styleerd.model.stored import GeneratorWeights
 from styleerd.motion import bvh, quat
-from styleerd.motion.gltf import GLTF_INPUTS, read_gltf, write_glb, write_gltf_animation
+from styleerd.motion.gltf import GLTF_INPUTS, read_gltf, read_gltf_clips, write_glb, write_gltf_animations
 from styleerd.motion.motion import Motion
 from styleerd.motion.retarget import JointMap, body_parts, guessed_joint_map, joint_map, to_source, to_target
 from styleerd.motion.skeleton import Skeleton
@@ -94,6 +94,8 @@ class TransferOptions:
     pose: str = (
         "input"  # the input's pose plus the style's change, or "network": the network's pose (``StreamStylizer``)
     )
+    animation: str = "all"  # glTF/VRM input: the animation to stylise (its name), or every one
+    keep_original: bool = False  # glTF/VRM output: the input's animations kept, the stylised ones added as NAME-STYLE
 
 
 @dataclass
@@ -103,6 +105,7 @@ class TransferReport:
     frames: int
     fps: float
     labels: tuple[str, str] | None  # (style, content) at the last frame, when inferred
+    clips: int = 1  # animations stylised (a glTF/VRM input's)
 
 
 def _stylised_stream(
@@ -224,28 +227,53 @@ def _inferred_labels(stylizer: StreamStylizer, report: Callable[[str], None] | N
     return labels
 
 
+def style_tag(target: dict[str, float]) -> str:
+    """A target as a name's suffix: its styles by weight, joined ('elderly', 'elderly+feminine')."""
+    return "+".join(k for k, w in sorted(target.items(), key=lambda kw: -kw[1]) if w > 0) or "neutral"
+
+
 def _transfer_gltf(
     source: Path, output: Path, model: GeneratorWeights, fps: float, options: TransferOptions, report
 ) -> TransferReport:
-    """A glTF/GLB/VRM character in: its first skin's skeleton and its animation, VRM humanoid
-    bones named for the mapping; out as the same file with the animation replaced (.glb,
-    .vrm) or as a BVH of its skeleton."""
+    """A glTF/GLB/VRM character in: its first skin's skeleton and its animations (every one,
+    or ``options.animation``), VRM humanoid bones named for the mapping; out as the same file
+    with each animation stylised under its own name (.glb, .vrm; with ``keep_original`` beside
+    the input's, named NAME-STYLE) or, for one animation, as a BVH of its skeleton."""
     kind = output.suffix.lower()
     if kind not in (".bvh", ".glb", ".vrm"):
         raise StyleERDError(f"{output}: from a glTF input the output must be .glb, .vrm or .bvh")
-    src = read_gltf(source)
+    clips = read_gltf_clips(source, None if options.animation == "all" else [options.animation])
+    if kind == ".bvh" and len(clips) > 1:
+        raise StyleERDError(
+            f"{output}: a BVH holds one animation and {source.name} has {len(clips)} "
+            f"({', '.join(n for n, _ in clips)[:300]}); pick one with --animation NAME, or write .glb"
+        )
+    src = clips[0][1]
     model_parts = body_parts(model.skeleton)
     explicit = {model.skeleton.names[model_parts[p]]: name for p, name in src.parts.items() if p in model_parts}
     explicit.update(options.explicit_map or {})
     lines: list[str] = []
-    out = transfer_motion(
-        src.motion, model, fps, replace(options, explicit_map=explicit or None), report, labels=lines, where=str(source)
-    )
+    out = []
+    for k, (name, clip) in enumerate(clips):
+        said = report if k == 0 else None  # the mapping is the same for every clip: said once
+        if report and len(clips) > 1:
+            report(f"animation {name!r} ({k + 1} of {len(clips)}, {clip.motion.n_frames} frames)")
+        motion = transfer_motion(
+            clip.motion,
+            model,
+            fps,
+            replace(options, explicit_map=explicit or None),
+            said,
+            labels=lines,
+            where=f"{source} (animation {name!r})",
+        )
+        out.append((f"{name}-{style_tag(options.target)}" if options.keep_original else name, motion))
     if kind == ".bvh":
-        bvh.write(output, out)
+        bvh.write(output, out[0][1])
     else:
-        write_gltf_animation(output, src, out)
-    return TransferReport(out.n_frames, out.fps, lines[0] if lines else None)
+        write_gltf_animations(output, src, out, options.keep_original)
+    frames = sum(m.n_frames for _, m in out)
+    return TransferReport(frames, out[0][1].fps, lines[-1] if lines else None, len(out))
 
 
 def _checked(rows: Iterator[np.ndarray], source) -> Iterator[np.ndarray]:
