@@ -24,19 +24,21 @@ import pygltflib as gl
 from styleerd.atomic import atomic_write
 from styleerd.errors import StyleERDError
 from styleerd.motion import bvh, quat
+from styleerd.motion.humanoid import body_parts, pose_positions
 from styleerd.motion.kinematics import bone_fronts, forward_kinematics
 from styleerd.motion.motion import Motion
-from styleerd.motion.skeleton import POSITION_CHANNELS, Skeleton, find_role
+from styleerd.motion.skeleton import POSITION_CHANNELS, Skeleton
 
 
 def guess_metres_per_unit(motion: Motion) -> float:
     """Metres per unit of ``motion``'s skeleton, guessed from its leg length (centimetres or
     metres; otherwise scaled to a 0.9 m leg)."""
     sk = motion.skeleton
-    try:
-        _hip, knee, foot = (find_role(sk, f"left_{p}") for p in ("hip", "knee", "foot"))
-        leg = float(np.linalg.norm(sk.offsets[knee]) + np.linalg.norm(sk.offsets[foot]))
-    except KeyError:
+    parts = body_parts(sk)
+    if all(f"left_{p}" in parts for p in ("hip", "knee", "foot")):
+        hip, knee, foot = pose_positions(sk)[1][[parts[f"left_{p}"] for p in ("hip", "knee", "foot")]]
+        leg = float(np.linalg.norm(knee - hip) + np.linalg.norm(foot - knee))
+    else:
         _, g = forward_kinematics(motion.rotations[:1], motion.positions[:1], sk.parents)
         leg = float(np.ptp(g[0, :, 1])) / 2
     if 60 <= leg <= 120:

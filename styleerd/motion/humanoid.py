@@ -166,14 +166,11 @@ def _main_child(skeleton: Skeleton, j: int, usable: np.ndarray, P: np.ndarray) -
 
 def _walk_down(skeleton: Skeleton, start: int, usable: np.ndarray, P: np.ndarray, eps: float) -> list[int]:
     """The joints below ``start`` along its main branch, skipping any at the same spot as the
-    joint kept before them (the deeper of two coincident joints is the one that turns the bone)."""
-    out, j, last = [], start, start
+    joint kept before them (a hand's finger-base joint: the hand is what turns the fingers)."""
+    out, j = [], start
     while (c := _main_child(skeleton, j, usable, P)) is not None:
-        if np.linalg.norm(P[c] - P[last]) > eps:
+        if np.linalg.norm(P[c] - P[out[-1] if out else start]) > eps:
             out.append(c)
-            last = c
-        elif out:
-            out[-1] = c
         j = c
     return out
 

@@ -122,75 +122,6 @@ class Skeleton:
         )
 
 
-def _sided(left: tuple[str, ...]) -> tuple[str, ...]:
-    """The right-side names of left-side ones ('leftarm' -> 'rightarm', 'foot_l' -> 'foot_r')."""
-    swap = {"left": "right", "_l": "_r", "l_": "r_", ".l": ".r"}
-    out = []
-    for n in left:
-        for a, b in swap.items():
-            if n.startswith(a) or n.endswith(a):
-                n = (b + n[len(a) :]) if n.startswith(a) else (n[: -len(a)] + b)
-                break
-        out.append(n)
-    return tuple(out)
-
-
-# Joint names by body part (lower case, namespace dropped), as Bandai-Namco, CMU/Xia,
-# Mixamo/Unity and Blender rigs name them; left side, the right side follows.
-_LEFT_NAMES = {
-    "collar": (
-        "shoulder_l",
-        "leftshoulder",
-        "leftcollar",
-        "l_collar",
-        "leftclavicle",
-        "clavicle_l",
-        "l_clavicle",
-        "clavicle.l",
-        "shoulder.l",
-    ),
-    "shoulder": ("upperarm_l", "leftarm", "leftupperarm", "l_shoulder", "l_upperarm", "upper_arm.l"),
-    "elbow": (
-        "lowerarm_l",
-        "leftforearm",
-        "leftlowerarm",
-        "leftelbow",
-        "l_elbow",
-        "l_forearm",
-        "forearm_l",
-        "forearm.l",
-    ),
-    "hand": ("hand_l", "lefthand", "leftwrist", "l_wrist", "l_hand", "hand.l"),
-    "hip": ("upperleg_l", "leftupleg", "leftupperleg", "lefthip", "l_hip", "thigh_l", "thigh.l", "l_thigh"),
-    "knee": ("lowerleg_l", "leftleg", "leftlowerleg", "leftknee", "l_knee", "calf_l", "shin.l", "l_calf", "leftshin"),
-    "foot": ("foot_l", "leftfoot", "l_foot", "leftankle", "l_ankle", "foot.l"),
-    "toe": ("toes_l", "lefttoebase", "lefttoe", "lefttoes", "l_toe", "ball_l", "toe.l"),
-}
-_ROLE_NAMES = {
-    "hips": ("hips", "pelvis", "hip"),
-    "spine": ("spine",),
-    "chest": ("chest", "upperchest", "spine2"),
-    "neck": ("neck",),
-    "head": ("head",),
-    **{f"left_{part}": names for part, names in _LEFT_NAMES.items()},
-    **{f"right_{part}": _sided(names) for part, names in _LEFT_NAMES.items()},
-}
-
-
-def bare_name(name: str) -> str:
-    """'mixamorig:LeftUpLeg' -> 'leftupleg'."""
-    return name.rsplit(":", 1)[-1].lower()
-
-
-def find_role(skeleton: Skeleton, role: str) -> int:
-    """Index of the joint playing ``role`` (a key of the role table), by its name."""
-    bare = [bare_name(n) for n in skeleton.names]
-    for candidate in _ROLE_NAMES[role]:
-        if candidate in bare:
-            return bare.index(candidate)
-    raise KeyError(f"no joint found for {role.replace('_', ' ')} (tried {', '.join(_ROLE_NAMES[role])})")
-
-
 @dataclass(frozen=True)
 class BodyRoles:
     """The joints that define facing (hips and shoulders, left and right) and the feet, and the leg length."""
@@ -207,20 +138,18 @@ class BodyRoles:
 
     @classmethod
     def of(cls, skeleton: Skeleton) -> BodyRoles:
-        """Find the roles in ``skeleton`` by joint name and topology; ``KeyError`` naming a role not found."""
-        r = {
-            role: find_role(skeleton, role)
-            for role in (
-                "left_hip",
-                "right_hip",
-                "left_shoulder",
-                "right_shoulder",
-                "left_foot",
-                "right_foot",
-                "left_toe",
-                "right_toe",
-            )
-        }
+        """Find the roles in ``skeleton`` by joint name and topology (``humanoid.body_parts``; a
+        foot with no toe joint stands for its toe too); ``KeyError`` naming a role not found."""
+        from styleerd.motion.humanoid import body_parts  # the humanoid module builds on this one
+
+        r = body_parts(skeleton)
+        for side in ("left", "right"):
+            if f"{side}_foot" in r:
+                r.setdefault(f"{side}_toe", r[f"{side}_foot"])
+        needed = ("left_hip", "right_hip", "left_shoulder", "right_shoulder", "left_foot", "right_foot")
+        missing = [role.replace("_", " ") for role in needed if role not in r]
+        if missing:
+            raise KeyError(f"no joint found for {', '.join(missing)}")
         j, length = r["left_foot"], 0.0
         while j != r["left_hip"] and j > 0:
             length += float(np.linalg.norm(skeleton.offsets[j]))
