@@ -145,6 +145,18 @@ def _transfer(args: argparse.Namespace) -> None:
         args.keep_original,
     )
     out = Path(args.output)
+    if args.onto:
+        from styleerd.runtime.offline import transfer_onto
+
+        if len(args.input) != 1 or Path(args.input[0]).is_dir():
+            raise StyleERDError("--onto: name one motion file")
+        done = transfer_onto(
+            Path(args.input[0]), Path(args.onto), out, model, model.meta["data"]["fps"], options, print
+        )
+        print(
+            f"wrote {out}: {done.frames} frames in {done.clips} animation(s) on {Path(args.onto).name}, target {target}"
+        )
+        return
     into_folder = len(args.input) > 1 or Path(args.input[0]).is_dir() or out.is_dir() or args.output.endswith(os.sep)
     if not into_folder:
         pairs = [(Path(args.input[0]), out)]
@@ -647,6 +659,12 @@ def _transfer_command(command: Callable[[str, str], argparse.ArgumentParser]) ->
         default="all",
         metavar="NAME|all",
         help="glTF/GLB/VRM input: the animation to stylise, by name (default: all, each keeping its name)",
+    )
+    p.add_argument(
+        "--onto",
+        metavar="AVATAR",
+        help="put the stylised motion on this character (.vrm, .glb, .gltf; animated or not), written into a copy "
+        "of it (-o OUT.vrm / .glb) or as a BVH of its skeleton",
     )
     p.add_argument(
         "--keep-original",

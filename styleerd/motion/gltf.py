@@ -368,11 +368,13 @@ def _node_trs(node: gl.Node, n: int = 0) -> tuple[np.ndarray, np.ndarray, np.nda
 
 
 def _vrm_parts(doc: gl.GLTF2) -> dict[str, int]:
-    """Body part -> node, from a VRM 1.0 (VRMC_vrm) or 0.x (VRM) humanoid."""
+    """Body part -> node, from a VRM 1.0 (VRMC_vrm), VRM Animation (VRMC_vrm_animation) or VRM
+    0.x (VRM) humanoid."""
     ext = doc.extensions or {}
     bones: dict[str, int] = {}
-    if "VRMC_vrm" in ext:
-        bones = {k: v["node"] for k, v in ext["VRMC_vrm"].get("humanoid", {}).get("humanBones", {}).items()}
+    vrm1 = next((ext[k] for k in ("VRMC_vrm", "VRMC_vrm_animation") if k in ext), None)  # an avatar, an animation
+    if vrm1 is not None:
+        bones = {k: v["node"] for k, v in vrm1.get("humanoid", {}).get("humanBones", {}).items()}
     elif "VRM" in ext:
         bones = {b["bone"]: b["node"] for b in ext["VRM"].get("humanoid", {}).get("humanBones", [])}
     parts: dict[str, int] = {}
@@ -436,6 +438,17 @@ def read_gltf(path: str | Path, animation: int | str = 0, fps: float | None = No
     return read_gltf_clips(path, [animation], fps)[0][1]
 
 
+def read_gltf_character(path: str | Path) -> GltfMotion:
+    """A glTF/GLB/VRM character's skeleton in its rest pose (one frame), animated or not: an
+    avatar to put a motion on."""
+    path = Path(path)
+    doc, blob = _load(path)
+    try:
+        return _read(doc, blob, None, None)
+    except (ValueError, KeyError, IndexError, TypeError, AttributeError) as e:
+        raise StyleERDError(f"{path}: {str(e)[:400]}") from None
+
+
 def read_gltf_clips(
     path: str | Path, animations: list[int | str] | None = None, fps: float | None = None
 ) -> list[tuple[str, GltfMotion]]:
@@ -452,9 +465,10 @@ def read_gltf_clips(
         raise StyleERDError(f"{path}: {str(e)[:400]}") from None
 
 
-def _read(doc: gl.GLTF2, blob: bytes, animation: int, fps: float | None) -> GltfMotion:
-    if not doc.skins:
-        raise ValueError("no skin: the file has no skeleton to stylise")
+def _read(doc: gl.GLTF2, blob: bytes, animation: int | None, fps: float | None) -> GltfMotion:
+    """The skeleton of the first skin (or, with no skin, as in a VRM Animation, the VRM
+    humanoid's hips and everything below them) and animation ``animation`` sampled at ``fps``
+    (None: one frame, the rest pose)."""
     parent = _tree(doc)
 
     def chain(n: int) -> list[int]:
@@ -463,7 +477,13 @@ def _read(doc: gl.GLTF2, blob: bytes, animation: int, fps: float | None) -> Gltf
             out.append(parent[out[-1]])
         return out
 
-    joints = {_whole(j, "a skin joint", 0, len(doc.nodes) - 1) for j in doc.skins[0].joints or []}
+    if doc.skins:
+        joints = {_whole(j, "a skin joint", 0, len(doc.nodes) - 1) for j in doc.skins[0].joints or []}
+    elif "hips" in (humanoid := _vrm_parts(doc)):
+        hips = _whole(humanoid["hips"], "the humanoid's hips node", 0, len(doc.nodes) - 1)
+        joints = {n for n in range(len(doc.nodes)) if hips in chain(n)}
+    else:
+        raise ValueError("no skin and no VRM humanoid: the file has no skeleton to stylise")
     if not joints:
         raise ValueError("the skin has no joints")
     chains = [chain(j) for j in joints]
@@ -495,10 +515,10 @@ def _read(doc: gl.GLTF2, blob: bytes, animation: int, fps: float | None) -> Gltf
     rest_local[0] = quat.mul(a_rot, rest_local[0])
     rest_global, _ = forward_kinematics(rest_local, rest_t, parents)
     # sample the animation
-    anim = doc.animations[animation]
     keyed: dict[tuple[int, str], tuple[np.ndarray, np.ndarray, str]] = {}
     steps = []
-    for ch in anim.channels:
+    for ch in [] if animation is None else doc.animations[animation].channels:
+        anim = doc.animations[animation]
         if ch.target.node in index and ch.target.path in ("rotation", "translation"):
             sampler = anim.samplers[_whole(ch.sampler, "a channel's sampler", 0, len(anim.samplers) - 1)]
             times, values = _accessor(doc, blob, sampler.input)[:, 0], _accessor(doc, blob, sampler.output)
@@ -517,10 +537,12 @@ def _read(doc: gl.GLTF2, blob: bytes, animation: int, fps: float | None) -> Gltf
                 )
             keyed[(index[ch.target.node], ch.target.path)] = (times, values, sampler.interpolation or "LINEAR")
             steps.append(np.diff(times))
-    if not keyed:
+    if not keyed and animation is not None:
         raise ValueError("the animation moves none of the skeleton's joints")
-    end = max(float(t[-1]) for t, _, _ in keyed.values())
-    if fps is None:
+    end = max((float(t[-1]) for t, _, _ in keyed.values()), default=0.0)
+    if fps is None and not steps:
+        fps = 30.0
+    elif fps is None:
         dt = np.concatenate(steps)
         dt = dt[dt > 1e-6]
         fps = float(np.clip(round(1.0 / np.median(dt)) if len(dt) else 30.0, 10, 120))
@@ -573,8 +595,8 @@ def write_gltf_animations(
     """``source``'s file with an animation per clip (name, motion on ``source.motion``'s
     skeleton), in place of its own animations or, with ``keep_original``, after them: same
     nodes, meshes, skins, materials and extensions; the rotation of every joint and the
-    translation of the root (and of joints whose translation was animated) keyed at every frame.
-    Data only the replaced animations used is dropped from the buffer."""
+    translation of the root (and of joints whose translation was animated or moves in the clip)
+    keyed at every frame. Data only the replaced animations used is dropped from the buffer."""
     import copy
 
     doc = copy.deepcopy(source.doc)
@@ -606,9 +628,10 @@ def _animation(doc: gl.GLTF2, blob: bytearray, source: GltfMotion, motion: Motio
     times = add(np.arange(motion.n_frames) / motion.fps, gl.SCALAR, with_bounds=True)
     samplers, channels = [], []
     xyzw = quat.normalize(local)[..., [1, 2, 3, 0]]
+    moves = source.animated_translation | ~np.isclose(motion.positions, motion.skeleton.offsets).all((0, 2))
     for j, node in enumerate(source.nodes):
         animated = [("rotation", add(xyzw[:, j], gl.VEC4))]
-        if j == 0 or source.animated_translation[j]:
+        if j == 0 or moves[j]:  # the root, joints the input moved, the hips an avatar is walked by
             animated.append(("translation", add(pos[:, j], gl.VEC3)))
         for target, output in animated:
             samplers.append(gl.AnimationSampler(input=times, output=output, interpolation="LINEAR"))
@@ -689,7 +712,7 @@ def _compacted(doc: gl.GLTF2, blob: bytes) -> bytes:
     return bytes(out)
 
 
-GLTF_INPUTS = (".glb", ".gltf", ".vrm")
+GLTF_INPUTS = (".glb", ".gltf", ".vrm", ".vrma")
 
 
 def read_motion(path: str | Path, animation: int | str = 0) -> Motion:

@@ -22,7 +22,7 @@ from styleerd.motion.skeleton import Skeleton
 
 SIDES = {"l": "left", "left": "left", "r": "right", "right": "right"}
 # Tokens that say nothing about the body part (prefixes of rig families).
-NOISE = {"cc", "base", "mixamorig", "bip", "bip01", "j", "def", "b", "jnt", "sk", "bn", "bone", "c"}
+NOISE = {"cc", "base", "mixamorig", "bip", "bip01", "j", "def", "b", "jnt", "sk", "bn", "bone", "c", "armature"}
 # Tokens that mark a helper bone, which follows its parent and plays no part.
 HELPER = {"twist", "share", "roll", "ik", "pole", "target", "ctrl", "control", "mch", "helper", "end", "nub"}
 # Body part -> the words (tokens joined, side taken out) that name it, most telling first.
@@ -270,18 +270,19 @@ def _by_shape(skeleton: Skeleton, P: np.ndarray, usable: np.ndarray, parts: dict
     spine = between(S, hips, head_tip) + [head_tip]
     across = P[tips[0]] - P[tips[1]]
     across[1] = 0.0
-    branches = []
+    branches = []  # (root, joints, reach along the branch, side: mean offset across the body)
     for c in spine:
         for b in S.children(c):
             if usable[b] and b not in spine:
                 sub = [k for k in range(b, S.n_joints) if usable[k] and b in ancestors(S, k)]
-                side = (P[sub] - P[hips]) @ across / max(np.linalg.norm(across), 1e-12)
-                branches.append((b, sub, float(side.max()), float(side.min())))
-    if len(branches) < 2:
-        raise ValueError("no arms branch off the spine")
-    one = max(branches, key=lambda b: b[2])
-    other = min(branches, key=lambda b: b[3])
-    if one[0] == other[0] or min(one[2], -other[3]) < 0.1 * height:
+                reach = max(sum(np.linalg.norm(P[j] - P[S.parents[j]]) for j in between(S, c, k) + [k]) for k in sub)
+                side = float(np.mean((P[sub] - P[hips]) @ across) / max(np.linalg.norm(across), 1e-12))
+                branches.append((b, sub, reach, side))
+    lefts, rights = [b for b in branches if b[3] > 0], [b for b in branches if b[3] < 0]
+    if not lefts or not rights:
+        raise ValueError("no arms branch off the spine to either side")
+    one, other = max(lefts, key=lambda b: b[2]), max(rights, key=lambda b: b[2])
+    if min(one[2], other[2]) < 0.15 * height:
         raise ValueError("no two arms reach out to either side of the spine")
     chest = common_ancestor(S, one[0], other[0])
     parts["chest"] = chest

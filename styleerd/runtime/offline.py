@@ -14,7 +14,16 @@ from styleerd.atomic import atomic_write, atomic_write_text, check_output
 from styleerd.errors import StyleERDError
 from styleerd.model.stored import GeneratorWeights
 from styleerd.motion import bvh, quat
-from styleerd.motion.gltf import GLTF_INPUTS, read_gltf, read_gltf_clips, write_glb, write_gltf_animations
+from styleerd.motion.gltf import (
+    GLTF_INPUTS,
+    GltfMotion,
+    read_gltf,
+    read_gltf_character,
+    read_gltf_clips,
+    write_glb,
+    write_gltf_animations,
+)
+from styleerd.motion.kinematics import forward_kinematics
 from styleerd.motion.motion import Motion
 from styleerd.motion.retarget import JointMap, body_parts, guessed_joint_map, joint_map, to_source, to_target
 from styleerd.motion.skeleton import Skeleton
@@ -249,9 +258,7 @@ def _transfer_gltf(
             f"({', '.join(n for n, _ in clips)[:300]}); pick one with --animation NAME, or write .glb"
         )
     src = clips[0][1]
-    model_parts = body_parts(model.skeleton)
-    explicit = {model.skeleton.names[model_parts[p]]: name for p, name in src.parts.items() if p in model_parts}
-    explicit.update(options.explicit_map or {})
+    explicit = _humanoid_map(model, src, options.explicit_map)
     lines: list[str] = []
     out = []
     for k, (name, clip) in enumerate(clips):
@@ -274,6 +281,88 @@ def _transfer_gltf(
         write_gltf_animations(output, src, out, options.keep_original)
     frames = sum(m.n_frames for _, m in out)
     return TransferReport(frames, out[0][1].fps, lines[-1] if lines else None, len(out))
+
+
+def _humanoid_map(model: GeneratorWeights, character: GltfMotion, explicit: dict[str, str] | None) -> dict[str, str]:
+    """The joint map a VRM humanoid gives (model joint -> its bone), completed by ``explicit``."""
+    model_parts = body_parts(model.skeleton)
+    out = {model.skeleton.names[model_parts[p]]: name for p, name in character.parts.items() if p in model_parts}
+    return out | (explicit or {})
+
+
+def transfer_onto(
+    source: Path,
+    avatar: Path,
+    output: Path,
+    model: GeneratorWeights,
+    fps: float,
+    options: TransferOptions,
+    report: Callable[[str], None] | None = None,
+) -> TransferReport:
+    """A motion (BVH, or every animation of a glTF/GLB/VRM/VRMA, or ``options.animation``)
+    stylised and put on another character, ``avatar`` (glTF, GLB, VRM; animated or not): its
+    mapped joints turn as the stylised motion's, scaled to its leg length, its other joints keep
+    their rest pose. Written into a copy of the avatar (.glb, .vrm: meshes, materials, spring
+    bones, expressions kept, one animation per clip) or, for one clip, as a BVH of its skeleton."""
+    kind = output.suffix.lower()
+    if kind not in (".glb", ".vrm", ".bvh"):
+        raise StyleERDError(f"{output}: with --onto the output must be .glb, .vrm or .bvh")
+    check_output(output, source, avatar)
+    if source.suffix.lower() in GLTF_INPUTS:
+        clips = read_gltf_clips(source, None if options.animation == "all" else [options.animation])
+        explicit = _humanoid_map(model, clips[0][1], options.explicit_map)
+        motions = [(name, c.motion) for name, c in clips]
+    else:
+        motions, explicit = [(source.stem, bvh.read(source))], options.explicit_map
+    if kind == ".bvh" and len(motions) > 1:
+        raise StyleERDError(f"{output}: a BVH holds one animation; pick one with --animation NAME, or write .glb")
+    character = read_gltf_character(avatar)
+    rest = character.motion
+    onto = map_skeleton(rest.skeleton, model, _humanoid_map(model, character, None), str(avatar), rest.rotations[0])
+    if report:
+        report(f"onto {avatar.name} (model -> avatar):\n{onto.describe()}")
+    lines: list[str] = []
+    out = []
+    for k, (name, motion) in enumerate(motions):
+        styled = transfer_motion(
+            motion, model, fps, replace(options, explicit_map=explicit or None), report if k == 0 else None, lines
+        )
+        on_model = to_target(
+            styled, map_skeleton(motion.skeleton, model, explicit or None, str(source), motion.rotations[0])
+        )
+        out.append((name, on_avatar(on_model, onto, rest)))
+    if kind == ".bvh":
+        bvh.write(output, out[0][1])
+    else:
+        write_gltf_animations(output, character, out)
+    return TransferReport(sum(m.n_frames for _, m in out), out[0][1].fps, lines[-1] if lines else None, len(out))
+
+
+def on_avatar(on_model: Motion, onto: JointMap, rest: Motion) -> Motion:
+    """A motion on the model's skeleton put on an avatar (``onto`` maps the avatar onto the
+    model; ``rest``: the avatar's rest pose, one frame): mapped joints take the motion's global
+    rotations, the others their rest; the hips follow the model's path scaled to the avatar's
+    legs, raised or lowered once for the whole clip so that its feet meet the floor of its
+    rest pose as often as the input's meet theirs (the 5th percentile of the lowest foot).
+    Offline: the level is the clip's, not frame by frame."""
+    T, sk = on_model.n_frames, rest.skeleton
+    base = Motion(sk, np.repeat(rest.rotations[:1], T, 0), np.repeat(rest.positions[:1], T, 0), on_model.fps)
+    out = to_source(on_model, onto, base)
+    hips = dict(onto.pairs)[0]  # the avatar's joint playing the model's root
+    parent = int(sk.parents[hips])
+    g, p = forward_kinematics(out.rotations[:, :hips], out.positions[:, :hips], sk.parents[:hips])
+    world = on_model.positions[:, 0] / onto.scale
+    feet = [j for part, j in body_parts(sk, rest.rotations[0]).items() if part.endswith(("_foot", "_toe"))]
+
+    def place(world: np.ndarray) -> np.ndarray:
+        return world if parent < 0 else quat.mul_vec(quat.inv(g[:, parent]), world - p[:, parent])
+
+    out.positions[:, hips] = place(world)
+    lowest = forward_kinematics(out.rotations, out.positions, sk.parents)[1][:, feet, 1].min(1)
+    floor = forward_kinematics(rest.rotations[:1], rest.positions[:1], sk.parents)[1][0, feet, 1].min()
+    world[:, 1] += floor - np.percentile(lowest, 5)
+    out.positions[:, hips] = place(world)
+    return out
 
 
 def _checked(rows: Iterator[np.ndarray], source) -> Iterator[np.ndarray]:
