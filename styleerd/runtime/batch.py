@@ -22,7 +22,7 @@ from styleerd.motion.gltf import GLTF_INPUTS
 from styleerd.runtime.offline import TransferOptions, TransferReport, transfer_file
 
 MOTION_FILES = (".bvh", *GLTF_INPUTS, ".fbx")
-OUTPUTS = (".bvh", ".glb", ".vrm", ".fbx")
+OUTPUTS = (".bvh", ".glb", ".vrm", ".vrma", ".fbx")
 
 
 def transfer_one(
@@ -34,7 +34,9 @@ def transfer_one(
 ) -> TransferReport:
     """One file of any supported kind in, one out; FBX on either side goes through Blender."""
     if Path(output).suffix.lower() not in OUTPUTS:
-        raise StyleERDError(f"{output}: the output must be .bvh, .glb or .fbx (or .vrm from a VRM or glTF input)")
+        raise StyleERDError(
+            f"{output}: the output must be .bvh, .glb or .fbx (or .vrm from a VRM or glTF input, .vrma from a VRMA)"
+        )
     if Path(source).suffix.lower() == ".fbx" or Path(output).suffix.lower() == ".fbx":
         from styleerd.runtime.fbx import transfer_fbx  # imports bpy: only for FBX
 

@@ -249,8 +249,8 @@ def _transfer_gltf(
     with each animation stylised under its own name (.glb, .vrm; with ``keep_original`` beside
     the input's, named NAME-STYLE) or, for one animation, as a BVH of its skeleton."""
     kind = output.suffix.lower()
-    if kind not in (".bvh", ".glb", ".vrm"):
-        raise StyleERDError(f"{output}: from a glTF input the output must be .glb, .vrm or .bvh")
+    if kind not in (".bvh", ".glb", ".vrm") and not (kind == ".vrma" == source.suffix.lower()):
+        raise StyleERDError(f"{output}: from a glTF input the output must be .glb, .vrm or .bvh (.vrma from a .vrma)")
     clips = read_gltf_clips(source, None if options.animation == "all" else [options.animation])
     if kind == ".bvh" and len(clips) > 1:
         raise StyleERDError(
