@@ -712,6 +712,79 @@ def _compacted(doc: gl.GLTF2, blob: bytes) -> bytes:
     return bytes(out)
 
 
+def write_vrma(
+    path: str | Path, motion: Motion, tpose: np.ndarray, parts: dict[str, int], metres_per_unit: float = 0.01
+) -> None:
+    """``motion`` as a VRM Animation (VRMC_vrm_animation 1.0): one node per joint, named and
+    listed in the humanoid for the joints that play a body part (``parts``: part -> joint), at
+    rest in the T-pose of VRM (facing +Z, left along +X, every node's rest rotation the
+    identity, the lowest joint on the floor); each node keyed with its rotation away from that
+    T-pose (``tpose [J, 4]``: every joint's global rotation in it) and the hips with their path,
+    from where the clip starts, over the floor its lowest joints meet (5th percentile: offline).
+    VRM apps (three-vrm's VRMAnimationLoaderPlugin, UniVRM) put it on any VRM avatar."""
+    sk, T = motion.skeleton, motion.n_frames
+    parents = sk.parents
+    g, pos = forward_kinematics(motion.rotations, motion.positions, parents)
+    away = quat.mul(g, quat.inv(tpose)[None])  # each joint's world rotation away from the T-pose
+    parent_away = np.where(
+        (parents >= 0)[None, :, None], away[:, np.maximum(parents, 0)], quat.identity((T, sk.n_joints))
+    )
+    local = quat.normalize(quat.mul(quat.inv(parent_away), away))
+    rest_local = quat.mul(
+        quat.inv(np.where((parents >= 0)[:, None], tpose[np.maximum(parents, 0)], quat.identity((sk.n_joints,)))), tpose
+    )
+    _, rest = forward_kinematics(rest_local, sk.offsets.copy(), parents)
+    rest = (rest - [rest[0, 0], rest[:, 1].min(), rest[0, 2]]) * metres_per_unit
+    bone_of = {part: bone for bone, part in VRM_PARTS.items() if bone != "upperChest"}
+    names = list(sk.names)
+    humanoid = {}
+    for part, j in parts.items():
+        if part in bone_of:
+            names[j] = bone_of[part]
+            humanoid[bone_of[part]] = {"node": j}
+    blob = bytearray()
+    views, accessors = [], []
+
+    def add(array: np.ndarray, kind: str, with_bounds: bool = False) -> int:
+        return _append(views, accessors, blob, array, kind, with_bounds)
+
+    nodes = [
+        gl.Node(
+            name=names[j],
+            translation=(rest[j] - (rest[parents[j]] if parents[j] >= 0 else 0.0)).tolist(),
+            children=sk.children(j),
+        )
+        for j in range(sk.n_joints)
+    ]
+    times = add(np.arange(T) / motion.fps, gl.SCALAR, with_bounds=True)
+    samplers, channels = [], []
+    floor = np.percentile(pos[..., 1].min(1), 5)  # where the feet meet the ground, as on the rest's floor
+    hips_path = (pos[:, 0] - [pos[0, 0, 0], floor, pos[0, 0, 2]]) * metres_per_unit
+    for j in range(sk.n_joints):
+        animated = [("rotation", add(local[:, j, [1, 2, 3, 0]], gl.VEC4))]
+        if j == 0:
+            animated.append(("translation", add(hips_path, gl.VEC3)))
+        for target, output in animated:
+            samplers.append(gl.AnimationSampler(input=times, output=output, interpolation="LINEAR"))
+            channels.append(
+                gl.AnimationChannel(sampler=len(samplers) - 1, target=gl.AnimationChannelTarget(node=j, path=target))
+            )
+    doc = gl.GLTF2(
+        asset=gl.Asset(generator="styleerd", version="2.0"),
+        scene=0,
+        scenes=[gl.Scene(nodes=[0])],
+        nodes=nodes,
+        animations=[gl.Animation(name="styleerd", samplers=samplers, channels=channels)],
+        buffers=[gl.Buffer(byteLength=len(blob))],
+        bufferViews=views,
+        accessors=accessors,
+        extensionsUsed=["VRMC_vrm_animation"],
+        extensions={"VRMC_vrm_animation": {"specVersion": "1.0", "humanoid": {"humanBones": humanoid}}},
+    )
+    doc.set_binary_blob(bytes(blob))
+    atomic_write(Path(path), lambda tmp: doc.save_binary(str(tmp)))
+
+
 GLTF_INPUTS = (".glb", ".gltf", ".vrm", ".vrma")
 
 

@@ -22,6 +22,7 @@ from styleerd.motion.gltf import (
     read_gltf_clips,
     write_glb,
     write_gltf_animations,
+    write_vrma,
 )
 from styleerd.motion.kinematics import forward_kinematics
 from styleerd.motion.motion import Motion
@@ -196,6 +197,8 @@ def transfer_file(
     simple skinned body). Nothing is written unless the whole transfer succeeded."""
     kind = Path(output).suffix.lower()
     check_output(output, source)
+    if kind == ".vrma" and Path(source).suffix.lower() != ".vrma":
+        return _transfer_to_vrma(Path(source), Path(output), model, fps, options, report)
     if Path(source).suffix.lower() in GLTF_INPUTS:
         return _transfer_gltf(Path(source), Path(output), model, fps, options, report)
     if kind not in (".bvh", ".glb"):
@@ -290,6 +293,42 @@ def _humanoid_map(model: GeneratorWeights, character: GltfMotion, explicit: dict
     return out | (explicit or {})
 
 
+def _source_clips(
+    source: Path, model: GeneratorWeights, options: TransferOptions
+) -> tuple[list[tuple[str, Motion]], dict[str, str] | None]:
+    """The motions of a file (a BVH's, or a glTF/GLB/VRM/VRMA's animations: every one or
+    ``options.animation``) and the joint map to use (a VRM humanoid's, completed by the options')."""
+    if source.suffix.lower() in GLTF_INPUTS:
+        clips = read_gltf_clips(source, None if options.animation == "all" else [options.animation])
+        return [(name, c.motion) for name, c in clips], _humanoid_map(model, clips[0][1], options.explicit_map)
+    return [(source.stem, bvh.read(source))], options.explicit_map
+
+
+def _stylised_on_model(
+    motion: Motion, model: GeneratorWeights, fps: float, options: TransferOptions, where: str, report, labels: list
+) -> tuple[Motion, JointMap]:
+    """A motion stylised (as ``transfer_motion``: feet cleaned on its own skeleton) and put on
+    the model's skeleton, with its joint map."""
+    styled = transfer_motion(motion, model, fps, options, report, labels, where)
+    jm = map_skeleton(motion.skeleton, model, options.explicit_map, where, motion.rotations[0])
+    return to_target(styled, jm), jm
+
+
+def _transfer_to_vrma(
+    source: Path, output: Path, model: GeneratorWeights, fps: float, options: TransferOptions, report
+) -> TransferReport:
+    """One clip stylised and written as a VRM Animation (``write_vrma``), for any VRM avatar."""
+    motions, explicit = _source_clips(source, model, options)
+    if len(motions) > 1:
+        raise StyleERDError(f"{output}: a VRM Animation holds one clip; pick one with --animation NAME")
+    lines: list[str] = []
+    on_model, jm = _stylised_on_model(
+        motions[0][1], model, fps, replace(options, explicit_map=explicit or None), str(source), report, lines
+    )
+    write_vrma(output, on_model, jm.target_tpose, body_parts(model.skeleton))
+    return TransferReport(on_model.n_frames, on_model.fps, lines[-1] if lines else None)
+
+
 def transfer_onto(
     source: Path,
     avatar: Path,
@@ -308,12 +347,7 @@ def transfer_onto(
     if kind not in (".glb", ".vrm", ".bvh"):
         raise StyleERDError(f"{output}: with --onto the output must be .glb, .vrm or .bvh")
     check_output(output, source, avatar)
-    if source.suffix.lower() in GLTF_INPUTS:
-        clips = read_gltf_clips(source, None if options.animation == "all" else [options.animation])
-        explicit = _humanoid_map(model, clips[0][1], options.explicit_map)
-        motions = [(name, c.motion) for name, c in clips]
-    else:
-        motions, explicit = [(source.stem, bvh.read(source))], options.explicit_map
+    motions, explicit = _source_clips(source, model, options)
     if kind == ".bvh" and len(motions) > 1:
         raise StyleERDError(f"{output}: a BVH holds one animation; pick one with --animation NAME, or write .glb")
     character = read_gltf_character(avatar)
@@ -324,11 +358,14 @@ def transfer_onto(
     lines: list[str] = []
     out = []
     for k, (name, motion) in enumerate(motions):
-        styled = transfer_motion(
-            motion, model, fps, replace(options, explicit_map=explicit or None), report if k == 0 else None, lines
-        )
-        on_model = to_target(
-            styled, map_skeleton(motion.skeleton, model, explicit or None, str(source), motion.rotations[0])
+        on_model, _ = _stylised_on_model(
+            motion,
+            model,
+            fps,
+            replace(options, explicit_map=explicit or None),
+            str(source),
+            report if k == 0 else None,
+            lines,
         )
         out.append((name, on_avatar(on_model, onto, rest)))
     if kind == ".bvh":
