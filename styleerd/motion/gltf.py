@@ -429,7 +429,8 @@ def _animation_index(doc: gl.GLTF2, animation: int | str) -> int:
         return animation % len(names)
     if animation in names:
         return names.index(animation)
-    raise ValueError(f"no animation {animation!r}; the file has: {', '.join(names)}"[:400])
+    shown = str(animation)[:60] + ("..." if len(str(animation)) > 60 else "")
+    raise ValueError(f"no animation {shown!r}; the file has: {', '.join(names)}"[:400])
 
 
 def read_gltf(path: str | Path, animation: int | str = 0, fps: float | None = None) -> GltfMotion:
