@@ -71,7 +71,7 @@ def tokens(name: str) -> list[str]:
     'CC_Base_L_Thigh' -> ['cc', 'base', 'l', 'thigh'], 'spine.001' -> ['spine', '1']."""
     bare = re.split(r"[:|]", name)[-1]
     words = re.findall(r"[A-Z]+(?![a-z])|[A-Z]?[a-z]+|\d+", bare)
-    return [str(int(w)) if w.isdigit() else w.lower() for w in words]
+    return [(w.lstrip("0") or "0") if w.isdigit() else w.lower() for w in words]
 
 
 def side_and_stem(name: str) -> tuple[str | None, str]:
@@ -117,6 +117,24 @@ def between(skeleton: Skeleton, ancestor: int, joint: int) -> list[int] | None:
     return up[: up.index(ancestor)][::-1] if ancestor in up else None
 
 
+def children_lists(skeleton: Skeleton) -> list[list[int]]:
+    """Each joint's children, in one pass (``Skeleton.children`` is one search per joint)."""
+    out: list[list[int]] = [[] for _ in range(skeleton.n_joints)]
+    for j in range(1, skeleton.n_joints):
+        out[int(skeleton.parents[j])].append(j)
+    return out
+
+
+def subtree(children: list[list[int]], j: int) -> list[int]:
+    """``j`` and every joint below it."""
+    out, stack = [], [j]
+    while stack:
+        k = stack.pop()
+        out.append(k)
+        stack.extend(children[k])
+    return out
+
+
 def common_ancestor(skeleton: Skeleton, *joints: int) -> int:
     """The deepest joint that is an ancestor of (or one of) all ``joints``."""
     shared = set(ancestors(skeleton, joints[0]))
@@ -150,25 +168,25 @@ def _named(skeleton: Skeleton, usable: np.ndarray) -> dict[str, int]:
     return parts
 
 
-def _main_child(skeleton: Skeleton, j: int, usable: np.ndarray, P: np.ndarray) -> int | None:
+def _main_child(children: list[list[int]], j: int, usable: np.ndarray, P: np.ndarray) -> int | None:
     """The child of ``j`` that its limb goes on through: the usable child with the farthest-
     reaching subtree (fingers and twist bones branch off, the limb goes on)."""
     best, reach = None, -1.0
-    for c in skeleton.children(j):
+    for c in children[j]:
         if not usable[c]:
             continue
-        sub = [k for k in range(c, skeleton.n_joints) if usable[k] and c in ancestors(skeleton, k)]
+        sub = [k for k in subtree(children, c) if usable[k]]
         r = float(np.linalg.norm(P[sub] - P[j], axis=-1).max())
         if r > reach:
             best, reach = c, r
     return best
 
 
-def _walk_down(skeleton: Skeleton, start: int, usable: np.ndarray, P: np.ndarray, eps: float) -> list[int]:
+def _walk_down(children: list[list[int]], start: int, usable: np.ndarray, P: np.ndarray, eps: float) -> list[int]:
     """The joints below ``start`` along its main branch, skipping any at the same spot as the
     joint kept before them (a hand's finger-base joint: the hand is what turns the fingers)."""
     out, j = [], start
-    while (c := _main_child(skeleton, j, usable, P)) is not None:
+    while (c := _main_child(children, j, usable, P)) is not None:
         if np.linalg.norm(P[c] - P[out[-1] if out else start]) > eps:
             out.append(c)
         j = c
@@ -180,6 +198,7 @@ def _filled(skeleton: Skeleton, parts: dict[str, int], usable: np.ndarray, P: np
     branch, spine and neck between their neighbours, a limb's lower parts along its main branch
     from the part above them."""
     parts = dict(parts)
+    children = children_lists(skeleton)
     eps = 1e-3 * max(float(np.ptp(P, axis=0).max()), 1e-9)
     arms = [parts.get(f"{s}_collar", parts.get(f"{s}_shoulder")) for s in ("left", "right")]
     if None not in arms:  # the chest is where the arms branch off, whatever is called so
@@ -200,7 +219,7 @@ def _filled(skeleton: Skeleton, parts: dict[str, int], usable: np.ndarray, P: np
                 below = [p for p in chain[k + 1 :] if f"{side}_{p}" not in parts and p != "toe"]
                 if not below or any(f"{side}_{p}" in parts for p in chain[k + 1 :] if p != "toe"):
                     continue
-                down = _walk_down(skeleton, parts[key], usable, P, eps)
+                down = _walk_down(children, parts[key], usable, P, eps)
                 for p, j in zip(below, down):
                     parts[f"{side}_{p}"] = j
     for side in ("left", "right"):
@@ -220,7 +239,8 @@ def _by_shape(skeleton: Skeleton, P: np.ndarray, usable: np.ndarray, parts: dict
     ValueError saying what is missing ("not a humanoid: ..." where legs or spine are), with
     what was found before it left in ``parts``."""
     S = skeleton
-    leaves = [j for j in range(S.n_joints) if usable[j] and not any(usable[c] for c in S.children(j))]
+    children = children_lists(S)
+    leaves = [j for j in range(S.n_joints) if usable[j] and not any(usable[c] for c in children[j])]
     y = P[:, 1]
     floor, top = float(y[usable].min()), float(y[usable].max())
     height = top - floor
@@ -271,11 +291,14 @@ def _by_shape(skeleton: Skeleton, P: np.ndarray, usable: np.ndarray, parts: dict
     across = P[tips[0]] - P[tips[1]]
     across[1] = 0.0
     branches = []  # (root, joints, reach along the branch, side: mean offset across the body)
+    along = np.zeros(S.n_joints)  # distance from the root along the bones
+    for j in range(1, S.n_joints):
+        along[j] = along[S.parents[j]] + np.linalg.norm(P[j] - P[S.parents[j]])
     for c in spine:
-        for b in S.children(c):
+        for b in children[c]:
             if usable[b] and b not in spine:
-                sub = [k for k in range(b, S.n_joints) if usable[k] and b in ancestors(S, k)]
-                reach = max(sum(np.linalg.norm(P[j] - P[S.parents[j]]) for j in between(S, c, k) + [k]) for k in sub)
+                sub = [k for k in subtree(children, b) if usable[k]]
+                reach = float(along[sub].max() - along[c])
                 side = float(np.mean((P[sub] - P[hips]) @ across) / max(np.linalg.norm(across), 1e-12))
                 branches.append((b, sub, reach, side))
     lefts, rights = [b for b in branches if b[3] > 0], [b for b in branches if b[3] < 0]
@@ -300,7 +323,7 @@ def _by_shape(skeleton: Skeleton, P: np.ndarray, usable: np.ndarray, parts: dict
     for b, sub, _, _ in (one, other):
         tip = max(sub, key=lambda j: np.linalg.norm(P[j] - P[chest]))
         path = between(S, chest, tip) + [tip]
-        forks = [j for j in path[1:] if sum(usable[c] for c in S.children(j)) >= 2]
+        forks = [j for j in path[1:] if sum(usable[c] for c in children[j]) >= 2]
         if forks:
             hand = forks[-1]
         else:
