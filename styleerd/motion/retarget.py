@@ -282,9 +282,9 @@ def tpose_rotations(
         if parts[a] not in ancestors(skeleton, parts[b])
     }
     T = np.empty((skeleton.n_joints, 3, 3))
-    for _ in range(2 if detached else 1):  # the second pass once the parts above the detached ones are known
+    for second in (False, True) if detached else (False,):  # the detached ones once the parts above them are known
         for j in range(skeleton.n_joints):  # parents first
-            p = detached.get(j, int(skeleton.parents[j])) if _ else int(skeleton.parents[j])
+            p = detached.get(j, int(skeleton.parents[j])) if second else int(skeleton.parents[j])
             if j in by_joint:
                 T[j] = by_joint[j] @ Gm[j]
             else:  # the reference pose's local rotation, on the parent's T-pose frame

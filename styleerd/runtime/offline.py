@@ -17,7 +17,6 @@ from styleerd.motion import bvh, quat
 from styleerd.motion.gltf import (
     GLTF_INPUTS,
     GltfMotion,
-    read_gltf,
     read_gltf_character,
     read_gltf_clips,
     write_glb,
@@ -71,16 +70,19 @@ def map_skeleton(
 
 
 def write_guessed_joint_map(source: str | Path, output: str | Path, model: GeneratorWeights) -> tuple[int, int]:
-    """Write the joint map the automatic mapping finds for ``source`` (BVH, glTF, GLB, VRM),
-    every model joint that plays a body part with its best guess ("" where none was found), as
-    JSON to edit and pass back with ``--joint-map``; (joints guessed, joints in the map)."""
+    """Write the joint map the automatic mapping finds for ``source`` (BVH, glTF, GLB, VRM: a
+    VRM humanoid first), every model joint that plays a body part with its best guess ("" where
+    none was found), as JSON to edit and pass back with ``--joint-map``; (joints guessed,
+    joints in the map)."""
     check_output(output, source)
+    named: dict[str, str] = {}
     if Path(source).suffix.lower() in GLTF_INPUTS:
-        motion = read_gltf(source).motion
+        character = read_gltf_character(source)
+        motion, named = character.motion, _humanoid_map(model, character, None)
     else:
         header, chunks = bvh.stream(source, 1)
         motion = bvh.motion_from_channels(header.skeleton, next(chunks), header.fps)
-    guessed = guessed_joint_map(model.skeleton, motion.skeleton, motion.rotations[0])
+    guessed = guessed_joint_map(model.skeleton, motion.skeleton, motion.rotations[0]) | named
     atomic_write_text(output, json.dumps(guessed, indent=2) + "\n")
     return sum(bool(v) for v in guessed.values()), len(guessed)
 
