@@ -17,8 +17,8 @@ $(STAMP): $(BIN)/python pyproject.toml
 	$(BIN)/python -m pip install --quiet -e ".[train,dev]"
 	touch $(STAMP)
 
-# the viewer's three.js and the in-browser step's onnxruntime-web, from npm (package-lock.json),
-# vendored next to the pages: no CDN
+# the viewer's three.js (its glTF loader) and three-vrm, and the in-browser step's onnxruntime-web, from npm
+# (package-lock.json), vendored next to the pages: no CDN
 $(VENDOR)/three.module.js: package.json package-lock.json
 	npm ci --no-audit --no-fund --loglevel=error
 	mkdir -p $(VENDOR)
@@ -26,6 +26,11 @@ $(VENDOR)/three.module.js: package.json package-lock.json
 	   node_modules/three/examples/jsm/controls/OrbitControls.js $(VENDOR)/
 	cp node_modules/onnxruntime-web/dist/ort.wasm.min.mjs node_modules/onnxruntime-web/dist/ort-wasm-simd-threaded.mjs \
 	   node_modules/onnxruntime-web/dist/ort-wasm-simd-threaded.wasm $(VENDOR)/
+	mkdir -p $(VENDOR)/loaders $(VENDOR)/utils
+	cp node_modules/three/examples/jsm/loaders/GLTFLoader.js $(VENDOR)/loaders/
+	cp node_modules/three/examples/jsm/utils/BufferGeometryUtils.js node_modules/three/examples/jsm/utils/SkeletonUtils.js \
+	   $(VENDOR)/utils/
+	cp node_modules/@pixiv/three-vrm/lib/three-vrm.module.min.js $(VENDOR)/three-vrm.module.js
 
 install: $(STAMP) $(VENDOR)/three.module.js
 

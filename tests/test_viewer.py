@@ -141,3 +141,56 @@ def test_live_mode_shows_a_stream_from_another_client(page, tmp_path):
     finally:
         out, _ = source.communicate(timeout=60)
     assert source.returncode == 0 and "reordered 0" in out, out
+
+
+def test_a_vrm_avatar_plays_the_input_and_the_stylised_motion_live_too(page, shared_data, tmp_path):
+    """The user's VRM avatar (Godette, VRM 0.x), dropped on the page, plays the clip's input and
+    its stylised output side by side, driven by the server's humanoid pose; each hand stays on
+    its own side of the body and the feet at the floor; in live mode too. Screenshot kept."""
+    from styleerd.motion import bvh
+    from styleerd.motion.procedural import walk
+
+    if page.evaluate("window.viewer.mode") == "live":
+        page.click("#live")  # back to a clip
+    page.wait_for_function("window.viewer.mode === 'clip' && window.viewer.ready", timeout=30000)
+    page.set_input_files("#avatar", str(shared_data / "characters" / "Godette.vrm"))
+    page.wait_for_function("window.viewer.avatar === 'Godette.vrm' && window.viewer.avatarFrames > 40", timeout=60000)
+    samples = []
+    for _ in range(12):
+        page.wait_for_timeout(150)
+        samples += page.evaluate("window.viewer.avatarLimbs()")
+    left = np.array([s["left"] for s in samples])
+    right = np.array([s["right"] for s in samples])
+    feet = np.array([s["feet"] for s in samples])
+    assert (left > 0.05).all() and (right < -0.05).all(), (left, right)  # metres: no arm across the body
+    assert feet.min() > -0.03 and feet.max() < 0.3, feet  # ankles over the floor, a step's lift at most
+    assert page.locator("#error").inner_text() == "" and not page.errors
+    shot = Path(os.environ.get("STYLEERD_AVATAR_SCREENSHOT") or tmp_path / "avatar.png")
+    page.screenshot(path=str(shot))
+    assert shot.stat().st_size > 10000
+    bvh.write(tmp_path / "walk.bvh", walk(6.0, fps=30.0))
+    page.click("#live")
+    page.wait_for_function("window.viewer.mode === 'live' && window.viewer.ready", timeout=20000)
+    source = subprocess.Popen(
+        [
+            sys.executable,
+            "-m",
+            "styleerd.cli",
+            "stream-bvh",
+            str(tmp_path / "walk.bvh"),
+            "--to",
+            f"ws://127.0.0.1:{page.port}/",
+            "--style",
+            "exhausted",
+        ],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.STDOUT,
+        text=True,
+    )
+    try:
+        page.wait_for_function("window.viewer.stream === 'walk'", timeout=30000)
+        before = page.evaluate("window.viewer.avatarFrames")
+        page.wait_for_function(f"window.viewer.avatarFrames > {before + 30}", timeout=30000)
+    finally:
+        out, _ = source.communicate(timeout=60)
+    assert source.returncode == 0, out

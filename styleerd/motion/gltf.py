@@ -713,36 +713,66 @@ def _compacted(doc: gl.GLTF2, blob: bytes) -> bytes:
     return bytes(out)
 
 
+def humanoid_pose(motion: Motion, tpose: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Every joint's rotation away from the T-pose, relative to its parent's (a VRM normalized
+    humanoid's local rotation: identity in the T-pose), ``[T, J, 4]``, and the world positions
+    ``[T, J, 3]``; ``tpose [J, 4]``: every joint's global rotation in the T-pose."""
+    parents = motion.skeleton.parents
+    g, pos = forward_kinematics(motion.rotations, motion.positions, parents)
+    away = quat.mul(g, quat.inv(tpose)[None])  # each joint's world rotation away from the T-pose
+    parent_away = np.where(
+        (parents >= 0)[None, :, None], away[:, np.maximum(parents, 0)], quat.identity(away.shape[:2])
+    )
+    return quat.normalize(quat.mul(quat.inv(parent_away), away)), pos
+
+
+def tpose_positions(skeleton: Skeleton, tpose: np.ndarray, standing: np.ndarray) -> np.ndarray:
+    """``[J, 3]`` joint positions in the T-pose (global rotations ``tpose [J, 4]``), the hips
+    above the origin at the height they have over the lowest joint in a standing pose
+    (``standing [J, 4]`` local rotations: in the T-pose the feet point forward, so its own lowest
+    joint is the ankle, not the toe on the floor)."""
+    parents = skeleton.parents
+    parent_t = np.where((parents >= 0)[:, None], tpose[np.maximum(parents, 0)], quat.identity((skeleton.n_joints,)))
+    _, rest = forward_kinematics(quat.mul(quat.inv(parent_t), tpose), skeleton.offsets.copy(), parents)
+    _, stand = forward_kinematics(quat.normalize(standing), skeleton.offsets.copy(), parents)
+    return rest - [rest[0, 0], rest[0, 1] - (stand[0, 1] - stand[:, 1].min()), rest[0, 2]]
+
+
+def vrm_bones(skeleton: Skeleton, parts: dict[str, int]) -> list[str]:
+    """Each joint's VRM humanoid bone name ("" for a joint that plays no part)."""
+    bone_of = {part: bone for bone, part in VRM_PARTS.items() if bone != "upperChest"}
+    names = [""] * skeleton.n_joints
+    for part, j in parts.items():
+        names[j] = bone_of.get(part, "")
+    return names
+
+
 def write_vrma(
-    path: str | Path, motion: Motion, tpose: np.ndarray, parts: dict[str, int], metres_per_unit: float = 0.01
+    path: str | Path,
+    motion: Motion,
+    tpose: np.ndarray,
+    standing: np.ndarray,
+    parts: dict[str, int],
+    metres_per_unit: float = 0.01,
 ) -> None:
     """``motion`` as a VRM Animation (VRMC_vrm_animation 1.0): one node per joint, named and
     listed in the humanoid for the joints that play a body part (``parts``: part -> joint), at
     rest in the T-pose of VRM (facing +Z, left along +X, every node's rest rotation the
-    identity, the lowest joint on the floor); each node keyed with its rotation away from that
-    T-pose (``tpose [J, 4]``: every joint's global rotation in it) and the hips with their path,
-    from where the clip starts, over the floor its lowest joints meet (5th percentile: offline).
+    identity, the hips as high as in ``standing``, local rotations of a standing pose); each
+    node keyed with its rotation away from that T-pose (``tpose [J, 4]``: every joint's global
+    rotation in it) and the hips with their path, from where the clip starts, over the floor its
+    lowest joints meet (5th percentile: offline).
     VRM apps (three-vrm's VRMAnimationLoaderPlugin, UniVRM) put it on any VRM avatar."""
     sk, T = motion.skeleton, motion.n_frames
     parents = sk.parents
-    g, pos = forward_kinematics(motion.rotations, motion.positions, parents)
-    away = quat.mul(g, quat.inv(tpose)[None])  # each joint's world rotation away from the T-pose
-    parent_away = np.where(
-        (parents >= 0)[None, :, None], away[:, np.maximum(parents, 0)], quat.identity((T, sk.n_joints))
-    )
-    local = quat.normalize(quat.mul(quat.inv(parent_away), away))
-    rest_local = quat.mul(
-        quat.inv(np.where((parents >= 0)[:, None], tpose[np.maximum(parents, 0)], quat.identity((sk.n_joints,)))), tpose
-    )
-    _, rest = forward_kinematics(rest_local, sk.offsets.copy(), parents)
-    rest = (rest - [rest[0, 0], rest[:, 1].min(), rest[0, 2]]) * metres_per_unit
-    bone_of = {part: bone for bone, part in VRM_PARTS.items() if bone != "upperChest"}
+    local, pos = humanoid_pose(motion, tpose)
+    rest = tpose_positions(sk, tpose, standing) * metres_per_unit
     names = list(sk.names)
     humanoid = {}
-    for part, j in parts.items():
-        if part in bone_of:
-            names[j] = bone_of[part]
-            humanoid[bone_of[part]] = {"node": j}
+    for j, bone in enumerate(vrm_bones(sk, parts)):
+        if bone:
+            names[j] = bone
+            humanoid[bone] = {"node": j}
     blob = bytearray()
     views, accessors = [], []
 

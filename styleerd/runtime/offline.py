@@ -327,7 +327,7 @@ def _transfer_to_vrma(
     on_model, jm = _stylised_on_model(
         motions[0][1], model, fps, replace(options, explicit_map=explicit or None), str(source), report, lines
     )
-    write_vrma(output, on_model, jm.target_tpose, body_parts(model.skeleton))
+    write_vrma(output, on_model, jm.target_tpose, model.stats().reference, body_parts(model.skeleton))
     return TransferReport(on_model.n_frames, on_model.fps, lines[-1] if lines else None)
 
 

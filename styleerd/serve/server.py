@@ -46,7 +46,10 @@ from websockets.http11 import Request, Response
 from styleerd.errors import StyleERDError
 from styleerd.model.stored import GeneratorWeights, load_generator_weights
 from styleerd.motion import bvh, quat
+from styleerd.motion.gltf import guess_metres_per_unit, humanoid_pose, tpose_positions, vrm_bones
 from styleerd.motion.kinematics import bone_fronts, forward_kinematics
+from styleerd.motion.motion import Motion
+from styleerd.motion.retarget import body_parts, to_target
 from styleerd.motion.skeleton import Skeleton
 from styleerd.runtime.channels import ChannelStylizer
 from styleerd.runtime.onnx_export import sidecar, step_graph
@@ -114,6 +117,7 @@ class Stream:
     private: bool = False  # not listed; watched or steered only with ``token``
     token: str = ""
     closing: bool = False  # refused: its frames are no longer stylised
+    humanoid: bool = False  # also receive the VRM humanoid pose of input and output (an avatar to drive)
 
 
 @dataclass(eq=False)
@@ -126,6 +130,7 @@ class Watcher:
     stream: Stream | None = None
     fronts: bool = False  # also receive the bones' fronts
     token: str = ""  # a private stream's token, to watch it
+    humanoid: bool = False  # also receive the VRM humanoid pose of input and output
 
 
 class Pool:
@@ -162,10 +167,37 @@ class Pool:
         )
         self.skeleton, self.parts = skeleton, parts or {}
         self.fronts = bone_fronts(skeleton)  # rest fronts of the bones, for viewers that show their roll
+        self.model_parts = body_parts(model.skeleton)
+        rest = Motion(model.skeleton, quat.identity((1, model.skeleton.n_joints)), model.skeleton.offsets[None], fps)
+        self.metres = guess_metres_per_unit(rest)  # of the model's units, for an avatar's metres
         self.free = list(range(capacity - 1, -1, -1))
         self.streams: dict[int, Stream] = {}
         self.key = (
             key  # (skeleton header, fps, cleanup, parts, root speed, pose): streams that share all six share the pool
+        )
+
+    def humanoid_layout(self) -> dict:
+        """What a client needs to drive a VRM avatar with the frames' humanoid pose: the bone
+        of each model joint (VRM names), their parents, the hips' height in the T-pose (metres)."""
+        tpose = self.stylizer.map.target_tpose
+        model = self.stylizer.map.target
+        return {
+            "bones": vrm_bones(model, self.model_parts),
+            "parents": [int(p) for p in model.parents],
+            "hips_height": round(
+                float(tpose_positions(model, tpose, self.stylizer.model.stats().reference)[0, 1]) * self.metres, 5
+            ),
+        }
+
+    def humanoid_pose(self, values: np.ndarray) -> np.ndarray:
+        """``[N, J * 4 + 3]`` float32 per stream: every model joint's rotation away from the
+        T-pose relative to its parent's (x, y, z, w: a VRM normalized bone), then the hips'
+        position in metres, of channel values ``[N, channels]`` on this pool's skeleton."""
+        jm = self.stylizer.map
+        on_model = to_target(bvh.motion_from_channels(self.skeleton, values, self.stylizer.fps), jm)
+        local, pos = humanoid_pose(on_model, jm.target_tpose)
+        return np.concatenate([local[..., [1, 2, 3, 0]].reshape(len(values), -1), pos[:, 0] * self.metres], -1).astype(
+            "<f4"
         )
 
 
@@ -294,6 +326,7 @@ class StyleServer:
             bool(msg.get("fronts", False)),
             private=bool(msg.get("private", False)),
             token=secrets.token_urlsafe(16),
+            humanoid=bool(msg.get("humanoid", False)),
         )
         pool.streams[row] = stream
         self.streams[stream.id] = stream
@@ -378,6 +411,7 @@ class StyleServer:
             "target": self._weights(stream),
             "parts": stream.pool.parts,
             "root_speed": stream.pool.stylizer.stylizer.root_speed,
+            **({"humanoid": stream.pool.humanoid_layout()} if stream.humanoid else {}),
             "pose": stream.pool.stylizer.stylizer.pose,
             "mapping": stream.pool.stylizer.map.describe(),
             "queue": self.config.queue,
@@ -547,6 +581,11 @@ class StyleServer:
             seen, seen_fronts = _joint_positions(pool.skeleton, values[wants], pool.stylizer.fps, pool.fronts)
             made, made_fronts = _joint_positions(pool.skeleton, out[wants], pool.stylizer.fps, pool.fronts)
             positions = {i: (seen[k], made[k], seen_fronts[k], made_fronts[k]) for k, i in enumerate(wants)}
+        posed = [i for i, s in enumerate(streams) if (s.humanoid or any(w.humanoid for w in s.watchers)) and not bad[i]]
+        humanoid = {}
+        if posed:
+            seen_pose, made_pose = pool.humanoid_pose(values[posed]), pool.humanoid_pose(out[posed])
+            humanoid = {i: (seen_pose[k], made_pose[k]) for k, i in enumerate(posed)}
         for i, (stream, (seq, _, _)) in enumerate(zip(streams, items)):
             if bad[i]:
                 continue
@@ -555,6 +594,8 @@ class StyleServer:
                 parts = [SEQ.pack(seq), out[i].astype("<f4").tobytes()]
                 if stream.positions:
                     parts += [p.astype("<f4").tobytes() for p in (pos if stream.fronts else pos[:2])]
+                if stream.humanoid:
+                    parts += [p.tobytes() for p in humanoid[i]]
                 message = b"".join(parts)
             else:
                 reply = {"type": "frame", "seq": seq, "values": np.round(out[i], 6).tolist()}
@@ -572,15 +613,20 @@ class StyleServer:
                             np.round(pos[2], 4).tolist(),
                             np.round(pos[3], 4).tolist(),
                         )
+                if stream.humanoid:
+                    reply["input_humanoid"], reply["output_humanoid"] = (np.round(h, 5).tolist() for h in humanoid[i])
                 message = json.dumps(reply)
             if not _offer(stream.outbox, message):
                 self._fail(
                     stream, POLICY, f"more than {self.config.queue} stylised frames unsent: the client does not read"
                 )
             for w in stream.watchers:
+                posed_bytes = b"".join(p.tobytes() for p in humanoid[i]) if w.humanoid else b""
                 _offer(
                     w.outbox,
-                    SEQ.pack(seq) + b"".join(p.astype("<f4").tobytes() for p in (pos if w.fronts else pos[:2])),
+                    SEQ.pack(seq)
+                    + b"".join(p.astype("<f4").tobytes() for p in (pos if w.fronts else pos[:2]))
+                    + posed_bytes,
                     drop_oldest=True,
                 )
 
@@ -619,6 +665,7 @@ class StyleServer:
                     "joints": list(sk.names),
                     "parents": [int(p) for p in sk.parents],
                     "target": self._weights(stream),
+                    **({"humanoid": stream.pool.humanoid_layout()} if watcher.humanoid else {}),
                 }
             ),
             drop_oldest=True,
@@ -640,6 +687,7 @@ class StyleServer:
             asyncio.Queue(self.config.queue),
             fronts=bool(msg.get("fronts", False)),
             token=token,
+            humanoid=bool(msg.get("humanoid", False)),
         )
         self.watchers.add(watcher)
         sender = None

@@ -3,15 +3,17 @@
 // live mode, watches a stream that another client sends.
 import * as THREE from "three";
 import { OrbitControls } from "/static/vendor/OrbitControls.js";
+import { GLTFLoader } from "/static/vendor/loaders/GLTFLoader.js";
+import { VRMLoaderPlugin } from "@pixiv/three-vrm";
 
 const $ = (id) => document.getElementById(id);
 const ui = {
-  clip: $("clip"), upload: $("upload"), live: $("live"), styleA: $("styleA"), styleB: $("styleB"),
+  clip: $("clip"), upload: $("upload"), avatar: $("avatar"), live: $("live"), styleA: $("styleA"), styleB: $("styleB"),
   mix: $("mix"), intensity: $("intensity"), play: $("play"), scrub: $("scrub"),
   frame: $("frame"), status: $("status"), error: $("error"),
 };
 // What tests and curious users can read: the last drawn frames, the server's replies.
-const viewer = (window.viewer = { ready: false, framesDrawn: 0, drawn: new Map(), target: null, mode: "clip" });
+const viewer = (window.viewer = { ready: false, framesDrawn: 0, drawn: new Map(), target: null, mode: "clip", avatarFrames: 0 });
 
 // ---- scene: two characters of solid bones on a floor ----
 const stage = $("stage");
@@ -114,6 +116,61 @@ function buildFigures(parents, firstPositions) {
   controls.target.set(0, lo + height * 0.5, 0);
 }
 
+// ---- the user's VRM avatar, twice (input and output), driven by the frames' humanoid pose ----
+let avatars = null; // [input, output] VRMs
+let humanoidLayout = null; // the server's: bones of the model's joints, their parents, the hips' T-pose height
+
+async function loadAvatar(file) {
+  const loader = new GLTFLoader();
+  loader.register((parser) => new VRMLoaderPlugin(parser));
+  const url = URL.createObjectURL(file);
+  try {
+    const vrms = (await Promise.all([loader.loadAsync(url), loader.loadAsync(url)])).map((g) => g.userData.vrm);
+    if (vrms.some((v) => !v)) throw new Error("not a VRM avatar (no VRM humanoid in the file)");
+    avatars?.forEach((v) => scene.remove(v.scene));
+    avatars = vrms;
+    avatars.forEach((v) => scene.add(v.scene));
+    viewer.avatar = file.name;
+    viewer.avatarFrames = 0;
+  } finally { URL.revokeObjectURL(url); }
+}
+
+function poseAvatar(vrm, data, shift, unitsPerMetre) {
+  // the server's pose is VRM 1.0's (facing +Z); a VRM 0.x avatar faces -Z: turned as three-vrm's VRMA player does
+  const flip = vrm.meta?.metaVersion === "0" ? -1 : 1;
+  const bones = humanoidLayout.bones;
+  bones.forEach((name, k) => {
+    const node = name && vrm.humanoid.getNormalizedBoneNode(name);
+    if (node) node.quaternion.set(flip * data[4 * k], data[4 * k + 1], flip * data[4 * k + 2], data[4 * k + 3]);
+  });
+  const at = 4 * bones.length, hips = vrm.humanoid.getNormalizedBoneNode("hips");
+  const scale = vrm.humanoid.normalizedRestPose.hips.position[1] / humanoidLayout.hips_height;
+  hips.position.set(flip * data[at] * scale, data[at + 1] * scale, flip * data[at + 2] * scale);
+  vrm.scene.scale.setScalar(unitsPerMetre);
+  vrm.scene.position.set(shift, 0, 0);
+  vrm.update(1 / 30);
+}
+
+function drawAvatars(floats, from) {
+  if (!avatars || !humanoidLayout || !figures) return;
+  const n = humanoidLayout.bones.length * 4 + 3;
+  if (floats.length < from + 2 * n) return;
+  const unitsPerMetre = spacing / 0.9 / 1.7; // the figures' height (spacing is 0.9 of it) as a 1.7 m person
+  poseAvatar(avatars[0], floats.subarray(from, from + n), -spacing / 2, unitsPerMetre);
+  poseAvatar(avatars[1], floats.subarray(from + n, from + 2 * n), spacing / 2, unitsPerMetre);
+  figures.forEach((f) => (f.group.visible = false));
+  viewer.avatarFrames += 1;
+}
+
+// What a test reads: each avatar's hands across the body (+ left) and feet height, in metres
+viewer.avatarLimbs = () => avatars?.map((vrm) => {
+  const p = (n) => vrm.humanoid.getRawBoneNode(n).getWorldPosition(new THREE.Vector3()).divideScalar(vrm.scene.scale.x);
+  const across = p("leftUpperLeg").sub(p("rightUpperLeg")).setY(0).normalize();
+  const middle = p("leftUpperLeg").add(p("rightUpperLeg")).multiplyScalar(0.5);
+  return { left: p("leftHand").sub(middle).dot(across), right: p("rightHand").sub(middle).dot(across),
+           feet: Math.min(p("leftFoot").y, p("rightFoot").y) };
+});
+
 let follow = null; // the camera follows the characters' root
 function draw(seq, input, output, inputFronts, outputFronts) {
   if (!figures) return;
@@ -207,6 +264,7 @@ function connect(hello, onReady) {
     if (sentAt.has(seq)) { latency = 0.9 * latency + 0.1 * (performance.now() - sentAt.get(seq)); sentAt.delete(seq); }
     if (!figures) buildFigures(viewer.parents, input);
     draw(seq, input, output, inputFronts, outputFronts);
+    drawAvatars(floats, skip + 12 * joints);
     if (viewer.mode === "clip") { ui.frame.textContent = `${seq + 1} / ${clip.frames.length}`; ui.scrub.value = seq; }
   };
 }
@@ -224,11 +282,11 @@ function playClip(c) {
   figures = null; follow = null;
   frameIndex = 0;
   ui.scrub.max = clip.frames.length - 1;
-  const hello = { type: "hello", skeleton: clip.header, fps: clip.fps, format: "binary", positions: true, fronts: true, name: "viewer", private: true, ...targetMessage(), ...partsMessage() };
+  const hello = { type: "hello", skeleton: clip.header, fps: clip.fps, format: "binary", positions: true, fronts: true, name: "viewer", private: true, humanoid: !!avatars, ...targetMessage(), ...partsMessage() };
   viewer.drawn.clear();
   connect(hello, (msg) => {
     if (msg.type !== "ready") return;
-    joints = msg.joints.length; channels = msg.channels;
+    joints = msg.joints.length; channels = msg.channels; humanoidLayout = msg.humanoid || null;
     viewer.parents = msg.parents; viewer.ready = true; viewer.target = msg.target; viewer.parts = msg.parts;
     showTarget();
     timer = setInterval(tick, 1000 / clip.fps);
@@ -266,10 +324,11 @@ function watchLive() {
   ui.live.classList.add("on");
   figures?.forEach((f) => f.dispose());
   figures = null; follow = null;
-  connect({ type: "watch", fronts: true }, (msg) => {
+  connect({ type: "watch", fronts: true, humanoid: !!avatars }, (msg) => {
     if (msg.type === "waiting") { viewer.ready = true; viewer.stream = null; setStatus(msg.streams.length ? "live: attaching…" : "live: waiting for a stream (styleerd stream-bvh FILE)"); }
     if (msg.type === "watching") {
       joints = msg.joints.length; viewer.parents = msg.parents; viewer.stream = msg.stream; viewer.target = msg.target;
+      humanoidLayout = msg.humanoid || null;
       figures?.forEach((f) => f.dispose()); figures = null; follow = null;
       showTarget();
     }
@@ -313,6 +372,14 @@ async function main() {
     const file = ui.upload.files[0];
     if (!file) return;
     try { playClip(parseBVH(await file.text())); } catch (e) { fail(`${file.name}: ${e.message}`); }
+  };
+  ui.avatar.onchange = async () => {
+    const file = ui.avatar.files[0];
+    if (!file) return;
+    try {
+      await loadAvatar(file);
+      if (viewer.mode === "live") watchLive(); else if (clip) playClip(clip); // the stream again, with the humanoid pose
+    } catch (e) { fail(`${file.name}: ${e.message || e}`); }
   };
   ui.live.onclick = () => (viewer.mode === "live" ? loadClip(ui.clip.value) : watchLive());
   for (const el of [ui.styleA, ui.styleB]) el.onchange = sendTarget;
