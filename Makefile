@@ -34,7 +34,11 @@ $(VENDOR)/three.module.js: package.json package-lock.json
 
 install: $(STAMP) $(VENDOR)/three.module.js
 
-demo: $(STAMP)  # no npm needed: the demo writes BVH files and a self-contained page
+# the demo writes BVH files and a self-contained page; the live viewer (styleerd serve) needs the vendored
+# three.js, built here too where npm is installed
+demo: $(STAMP)
+	@if command -v npm >/dev/null 2>&1; then $(MAKE) --no-print-directory $(VENDOR)/three.module.js; \
+	else echo "npm not found: 'styleerd serve' needs 'make install' (npm) for its viewer; the demo does not"; fi
 	$(BIN)/styleerd demo
 
 # the lint and the documentation site (strict: a broken link or an undocumented public function fails) first

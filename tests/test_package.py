@@ -9,6 +9,7 @@ import json
 import os
 import re
 import shlex
+import shutil
 import socket
 import subprocess
 import sys
@@ -88,6 +89,10 @@ def test_the_wheel_carries_the_models_and_the_viewer(wheel):
         "styleerd/serve/static/engine.html",
         "styleerd/serve/static/vendor/ort.wasm.min.mjs",
         "styleerd/serve/static/vendor/ort-wasm-simd-threaded.wasm",
+        "styleerd/serve/static/vendor/three-vrm.module.js",
+        "styleerd/serve/static/vendor/loaders/GLTFLoader.js",
+        "styleerd/serve/static/vendor/utils/BufferGeometryUtils.js",
+        "styleerd/serve/static/vendor/utils/SkeletonUtils.js",
     } <= names
     assert not any(n.startswith(("tests/", "models/ablations", "benchmarks/")) for n in names)
     metadata = next(zipfile.ZipFile(wheel).read(n).decode() for n in names if n.endswith("METADATA"))
@@ -165,6 +170,10 @@ def test_light_install_serves_the_viewer(light_install, tmp_path):
         assert "<canvas" in page or "viewer.js" in page
         three = urllib.request.urlopen(f"http://127.0.0.1:{port}/static/vendor/three.module.js", timeout=5).read()
         assert len(three) > 100_000
+        for name in ("three-vrm.module.js", "loaders/GLTFLoader.js"):  # the avatar viewer's
+            assert (
+                len(urllib.request.urlopen(f"http://127.0.0.1:{port}/static/vendor/{name}", timeout=5).read()) > 10_000
+            )
     finally:
         server.terminate()
         server.wait(30)
@@ -271,3 +280,13 @@ def test_a_model_finds_the_labeller_of_its_labels(tmp_path, monkeypatch):
     (tmp_path / "labeller-calm.json").write_text(json.dumps({**meta, "styles": ["calm", "normal"]}))
     monkeypatch.setenv("STYLEERD_MODELS", str(tmp_path))
     assert labeller_stem(other) == tmp_path / "labeller-calm"
+
+
+@pytest.mark.skipif(not shutil.which("npm") or not shutil.which("make"), reason="npm or make missing")
+def test_make_demo_builds_what_the_live_viewer_needs():
+    """``make demo`` also vendors three.js and three-vrm where npm is installed, so ``styleerd
+    serve`` shows its viewer right after it (the install stamp taken as made: nothing runs)."""
+    plan = subprocess.run(
+        ["make", "-n", "-o", ".venv/.installed", "demo"], cwd=ROOT, capture_output=True, text=True, check=True
+    ).stdout
+    assert "styleerd/serve/static/vendor/three.module.js" in plan and "styleerd demo" in plan
