@@ -83,3 +83,13 @@ def test_the_validator_finds_nothing_the_input_did_not_have(robot, tmp_path):
         return issues["numErrors"], issues["numWarnings"], sorted({m["code"] for m in issues["messages"]})
 
     assert counts(tmp_path / "o.glb") == counts(robot)
+
+
+def test_the_api_picks_a_clip_and_keeps_the_originals(robot, tmp_path):
+    import styleerd
+
+    wave = styleerd.transfer(robot, "elderly", output=tmp_path / "wave.glb", animation="Wave")
+    assert wave.n_frames == read_gltf(robot, "Wave").motion.n_frames
+    styleerd.transfer(robot, "elderly", output=tmp_path / "both.glb", animation="Wave", keep_original=True)
+    names = [a.name for a in gl.GLTF2().load_binary(str(tmp_path / "both.glb")).animations]
+    assert names[-1] == "Wave-elderly" and len(names) == 15

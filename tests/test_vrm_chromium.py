@@ -14,7 +14,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from test_gltf_mesh import CHROMIUM
+from test_gltf_mesh import CHROMIUM, VALIDATOR, validate
 
 from styleerd.motion import bvh
 from styleerd.motion.procedural import rig_families
@@ -22,7 +22,7 @@ from styleerd.motion.procedural import rig_families
 ROOT = Path(__file__).resolve().parents[1]
 MODULES = ROOT / "node_modules"
 needs_vrm = pytest.mark.skipif(
-    not (MODULES / "@pixiv" / "three-vrm").exists() or not Path(CHROMIUM).exists(),
+    not (MODULES / "@pixiv" / "three-vrm").exists() or not Path(CHROMIUM).exists() or not VALIDATOR.exists(),
     reason="three-vrm (make install runs npm ci) or Chromium (.ci/run installs it) missing",
 )
 
@@ -111,7 +111,9 @@ def test_three_vrm_plays_the_avatar_wearing_the_walk_and_the_vrma(shared_data, t
     avatar = shared_data / "characters" / "Godette.vrm"
     os.symlink(avatar, tmp_path / "avatar.vrm")
     transfer(tmp_path / "walk.bvh", "--style", "elderly", "--onto", avatar, "-o", tmp_path / "worn.vrm")
-    transfer(tmp_path / "walk.bvh", "--style", "elderly", "-o", tmp_path / "walk.vrma")
+    transfer(tmp_path / "walk.bvh", "--style", "elderly", "--onto", avatar, "-o", tmp_path / "walk.vrma")
+    issues = validate(tmp_path / "walk.vrma")["issues"]
+    assert (issues["numErrors"], issues["numWarnings"]) == (0, 0), issues["messages"][:5]
     (tmp_path / "index.html").write_text(PAGE)
     os.symlink(MODULES, tmp_path / "m")
     server = http.server.ThreadingHTTPServer(

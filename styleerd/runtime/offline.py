@@ -344,10 +344,15 @@ def transfer_onto(
     stylised and put on another character, ``avatar`` (glTF, GLB, VRM; animated or not): its
     mapped joints turn as the stylised motion's, scaled to its leg length, its other joints keep
     their rest pose. Written into a copy of the avatar (.glb, .vrm: meshes, materials, spring
-    bones, expressions kept, one animation per clip) or, for one clip, as a BVH of its skeleton."""
+    bones, expressions kept, one animation per clip) or, for one clip, as a BVH of its skeleton
+    (a .vrma output is any avatar's: ``transfer_file``'s)."""
     kind = output.suffix.lower()
+    if kind == ".vrma":  # a VRM Animation fits any avatar: the motion is written as one
+        if report:
+            report(f"a .vrma plays on any VRM avatar: written for none in particular ({avatar.name} not read)")
+        return transfer_file(source, output, model, fps, options, report)
     if kind not in (".glb", ".vrm", ".bvh"):
-        raise StyleERDError(f"{output}: with --onto the output must be .glb, .vrm or .bvh")
+        raise StyleERDError(f"{output}: with --onto the output must be .glb, .vrm, .vrma or .bvh")
     check_output(output, source, avatar)
     motions, explicit = _source_clips(source, model, options)
     if kind == ".bvh" and len(motions) > 1:
