@@ -1,6 +1,7 @@
 """``transfer -o out.glb --mesh``: a skinned body that the Khronos glTF validator passes with
 no error and no warning, and that three.js's GLTFLoader loads, skins and plays in Chromium."""
 
+import contextlib
 import functools
 import http.server
 import json
@@ -122,8 +123,6 @@ new GLTFLoader().load("out.glb", (gltf) => {
 @needs_node
 @pytest.mark.skipif(not Path(CHROMIUM).exists(), reason="Chromium not installed (.ci/run installs Debian's chromium)")
 def test_three_gltf_loader_skins_and_plays_the_body(model, tmp_path):
-    from playwright.sync_api import sync_playwright
-
     g, meta = model
     walk = rig_variants()["Mixamo T-pose, centimetres"][:120]
     bvh.write(tmp_path / "in.bvh", walk)
@@ -136,8 +135,31 @@ def test_three_gltf_loader_skins_and_plays_the_body(model, tmp_path):
     )
     (tmp_path / "index.html").write_text(PAGE)
     os.symlink(THREE, tmp_path / "three")
+    with served_page(tmp_path, 640, 480) as page:
+        page.wait_for_function("window.result !== undefined", timeout=30000)
+        result = page.evaluate("window.result")
+        assert "error" not in result and not page.problems, (result, page.problems)
+        assert result["bones"] == walk.skeleton.n_joints
+        assert 1.4 < result["height"] < 2.2  # metres: a person's height, skinned and posed
+        assert abs(result["duration"] - (walk.n_frames - 1) / walk.fps) < 1e-3
+        covered = page.evaluate("""() => {
+            const c = document.getElementById('c'), x = document.createElement('canvas');
+            x.width = c.width; x.height = c.height; const k = x.getContext('2d'); k.drawImage(c, 0, 0);
+            const d = k.getImageData(0, 0, c.width, c.height).data; let n = 0;
+            for (let i = 0; i < d.length; i += 4) n += d[i] + d[i + 1] + d[i + 2] < 700;
+            return n / (d.length / 4); }""")
+        assert covered > 0.02, covered  # the body is drawn
+        page.screenshot(path=str(Path(os.environ.get("STYLEERD_GLB_SCREENSHOT") or tmp_path / "glb.png")))
+
+
+@contextlib.contextmanager
+def served_page(folder: Path, width: int, height: int):
+    """``folder`` served on loopback and its index.html open in headless Chromium (a software
+    WebGL); yields the page, with ``page.problems``: the errors the page raised."""
+    from playwright.sync_api import sync_playwright
+
     server = http.server.ThreadingHTTPServer(
-        ("127.0.0.1", 0), functools.partial(http.server.SimpleHTTPRequestHandler, directory=str(tmp_path))
+        ("127.0.0.1", 0), functools.partial(http.server.SimpleHTTPRequestHandler, directory=str(folder))
     )
     threading.Thread(target=server.serve_forever, daemon=True).start()
     try:
@@ -152,25 +174,11 @@ def test_three_gltf_loader_skins_and_plays_the_body(model, tmp_path):
                     "--disable-background-networking",
                 ],
             )
-            page = browser.new_page(viewport={"width": 640, "height": 480})
-            problems = []
-            page.on("pageerror", lambda e: problems.append(str(e)))
+            page = browser.new_page(viewport={"width": width, "height": height})
+            page.problems = []
+            page.on("pageerror", lambda e: page.problems.append(str(e)))
             page.goto(f"http://127.0.0.1:{server.server_address[1]}/index.html")
-            page.wait_for_function("window.result !== undefined", timeout=30000)
-            result = page.evaluate("window.result")
-            assert "error" not in result and not problems, (result, problems)
-            assert result["bones"] == walk.skeleton.n_joints
-            assert 1.4 < result["height"] < 2.2  # metres: a person's height, skinned and posed
-            assert abs(result["duration"] - (walk.n_frames - 1) / walk.fps) < 1e-3
-            covered = page.evaluate("""() => {
-                const c = document.getElementById('c'), x = document.createElement('canvas');
-                x.width = c.width; x.height = c.height; const k = x.getContext('2d'); k.drawImage(c, 0, 0);
-                const d = k.getImageData(0, 0, c.width, c.height).data; let n = 0;
-                for (let i = 0; i < d.length; i += 4) n += d[i] + d[i + 1] + d[i + 2] < 700;
-                return n / (d.length / 4); }""")
-            assert covered > 0.02, covered  # the body is drawn
-            shot = Path(os.environ.get("STYLEERD_GLB_SCREENSHOT") or tmp_path / "glb.png")
-            page.screenshot(path=str(shot))
+            yield page
             browser.close()
     finally:
         server.shutdown()

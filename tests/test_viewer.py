@@ -48,6 +48,26 @@ def page():
     assert stop_server(server) == 0
 
 
+def stream_from_another_client(path: Path, port: int, style: str) -> subprocess.Popen:
+    """``styleerd stream-bvh`` of ``path`` to the page's server in real time, as a mocap client."""
+    return subprocess.Popen(
+        [
+            sys.executable,
+            "-m",
+            "styleerd.cli",
+            "stream-bvh",
+            str(path),
+            "--to",
+            f"ws://127.0.0.1:{port}/",
+            "--style",
+            style,
+        ],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.STDOUT,
+        text=True,
+    )
+
+
 def drawn_after_restart(page, style: str, frame: int = 40) -> np.ndarray:
     """Choose a style, wait for the server's confirmation, restart the clip (the stream
     starts afresh) and return the stylised joint positions drawn at ``frame``."""
@@ -117,22 +137,7 @@ def test_live_mode_shows_a_stream_from_another_client(page, tmp_path):
     bvh.write(tmp_path / "walk.bvh", walk(8.0, fps=30.0))
     page.click("#live")
     page.wait_for_function("window.viewer.mode === 'live' && window.viewer.ready", timeout=20000)
-    source = subprocess.Popen(
-        [
-            sys.executable,
-            "-m",
-            "styleerd.cli",
-            "stream-bvh",
-            str(tmp_path / "walk.bvh"),
-            "--to",
-            f"ws://127.0.0.1:{page.port}/",
-            "--style",
-            "feminine",
-        ],
-        stdout=subprocess.PIPE,
-        stderr=subprocess.STDOUT,
-        text=True,
-    )
+    source = stream_from_another_client(tmp_path / "walk.bvh", page.port, "feminine")
     try:
         page.wait_for_function("window.viewer.stream === 'walk'", timeout=30000)
         before = page.evaluate("window.viewer.framesDrawn")
@@ -171,22 +176,7 @@ def test_a_vrm_avatar_plays_the_input_and_the_stylised_motion_live_too(page, sha
     bvh.write(tmp_path / "walk.bvh", walk(6.0, fps=30.0))
     page.click("#live")
     page.wait_for_function("window.viewer.mode === 'live' && window.viewer.ready", timeout=20000)
-    source = subprocess.Popen(
-        [
-            sys.executable,
-            "-m",
-            "styleerd.cli",
-            "stream-bvh",
-            str(tmp_path / "walk.bvh"),
-            "--to",
-            f"ws://127.0.0.1:{page.port}/",
-            "--style",
-            "exhausted",
-        ],
-        stdout=subprocess.PIPE,
-        stderr=subprocess.STDOUT,
-        text=True,
-    )
+    source = stream_from_another_client(tmp_path / "walk.bvh", page.port, "exhausted")
     try:
         page.wait_for_function("window.viewer.stream === 'walk'", timeout=30000)
         before = page.evaluate("window.viewer.avatarFrames")

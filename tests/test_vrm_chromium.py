@@ -4,17 +4,14 @@ three-vrm-animation's VRMAnimationLoaderPlugin opens the same walk written as a 
 (``-o walk.vrma``) and plays it on the plain avatar. Limbs checked on both (hands at their own
 sides, feet at the floor, the avatar walking); a screenshot of the two side by side is kept."""
 
-import functools
-import http.server
 import os
 import subprocess
 import sys
-import threading
 from pathlib import Path
 
 import numpy as np
 import pytest
-from test_gltf_mesh import CHROMIUM, VALIDATOR, validate
+from test_gltf_mesh import CHROMIUM, VALIDATOR, served_page, validate
 
 from styleerd.motion import bvh
 from styleerd.motion.procedural import rig_families
@@ -104,8 +101,6 @@ def transfer(*args) -> None:
 
 @needs_vrm
 def test_three_vrm_plays_the_avatar_wearing_the_walk_and_the_vrma(shared_data, tmp_path):
-    from playwright.sync_api import sync_playwright
-
     walk = rig_families()["Character Creator (CC_Base_, twist and share bones, RL_BoneRoot)"][0][:240]
     bvh.write(tmp_path / "walk.bvh", walk)
     avatar = shared_data / "characters" / "Godette.vrm"
@@ -116,28 +111,12 @@ def test_three_vrm_plays_the_avatar_wearing_the_walk_and_the_vrma(shared_data, t
     assert (issues["numErrors"], issues["numWarnings"]) == (0, 0), issues["messages"][:5]
     (tmp_path / "index.html").write_text(PAGE)
     os.symlink(MODULES, tmp_path / "m")
-    server = http.server.ThreadingHTTPServer(
-        ("127.0.0.1", 0), functools.partial(http.server.SimpleHTTPRequestHandler, directory=str(tmp_path))
-    )
-    threading.Thread(target=server.serve_forever, daemon=True).start()
-    try:
-        with sync_playwright() as p:
-            browser = p.chromium.launch(
-                executable_path=CHROMIUM,
-                args=["--no-sandbox", "--use-angle=swiftshader", "--enable-unsafe-swiftshader", "--no-first-run"],
-            )
-            page = browser.new_page(viewport={"width": 640, "height": 640})
-            problems = []
-            page.on("pageerror", lambda e: problems.append(str(e)))
-            page.goto(f"http://127.0.0.1:{server.server_address[1]}/index.html")
-            page.wait_for_function("window.result !== undefined", timeout=60000)
-            result = page.evaluate("window.result")
-            assert "error" not in result and not problems, (result, problems)
-            shot = Path(os.environ.get("STYLEERD_VRM_SCREENSHOT") or tmp_path / "vrm.png")
-            page.screenshot(path=str(shot))
-            browser.close()
-    finally:
-        server.shutdown()
+    with served_page(tmp_path, 640, 640) as page:
+        page.wait_for_function("window.result !== undefined", timeout=60000)
+        result = page.evaluate("window.result")
+        assert "error" not in result and not page.problems, (result, page.problems)
+        shot = Path(os.environ.get("STYLEERD_VRM_SCREENSHOT") or tmp_path / "vrm.png")
+        page.screenshot(path=str(shot))
     for played in (result["own"], result["fromVrma"]):  # the avatar's file, then the VRMA on the plain avatar
         frames = played["frames"]
         assert abs(played["duration"] - (walk.n_frames - 1) / walk.fps) < 0.05
