@@ -283,10 +283,34 @@ def test_a_model_finds_the_labeller_of_its_labels(tmp_path, monkeypatch):
 
 
 @pytest.mark.skipif(not shutil.which("npm") or not shutil.which("make"), reason="npm or make missing")
-def test_make_demo_builds_what_the_live_viewer_needs():
-    """``make demo`` also vendors three.js and three-vrm where npm is installed, so ``styleerd
-    serve`` shows its viewer right after it (the install stamp taken as made: nothing runs)."""
-    plan = subprocess.run(
-        ["make", "-n", "-o", ".venv/.installed", "demo"], cwd=ROOT, capture_output=True, text=True, check=True
-    ).stdout
-    assert "styleerd/serve/static/vendor/three.module.js" in plan and "styleerd demo" in plan
+def test_a_fresh_clone_serves_the_avatar_viewer_right_after_make_demo(tmp_path):
+    """``git clone`` then ``make demo`` (a new .venv, the install, the demo) and ``styleerd serve``
+    shows its viewer, three.js and three-vrm included: nothing else to run first."""
+    clone = tmp_path / "clone"
+    _run(["git", "clone", "--quiet", ROOT, clone])
+    env = {k: v for k, v in os.environ.items() if k not in ("PYTHONPATH", "VIRTUAL_ENV")}
+    _run(["make", "demo"], cwd=clone, env=env)
+    port = _free_port()
+    server = subprocess.Popen(
+        [clone / ".venv/bin/styleerd", "serve", "--port", str(port)],
+        cwd=tmp_path,
+        env=env,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.STDOUT,
+    )
+    try:
+        deadline, page = time.monotonic() + 120, None
+        while page is None:
+            try:
+                page = urllib.request.urlopen(f"http://127.0.0.1:{port}/", timeout=5).read().decode()
+            except OSError:
+                assert server.poll() is None and time.monotonic() < deadline, "the server did not answer"
+                time.sleep(0.5)
+        assert 'id="avatar"' in page
+        for name in ("three.module.js", "three-vrm.module.js", "loaders/GLTFLoader.js"):
+            assert (
+                len(urllib.request.urlopen(f"http://127.0.0.1:{port}/static/vendor/{name}", timeout=5).read()) > 10_000
+            )
+    finally:
+        server.terminate()
+        server.wait(30)
