@@ -5,6 +5,7 @@ vendored three.js answer); the README's Python API example runs as written."""
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
 import os
 import re
@@ -147,15 +148,12 @@ def test_light_install_runs_transfer_export_and_api_without_torch(light_install,
     assert Path(where).is_relative_to(light_install) and not Path(where).is_relative_to(ROOT)
 
 
-def test_light_install_serves_the_viewer(light_install, tmp_path):
+@contextlib.contextmanager
+def _served_viewer(cli: Path, cwd: Path, env: dict):
+    """``styleerd serve`` of the install ``cli`` on a free port; yields (port, the viewer page's HTML)."""
     port = _free_port()
-    env = {k: v for k, v in os.environ.items() if k != "PYTHONPATH"}
     server = subprocess.Popen(
-        [light_install / "bin/styleerd", "serve", "--port", str(port)],
-        cwd=tmp_path,
-        env=env,
-        stdout=subprocess.PIPE,
-        stderr=subprocess.STDOUT,
+        [cli, "serve", "--port", str(port)], cwd=cwd, env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT
     )
     try:
         deadline, page = time.monotonic() + 120, None
@@ -167,16 +165,23 @@ def test_light_install_serves_the_viewer(light_install, tmp_path):
                     server.stdout.read().decode() if server.poll() is not None else "no answer"
                 )
                 time.sleep(0.5)
-        assert "<canvas" in page or "viewer.js" in page
-        three = urllib.request.urlopen(f"http://127.0.0.1:{port}/static/vendor/three.module.js", timeout=5).read()
-        assert len(three) > 100_000
-        for name in ("three-vrm.module.js", "loaders/GLTFLoader.js"):  # the avatar viewer's
-            assert (
-                len(urllib.request.urlopen(f"http://127.0.0.1:{port}/static/vendor/{name}", timeout=5).read()) > 10_000
-            )
+        yield port, page
     finally:
         server.terminate()
         server.wait(30)
+
+
+def _vendored(port: int, name: str) -> bytes:
+    return urllib.request.urlopen(f"http://127.0.0.1:{port}/static/vendor/{name}", timeout=5).read()
+
+
+def test_light_install_serves_the_viewer(light_install, tmp_path):
+    env = {k: v for k, v in os.environ.items() if k != "PYTHONPATH"}
+    with _served_viewer(light_install / "bin/styleerd", tmp_path, env) as (port, page):
+        assert "<canvas" in page or "viewer.js" in page
+        assert len(_vendored(port, "three.module.js")) > 100_000
+        for name in ("three-vrm.module.js", "loaders/GLTFLoader.js"):  # the avatar viewer's
+            assert len(_vendored(port, name)) > 10_000
 
 
 def test_help_groups_every_command_and_transfer_help_lists_the_styles():
@@ -290,27 +295,7 @@ def test_a_fresh_clone_serves_the_avatar_viewer_right_after_make_demo(tmp_path):
     _run(["git", "clone", "--quiet", ROOT, clone])
     env = {k: v for k, v in os.environ.items() if k not in ("PYTHONPATH", "VIRTUAL_ENV")}
     _run(["make", "demo"], cwd=clone, env=env)
-    port = _free_port()
-    server = subprocess.Popen(
-        [clone / ".venv/bin/styleerd", "serve", "--port", str(port)],
-        cwd=tmp_path,
-        env=env,
-        stdout=subprocess.PIPE,
-        stderr=subprocess.STDOUT,
-    )
-    try:
-        deadline, page = time.monotonic() + 120, None
-        while page is None:
-            try:
-                page = urllib.request.urlopen(f"http://127.0.0.1:{port}/", timeout=5).read().decode()
-            except OSError:
-                assert server.poll() is None and time.monotonic() < deadline, "the server did not answer"
-                time.sleep(0.5)
+    with _served_viewer(clone / ".venv/bin/styleerd", tmp_path, env) as (port, page):
         assert 'id="avatar"' in page
         for name in ("three.module.js", "three-vrm.module.js", "loaders/GLTFLoader.js"):
-            assert (
-                len(urllib.request.urlopen(f"http://127.0.0.1:{port}/static/vendor/{name}", timeout=5).read()) > 10_000
-            )
-    finally:
-        server.terminate()
-        server.wait(30)
+            assert len(_vendored(port, name)) > 10_000
