@@ -13,8 +13,10 @@ with styleerd's own stylizer.
 the input's). Each frame runs the graph twice, each run with its own recurrent state: into the
 target, and into the input's own style (the identity transfer). Where the identity output is near
 the input (the network knows this motion) the output is the network's; where it is far (an action
-it never learnt) the input's pose turned, joint by joint, by the change from the identity output to
-the target's (input * inv(identity) * target); in between a blend: as styleerd's stylizer does.
+it never learnt) the input's pose turned, joint by joint, by the target style's posture (the
+sidecar's ``posture``: rotation vectors; for a model without one, the change from the identity
+output to the target's, input * inv(identity) * target); in between a blend: as styleerd's
+stylizer does.
 """
 
 from __future__ import annotations
@@ -49,6 +51,12 @@ def qrot(q: np.ndarray, v: np.ndarray) -> np.ndarray:
 
 
 FAMILIAR, UNFAMILIAR, RELEASE = 10.0, 16.0, 0.1  # degrees, degrees, a frame: styleerd.model.config's
+
+
+def from_rotation_vectors(v: np.ndarray) -> np.ndarray:
+    """Quaternions of rotation vectors ``[..., 3]`` (angle |v| radians about v)."""
+    angle = np.linalg.norm(v, axis=-1, keepdims=True)
+    return np.concatenate([np.cos(angle / 2), np.sin(angle / 2) * v / np.maximum(angle, 1e-12)], axis=-1)
 
 
 def qinv(q: np.ndarray) -> np.ndarray:
@@ -101,6 +109,13 @@ class Host:
         self.target = one_hot(s["styles"], style)
         self.identity = np.zeros_like(self.target)
         self.identity[:, : self.style.shape[1]] = self.style  # the input's own style, among the targets
+        # the posture change from the input's own style to the target (rotation vectors, summed by weight)
+        posture = np.array(s["posture"]) if s.get("posture") is not None else None
+        self.change = (
+            None
+            if posture is None
+            else from_rotation_vectors(np.einsum("s,sjc->jc", (self.target - self.identity)[0], posture))
+        )
         rows, _, width = s["state_shapes"]["h"]  # [1, N, S H] (LSTM form) or [S, N, H] (plain); N = 1 here
         self.state = {
             k: [np.zeros((rows, 1, width), np.float32), np.zeros((rows, 1, width), np.float32)]
@@ -166,7 +181,8 @@ class Host:
         degrees = np.degrees(2 * np.arctan2(np.linalg.norm(d[:, 1:], axis=-1), np.abs(d[:, 0]))).mean()
         now = float(np.clip((degrees - FAMILIAR) / (UNFAMILIAR - FAMILIAR), 0.0, 1.0))
         self.unfamiliar = now if first[0, 0] else max(now, self.unfamiliar - RELEASE)
-        turned = qmul(given, qmul(qinv(poses["identity"]), poses["target"]))
+        change = qmul(qinv(poses["identity"]), poses["target"]) if self.change is None else self.change
+        turned = qmul(given, change)
         return slerp(poses["target"], turned / np.linalg.norm(turned, axis=-1, keepdims=True), self.unfamiliar)
 
 

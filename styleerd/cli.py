@@ -226,6 +226,36 @@ def _soup(args: argparse.Namespace) -> None:
     print(f"{meta['training']['kept']}; wrote {out}.safetensors")
 
 
+def _posture(args: argparse.Namespace) -> None:
+    import numpy as np
+    import torch
+
+    from styleerd.model.checkpoint import save_tensors
+    from styleerd.model.stored import load_generator_weights, model_stem
+    from styleerd.runtime.posture import measure_posture, training_walks, with_posture
+
+    model = load_generator_weights(args.model)
+    meta = model.meta
+    out = Path(args.output).with_suffix("") if args.output else model_stem(args.model)
+    check_output(out.with_suffix(".safetensors"))
+    walks = list(training_walks(model, args.data))
+    if not walks:
+        raise StyleERDError(f"no neutral walks in the training split of {meta['data']['dataset']}")
+    posture = measure_posture(model, walks)
+    frames = sum(m.n_frames for m, _ in walks)
+    tensors = {f"generator.{k}": torch.from_numpy(v) for k, v in model.arrays.items()}
+    save_tensors(out, tensors, with_posture(meta, model, posture, len(walks), frames))
+    degrees = np.degrees(np.linalg.norm(posture, axis=-1))
+    for style, row in zip(model.config.styles, degrees):
+        if style != model.config.neutral_style:
+            top = np.argsort(row)[::-1][:3]
+            print(
+                f"{style}: mean {row.mean():.1f} deg; most: "
+                + ", ".join(f"{model.skeleton.names[j]} {row[j]:.0f}" for j in top)
+            )
+    print(f"posture of {len(walks)} walks ({frames} frames); wrote {out}.safetensors")
+
+
 def _add_style(args: argparse.Namespace) -> None:
     from styleerd.train.add_style import AddStyleConfig, add_style
 
@@ -580,7 +610,7 @@ class _Parser(argparse.ArgumentParser):
 
 POSES = ("input", "network")  # runtime.stylizer.POSES, here without importing numba
 POSE_HELP = (
-    "what the output's poses are built on: input (default), the input's own pose plus the style's change, "
+    "what the output's poses are built on: input (default), the input's own pose plus the style's posture, "
     "which keeps any action; network, the network's pose (the paper's output)"
 )
 MODEL_HELP = "a model file, or a model name in $STYLEERD_MODELS or among the shipped ones (default: styleerd-bandai2)"
@@ -592,6 +622,7 @@ GROUPS = {
         "train",
         "add-style",
         "soup",
+        "posture",
         "train-labeller",
         "train-recognisers",
         "train-fmd",
@@ -901,6 +932,16 @@ def _train_commands(command: Callable[[str, str], argparse.ArgumentParser]) -> N
     p.add_argument("-o", "--output", required=True, help="the averaged model (no suffix)")
     p.add_argument("--weights", nargs="+", type=float, help="one per model, summing to 1 (default: equal)")
     p.set_defaults(func=_soup)
+
+    p = command(
+        "posture",
+        "measure each style's posture (its change to the pose, averaged over the training split's neutral walks) and "
+        "store it in the model: what an action the network never learnt is turned by",
+    )
+    p.add_argument("model", nargs="?", help=MODEL_HELP)
+    p.add_argument("-o", "--output", help="write the model here (no suffix; default: the model file itself)")
+    p.add_argument("--data", help="data folder (default: $STYLEERD_DATA, else ../shared/data)")
+    p.set_defaults(func=_posture)
 
     for name, (text, default, _) in HELPER_MODELS.items():
         p = command(name, text)

@@ -94,3 +94,56 @@ def test_held_out_actions_keep_their_action_with_the_input_pose(shared_data, mod
         (error, corr), (_, styled_corr) = kept["input"]
         assert error <= 5.0 and corr >= 0.9 and styled_corr >= 0.8, (name, kept)
         assert kept["network"][0][1] < 0.6 and kept["network"][1][1] < 0.6, (name, kept)
+
+
+@pytest.mark.slow
+def test_the_styles_change_on_held_out_actions_points_as_on_walks(shared_data, model):
+    """Issue 35's bar for the style's change: on a held-out kick and a CMU punch on its own rig, the
+    elderly, exhausted and masculine change (styled minus identity output, per joint in the body's
+    frame, over the clip) points as the same change on Bandai-Namco-2 test walks (cosine >= 0.7) with
+    at least half its size, and the action is kept (velocity correlation at least the walks')."""
+    styles = ["elderly", "exhausted", "masculine"]
+
+    def changes(clip):
+        jm = A._map(clip, model)
+        scale = A._body_scale(clip.motion.skeleton, jm)
+        identity, styled = A._transfers(clip, model, styles, "input")
+        return {
+            s: (A.style_change(clip.motion, m, identity, jm, scale), A.action_kept(clip.motion, m, jm, scale)[1])
+            for s, m in styled.items()
+        }
+
+    walks = [changes(c) for c in A.bandai2_test_walks(str(shared_data), 4)]
+    reference = {s: {k: np.mean([w[s][0][k] for w in walks], 0) for k in walks[0][s][0]} for s in styles}
+    walk_corr = {s: np.mean([w[s][1] for w in walks]) for s in styles}
+    clips = {c.name: c for c in A.held_out_clips(str(shared_data))}
+    for name in ("kick_normal_001", "cmu 002_05"):
+        for s, (change, corr) in changes(clips[name]).items():
+            cosine, size = A._compare(change, reference[s])
+            assert cosine >= 0.7 and size >= 0.5 and corr >= walk_corr[s], (name, s, cosine, size, corr)
+
+
+@pytest.mark.slow
+def test_styleerd_posture_measures_the_shipped_posture_again(shared_data, model, tmp_path):
+    """``styleerd posture`` on the shipped model writes a model whose weights are the shipped ones bit
+    for bit and whose posture is the shipped one (the measure is deterministic); a mixture adds the
+    postures by weight and an intensity scales them."""
+    from styleerd.cli import main
+    from styleerd.model.stored import load_generator_weights
+    from styleerd.runtime.stylizer import posture_change
+
+    assert main(["posture", "-o", str(tmp_path / "again"), "--data", str(shared_data)]) == 0
+    again = load_generator_weights(tmp_path / "again")
+    assert all(np.array_equal(again.arrays[k], v) for k, v in model.arrays.items())
+    assert np.abs(again.posture - model.posture).max() <= 1e-6
+    styles = list(model.config.styles)
+    w = np.zeros((3, len(styles)))
+    w[0, styles.index("elderly")] = 1.0
+    w[1, styles.index("elderly")] = 0.5
+    w[2, [styles.index("elderly"), styles.index("exhausted")]] = 0.5
+    full, half, mix = posture_change(model.posture, w)
+    assert np.allclose(quat.mul(half, half), full, atol=1e-12)  # one axis a joint: half the angle twice
+    both = quat.from_scaled_angle_axis(
+        0.5 * (model.posture[styles.index("elderly")] + model.posture[styles.index("exhausted")])
+    )
+    assert np.allclose(mix, both)

@@ -133,3 +133,18 @@ def test_compiled_scalar_helpers_against_the_array_functions_and_scipy():
             near = np.array(quat.nearest_euler_scalars(*e, *ref))
             assert same_rotation(from_scipy(Rotation.from_euler(order.upper(), near)), row, atol=1e-7)
             assert np.sum((near - ref) ** 2) <= np.sum((e - ref) ** 2) + 1e-12
+
+
+def test_rotation_vectors_match_scipy_both_ways():
+    """``from_scaled_angle_axis`` and ``to_scaled_angle_axis`` against scipy's rotation vectors,
+    the zero vector (identity) and angles near pi included; the torch twin the same."""
+    import torch
+
+    from styleerd.model import torch_quat
+
+    v = Rotation.random(500, random_state=3).as_rotvec()
+    v[:3] = [[0.0, 0.0, 0.0], [1e-9, 0.0, 0.0], [0.0, np.pi - 1e-6, 0.0]]
+    q = quat.from_scaled_angle_axis(v)
+    assert same_rotation(q, from_scipy(Rotation.from_rotvec(v)), atol=1e-12)
+    assert np.allclose(quat.to_scaled_angle_axis(q), Rotation.from_quat(q[:, [1, 2, 3, 0]]).as_rotvec(), atol=1e-9)
+    assert np.allclose(torch_quat.from_scaled_angle_axis(torch.tensor(v)).numpy(), q, atol=1e-12)

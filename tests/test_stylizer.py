@@ -46,7 +46,7 @@ def test_offline_equals_streaming_and_keeps_the_root_trajectory(model):
 
 
 @pytest.mark.parametrize("backend", ["numpy", "numba"])
-@pytest.mark.parametrize("pose", ["network", "input"])
+@pytest.mark.parametrize("pose", ["network", "input", "input with posture"])
 def test_stream_equals_the_generator_forward_on_whole_clip_features(model, backend, pose, monkeypatch):
     """The compiled streaming path (features, normalisation, root put back on its heading)
     against the training-side path: motion_features + FeatureStats.normalize, the torch
@@ -54,8 +54,9 @@ def test_stream_equals_the_generator_forward_on_whole_clip_features(model, backe
     scipy: the generator's identity output (target = the input's style) against the input gives
     each frame's unfamiliarity (mean joint angle, rising at once, falling by RELEASE a frame), which
     slerps from the styled output to the input's rotations turned by the change from the identity
-    output to the styled one; the thresholds are put inside this random network's range, so the
-    frames span the blend."""
+    output to the styled one (a model with postures: turned by the target's posture less the input
+    style's, scipy's rotation vectors); the thresholds are put inside this random network's range,
+    so the frames span the blend."""
     from scipy.spatial.transform import Rotation, Slerp
 
     from styleerd.runtime import stylizer
@@ -73,7 +74,9 @@ def test_stream_equals_the_generator_forward_on_whole_clip_features(model, backe
         return quat.normalize(out)
 
     want = generator(2)
-    if pose == "input":
+    posture = np.random.default_rng(5).normal(0.0, 0.4, (len(STYLES), m.skeleton.n_joints, 3))
+    monkeypatch.setattr(model, "posture", torch.tensor(posture) if pose == "input with posture" else None)
+    if pose != "network":
         scipy = lambda q: Rotation.from_quat(q.reshape(-1, 4), scalar_first=True)
         same = generator(1)
         angles = np.degrees((scipy(same).inv() * scipy(m.rotations)).magnitude()).reshape(30, -1).mean(-1)
@@ -84,7 +87,12 @@ def test_stream_equals_the_generator_forward_on_whole_clip_features(model, backe
         for t in range(1, 30):
             weight[t] = max(weight[t], weight[t - 1] - stylizer.RELEASE)
         assert 0 < weight.mean() < 1 and ((weight > 0) & (weight < 1)).any()
-        turned = (scipy(m.rotations) * scipy(same).inv() * scipy(want)).as_quat(scalar_first=True).reshape(want.shape)
+        change = (
+            scipy(same).inv() * scipy(want)
+            if model.posture is None
+            else Rotation.from_rotvec(np.tile(posture[2] - posture[1], (30, 1)))
+        )
+        turned = (scipy(m.rotations) * change).as_quat(scalar_first=True).reshape(want.shape)
         want = np.stack(
             [
                 np.stack(
@@ -96,7 +104,7 @@ def test_stream_equals_the_generator_forward_on_whole_clip_features(model, backe
                 for t in range(30)
             ]
         )
-    s = StreamStylizer(model, "normal", "walk", {"old": 1.0}, backend=backend, pose=pose)
+    s = StreamStylizer(model, "normal", "walk", {"old": 1.0}, backend=backend, pose=pose.split()[0])
     got = np.stack([s.step(m.rotations[t], m.positions[t])[0][0] for t in range(30)])
     if pose == "network":
         assert np.abs(got - want).max() <= 1e-5

@@ -322,12 +322,14 @@ def in_place(m: Motion) -> Motion:
 
 
 def walk_clips(data_dir: str | None = None) -> list[ActionClip]:
-    """Walks and runs of other performers: xia-sample's neutral walk, CMU subject 2's walks and
-    run, and a generated walk in place (and the xia walk in place)."""
+    """Two Bandai-Namco-2 test walks (the reference: the model's own data), then walks and runs of
+    other performers: xia-sample's neutral walk, CMU subject 2's walks and run, and a generated walk
+    in place (and the xia walk in place)."""
     root = data_root(data_dir)
-    out = []
+    out = [c for c in bandai2_test_walks(data_dir) if c.action == "walk"][:2]
     xia = next(c for c in find_clips(root, "xia-sample") if c.name.startswith("neutral_01"))
-    out.append(ActionClip("xia neutral walk", "walk", "xia-sample", trimmed(load_motion(xia)), "normal"))
+    xia_walk = ActionClip("xia neutral walk", "walk", "xia-sample", trimmed(load_motion(xia)), "normal")
+    out.append(xia_walk)
     cmu = unpack(root / "cmu-sample.tar.xz") / "cmu-sample" / "iclone"
     for stem in ("002_01", "002_02", "002_03"):
         out.append(
@@ -342,7 +344,7 @@ def walk_clips(data_dir: str | None = None) -> list[ActionClip]:
     generated = resample(walk(SECONDS, fps=60.0, turn_degrees_per_second=0.0), 30.0)
     out.append(ActionClip("generated walk in place", "walk in place", "procedural", in_place(generated), "normal"))
     out.append(
-        ActionClip("xia neutral walk in place", "walk in place", "xia-sample", in_place(out[0].motion), "normal")
+        ActionClip("xia neutral walk in place", "walk in place", "xia-sample", in_place(xia_walk.motion), "normal")
     )
     return out
 
@@ -524,7 +526,7 @@ def action_filmstrips(
             rows,
             path,
             frames=8,
-            title=f"{clip.action}: the paper's output (pose network) against the input's pose plus the style's change "
+            title=f"{clip.action}: the paper's output (pose network) against the input's pose plus the style's posture "
             "(pose input)",
         )
         paths.append(path)

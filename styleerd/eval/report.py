@@ -278,18 +278,21 @@ def actions_section(docs: Path) -> str:
     actions, quality, streamed = docs / "actions.md", docs / "pose-quality.json", docs / "pose-streamed.json"
     if not actions.is_file():
         return ""
-    text = """## Any action, any performer: the input's pose plus the style's change (`styleerd eval actions`)
+    text = """## Any action, any performer: the input's pose plus the style's posture (`styleerd eval actions`)
 
 Held-out clips of other performers, skeletons and actions, none of them in any training run (CMU
 subjects 2 and 126 from cmu-sample on their Character Creator and ASF rigs, Bandai-Namco-1's
 neutral actions, xia-sample's jump and punch), streamed through `transfer` as users run it, on their
 own skeletons, beside Bandai-Namco-2 test walks. Pose `network` is the network's own pose (the
 paper's output, and this project's until now); pose `input` (the default) keeps the network's pose
-where it rebuilds the input and otherwise turns the input's own pose by the style's change ([Transfer
-and styles](guide/transfer.md#any-action-pose), "Any action"). Correlation: of the hands' and feet's
-root-relative velocities, input against
-output (1 = the same action). Cosine and size: the style's change (styled output minus identity
-output, per joint, in the body's frame, averaged over the clip) against the same on the walks.
+where it rebuilds the input and otherwise turns the input's own pose by the style's posture (its
+change to the network's pose averaged over the training split's neutral walks, `styleerd posture`;
+[Transfer and styles](guide/transfer.md#any-action-pose), "Any action"). Correlation: of the hands'
+and feet's root-relative velocities, input against output (1 = the same action). Cosine and size:
+the style's change (styled output minus identity output, per joint, in the body's frame, averaged
+over the clip) against the same on the walks. A posture is a rotation per joint, so on a body lying
+down (the swims) the same bent neck moves the head another way in the body's heading frame: those
+clips' cosines are low by construction.
 
 ![a dance](actions-dance-short.png)
 

@@ -19,7 +19,7 @@ from styleerd.model.config import GeneratorConfig
 from styleerd.model.fmd import MotionAutoencoder
 from styleerd.model.generator import StyleERD
 from styleerd.model.labeller import OnlineLabeller
-from styleerd.model.stored import GeneratorWeights, load_arrays, loaded
+from styleerd.model.stored import GeneratorWeights, load_arrays, loaded, posture_vectors
 from styleerd.models import DEFAULT_MODEL, FMD, LABELLER, RECOGNISERS
 from styleerd.motion.skeleton import Skeleton
 
@@ -65,17 +65,18 @@ def generator_meta(model: StyleERD, skeleton: Skeleton, stats: FeatureStats, **e
 
 
 def build_generator(meta: dict) -> StyleERD:
-    return StyleERD(
-        GeneratorConfig.from_dict(meta["config"]),
-        Skeleton.from_dict(meta["skeleton"]),
-        FeatureStats.from_dict(meta["stats"]),
-    )
+    config = GeneratorConfig.from_dict(meta["config"])
+    model = StyleERD(config, Skeleton.from_dict(meta["skeleton"]), FeatureStats.from_dict(meta["stats"]))
+    posture = posture_vectors(meta, config)
+    model.posture = None if posture is None else torch.from_numpy(posture).float()
+    return model
 
 
 def torch_generator(weights: GeneratorWeights) -> StyleERD:
     """The torch module of generator weights read without torch (``model.stored``)."""
     model = StyleERD(weights.config, weights.skeleton, weights.stats())
     model.load_state_dict({k: torch.from_numpy(v) for k, v in weights.arrays.items()})
+    model.posture = None if weights.posture is None else torch.from_numpy(weights.posture).float()
     return model.eval()
 
 

@@ -95,6 +95,7 @@ class GeneratorWeights:
     feature_stats: FeatureStats
     arrays: dict[str, np.ndarray]
     meta: dict = field(default_factory=dict)
+    posture: np.ndarray | None = None  # [styles, J, 3] rotation vectors (``posture_vectors``), None: not measured
 
     @property
     def branch_styles(self) -> list[int]:
@@ -109,7 +110,25 @@ def generator_weights(model) -> GeneratorWeights:
     if isinstance(model, GeneratorWeights):
         return model
     arrays = {k: v.detach().float().cpu().numpy() for k, v in model.state_dict().items()}
-    return GeneratorWeights(model.config, model.skeleton, model.stats(), arrays)
+    posture = None if model.posture is None else model.posture.double().numpy()
+    return GeneratorWeights(model.config, model.skeleton, model.stats(), arrays, posture=posture)
+
+
+def posture_vectors(meta: dict, config: GeneratorConfig) -> np.ndarray | None:
+    """Each target style's posture (``runtime.posture``), per joint a rotation vector (radians),
+    ``[styles, J, 3]`` in the model's style order (a style not measured: no change); None where the
+    model file has none."""
+    measured = meta.get("posture")
+    if measured is None:
+        return None
+    vectors = np.zeros((len(config.styles), config.n_joints, 3))
+    for style, rows in measured["rotation_vectors"].items():
+        if style not in config.styles:
+            raise ValueError(f"posture of {style!r}, a style the model does not have")
+        vectors[config.styles.index(style)] = rows  # numpy refuses a wrong shape
+    if not np.isfinite(vectors).all() or np.abs(vectors).max() > np.pi:
+        raise ValueError("posture: rotation vectors must be finite and at most pi radians")
+    return vectors
 
 
 def _generator(arrays: dict[str, np.ndarray], meta: dict) -> GeneratorWeights:
@@ -130,7 +149,7 @@ def _generator(arrays: dict[str, np.ndarray], meta: dict) -> GeneratorWeights:
             raise ValueError(f"{key} has shape {weights[key].shape}, the configuration says {shape}")
     if skeleton.n_joints != J:
         raise ValueError(f"the skeleton has {skeleton.n_joints} joints, the configuration says {J}")
-    return GeneratorWeights(config, skeleton, stats, weights, meta)
+    return GeneratorWeights(config, skeleton, stats, weights, meta, posture_vectors(meta, config))
 
 
 def load_generator_weights(name: str | Path | None = None) -> GeneratorWeights:

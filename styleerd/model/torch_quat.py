@@ -32,6 +32,12 @@ def add_change(given: torch.Tensor, same: torch.Tensor, styled: torch.Tensor) ->
     return normalize(mul(normalize(given), mul(inv(same), styled)))
 
 
+def from_scaled_angle_axis(v: torch.Tensor, eps: float = 1e-12) -> torch.Tensor:
+    """Rotation by ``|v|`` radians about ``v``'s direction (a rotation vector ``[..., 3]``; 0: identity)."""
+    angle = v.norm(dim=-1, keepdim=True)
+    return torch.cat([torch.cos(angle / 2), torch.sin(angle / 2) * v / angle.clamp_min(eps)], dim=-1)
+
+
 def slerp(a: torch.Tensor, b: torch.Tensor, t: torch.Tensor) -> torch.Tensor:
     """Spherical interpolation from ``a`` (t=0) to ``b`` (t=1) along the shorter arc; ``t [...]``."""
     d = (a * b).sum(-1, keepdim=True)

@@ -116,6 +116,18 @@ def to_angle_axis(q: np.ndarray, eps: float = 1e-12) -> tuple[np.ndarray, np.nda
     return angle, axis
 
 
+def from_scaled_angle_axis(v: np.ndarray, eps: float = 1e-12) -> np.ndarray:
+    """Rotation by ``|v|`` radians about ``v``'s direction (a rotation vector ``[..., 3]``; 0: identity)."""
+    angle = np.linalg.norm(v, axis=-1)
+    return from_angle_axis(angle, v / np.maximum(angle, eps)[..., None])
+
+
+def to_scaled_angle_axis(q: np.ndarray) -> np.ndarray:
+    """The rotation vector of each quaternion (the inverse of ``from_scaled_angle_axis``)."""
+    angle, axis = to_angle_axis(q)
+    return angle[..., None] * axis
+
+
 def angle_between(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     """Rotation angle (radians, in [0, pi]) of ``inv(a) * b``; from the half angle's sine and
     cosine, which keeps small angles exact (arccos of the cosine alone loses them below 1e-7)."""

@@ -8,7 +8,8 @@ input's floor); while the
 contact lasts, two-bone IK (hip, knee) holds the output ankle on it; when it ends, the target
 slides from the anchor back to the raw ankle over ``release_frames`` frames, so nothing pops.
 The floor: no output ankle, and no toe (the ankle's first child), goes lower than the input's own
-ankle and toe have been so far (their running minimum); a foot that would is lifted by the same IK.
+ankle and toe have been so far (their running minimum); a foot that would is lifted by the same IK,
+and a toe still under it (it turns with the shin) is raised by pitching the foot up about the ankle.
 Frame t uses frames <= t only. Works on any skeleton with named legs (BodyRoles).
 """
 
@@ -181,6 +182,13 @@ def _foot_lock_kernel(
                     lifted = True
             if not lifted:  # nothing moved: a second pass would find the same
                 break
+        forward_pose(out[i], positions[i], parents, g_rot, g_pos)
+        for side in range(2):  # a toe still below its floor: the foot pitched up about the ankle, to the floor
+            ankle, toe = legs[side, 2], toes[side]
+            if toe >= 0 and floor[r, side, 1] - g_pos[toe, 1] > 1e-9:
+                _toe_to(
+                    out[i], parents[ankle], ankle, g_pos[toe] - g_pos[ankle], floor[r, side, 1] - g_pos[ankle, 1], g_rot
+                )
 
 
 @nb.njit(cache=True)
@@ -197,6 +205,24 @@ def _leg_to(out, parents, leg, g_pos, g_rot, target, left, hip_g, knee_g):
         )
     out[knee, 0], out[knee, 1], out[knee, 2], out[knee, 3] = quat.mul_scalars(
         hip_g[0], -hip_g[1], -hip_g[2], -hip_g[3], knee_g[0], knee_g[1], knee_g[2], knee_g[3]
+    )
+
+
+@nb.njit(cache=True)
+def _toe_to(out, parent, ankle, toe, height, g_rot):
+    """Turn the ``ankle`` (local rotation in ``out``; ``g_rot``: the global rotations) so that its toe,
+    at ``toe`` from it, is ``height`` above it, pointing the same way on the ground."""
+    length = np.sqrt(np.sum(toe**2))
+    y = min(max(height, -length), length)
+    ground = np.sqrt(toe[0] ** 2 + toe[2] ** 2)
+    h = np.sqrt(max(length * length - y * y, 0.0))
+    dx, dz = (toe[0] / ground, toe[2] / ground) if ground > 1e-9 else (0.0, 0.0)
+    rw, rx, ry, rz = quat.between_scalars(toe[0], toe[1], toe[2], dx * h, y, dz * h)
+    a = g_rot[ankle]
+    gw, gx, gy, gz = quat.mul_scalars(rw, rx, ry, rz, a[0], a[1], a[2], a[3])
+    p = g_rot[parent]
+    out[ankle, 0], out[ankle, 1], out[ankle, 2], out[ankle, 3] = quat.mul_scalars(
+        p[0], -p[1], -p[2], -p[3], gw, gx, gy, gz
     )
 
 

@@ -104,7 +104,7 @@ class TransferOptions:
     parts: str | dict | None = None  # body parts with their own target (``stylizer.part_targets``)
     root_speed: bool = False  # the root's ground speed from the network (``StreamStylizer``), not the input's
     pose: str = (
-        "input"  # the input's pose plus the style's change, or "network": the network's pose (``StreamStylizer``)
+        "input"  # the input's pose plus the style's posture, or "network": the network's pose (``StreamStylizer``)
     )
     animation: str = "all"  # glTF/VRM input: the animation to stylise (its name), or every one
     keep_original: bool = False  # glTF/VRM output: the input's animations kept, the stylised ones added as NAME-STYLE

@@ -487,6 +487,9 @@ def sidecar(
             "leg_length": roles.leg_length,
         },
         "contact_speed_leg_lengths": CONTACT_SPEED,
+        # per target style (``styles``' order) and joint, the rotation vector (radians) of its posture:
+        # what an input the network never learnt is turned by (``runtime.posture``); null: not measured
+        "posture": None if model.posture is None else np.round(model.posture, 6).tolist(),
         "skeleton": model.skeleton.to_dict(),
         "stats": model.stats().to_dict(),
     }

@@ -9,8 +9,9 @@ default (``pose="input"``) a second pass, with its own recurrent state, gives th
 in the input's own style (the identity transfer), and how far that is from the input says how
 unfamiliar the input is (``unfamiliar``, per stream and frame, 0..1). Where the network rebuilds
 the input well, the output is the network's; where it does not, the input's own pose turned, joint
-by joint, by the change from the identity output to the target's (``_towards_the_input``), so a pose the
-network never learnt passes through with the style's change on it; in between, a blend of the two.
+by joint, by the target style's posture (``runtime.posture``; for a model without one, by the change
+from the identity output to the target's) (``_towards_the_input``), so a pose the network never
+learnt passes through with the style on it; in between, a blend of the two.
 
 Changing the target (style, intensity, mixture) mid-stream blends the target weights
 linearly over ``blend_frames`` frames, so the output does not pop.
@@ -101,6 +102,13 @@ def target_weights(
     out = {k: v * intensity for k, v in weights.items() if k != neutral}
     out[neutral] = weights.get(neutral, 0.0) * intensity + max(0.0, 1.0 - intensity)
     return out
+
+
+def posture_change(posture: np.ndarray, weights: np.ndarray) -> np.ndarray:
+    """Per stream, the rotation each joint is turned by ``[N, J, 4]``: the postures ``[styles, J, 3]``
+    weighted by ``weights [N, styles]`` (target minus the input's own style: 0 gives the input back;
+    an intensity scales the angles, a mixture adds them)."""
+    return quat.from_scaled_angle_axis(np.einsum("ns,sjc->njc", weights, posture))
 
 
 def part_targets(model: GeneratorWeights, parts: str | dict | None) -> dict[str, dict[str, float] | None]:
@@ -523,9 +531,14 @@ class StreamStylizer:
                 traj,
                 np.empty_like(out),
             )
+            change = (
+                quat.mul(quat.inv(same), out)
+                if self.model.posture is None
+                else self._posture_change(weights[sel], identity)
+            )
             seen = np.where(self.started[sel], self.unfamiliar[sel] - RELEASE, 0.0)
             weight = np.empty(len(out))
-            _towards_the_input(np.ascontiguousarray(rotations), same, out, seen, FAMILIAR, UNFAMILIAR, weight)
+            _towards_the_input(np.ascontiguousarray(rotations), same, out, change, seen, FAMILIAR, UNFAMILIAR, weight)
             self.unfamiliar[sel] = weight
             self.unfamiliar_sum[sel] += weight
         if len(self.input_joints):  # parts that keep the input's own motion
@@ -538,14 +551,24 @@ class StreamStylizer:
         self.frames[sel] += 1
         return out, positions
 
+    def _posture_change(self, weights: np.ndarray, own: np.ndarray) -> np.ndarray:
+        """Per stream and joint, the target's posture change from the input's own style ``own``
+        (``runtime.posture``); joints of a body part with a target of its own, that part's."""
+        change = posture_change(self.model.posture, weights - own)
+        for p, w in enumerate(self.part_passes, 1):
+            joints = self.joint_pass == p
+            change[:, joints] = posture_change(self.model.posture[:, joints], w - own)
+        return change
+
 
 @nb.njit(cache=True, nogil=True)
-def _towards_the_input(given, same, styled, seen, familiar, unfamiliar, weight):
+def _towards_the_input(given, same, styled, change, seen, familiar, unfamiliar, weight):
     """Per stream (``[N, J, 4]`` each): its unfamiliarity ``weight`` (the identity output ``same``'s
     mean joint angle to the input ``given``, degrees, from ``familiar`` (0) to ``unfamiliar`` (1),
-    at least ``seen``), and ``styled`` slerped by it towards the input turned by the style's change,
-    given * inv(same) * styled per joint (local rotations, the roots' in the world; at the identity
-    target, ``styled == same``, that is ``given``), in place; one pass, no temporaries."""
+    at least ``seen``), and ``styled`` slerped by it towards the input turned by the style's
+    ``change``, given * change per joint (local rotations, the roots' in the world: the style's
+    posture, or the network's inv(same) * styled for a model without one), in place; one pass, no
+    temporaries."""
     N, J = given.shape[0], given.shape[1]
     for n in range(N):
         total = 0.0
@@ -564,10 +587,8 @@ def _towards_the_input(given, same, styled, seen, familiar, unfamiliar, weight):
             sw, sx, sy, sz = styled[n, j, 0], styled[n, j, 1], styled[n, j, 2], styled[n, j, 3]
             gw, gx, gy, gz = given[n, j, 0], given[n, j, 1], given[n, j, 2], given[n, j, 3]
             d = 1.0 / max(np.sqrt(gw * gw + gx * gx + gy * gy + gz * gz), 1e-12)
-            cw, cx, cy, cz = quat.mul_scalars(
-                same[n, j, 0], -same[n, j, 1], -same[n, j, 2], -same[n, j, 3], sw, sx, sy, sz
-            )
-            tw, tx, ty, tz = quat.mul_scalars(gw * d, gx * d, gy * d, gz * d, cw, cx, cy, cz)  # add_change
+            cw, cx, cy, cz = change[n, j, 0], change[n, j, 1], change[n, j, 2], change[n, j, 3]
+            tw, tx, ty, tz = quat.mul_scalars(gw * d, gx * d, gy * d, gz * d, cw, cx, cy, cz)
             dot = sw * tw + sx * tx + sy * ty + sz * tz
             if dot < 0.0:  # the shorter arc
                 tw, tx, ty, tz, dot = -tw, -tx, -ty, -tz, -dot

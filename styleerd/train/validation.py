@@ -72,14 +72,15 @@ def transfers(model: StyleERD, data: TrainingData, ws: WindowSet, batch: int = 5
     """The transfer tasks of ``ws`` in batches: (window rows, targets, rotations, velocities,
     normalised motion channels). ``pose``: "network", the network's output (what training
     judges); "input", what ``StreamStylizer`` gives users by default: towards the input's pose and
-    velocities plus the style's change (the identity transfer's output to the target's) as far
-    as the input is unfamiliar."""
+    velocities plus the style's change (the target's posture, or for a model without one the
+    identity transfer's output to the target's) as far as the input is unfamiliar."""
     rows, targets = transfer_targets(ws.style, model.config.neutral_index, len(data.styles))
     for i in range(0, len(rows), batch):
         r, t = rows[i : i + batch], targets[i : i + batch]
         x = data.gather(ws.starts[r])
         style, content = data.onehot_style(ws.style[r]), data.onehot_content(ws.content[r])
-        rot, vel, _ = model(x, style, content, data.onehot_style(t))
+        target = data.onehot_style(t)
+        rot, vel, _ = model(x, style, content, target)
         if pose == "input":  # as runtime.stylizer does it, frame by frame
             same_rot, same_vel, _ = model(x, style, content, style)
             given = model.raw_rotations(x)
@@ -89,9 +90,14 @@ def transfers(model: StyleERD, data: TrainingData, ws: WindowSet, batch: int = 5
             weight = now.clone()
             for frame in range(1, now.shape[1]):
                 weight[:, frame] = torch.maximum(now[:, frame], weight[:, frame - 1] - RELEASE)
-            rot = torch_quat.slerp(
-                rot, torch_quat.add_change(given, same_rot, rot), weight[..., None].expand(rot.shape[:-1])
-            )
+            if model.posture is None:
+                turned = torch_quat.add_change(given, same_rot, rot)
+            else:  # the input turned by the target's posture (``runtime.posture``)
+                own = torch.zeros_like(target)
+                own[:, : style.shape[1]] = style
+                change = torch_quat.from_scaled_angle_axis(torch.einsum("bs,sjc->bjc", target - own, model.posture))
+                turned = torch_quat.normalize(torch_quat.mul(torch_quat.normalize(given), change[:, None]))
+            rot = torch_quat.slerp(rot, turned, weight[..., None].expand(rot.shape[:-1]))
             vel = vel + weight[..., None] * (x[..., model.layout.velocities] - same_vel)
         yield r, t, rot, vel, model.motion_channels(rot, vel)
 

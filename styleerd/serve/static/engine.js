@@ -5,7 +5,7 @@
 // Each frame runs the graph twice, each run with its own state: into the target and into the
 // input's own style (the identity transfer). Where the identity output is near the input the
 // output is the network's; where it is far (an action the network never learnt) the input's pose
-// turned by the change from the identity output to the target's; in between a blend: as the server.
+// turned by the target style's posture (the sidecar's rotation vectors); in between a blend: as the server.
 import * as ort from "/static/vendor/ort.wasm.min.mjs";
 
 ort.env.wasm.wasmPaths = "/static/vendor/";
@@ -67,6 +67,13 @@ export class StyleHost {
     this.target = this.oneHot(this.side.styles, target);
     this.identity = new Float32Array(this.side.styles.length);
     this.identity.set(this.style); // the input's own style, among the targets
+    // the target style's posture change from the input's own (rotation vectors summed by weight); null: none measured
+    const posture = this.side.posture;
+    this.change = posture && posture[0].map((joint, j) => {
+      const v = [0, 1, 2].map((k) => posture.reduce((sum, style, s) => sum + (this.target[s] - this.identity[s]) * style[j][k], 0));
+      const angle = Math.hypot(...v), scale = angle > 1e-12 ? Math.sin(angle / 2) / angle : 0.5;
+      return [Math.cos(angle / 2), ...v.map((x) => x * scale)];
+    });
   }
 
   reset() {
@@ -135,7 +142,8 @@ export class StyleHost {
     }, 0) / J;
     const now = Math.min(1, Math.max(0, (degrees - FAMILIAR) / (UNFAMILIAR - FAMILIAR)));
     this.unfamiliar = first ? now : Math.max(now, this.unfamiliar - RELEASE);
-    return given.map((q, j) => slerp(poses.target[j], normalize(qmul(q, qmul(inverse(poses.identity[j]), poses.target[j]))), this.unfamiliar));
+    const change = (j) => (this.change ? this.change[j] : qmul(inverse(poses.identity[j]), poses.target[j]));
+    return given.map((q, j) => slerp(poses.target[j], normalize(qmul(q, change(j))), this.unfamiliar));
   }
 }
 

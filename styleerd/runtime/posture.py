@@ -1,0 +1,76 @@
+"""A style's posture: the change it makes to the network's own pose, joint by joint, averaged over
+neutral walks of the model's training data (a rotation vector per joint and style).
+
+Where the input is an action the network never learnt (``runtime.stylizer``, pose "input"), the
+network's identity and target outputs are both rebuilt from walks and waves, so the change between
+them points anywhere (a kick's elderly change matched the walks' with a cosine of 0.2-0.5). The
+posture is the part of a style that does not depend on the action (a bent back, lowered arms,
+turned-in knees): the input's own pose turned by it keeps the action and shows the style the way it
+shows on walks (measurements: docs/RESULTS.md, "Any action, any performer").
+
+``styleerd posture`` measures it once after training and stores it in the model file."""
+
+from __future__ import annotations
+
+from collections.abc import Iterator
+
+import numpy as np
+from tqdm import tqdm
+
+from styleerd.data.datasets import data_root, find_clips, load_motion
+from styleerd.data.windows import split_takes
+from styleerd.model.stored import GeneratorWeights
+from styleerd.motion import quat
+from styleerd.motion.motion import Motion
+from styleerd.runtime.stylizer import StreamStylizer
+
+SECONDS = 12.0  # of each walk: enough steps for a stable mean, and 357 walks in under a minute
+
+
+def training_walks(model: GeneratorWeights, data_dir: str | None = None) -> Iterator[tuple[Motion, str]]:
+    """(motion, content) of every neutral walk in the model's training split, cut to ``SECONDS``."""
+    clips = find_clips(data_root(data_dir), model.meta["data"]["dataset"])
+    split = split_takes({c.name: (c.dataset, c.style, c.content) for c in clips})
+    for c in clips:
+        if split[c.name] == "train" and c.style == model.config.neutral_style and c.content.startswith("walk"):
+            motion = load_motion(c)
+            yield motion[: int(round(SECONDS * motion.fps))], c.content
+
+
+def measure_posture(model: GeneratorWeights, walks: list[tuple[Motion, str]]) -> np.ndarray:
+    """Each style's posture ``[styles, J, 3]``: the mean rotation vector of inv(identity) * styled per
+    joint (the network's outputs, its root's in the world) over every frame of ``walks``."""
+    styles = model.config.styles
+    neutral = styles.index(model.config.neutral_style)
+    total = np.zeros((len(styles), model.config.n_joints, 3))
+    frames = 0
+    for motion, content in tqdm(walks, desc="posture", unit="walk"):
+        stylizer = StreamStylizer(
+            model,
+            model.config.neutral_style,
+            content,
+            [{s: 1.0} for s in styles],
+            n_streams=len(styles),
+            fps=motion.fps,
+            pose="network",
+        )
+        for t in range(motion.n_frames):
+            rot = np.repeat(motion.rotations[t : t + 1], len(styles), 0)
+            out = stylizer.step(rot, np.repeat(motion.positions[t : t + 1], len(styles), 0))[0]
+            total += quat.to_scaled_angle_axis(quat.mul(quat.inv(out[neutral : neutral + 1]), out))
+        frames += motion.n_frames
+    return total / max(frames, 1)
+
+
+def with_posture(meta: dict, model: GeneratorWeights, posture: np.ndarray, walks: int, frames: int) -> dict:
+    """``meta`` (a model file's configuration) with the measured posture in it."""
+    neutral = model.config.neutral_style
+    return {
+        **meta,
+        "posture": {
+            "measured_on": f"{walks} neutral walks of the training split, {frames} frames (styleerd posture)",
+            "rotation_vectors": {
+                s: np.round(posture[k], 6).tolist() for k, s in enumerate(model.config.styles) if s != neutral
+            },
+        },
+    }
