@@ -7,6 +7,7 @@ from __future__ import annotations
 import http.client
 import json
 import socket
+import struct
 import threading
 import time
 
@@ -93,6 +94,39 @@ def _frames(values: np.ndarray, tail: list) -> list:
     return [_hello()] + [frame(i, values[i % len(values)]) for i in range(3)] + tail
 
 
+def _upload(**fields) -> str:
+    return json.dumps({"type": "upload", "purpose": "motion", "name": "dance.glb", "bytes": 16, **fields})
+
+
+def _glb(doc: dict) -> bytes:
+    """A GLB of one JSON chunk (no binary chunk)."""
+    text = json.dumps(doc).encode()
+    text += b" " * (-len(text) % 4)
+    return struct.pack("<4sII", b"glTF", 2, 20 + len(text)) + struct.pack("<I4s", len(text), b"JSON") + text
+
+
+# a GLB with a skin and an animation whose keys are in a buffer that is a file outside the folder it came in
+OUTSIDE = _glb(
+    {
+        "asset": {"version": "2.0"},
+        "scene": 0,
+        "scenes": [{"nodes": [0]}],
+        "nodes": [{"name": "Hips", "children": [1]}, {"name": "Spine", "translation": [0, 1, 0]}],
+        "skins": [{"joints": [0, 1]}],
+        "buffers": [{"uri": "../../../../etc/passwd", "byteLength": 40}],
+        "bufferViews": [{"buffer": 0, "byteLength": 8}, {"buffer": 0, "byteOffset": 8, "byteLength": 32}],
+        "accessors": [
+            {"bufferView": 0, "componentType": 5126, "count": 2, "type": "SCALAR", "min": [0], "max": [1]},
+            {"bufferView": 1, "componentType": 5126, "count": 2, "type": "VEC4"},
+        ],
+        "animations": [
+            {
+                "samplers": [{"input": 0, "output": 1}],
+                "channels": [{"sampler": 0, "target": {"node": 1, "path": "rotation"}}],
+            }
+        ],
+    }
+)
 V = walk(0.5, fps=30.0)
 VALUES = bvh.channel_values(V).astype("<f4")
 
@@ -101,7 +135,7 @@ ATTACKS = {
     "bad JSON first": (["{nope"], 1008, "bad JSON"),
     "JSON that is not an object": (["[1, 2]"], 1008, "must be an object"),
     "binary first": ([b"\x00\x01"], 1008, "expected a JSON text message"),
-    "unknown first type": ([json.dumps({"type": "dance"})], 1008, "must be a hello or a watch"),
+    "unknown first type": ([json.dumps({"type": "dance"})], 1008, "must be a hello, a watch or an upload"),
     "hello fps as text": ([_hello(fps="30")], 1008, "'fps' must be a number"),
     "hello fps NaN": (
         ['{"type": "hello", "preset": "model", "style": "elderly", "fps": NaN}'],
@@ -214,6 +248,17 @@ ATTACKS = {
         1008,
         "expected a JSON text message",
     ),
+    "upload for no purpose": ([_upload(purpose="dance")], 1008, "'purpose' is 'motion' or 'avatar'"),
+    "upload name a number": ([_upload(name=5)], 1008, "'name' is the file's name"),
+    "upload of a BVH": ([_upload(name="walk.bvh")], 1008, "a motion to upload is a .vrma or .glb or .vrm file"),
+    "upload an FBX avatar": ([_upload(purpose="avatar", name="me.fbx")], 1008, "an avatar to upload is a .glb file"),
+    "upload of 1 GB": ([_upload(bytes=1 << 30)], 1008, "'bytes' is its size"),
+    "upload bytes true": ([_upload(bytes=True)], 1008, "'bytes' is its size"),
+    "upload piece as text": ([_upload(bytes=4), "abcd"], 1008, "come as binary messages"),
+    "upload more than announced": ([_upload(bytes=4), b"12345678"], 1008, "more than the 4 bytes announced"),
+    "upload of garbage": ([_upload(bytes=64), bytes(64)], 1007, "dance.glb"),
+    "upload named like a path": ([_upload(name="../../etc/passwd.glb", bytes=64), bytes(64)], 1007, "passwd.glb"),
+    "upload reading outside its folder": ([_upload(bytes=len(OUTSIDE)), OUTSIDE], 1007, "dance.glb: accessor 0"),
     "watch token a number": ([json.dumps({"type": "watch", "token": 5})], 1008, "'token' must be the text"),
     "watch token 10,000 characters": (
         [json.dumps({"type": "watch", "token": "a" * 10_000})],

@@ -184,3 +184,35 @@ def test_a_vrm_avatar_plays_the_input_and_the_stylised_motion_live_too(page, sha
     finally:
         out, _ = source.communicate(timeout=60)
     assert source.returncode == 0, out
+
+
+def test_a_glb_character_plays_an_uploaded_vrm_animation(page, shared_data, tmp_path):
+    """A GLB character that is no VRM (RobotExpressive: an A-pose rig named UpperArm.L, Foot.L, with IK
+    feet outside its legs) dropped as the avatar, mapped by the server and set in the T-pose there, and a
+    VRM Animation dropped as the motion (read into BVH by the server): the character plays its input and
+    its stylised output, each hand on its own side of the body, the feet near the floor. A file that is
+    not one is refused with its name. Screenshot kept."""
+    if page.evaluate("window.viewer.mode") == "live":
+        page.click("#live")
+    page.wait_for_function("window.viewer.mode === 'clip' && window.viewer.ready", timeout=30000)
+    page.set_input_files("#upload", str(shared_data / "characters" / "test.vrma"))
+    page.wait_for_function("window.viewer.uploaded !== undefined && window.viewer.ready", timeout=60000)
+    page.set_input_files("#avatar", str(shared_data / "characters" / "RobotExpressive.glb"))
+    page.wait_for_function(
+        "window.viewer.avatar === 'RobotExpressive.glb' && window.viewer.avatarFrames > 20", timeout=60000
+    )
+    samples = []
+    for _ in range(10):
+        page.wait_for_timeout(150)
+        samples += page.evaluate("window.viewer.avatarLimbs()")
+    left, right = np.array([s["left"] for s in samples]), np.array([s["right"] for s in samples])
+    feet = np.array([s["feet"] for s in samples])
+    assert (left > 0.05).all() and (right < -0.05).all(), (left, right)  # metres as shown: as tall as a person
+    assert feet.min() > -0.05 and feet.max() < 0.3, feet
+    assert page.locator("#error").inner_text() == "" and not page.errors
+    shot = Path(os.environ.get("STYLEERD_GLB_AVATAR_SCREENSHOT") or tmp_path / "glb-avatar.png")
+    page.screenshot(path=str(shot))
+    assert shot.stat().st_size > 10000
+    (tmp_path / "broken.glb").write_bytes(b"glTF" + bytes(60))
+    page.set_input_files("#avatar", str(tmp_path / "broken.glb"))
+    page.wait_for_function("document.getElementById('error').textContent.includes('broken.glb')", timeout=30000)

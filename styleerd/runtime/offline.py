@@ -78,7 +78,7 @@ def write_guessed_joint_map(source: str | Path, output: str | Path, model: Gener
     named: dict[str, str] = {}
     if Path(source).suffix.lower() in GLTF_INPUTS:
         character = read_gltf_character(source)
-        motion, named = character.motion, _humanoid_map(model, character, None)
+        motion, named = character.motion, humanoid_joint_map(model, character, None)
     else:
         header, chunks = bvh.stream(source, 1)
         motion = bvh.motion_from_channels(header.skeleton, next(chunks), header.fps)
@@ -263,7 +263,7 @@ def _transfer_gltf(
             f"({', '.join(n for n, _ in clips)[:300]}); pick one with --animation NAME, or write .glb"
         )
     src = clips[0][1]
-    explicit = _humanoid_map(model, src, options.explicit_map)
+    explicit = humanoid_joint_map(model, src, options.explicit_map)
     lines: list[str] = []
     out = []
     for k, (name, clip) in enumerate(clips):
@@ -288,7 +288,9 @@ def _transfer_gltf(
     return TransferReport(frames, out[0][1].fps, lines[-1] if lines else None, len(out))
 
 
-def _humanoid_map(model: GeneratorWeights, character: GltfMotion, explicit: dict[str, str] | None) -> dict[str, str]:
+def humanoid_joint_map(
+    model: GeneratorWeights, character: GltfMotion, explicit: dict[str, str] | None
+) -> dict[str, str]:
     """The joint map a VRM humanoid gives (model joint -> its bone), completed by ``explicit``."""
     model_parts = body_parts(model.skeleton)
     out = {model.skeleton.names[model_parts[p]]: name for p, name in character.parts.items() if p in model_parts}
@@ -302,7 +304,7 @@ def _source_clips(
     ``options.animation``) and the joint map to use (a VRM humanoid's, completed by the options')."""
     if source.suffix.lower() in GLTF_INPUTS:
         clips = read_gltf_clips(source, None if options.animation == "all" else [options.animation])
-        return [(name, c.motion) for name, c in clips], _humanoid_map(model, clips[0][1], options.explicit_map)
+        return [(name, c.motion) for name, c in clips], humanoid_joint_map(model, clips[0][1], options.explicit_map)
     return [(source.stem, bvh.read(source))], options.explicit_map
 
 
@@ -359,7 +361,9 @@ def transfer_onto(
         raise StyleERDError(f"{output}: a BVH holds one animation; pick one with --animation NAME, or write .glb")
     character = read_gltf_character(avatar)
     rest = character.motion
-    onto = map_skeleton(rest.skeleton, model, _humanoid_map(model, character, None), str(avatar), rest.rotations[0])
+    onto = map_skeleton(
+        rest.skeleton, model, humanoid_joint_map(model, character, None), str(avatar), rest.rotations[0]
+    )
     if report:
         report(f"onto {avatar.name} (model -> avatar):\n{onto.describe()}")
     lines: list[str] = []

@@ -17,11 +17,16 @@ in a worker thread, one at a time, so a heavy hello never stalls the streams bei
 Who may connect: a browser page only from the server's own origin (or ``origins``), and only
 under a host name the server answers to (so a rebound DNS name cannot reach a loopback
 server); a private stream is watched or steered only with the token its ``ready`` carries.
+
+A connection may instead be a live viewer (``watch``) or a page's file (``upload``: a glTF motion
+or a GLB avatar, at most ``MAX_UPLOAD`` bytes, read by ``serve.uploads`` on a thread in a folder
+of its own, ``UPLOADS_AT_ONCE`` at a time), answered once and closed.
 """
 
 from __future__ import annotations
 
 import asyncio
+import functools
 import json
 import logging
 import mimetypes
@@ -30,6 +35,7 @@ import secrets
 import signal
 import socket
 import struct
+import tempfile
 import time
 from collections import deque
 from dataclasses import dataclass, field
@@ -55,6 +61,7 @@ from styleerd.runtime.channels import ChannelStylizer
 from styleerd.runtime.onnx_export import sidecar, step_graph
 from styleerd.runtime.stylizer import POSES, label_vector, part_targets, target_weights
 from styleerd.serve.clips import DemoClips, reference_clip
+from styleerd.serve.uploads import AVATARS, MOTIONS, avatar_rig, motion_bvh
 
 STATIC = Path(__file__).parent / "static"
 SEQ = struct.Struct("<I")  # binary frames start with the frame's sequence number
@@ -68,6 +75,9 @@ GOING_AWAY, INVALID_DATA, POLICY, INTERNAL, TRY_LATER = (
     1013,
 )  # 1009 (too big) is websockets' own
 HELLO_TIMEOUT_S = 10.0
+MAX_UPLOAD = 32 << 20  # bytes of a motion or avatar file a page uploads (a Mixamo GLB with its mesh is 2-20 MB)
+UPLOADS_AT_ONCE = 2  # files read at a time: each takes a core for up to seconds
+UPLOAD_WAIT_S, CONVERT_S = 30.0, 120.0  # the longest wait for the next piece of a file, and for its reading
 OVERLOAD = 4  # x queue: frames a client in real time may have waiting while the server is behind
 log = logging.getLogger("styleerd.serve")
 MAX_TOKEN = 200  # characters of a watcher's token (a stream's own is 22)
@@ -239,6 +249,7 @@ class StyleServer:
     def __init__(self, config: ServeConfig, model: GeneratorWeights | None = None):
         self.config = config
         self.model = model or load_generator_weights(config.model)
+        self.uploads = 0  # files being read (``_upload``)
         self.clips = DemoClips(self.model, config.data)
         self._engine: dict[str, bytes] | None = None  # the in-browser step's graph and JSON, made on first request
         self._references: dict[str, bytes] = {}
@@ -434,8 +445,12 @@ class StyleServer:
             msg = _json(first)
             if msg.get("type") == "watch":
                 return await self._watch(ws, msg)
+            if msg.get("type") == "upload":
+                return await self._upload(ws, msg)
             if msg.get("type") != "hello":
-                raise ClientError(POLICY, f"the first message must be a hello or a watch, got type {msg.get('type')!r}")
+                raise ClientError(
+                    POLICY, f"the first message must be a hello, a watch or an upload, got type {msg.get('type')!r}"
+                )
             stream = await self._open_stream(ws, msg)
             await ws.send(json.dumps(self._ready(stream)))
             sender = asyncio.create_task(_send_loop(ws, stream.outbox))
@@ -711,6 +726,55 @@ class StyleServer:
                 watcher.stream.watchers.discard(watcher)
             if sender is not None:
                 sender.cancel()
+
+    async def _upload(self, ws: ServerConnection, msg: dict) -> None:
+        """A page's file, announced (``purpose``: motion or avatar, ``name``, ``bytes``) and sent in
+        binary pieces of at most ``max_message``: read (``serve.uploads``) and answered with one
+        message, ``{"type": purpose, ...}``; the connection then closes."""
+        purpose, name, size = msg.get("purpose"), msg.get("name"), msg.get("bytes")
+        kinds = {"motion": MOTIONS, "avatar": AVATARS}
+        if purpose not in kinds:
+            raise ClientError(POLICY, "an upload's 'purpose' is 'motion' or 'avatar'")
+        if not isinstance(name, str) or not 0 < len(name) <= 255:
+            raise ClientError(POLICY, "an upload's 'name' is the file's name (at most 255 characters)")
+        suffix = Path(name.replace("\\", "/")).suffix.lower()
+        if suffix not in kinds[purpose]:
+            what = "an avatar" if purpose == "avatar" else "a motion"
+            raise ClientError(POLICY, f"{name[:80]!r}: {what} to upload is a {' or '.join(kinds[purpose])} file")
+        if isinstance(size, bool) or not isinstance(size, int) or not 0 < size <= MAX_UPLOAD:
+            raise ClientError(POLICY, f"an upload's 'bytes' is its size, 1 to {MAX_UPLOAD} (got {str(size)[:20]})")
+        if self.uploads >= UPLOADS_AT_ONCE:
+            raise ClientError(TRY_LATER, f"this server is reading {UPLOADS_AT_ONCE} files; try again in a moment")
+        self.uploads += 1
+        try:
+            data = bytearray()
+            while len(data) < size:
+                try:
+                    piece = await asyncio.wait_for(ws.recv(), UPLOAD_WAIT_S)
+                except TimeoutError:
+                    raise ClientError(POLICY, f"{name[:80]!r}: no data for {UPLOAD_WAIT_S:g} s") from None
+                if isinstance(piece, str):
+                    raise ClientError(POLICY, f"{name[:80]!r}: a file's bytes come as binary messages")
+                data += piece
+                if len(data) > size:
+                    raise ClientError(POLICY, f"{name[:80]!r}: more than the {size} bytes announced")
+            result = await self._read_upload(purpose, name, suffix, bytes(data))
+            await ws.send(json.dumps({"type": purpose, "name": name, **result}))
+        finally:
+            self.uploads -= 1
+
+    async def _read_upload(self, purpose: str, name: str, suffix: str, data: bytes) -> dict:
+        """``serve.uploads``'s reading of an uploaded file, on a thread, in a folder of its own."""
+        with tempfile.TemporaryDirectory(prefix="styleerd-upload-") as folder:
+            path = Path(folder) / f"upload{suffix}"
+            path.write_bytes(data)
+            read = motion_bvh if purpose == "motion" else functools.partial(avatar_rig, model=self.model)
+            try:
+                return await asyncio.wait_for(asyncio.to_thread(read, path), CONVERT_S)
+            except StyleERDError as e:  # the reader names the file by its path here: by its own name there
+                raise ClientError(INVALID_DATA, str(e).replace(str(path), name[:80])[:500]) from None
+            except TimeoutError:
+                raise ClientError(TRY_LATER, f"{name[:80]!r}: not read within {CONVERT_S:g} s") from None
 
     # ---- HTTP: the viewer page, its files, demo clips, the list of streams ----
 

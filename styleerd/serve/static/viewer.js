@@ -4,7 +4,7 @@
 import * as THREE from "three";
 import { OrbitControls } from "/static/vendor/OrbitControls.js";
 import { GLTFLoader } from "/static/vendor/loaders/GLTFLoader.js";
-import { VRMLoaderPlugin } from "@pixiv/three-vrm";
+import { VRMHumanoid, VRMLoaderPlugin } from "@pixiv/three-vrm";
 
 const $ = (id) => document.getElementById(id);
 const ui = {
@@ -116,22 +116,60 @@ function buildFigures(parents, firstPositions) {
   controls.target.set(0, lo + height * 0.5, 0);
 }
 
-// ---- the user's VRM avatar, twice (input and output), driven by the frames' humanoid pose ----
-let avatars = null; // [input, output] VRMs
+// ---- files the server reads for the page: a glTF motion into BVH text, a GLB avatar into its humanoid ----
+const PIECE = 1 << 19; // bytes a message: under the server's message limit (1 MiB)
+
+function upload(file, purpose) {
+  return new Promise((resolve, reject) => {
+    const sock = new WebSocket(`ws://${location.host}/`);
+    sock.binaryType = "arraybuffer";
+    sock.onopen = async () => {
+      const bytes = new Uint8Array(await file.arrayBuffer());
+      sock.send(JSON.stringify({ type: "upload", purpose, name: file.name, bytes: bytes.length }));
+      for (let at = 0; at < bytes.length; at += PIECE) sock.send(bytes.subarray(at, at + PIECE));
+    };
+    sock.onmessage = (event) => {
+      const msg = JSON.parse(event.data);
+      sock.close();
+      if (msg.type === "error") reject(new Error(msg.message)); else resolve(msg);
+    };
+    sock.onclose = (event) => reject(new Error(event.reason || `the server closed the upload (${event.code})`));
+  });
+}
+
+// ---- the user's avatar (VRM, or a GLB character), twice (input and output), driven by the frames' humanoid pose ----
+let avatars = null; // [input, output]: VRMs, or a GLB's scene with a three-vrm humanoid on its bones
 let humanoidLayout = null; // the server's: bones of the model's joints, their parents, the hips' T-pose height
 
+async function glbAvatar(gltf, rig) {
+  // the server's T-pose first (VRM's rest: three-vrm's humanoid takes the pose it is built in as its rest)
+  const node = (index) => gltf.parser.getDependency("node", index);
+  for (const [index, q] of Object.entries(rig.tpose)) (await node(Number(index))).quaternion.fromArray(q);
+  gltf.scene.updateMatrixWorld(true);
+  const bones = {};
+  for (const [name, index] of Object.entries(rig.bones)) bones[name] = { node: await node(index) };
+  const humanoid = new VRMHumanoid(bones);
+  gltf.scene.add(humanoid.normalizedHumanBonesRoot);
+  // a GLB's units are its own (RobotExpressive stands 3 units tall): it is shown as tall as the model's person
+  return { scene: gltf.scene, humanoid, meta: null, update: () => humanoid.update(), fitToPerson: true };
+}
+
 async function loadAvatar(file) {
+  const glb = file.name.toLowerCase().endsWith(".glb");
+  const rig = glb ? await upload(file, "avatar") : null; // the server maps its joints, as `transfer --onto` does
   const loader = new GLTFLoader();
-  loader.register((parser) => new VRMLoaderPlugin(parser));
+  if (!glb) loader.register((parser) => new VRMLoaderPlugin(parser));
   const url = URL.createObjectURL(file);
   try {
-    const vrms = (await Promise.all([loader.loadAsync(url), loader.loadAsync(url)])).map((g) => g.userData.vrm);
+    const loaded = await Promise.all([loader.loadAsync(url), loader.loadAsync(url)]);
+    const vrms = glb ? await Promise.all(loaded.map((g) => glbAvatar(g, rig))) : loaded.map((g) => g.userData.vrm);
     if (vrms.some((v) => !v)) throw new Error("not a VRM avatar (no VRM humanoid in the file)");
     avatars?.forEach((v) => scene.remove(v.scene));
     avatars = vrms;
     avatars.forEach((v) => scene.add(v.scene));
     viewer.avatar = file.name;
     viewer.avatarFrames = 0;
+    avatarGap = null;
   } finally { URL.revokeObjectURL(url); }
 }
 
@@ -146,7 +184,7 @@ function poseAvatar(vrm, data, shift, unitsPerMetre) {
   const at = 4 * bones.length, hips = vrm.humanoid.getNormalizedBoneNode("hips");
   const scale = vrm.humanoid.normalizedRestPose.hips.position[1] / humanoidLayout.hips_height;
   hips.position.set(flip * data[at] * scale, data[at + 1] * scale, flip * data[at + 2] * scale);
-  vrm.scene.scale.setScalar(unitsPerMetre);
+  vrm.scene.scale.setScalar(unitsPerMetre * (vrm.fitToPerson ? 1 / scale : 1));
   vrm.scene.position.set(shift, 0, 0);
   vrm.update(1 / 30);
 }
@@ -156,15 +194,34 @@ function drawAvatars(floats, from) {
   const n = humanoidLayout.bones.length * 4 + 3;
   if (floats.length < from + 2 * n) return;
   const unitsPerMetre = spacing / 0.9 / 1.7; // the figures' height (spacing is 0.9 of it) as a 1.7 m person
-  poseAvatar(avatars[0], floats.subarray(from, from + n), -spacing / 2, unitsPerMetre);
-  poseAvatar(avatars[1], floats.subarray(from + n, from + 2 * n), spacing / 2, unitsPerMetre);
+  const gap = avatarGap ?? spacing;
+  poseAvatar(avatars[0], floats.subarray(from, from + n), -gap / 2, unitsPerMetre);
+  poseAvatar(avatars[1], floats.subarray(from + n, from + 2 * n), gap / 2, unitsPerMetre);
   figures.forEach((f) => (f.group.visible = false));
+  if (avatarGap === null) frameAvatars();
   viewer.avatarFrames += 1;
 }
 
-// What a test reads: each avatar's hands across the body (+ left) and feet height, in metres
+let avatarGap = null; // how far apart the two avatars stand: wide characters further than the figures
+function frameAvatars() {
+  // once an avatar is posed: side by side without touching, the camera on the pair, heads included (measured on
+  // the humanoid's bones: a mesh's bounds can be far from what it shows)
+  const box = new THREE.Box3();
+  for (const name of ["head", "leftHand", "rightHand", "leftFoot", "rightFoot", "leftUpperArm", "rightUpperArm"]) {
+    const node = avatars[1].humanoid.getRawBoneNode(name);
+    if (node) box.expandByPoint(node.getWorldPosition(new THREE.Vector3()));
+  }
+  const floor = grid ? grid.position.y : 0, height = 1.2 * (box.max.y - floor), width = 1.3 * (box.max.x - box.min.x);
+  avatarGap = Math.max(spacing, width);
+  controls.target.set(0, floor + height / 2, 0);
+  camera.position.set(height * 0.8, floor + height * 0.8, (height + avatarGap) * 1.6);
+  follow = null;
+}
+
+// What a test reads: each avatar's hands across the body (+ left) and feet height, in metres as shown
 viewer.avatarLimbs = () => avatars?.map((vrm) => {
-  const p = (n) => vrm.humanoid.getRawBoneNode(n).getWorldPosition(new THREE.Vector3()).divideScalar(vrm.scene.scale.x);
+  const metres = spacing / 0.9 / 1.7; // units a metre, as drawAvatars shows them
+  const p = (n) => vrm.humanoid.getRawBoneNode(n).getWorldPosition(new THREE.Vector3()).divideScalar(metres);
   const across = p("leftUpperLeg").sub(p("rightUpperLeg")).setY(0).normalize();
   const middle = p("leftUpperLeg").add(p("rightUpperLeg")).multiplyScalar(0.5);
   return { left: p("leftHand").sub(middle).dot(across), right: p("rightHand").sub(middle).dot(across),
@@ -279,7 +336,7 @@ function playClip(c) {
   viewer.mode = "clip";
   ui.live.classList.remove("on");
   figures?.forEach((f) => f.dispose());
-  figures = null; follow = null;
+  figures = null; follow = null; avatarGap = null;
   frameIndex = 0;
   ui.scrub.max = clip.frames.length - 1;
   const hello = { type: "hello", skeleton: clip.header, fps: clip.fps, format: "binary", positions: true, fronts: true, name: "viewer", private: true, humanoid: !!avatars, ...targetMessage(), ...partsMessage() };
@@ -371,7 +428,13 @@ async function main() {
   ui.upload.onchange = async () => {
     const file = ui.upload.files[0];
     if (!file) return;
-    try { playClip(parseBVH(await file.text())); } catch (e) { fail(`${file.name}: ${e.message}`); }
+    try {
+      if (file.name.toLowerCase().endsWith(".bvh")) { playClip(parseBVH(await file.text())); return; }
+      setStatus(`reading ${file.name}…`); // a VRM Animation or a GLB's first animation, read by the server
+      const motion = await upload(file, "motion");
+      viewer.uploaded = motion.animation;
+      playClip(parseBVH(motion.bvh));
+    } catch (e) { fail(`${file.name}: ${e.message}`); }
   };
   ui.avatar.onchange = async () => {
     const file = ui.avatar.files[0];
