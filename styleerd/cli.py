@@ -689,13 +689,14 @@ def _transfer_command(command: Callable[[str, str], argparse.ArgumentParser]) ->
         "--animation",
         default="all",
         metavar="NAME|all",
-        help="glTF/GLB/VRM input: the animation to stylise, by name (default: all, each keeping its name)",
+        help="glTF/GLB/VRM/FBX input: the animation (FBX: take) to stylise, by name (default: all, each keeping "
+        "its name)",
     )
     p.add_argument(
         "--onto",
         metavar="AVATAR",
-        help="put the stylised motion on this character (.vrm, .glb, .gltf; animated or not), written into a copy "
-        "of it (-o OUT.vrm / .glb) or as a BVH of its skeleton",
+        help="put the stylised motion on this character (.vrm, .glb, .gltf, .fbx with styleerd[blender]; animated "
+        "or not), written into a copy of it (-o OUT.vrm / .glb / .fbx) or as a BVH of its skeleton",
     )
     p.add_argument(
         "--keep-original",

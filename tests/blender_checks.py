@@ -155,10 +155,96 @@ def compare(work: Path, arm, frames) -> dict:
     }
 
 
+def two_takes(work: Path) -> dict:
+    """walk.fbx with a second take, the walk mirrored in time ("Back"): two.fbx."""
+    arm, frames, _ = imported(work / "walk.fbx")
+    walk = arm.animation_data.action
+    walk.name = "Walk"
+    back = walk.copy()
+    back.name = "Back"
+    for fcurve in _fcurves(back):
+        for key in fcurve.keyframe_points:
+            key.co.x = frames.start + frames.stop - 1 - key.co.x
+            key.handle_left.x, key.handle_right.x = key.co.x, key.co.x
+        fcurve.update()
+    bpy.ops.export_scene.fbx(
+        filepath=str(work / "two.fbx"),
+        bake_anim=True,
+        bake_anim_use_all_actions=True,
+        bake_anim_simplify_factor=0.0,
+        add_leaf_bones=False,
+    )
+    return {"takes": sorted(a.name for a in bpy.data.actions)}
+
+
+def _fcurves(action):
+    """An action's F-curves (Blender 4.4+ keeps them in slotted layers)."""
+    if getattr(action, "layers", None):
+        return [
+            fc for layer in action.layers for strip in layer.strips for bag in strip.channelbags for fc in bag.fcurves
+        ]
+    return list(action.fcurves)
+
+
+def takes_of(path: Path, work: Path) -> dict:
+    """Each take of an FBX as Blender reads it: its frames and its largest bone rotation error
+    against the BVH run of the walk (``ref.bvh``; 0 for the stylised walk)."""
+    empty_scene()
+    bpy.ops.import_scene.fbx(filepath=str(path), anim_offset=0.0)
+    arm = next(o for o in bpy.context.scene.objects if o.type == "ARMATURE")
+    ref_names, ref = bvh_world(work / "ref.bvh")
+    out = {}
+    for action in bpy.data.actions:
+        arm.animation_data.action = action
+        first, last = (int(round(x)) for x in action.frame_range)
+        names, got = world_rest_relative(arm, range(first, last + 1))
+        order = [names.index(f"mixamorig:{n}") for n in ref_names]
+        error = np.degrees(quat.angle_between(got[:, order], ref)).max() if len(got) == len(ref) else None
+        out[action.name.replace(f"{arm.name}|", "")] = {"frames": last - first + 1, "error_vs_ref_deg": error}
+    return {"takes": out, "meshes": [o.name for o in bpy.context.scene.objects if o.type == "MESH"]}
+
+
+def fbx_avatar(work: Path) -> dict:
+    """walk.fbx as the viewer's server reads an FBX avatar: made a GLB by Blender, its humanoid and
+    T-pose found; the T-pose set on the GLB's own nodes: where its hands, feet and head are."""
+    import pygltflib as gl
+
+    from styleerd.model.stored import load_generator_weights
+    from styleerd.serve.uploads import avatar_rig
+
+    folder = work / "upload"
+    folder.mkdir(exist_ok=True)
+    (folder / "upload.fbx").write_bytes((work / "walk.fbx").read_bytes())
+    rig = avatar_rig(folder / "upload.fbx", load_generator_weights(None))
+    doc = gl.GLTF2.load_from_bytes(rig["glb"])
+    parent = {c: i for i, n in enumerate(doc.nodes) for c in n.children or []}
+
+    def world(i: int):
+        n = doc.nodes[i]
+        x, y, z, w = rig["tpose"].get(str(i), n.rotation or [0, 0, 0, 1])
+        r, t = np.array([w, x, y, z]), np.array(n.translation or [0.0, 0, 0]) * np.array(n.scale or [1.0, 1, 1])
+        if i not in parent:
+            return r, t
+        pr, pt = world(parent[i])
+        return quat.mul(pr, r), pt + quat.mul_vec(pr, t)
+
+    return {
+        "glb": rig["glb"][:4].decode(),
+        "bones": sorted(rig["bones"]),
+        "at": {b: world(rig["bones"][b])[1].tolist() for b in ("head", "leftHand", "rightHand", "leftFoot", "hips")},
+    }
+
+
 def main() -> None:
     what, work = sys.argv[1], Path(sys.argv[2])
     if what == "make":
         result = make(work)
+    elif what == "two-takes":
+        result = two_takes(work)
+    elif what == "fbx-avatar":
+        result = fbx_avatar(work)
+    elif what.startswith("takes-of:"):
+        result = takes_of(work / what.removeprefix("takes-of:"), work)
     elif what == "compare":
         source, _, source_meshes = imported(work / "walk.fbx")
         source_bones = sorted(b.name for b in source.data.bones)

@@ -14,6 +14,7 @@ import subprocess
 import sys
 from pathlib import Path
 
+import numpy as np
 import pytest
 from conftest import run_checked
 
@@ -31,6 +32,8 @@ def blender_venv(wheel, tmp_path_factory) -> Path:
             "bpy 4.2-5.0 is built for Python 3.11 on x86_64 / Apple arm64 only, not Python "
             f"{sys.version_info[0]}.{sys.version_info[1]} on {platform.machine()}"
         )
+    if os.environ.get("STYLEERD_BLENDER_VENV"):  # one with styleerd[blender] in it already (while developing)
+        return Path(os.environ["STYLEERD_BLENDER_VENV"])
     venv = tmp_path_factory.mktemp("blender") / "venv"
     run_checked([sys.executable, "-m", "venv", venv])
     run_checked(
@@ -89,6 +92,82 @@ def test_addon_writes_a_new_action_matching_the_bvh_run(blender_venv, character)
     )
     assert result["original_kept"]
     assert result["frames"] == 120 and result["max_error_deg"] < TOLERANCE_DEG, result
+
+
+def test_every_take_of_an_fbx_is_stylised_under_its_own_name(blender_venv, character):
+    """An FBX of two takes (the walk, and the walk played backwards): each stylised under its own name
+    (the walk exactly as the BVH run), the mesh kept; with --keep-original the originals beside them as
+    NAME-STYLE; one picked with --animation for a BVH, which holds one; an unknown one refused."""
+    cli = blender_venv / "bin/styleerd"
+    assert _blender(blender_venv, "two-takes", character)["takes"] == ["Back", "Walk"]
+    run_checked([cli, "transfer", "two.fbx", "--style", "elderly", "-o", "two-out.fbx"], cwd=character)
+    out = _blender(blender_venv, "takes-of:two-out.fbx", character)
+    assert sorted(out["takes"]) == ["Back", "Walk"] and out["meshes"] == ["Body"]
+    assert out["takes"]["Walk"]["error_vs_ref_deg"] < TOLERANCE_DEG and out["takes"]["Back"]["frames"] == 120
+    assert out["takes"]["Back"]["error_vs_ref_deg"] > 10.0  # its own motion, not the walk's
+    run_checked(
+        [cli, "transfer", "two.fbx", "--style", "elderly", "--keep-original", "-o", "two-keep.fbx"], cwd=character
+    )
+    kept = _blender(blender_venv, "takes-of:two-keep.fbx", character)["takes"]
+    assert sorted(kept) == ["Back", "Back-elderly", "Walk", "Walk-elderly"]
+    assert kept["Walk-elderly"]["error_vs_ref_deg"] < TOLERANCE_DEG and kept["Walk"]["error_vs_ref_deg"] > 10.0
+    refused = subprocess.run(
+        [cli, "transfer", "two.fbx", "--style", "elderly", "-o", "two.bvh"],
+        cwd=character,
+        capture_output=True,
+        text=True,
+        check=False,
+    )
+    assert refused.returncode == 2 and "pick one with --animation NAME" in refused.stderr
+    run_checked(
+        [cli, "transfer", "two.fbx", "--style", "elderly", "--animation", "Walk", "-o", "walk-take.bvh"], cwd=character
+    )
+    ref, take = bvh.read(character / "ref.bvh"), bvh.read(character / "walk-take.bvh")
+    assert take.n_frames == ref.n_frames
+    unknown = subprocess.run(
+        [cli, "transfer", "two.fbx", "--style", "elderly", "--animation", "Run", "-o", "run.bvh"],
+        cwd=character,
+        capture_output=True,
+        text=True,
+        check=False,
+    )
+    assert unknown.returncode == 2 and "no animation 'Run'; it has: 'Back', 'Walk'" in unknown.stderr
+
+
+def test_a_motion_onto_an_fbx_character_and_an_fbx_take_onto_a_glb(blender_venv, character, shared_data):
+    """--onto CHARACTER.fbx: the stylised BVH walk on the character's own armature (the same rig: as
+    the BVH run), its skinned body kept, the take named after the clip; an FBX's take onto a GLB
+    character (RobotExpressive) as one of its animations; a glTF character cannot take an .fbx out."""
+    cli = blender_venv / "bin/styleerd"
+    run_checked(
+        [cli, "transfer", "walk.bvh", "--style", "elderly", "--onto", "walk.fbx", "-o", "onto.fbx"], cwd=character
+    )
+    onto = _blender(blender_venv, "takes-of:onto.fbx", character)
+    assert list(onto["takes"]) == ["walk"] and onto["meshes"] == ["Body"]
+    assert onto["takes"]["walk"]["error_vs_ref_deg"] < TOLERANCE_DEG
+    robot = shared_data / "characters" / "RobotExpressive.glb"
+    done = run_checked(
+        [cli, "transfer", "walk.fbx", "--style", "elderly", "--onto", robot, "-o", "robot.glb"], cwd=character
+    )
+    assert "1 animation(s) on RobotExpressive.glb" in done.stdout
+    refused = subprocess.run(
+        [cli, "transfer", "walk.bvh", "--style", "elderly", "--onto", robot, "-o", "robot.fbx"],
+        cwd=character,
+        capture_output=True,
+        text=True,
+        check=False,
+    )
+    assert refused.returncode == 2 and "onto an FBX character" in refused.stderr
+
+
+def test_an_fbx_character_for_the_viewer(blender_venv, character):
+    """The viewer's server with Blender: an FBX avatar made a GLB, its humanoid found and its T-pose
+    set on the GLB's nodes: arms out to the sides at one height, left hand on +X, feet below the hips."""
+    got = _blender(blender_venv, "fbx-avatar", character)
+    at = {k: np.array(v) for k, v in got["at"].items()}
+    assert got["glb"] == "glTF" and {"hips", "head", "leftHand", "rightHand", "leftFoot"} <= set(got["bones"])
+    assert at["leftHand"][0] > 0.3 and at["rightHand"][0] < -0.3 and abs(at["leftHand"][1] - at["rightHand"][1]) < 0.02
+    assert at["leftFoot"][1] < at["hips"][1] - 0.5 < at["head"][1]
 
 
 def test_fbx_errors_are_one_line(blender_venv, character, tmp_path):

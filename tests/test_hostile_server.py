@@ -251,7 +251,12 @@ ATTACKS = {
     "upload for no purpose": ([_upload(purpose="dance")], 1008, "'purpose' is 'motion' or 'avatar'"),
     "upload name a number": ([_upload(name=5)], 1008, "'name' is the file's name"),
     "upload of a BVH": ([_upload(name="walk.bvh")], 1008, "a motion to upload is a .vrma or .glb or .vrm file"),
-    "upload an FBX avatar": ([_upload(purpose="avatar", name="me.fbx")], 1008, "an avatar to upload is a .glb file"),
+    "upload an OBJ avatar": ([_upload(purpose="avatar", name="me.obj")], 1008, "an avatar to upload is a .glb or .fbx"),
+    "upload an FBX avatar of garbage": (
+        [_upload(purpose="avatar", name="me.fbx", bytes=64), bytes(64)],
+        1007,
+        "me.fbx: ",
+    ),
     "upload of 1 GB": ([_upload(bytes=1 << 30)], 1008, "'bytes' is its size"),
     "upload bytes true": ([_upload(bytes=True)], 1008, "'bytes' is its size"),
     "upload piece as text": ([_upload(bytes=4), "abcd"], 1008, "come as binary messages"),

@@ -15,6 +15,7 @@ import contextlib
 import os
 import sys
 import tempfile
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -27,7 +28,16 @@ from styleerd.motion.gltf import read_motion, write_glb
 from styleerd.motion.kinematics import forward_kinematics
 from styleerd.motion.motion import Motion
 from styleerd.motion.skeleton import CHANNELS, Skeleton
-from styleerd.runtime.offline import TransferOptions, TransferReport, transfer_motion
+from styleerd.runtime.offline import (
+    TransferOptions,
+    TransferReport,
+    map_skeleton,
+    on_avatar,
+    source_clips,
+    style_tag,
+    stylised_on_model,
+    transfer_motion,
+)
 
 Y_UP = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, 1.0], [0.0, -1.0, 0.0]])  # Blender's Z-up world -> Y-up
 ROTATIONS = ("Zrotation", "Xrotation", "Yrotation")
@@ -224,7 +234,7 @@ def _reason(error: Exception) -> str:
 
 
 def import_fbx(path: Path):
-    """(armature, frames, fps) of an FBX file imported into an empty scene."""
+    """(armature, fps) of an FBX file imported into an empty scene."""
     bpy = blender()
     _new_scene(bpy)
     try:
@@ -236,11 +246,71 @@ def import_fbx(path: Path):
         raise StyleERDError(f"{path}: Blender cannot import this FBX: {_reason(e)}") from None
     arm = single_armature(bpy.context.scene.objects, str(path))
     scene = bpy.context.scene
-    action = arm.animation_data.action if arm.animation_data else None
-    if action is None:
-        raise StyleERDError(f"{path}: the armature {arm.name!r} has no animation")
-    first, last = (int(round(x)) for x in action.frame_range)
-    return arm, range(first, last + 1), scene.render.fps / scene.render.fps_base
+    return arm, scene.render.fps / scene.render.fps_base
+
+
+def takes(arm, animation: str, where: str) -> list[tuple[str, object, range]]:
+    """(name, action, frames) of the armature's takes: every action the FBX importer made for it
+    (named "armature|take"; the name is the take's), or the one named ``animation``."""
+    bpy = blender()
+    prefix = f"{arm.name}|"
+    found = []
+    for action in bpy.data.actions:
+        name = action.name
+        while name.startswith(prefix):  # Blender writes a take as "armature|action" and reads it as "armature|take"
+            name = name.removeprefix(prefix)
+        if name != action.name:
+            found.append((name, action))
+    if not found and arm.animation_data and arm.animation_data.action:
+        found = [(arm.animation_data.action.name, arm.animation_data.action)]
+    if not found:
+        raise StyleERDError(f"{where}: the armature {arm.name!r} has no animation")
+    if animation != "all":
+        chosen = [(n, a) for n, a in found if animation in (n, a.name)]
+        if not chosen:
+            raise StyleERDError(
+                f"{where}: no animation {animation!r}; it has: " + ", ".join(repr(n) for n, _ in found)[:300]
+            )
+        found = chosen
+    out = []
+    for name, action in found:
+        first, last = (int(round(x)) for x in action.frame_range)
+        out.append((name, action, range(first, last + 1)))
+    return out
+
+
+def fbx_clips(path: Path, animation: str = "all") -> tuple[object, list[tuple[str, object, Motion, range]], float]:
+    """(armature, [(take name, its action, its motion, its frames)], fps) of an FBX file: every
+    take, or ``animation``."""
+    arm, fps = import_fbx(path)
+    clips = []
+    for name, action, frames in takes(arm, animation, str(path)):
+        arm.animation_data.action = action
+        clips.append((name, action, read_armature(arm, frames, fps), frames))
+    return arm, clips, fps
+
+
+def fbx_to_glb(source: Path, output: Path) -> None:
+    """An FBX character (armature, skinned meshes, materials) as a GLB at rest, through Blender's
+    glTF exporter (no animation: a page drives it)."""
+    bpy = blender()
+    import_fbx(source)
+    try:
+        with _blender_output_kept():
+            bpy.ops.export_scene.gltf(filepath=str(output), export_format="GLB", export_animations=False)
+    except RuntimeError as e:
+        raise StyleERDError(f"{source}: Blender cannot write it as glTF: {_reason(e)}") from None
+
+
+def fbx_rest(arm) -> Motion:
+    """The armature's rest pose as one frame (every bone's pose cleared)."""
+    bpy = blender()
+    if arm.animation_data is not None:
+        arm.animation_data.action = None
+    for pb in arm.pose.bones:
+        pb.matrix_basis.identity()
+    bpy.context.view_layer.update()
+    return read_armature(arm, range(bpy.context.scene.frame_current, bpy.context.scene.frame_current + 1), 30.0)
 
 
 def _rest_keys(arm, frame: int, insert: bool) -> None:
@@ -261,17 +331,22 @@ def _rest_keys(arm, frame: int, insert: bool) -> None:
                 pb.keyframe_delete(path, frame=frame)
 
 
-def export_fbx(path: Path, arm, frames: range, fps: float) -> None:
-    """The scene (the armature with its active action, its meshes) as FBX, written atomically.
-    Blender writes a bone's default transform from the pose at the current frame, and without a
-    skinned mesh there is no bind pose, so an importer would take that pose for the rest: the
-    export runs on a frame just before the motion where a temporary key holds the rest pose."""
+def export_fbx(path: Path, arm, frames: range, fps: float, every_action: bool = False) -> None:
+    """The scene (the armature with its active action, or with ``every_action`` each of its
+    actions as a take; its meshes) as FBX, written atomically. Blender writes a bone's default
+    transform from the pose at the current frame, and without a skinned mesh there is no bind
+    pose, so an importer would take that pose for the rest: the export runs on a frame just
+    before the motion where a temporary key holds the rest pose (one action only: with several,
+    the rest is the skinned meshes' bind pose)."""
     bpy = blender()
     scene = bpy.context.scene
     scene.frame_start, scene.frame_end = frames.start, frames.stop - 1
     scene.render.fps, scene.render.fps_base = max(1, int(round(fps))), max(1, int(round(fps))) / fps
     rest_frame = frames.start - 1
-    _rest_keys(arm, rest_frame, insert=True)
+    scene_name = scene.name
+    if not every_action:
+        _rest_keys(arm, rest_frame, insert=True)
+        scene.name = arm.animation_data.action.name  # one take is named after the scene: the action's name
     scene.frame_set(rest_frame)
 
     def write(tmp: str) -> None:
@@ -279,7 +354,7 @@ def export_fbx(path: Path, arm, frames: range, fps: float) -> None:
             filepath=tmp,
             use_selection=False,
             bake_anim=True,
-            bake_anim_use_all_actions=False,
+            bake_anim_use_all_actions=every_action,
             bake_anim_use_nla_strips=False,
             bake_anim_simplify_factor=0.0,
             add_leaf_bones=False,
@@ -288,15 +363,36 @@ def export_fbx(path: Path, arm, frames: range, fps: float) -> None:
     try:
         atomic_write(path, write, suffix=".fbx")
     finally:
-        _rest_keys(arm, rest_frame, insert=False)
+        if not every_action:
+            _rest_keys(arm, rest_frame, insert=False)
+        scene.name = scene_name
         scene.frame_set(frames.start)
+
+
+def _write_takes(arm, clips: list[tuple[str, object | None, Motion, range]], options: TransferOptions) -> None:
+    """Each stylised clip as an action of ``arm``, named as its take (``NAME-STYLE`` beside the
+    original with ``keep_original``; without, the original action is removed first)."""
+    bpy = blender()
+    tag = style_tag(options.target)
+    for name, original, motion, frames in clips:
+        if original is not None and not options.keep_original:
+            bpy.data.actions.remove(original)
+        write_action(arm, motion, frames, f"{name}-{tag}" if options.keep_original else name)
+
+
+def _single(output: Path, clips: list) -> None:
+    if len(clips) > 1:
+        raise StyleERDError(
+            f"{output}: a {output.suffix.lower()} here holds one animation and the input has {len(clips)} "
+            f"({', '.join(repr(c[0]) for c in clips)[:200]}); pick one with --animation NAME, or write .fbx"
+        )
 
 
 def transfer_fbx(
     source: Path, output: Path, model: GeneratorWeights, options: TransferOptions, report=None
 ) -> TransferReport:
-    """FBX -> FBX (the same file, a stylised action), FBX -> BVH/GLB, or BVH/glTF -> FBX (a new
-    armature), through Blender."""
+    """FBX -> FBX (the same file: every take stylised, or ``options.animation``), FBX -> BVH/GLB
+    (one take), or BVH/glTF -> FBX (a new armature), through Blender."""
     bpy = blender()
     kind = output.suffix.lower()
     if kind not in (".fbx", ".bvh", ".glb"):
@@ -304,21 +400,80 @@ def transfer_fbx(
     check_output(output, source)
     fps = model.meta["data"]["fps"]
     if source.suffix.lower() == ".fbx":
-        arm, frames, file_fps = import_fbx(source)
-        motion = read_armature(arm, frames, file_fps)
+        arm, inputs, file_fps = fbx_clips(source, options.animation)
     else:
         motion = read_motion(source)
         _new_scene(bpy)
-        arm, frames = armature_from_motion(motion, source.stem), range(1, motion.n_frames + 1)
-        file_fps = motion.fps
+        arm, file_fps = armature_from_motion(motion, source.stem), motion.fps
+        inputs = [(source.stem, None, motion, range(1, motion.n_frames + 1))]
     labels: list = []
-    out = transfer_motion(motion, model, fps, options, report, labels=labels, where=str(source))
-    if kind == ".bvh":
-        bvh.write(output, out)
-    elif kind == ".glb":
-        write_glb(output, out, mesh=options.mesh)
+    outs = [
+        (
+            name,
+            action,
+            transfer_motion(motion, model, fps, options, report if k == 0 else None, labels, str(source)),
+            frames,
+        )
+        for k, (name, action, motion, frames) in enumerate(inputs)
+    ]
+    if kind in (".bvh", ".glb"):
+        _single(output, outs)
+        if kind == ".bvh":
+            bvh.write(output, outs[0][2])
+        else:
+            write_glb(output, outs[0][2], mesh=options.mesh)
     else:
-        previous = arm.animation_data.action.name if arm.animation_data and arm.animation_data.action else arm.name
-        write_action(arm, out, frames, f"{previous}-stylised")
-        export_fbx(output, arm, frames, file_fps)
-    return TransferReport(out.n_frames, out.fps, labels[0] if labels else None)
+        _write_takes(arm, outs, options)
+        export_fbx(output, arm, outs[0][3], file_fps, every_action=len(outs) > 1 or options.keep_original)
+    out = outs[0][2]
+    return TransferReport(sum(o[2].n_frames for o in outs), out.fps, labels[-1] if labels else None, len(outs))
+
+
+def transfer_onto_fbx(
+    source: Path, avatar: Path, output: Path, model: GeneratorWeights, options: TransferOptions, report=None
+) -> TransferReport:
+    """A motion (BVH, glTF, VRMA or FBX: every take or ``options.animation``) stylised and put on
+    an FBX character's armature (``offline.on_avatar``: mapped bones turn as the motion's, scaled
+    to its legs), written into a copy of the character (.fbx, one take per clip, meshes kept) or,
+    for one clip, as a BVH of its skeleton."""
+    kind = output.suffix.lower()
+    if kind not in (".fbx", ".bvh"):
+        raise StyleERDError(f"{output}: onto an FBX character the output must be .fbx or .bvh")
+    check_output(output, source, avatar)
+    fps = model.meta["data"]["fps"]
+    if source.suffix.lower() == ".fbx":
+        motions = [(name, motion) for name, _, motion, _ in fbx_clips(source, options.animation)[1]]
+        explicit = options.explicit_map
+    else:
+        motions, explicit = source_clips(source, model, options)
+    if kind == ".bvh":
+        _single(output, motions)
+    arm, file_fps = import_fbx(avatar)  # a new scene: the source's armature (already read) is gone
+    originals = {name: action for name, action, _ in takes(arm, "all", str(avatar))} if arm.animation_data else {}
+    rest = fbx_rest(arm)
+    onto = map_skeleton(rest.skeleton, model, None, str(avatar), rest.rotations[0])
+    if report:
+        report(f"onto {avatar.name} (model -> avatar):\n{onto.describe()}")
+    labels: list = []
+    outs = []
+    for k, (name, motion) in enumerate(motions):
+        on_model, _ = stylised_on_model(
+            motion,
+            model,
+            fps,
+            replace(options, explicit_map=explicit or None),
+            str(source),
+            report if k == 0 else None,
+            labels,
+        )
+        out = on_avatar(on_model, onto, rest)
+        outs.append((name, originals.get(name), out, range(1, out.n_frames + 1)))
+    if kind == ".bvh":
+        bvh.write(output, outs[0][2])
+    else:
+        if not options.keep_original:
+            for action in originals.values():
+                blender().data.actions.remove(action)
+        _write_takes(arm, [(n, None, m, f) for n, _, m, f in outs], options)
+        export_fbx(output, arm, outs[0][3], file_fps, every_action=len(outs) > 1 or options.keep_original)
+    return TransferReport(sum(o[2].n_frames for o in outs), outs[0][2].fps, labels[-1] if labels else None, len(outs))

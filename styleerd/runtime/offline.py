@@ -297,18 +297,22 @@ def humanoid_joint_map(
     return out | (explicit or {})
 
 
-def _source_clips(
+def source_clips(
     source: Path, model: GeneratorWeights, options: TransferOptions
 ) -> tuple[list[tuple[str, Motion]], dict[str, str] | None]:
-    """The motions of a file (a BVH's, or a glTF/GLB/VRM/VRMA's animations: every one or
-    ``options.animation``) and the joint map to use (a VRM humanoid's, completed by the options')."""
+    """The motions of a file (a BVH's, or a glTF/GLB/VRM/VRMA's or an FBX's animations: every one
+    or ``options.animation``) and the joint map to use (a VRM humanoid's, completed by the options')."""
+    if source.suffix.lower() == ".fbx":
+        from styleerd.runtime.fbx import fbx_clips  # imports bpy: only for FBX
+
+        return [(name, m) for name, _, m, _ in fbx_clips(source, options.animation)[1]], options.explicit_map
     if source.suffix.lower() in GLTF_INPUTS:
         clips = read_gltf_clips(source, None if options.animation == "all" else [options.animation])
         return [(name, c.motion) for name, c in clips], humanoid_joint_map(model, clips[0][1], options.explicit_map)
     return [(source.stem, bvh.read(source))], options.explicit_map
 
 
-def _stylised_on_model(
+def stylised_on_model(
     motion: Motion, model: GeneratorWeights, fps: float, options: TransferOptions, where: str, report, labels: list
 ) -> tuple[Motion, JointMap]:
     """A motion stylised (as ``transfer_motion``: feet cleaned on its own skeleton) and put on
@@ -322,11 +326,11 @@ def _transfer_to_vrma(
     source: Path, output: Path, model: GeneratorWeights, fps: float, options: TransferOptions, report
 ) -> TransferReport:
     """One clip stylised and written as a VRM Animation (``write_vrma``), for any VRM avatar."""
-    motions, explicit = _source_clips(source, model, options)
+    motions, explicit = source_clips(source, model, options)
     if len(motions) > 1:
         raise StyleERDError(f"{output}: a VRM Animation holds one clip; pick one with --animation NAME")
     lines: list[str] = []
-    on_model, jm = _stylised_on_model(
+    on_model, jm = stylised_on_model(
         motions[0][1], model, fps, replace(options, explicit_map=explicit or None), str(source), report, lines
     )
     write_vrma(output, on_model, jm.target_tpose, model.stats().reference, body_parts(model.skeleton))
@@ -342,8 +346,8 @@ def transfer_onto(
     options: TransferOptions,
     report: Callable[[str], None] | None = None,
 ) -> TransferReport:
-    """A motion (BVH, or every animation of a glTF/GLB/VRM/VRMA, or ``options.animation``)
-    stylised and put on another character, ``avatar`` (glTF, GLB, VRM; animated or not): its
+    """A motion (BVH, or every animation of a glTF/GLB/VRM/VRMA/FBX, or ``options.animation``)
+    stylised and put on another character, ``avatar`` (glTF, GLB, VRM, FBX; animated or not): its
     mapped joints turn as the stylised motion's, scaled to its leg length, its other joints keep
     their rest pose. Written into a copy of the avatar (.glb, .vrm: meshes, materials, spring
     bones, expressions kept, one animation per clip) or, for one clip, as a BVH of its skeleton
@@ -353,10 +357,16 @@ def transfer_onto(
         if report:
             report(f"a .vrma plays on any VRM avatar: written for none in particular ({avatar.name} not read)")
         return transfer_file(source, output, model, fps, options, report)
+    if avatar.suffix.lower() == ".fbx" or kind == ".fbx":
+        from styleerd.runtime.fbx import transfer_onto_fbx  # imports bpy: only for FBX
+
+        if avatar.suffix.lower() != ".fbx":
+            raise StyleERDError(f"{output}: an .fbx output is written onto an FBX character (--onto CHARACTER.fbx)")
+        return transfer_onto_fbx(source, avatar, output, model, options, report)
     if kind not in (".glb", ".vrm", ".bvh"):
-        raise StyleERDError(f"{output}: with --onto the output must be .glb, .vrm, .vrma or .bvh")
+        raise StyleERDError(f"{output}: with --onto the output must be .glb, .vrm, .vrma, .fbx or .bvh")
     check_output(output, source, avatar)
-    motions, explicit = _source_clips(source, model, options)
+    motions, explicit = source_clips(source, model, options)
     if kind == ".bvh" and len(motions) > 1:
         raise StyleERDError(f"{output}: a BVH holds one animation; pick one with --animation NAME, or write .glb")
     character = read_gltf_character(avatar)
@@ -369,7 +379,7 @@ def transfer_onto(
     lines: list[str] = []
     out = []
     for k, (name, motion) in enumerate(motions):
-        on_model, _ = _stylised_on_model(
+        on_model, _ = stylised_on_model(
             motion,
             model,
             fps,
@@ -398,7 +408,8 @@ def on_avatar(on_model: Motion, onto: JointMap, rest: Motion) -> Motion:
     out = to_source(on_model, onto, base)
     hips = dict(onto.pairs)[0]  # the avatar's joint playing the model's root
     parent = int(sk.parents[hips])
-    g, p = forward_kinematics(out.rotations[:, :hips], out.positions[:, :hips], sk.parents[:hips])
+    if parent >= 0:  # the joints above the hips (an armature's root bone), which the hips' path is put under
+        g, p = forward_kinematics(out.rotations[:, :hips], out.positions[:, :hips], sk.parents[:hips])
     world = on_model.positions[:, 0] / onto.scale
     feet = [j for part, j in body_parts(sk, rest.rotations[0]).items() if part.endswith(("_foot", "_toe"))]
 

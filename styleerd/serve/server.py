@@ -759,7 +759,12 @@ class StyleServer:
                 if len(data) > size:
                     raise ClientError(POLICY, f"{name[:80]!r}: more than the {size} bytes announced")
             result = await self._read_upload(purpose, name, suffix, bytes(data))
-            await ws.send(json.dumps({"type": purpose, "name": name, **result}))
+            glb = result.pop("glb", None)  # an FBX avatar made a GLB: its bytes follow the answer
+            await ws.send(
+                json.dumps({"type": purpose, "name": name, **result, "glb": None if glb is None else len(glb)})
+            )
+            if glb is not None:
+                await ws.send(glb)
         finally:
             self.uploads -= 1
 
@@ -772,7 +777,9 @@ class StyleServer:
             try:
                 return await asyncio.wait_for(asyncio.to_thread(read, path), CONVERT_S)
             except StyleERDError as e:  # the reader names the file by its path here: by its own name there
-                raise ClientError(INVALID_DATA, str(e).replace(str(path), name[:80])[:500]) from None
+                message = str(e).replace(str(path), name[:80])
+                message = message if message.startswith(name[:80]) else f"{name[:80]}: {message}"
+                raise ClientError(INVALID_DATA, message[:500]) from None
             except TimeoutError:
                 raise ClientError(TRY_LATER, f"{name[:80]!r}: not read within {CONVERT_S:g} s") from None
 

@@ -1,6 +1,7 @@
 """What the viewer's page uploads besides BVH: a motion in a glTF file (a VRM Animation, a GLB's
 first animation) read into BVH text for the page to stream, and an avatar that is no VRM (a GLB
-character) read into what the page needs to drive it like one: the node of each VRM humanoid bone,
+character, or an FBX one made a GLB by Blender where its ``bpy`` is installed) read into what the
+page needs to drive it like one: the node of each VRM humanoid bone,
 found by ``motion.humanoid`` as ``transfer --onto`` finds it, and every joint's local rotation in
 the canonical T-pose (VRM's rest: facing +Z, left along +X), which the page sets before it builds
 three-vrm's humanoid on the nodes."""
@@ -8,6 +9,7 @@ three-vrm's humanoid on the nodes."""
 from __future__ import annotations
 
 import re
+import threading
 from pathlib import Path
 
 import numpy as np
@@ -21,7 +23,8 @@ from styleerd.motion.skeleton import Skeleton
 from styleerd.runtime.offline import humanoid_joint_map, map_skeleton
 
 MOTIONS = (".vrma", ".glb", ".vrm")  # a .gltf's buffers are files of their own: not one upload
-AVATARS = (".glb",)  # a .vrm avatar is read by the page itself (three-vrm)
+AVATARS = (".glb", ".fbx")  # a .vrm avatar is read by the page itself (three-vrm); an FBX needs Blender's bpy
+_BLENDER = threading.Lock()  # bpy is one Blender: one FBX at a time
 MAX_BVH_CHARS = 32 << 20  # the text a page is sent back
 
 
@@ -51,7 +54,15 @@ def motion_bvh(path: Path) -> dict:
 
 def avatar_rig(path: Path, model: GeneratorWeights) -> dict:
     """A GLB character as a VRM humanoid: ``bones`` (VRM bone name -> glTF node) and ``tpose``
-    (glTF node -> its local rotation x, y, z, w in the canonical T-pose)."""
+    (glTF node -> its local rotation x, y, z, w in the canonical T-pose). An FBX character is
+    first made a GLB by Blender: then ``glb`` holds its bytes, for the page to load."""
+    if path.suffix.lower() == ".fbx":
+        glb = path.with_suffix(".glb")
+        with _BLENDER:
+            from styleerd.runtime.fbx import fbx_to_glb  # imports bpy: only for FBX
+
+            fbx_to_glb(path, glb)
+        return {**avatar_rig(glb, model), "glb": glb.read_bytes()}
     character = read_gltf_character(path)
     rest = character.motion
     jm = map_skeleton(rest.skeleton, model, humanoid_joint_map(model, character, None), path.name, rest.rotations[0])

@@ -128,10 +128,14 @@ function upload(file, purpose) {
       sock.send(JSON.stringify({ type: "upload", purpose, name: file.name, bytes: bytes.length }));
       for (let at = 0; at < bytes.length; at += PIECE) sock.send(bytes.subarray(at, at + PIECE));
     };
+    let answer = null; // an FBX avatar's answer is followed by the GLB the server made of it
     sock.onmessage = (event) => {
+      if (answer) { answer.glbBytes = event.data; sock.close(); resolve(answer); return; }
       const msg = JSON.parse(event.data);
+      if (msg.type === "error") { sock.close(); reject(new Error(msg.message)); return; }
+      if (msg.glb) { answer = msg; return; }
       sock.close();
-      if (msg.type === "error") reject(new Error(msg.message)); else resolve(msg);
+      resolve(msg);
     };
     sock.onclose = (event) => reject(new Error(event.reason || `the server closed the upload (${event.code})`));
   });
@@ -155,11 +159,11 @@ async function glbAvatar(gltf, rig) {
 }
 
 async function loadAvatar(file) {
-  const glb = file.name.toLowerCase().endsWith(".glb");
+  const glb = /\.(glb|fbx)$/i.test(file.name); // an FBX is made a GLB by the server (with Blender's bpy)
   const rig = glb ? await upload(file, "avatar") : null; // the server maps its joints, as `transfer --onto` does
   const loader = new GLTFLoader();
   if (!glb) loader.register((parser) => new VRMLoaderPlugin(parser));
-  const url = URL.createObjectURL(file);
+  const url = URL.createObjectURL(rig?.glbBytes ? new Blob([rig.glbBytes]) : file);
   try {
     const loaded = await Promise.all([loader.loadAsync(url), loader.loadAsync(url)]);
     const vrms = glb ? await Promise.all(loaded.map((g) => glbAvatar(g, rig))) : loaded.map((g) => g.userData.vrm);
