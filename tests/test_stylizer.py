@@ -308,10 +308,12 @@ def test_labels_not_given_are_inferred_causally_and_given_labels_win(model):
         StreamStylizer(model, None, None, {"old": 1.0}, labeller=OnlineLabeller(5, 3, 2))
 
 
-def test_root_speed_scales_each_ground_step_by_the_networks_speed_online(model):
+def test_root_speed_scales_each_ground_step_by_the_networks_speed_online(model, monkeypatch):
     """``root_speed``: each frame's ground step of the input root is scaled by the network's
     root speed over the input's (smoothed, clamped), height kept; checked against the torch
-    generator's velocity output on the whole clip's features. Off, the root is the input's."""
+    generator's velocity output on the whole clip's features. With pose "input" the scale fades
+    to 1 as the input is unfamiliar (the legs are then the input's own, and so is the pace), by
+    the last frame's unfamiliarity. Off, the root is the input's."""
     m = walking_motion(60)
     f, _ = motion_features(m)
     stats = model.stats()
@@ -322,28 +324,48 @@ def test_root_speed_scales_each_ground_step_by_the_networks_speed_online(model):
     root = model.layout.velocities.start
     net = vel[0, :, :3].double().numpy() * stats.std[root : root + 3] + stats.mean[root : root + 3]
     given = f[:, root : root + 3]
-    ratio, offset, expected = 1.0, np.zeros(3), []
     leg = StreamStylizer(model, "normal", "walk", {"old": 1.0}).roles.leg_length
+    # this random network's identity output is far from the input: thresholds inside its range, so the
+    # pose "input" run is familiar on some frames and not on others
+    from styleerd.runtime import stylizer
+
+    probe = StreamStylizer(model, "normal", "walk", {"old": 1.0}, pose="input")
+    monkeypatch.setattr(stylizer, "FAMILIAR", 0.0)
+    monkeypatch.setattr(stylizer, "UNFAMILIAR", 1e9)  # u = the mean angle / 1e9: read it back as the angle
+    angles = []
     for t in range(60):
-        s_in, s_net = np.hypot(given[t, 0], given[t, 2]), np.hypot(net[t, 0], net[t, 2])
-        ratio = 0.7 * ratio + 0.3 * (np.clip(s_net / s_in, 0.4, 2.5) if s_in > 0.05 * leg else 1.0)
-        if t:
-            step = m.positions[t, 0] - m.positions[t - 1, 0]
-            offset += (ratio - 1) * np.array([step[0], 0.0, step[2]])
-        expected.append(m.positions[t, 0] + offset)
-    on, off = (
-        StreamStylizer(model, "normal", "walk", {"old": 1.0}, root_speed=True),
-        StreamStylizer(model, "normal", "walk", {"old": 1.0}),
-    )
-    for t in range(60):
-        r_on, p_on = on.step(m.rotations[t], m.positions[t])
-        r_off, p_off = off.step(m.rotations[t], m.positions[t])
-        assert np.array_equal(r_on, r_off) and np.array_equal(
-            p_off[0], m.positions[t]
-        )  # poses unchanged; off: the input's root
-        assert np.allclose(p_on[0, 0], expected[t], atol=1e-4), t
-        assert p_on[0, 0, 1] == m.positions[t, 0, 1] and np.array_equal(p_on[0, 1:], m.positions[t, 1:])
-    assert np.abs(np.array(expected) - m.positions[:, 0]).max() > 0.1  # the random network's speed is not the input's
+        probe.step(m.rotations[t], m.positions[t])
+        angles.append(probe.unfamiliar[0] * 1e9)
+    low, high = np.percentile(angles, [30, 70])
+    monkeypatch.setattr(stylizer, "FAMILIAR", low)
+    monkeypatch.setattr(stylizer, "UNFAMILIAR", high)
+    for pose in ("network", "input"):
+        on, off = (
+            StreamStylizer(model, "normal", "walk", {"old": 1.0}, root_speed=True, pose=pose),
+            StreamStylizer(model, "normal", "walk", {"old": 1.0}, pose=pose),
+        )
+        ratio, offset, expected, faded = 1.0, np.zeros(3), [], []
+        for t in range(60):
+            s_in, s_net = np.hypot(given[t, 0], given[t, 2]), np.hypot(net[t, 0], net[t, 2])
+            now = np.clip(s_net / s_in, 0.4, 2.5) if s_in > 0.05 * leg else 1.0
+            unfamiliar = on.unfamiliar[0] if pose == "input" else 0.0  # the last frame's
+            faded.append(unfamiliar)
+            ratio = 0.7 * ratio + 0.3 * (1.0 + (now - 1.0) * (1.0 - unfamiliar))
+            if t:
+                step = m.positions[t, 0] - m.positions[t - 1, 0]
+                offset += (ratio - 1) * np.array([step[0], 0.0, step[2]])
+            expected.append(m.positions[t, 0] + offset)
+            r_on, p_on = on.step(m.rotations[t], m.positions[t])
+            r_off, p_off = off.step(m.rotations[t], m.positions[t])
+            assert np.array_equal(r_on, r_off) and np.array_equal(
+                p_off[0], m.positions[t]
+            )  # poses unchanged; off: the input's root
+            assert np.allclose(p_on[0, 0], expected[t], atol=1e-4), (pose, t)
+            assert p_on[0, 0, 1] == m.positions[t, 0, 1] and np.array_equal(p_on[0, 1:], m.positions[t, 1:])
+        assert (
+            np.abs(np.array(expected) - m.positions[:, 0]).max() > 0.1
+        )  # the random network's speed is not the input's
+    assert 0.0 < np.mean(faded) < 1.0  # the input pose's run faded the scale part of the time
 
 
 def test_root_speed_is_causal(model):

@@ -497,6 +497,8 @@ class StreamStylizer:
         s_net, s_in = np.hypot(net[:, 0], net[:, 2]), np.hypot(given[:, 0], given[:, 2])
         moving = s_in > 0.05 * self.roles.leg_length
         ratio = np.where(moving, np.clip(s_net / np.maximum(s_in, 1e-9), 0.4, 2.5), 1.0)
+        if self.identity is not None:  # where the legs are the input's own (pose "input", unfamiliar), so is the pace
+            ratio = 1.0 + (ratio - 1.0) * (1.0 - self.unfamiliar[sel])
         self.speed_ratio[sel] = 0.7 * self.speed_ratio[sel] + 0.3 * ratio
         step = np.where(self.started[sel, None], positions[:, 0] - self.previous[sel, 0], 0.0)
         step[:, 1] = 0.0  # height stays the input's
