@@ -177,6 +177,15 @@ def two_takes(work: Path) -> dict:
     return {"takes": sorted(a.name for a in bpy.data.actions)}
 
 
+def still(work: Path) -> dict:
+    """walk.fbx without its animation (a character as modelled): still.fbx."""
+    imported(work / "walk.fbx")
+    for action in list(bpy.data.actions):
+        bpy.data.actions.remove(action)
+    bpy.ops.export_scene.fbx(filepath=str(work / "still.fbx"), bake_anim=False, add_leaf_bones=False)
+    return {"actions": len(bpy.data.actions)}
+
+
 def _fcurves(action):
     """An action's F-curves (Blender 4.4+ keeps them in slotted layers)."""
     if getattr(action, "layers", None):
@@ -241,6 +250,8 @@ def main() -> None:
         result = make(work)
     elif what == "two-takes":
         result = two_takes(work)
+    elif what == "still":
+        result = still(work)
     elif what == "fbx-avatar":
         result = fbx_avatar(work)
     elif what.startswith("takes-of:"):

@@ -136,7 +136,8 @@ def test_every_take_of_an_fbx_is_stylised_under_its_own_name(blender_venv, chara
 
 def test_a_motion_onto_an_fbx_character_and_an_fbx_take_onto_a_glb(blender_venv, character, shared_data):
     """--onto CHARACTER.fbx: the stylised BVH walk on the character's own armature (the same rig: as
-    the BVH run), its skinned body kept, the take named after the clip; an FBX's take onto a GLB
+    the BVH run), its skinned body kept, the take named after the clip, whether or not the character
+    has an animation of its own; an FBX's take onto a GLB
     character (RobotExpressive) as one of its animations; a glTF character cannot take an .fbx out."""
     cli = blender_venv / "bin/styleerd"
     run_checked(
@@ -145,6 +146,12 @@ def test_a_motion_onto_an_fbx_character_and_an_fbx_take_onto_a_glb(blender_venv,
     onto = _blender(blender_venv, "takes-of:onto.fbx", character)
     assert list(onto["takes"]) == ["walk"] and onto["meshes"] == ["Body"]
     assert onto["takes"]["walk"]["error_vs_ref_deg"] < TOLERANCE_DEG
+    assert _blender(blender_venv, "still", character)["actions"] == 0  # the character with no animation of its own
+    run_checked(
+        [cli, "transfer", "walk.bvh", "--style", "elderly", "--onto", "still.fbx", "-o", "on-still.fbx"], cwd=character
+    )
+    on_still = _blender(blender_venv, "takes-of:on-still.fbx", character)
+    assert list(on_still["takes"]) == ["walk"] and on_still["takes"]["walk"]["error_vs_ref_deg"] < TOLERANCE_DEG
     robot = shared_data / "characters" / "RobotExpressive.glb"
     done = run_checked(
         [cli, "transfer", "walk.fbx", "--style", "elderly", "--onto", robot, "-o", "robot.glb"], cwd=character

@@ -15,7 +15,6 @@ import contextlib
 import os
 import sys
 import tempfile
-from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -32,10 +31,9 @@ from styleerd.runtime.offline import (
     TransferOptions,
     TransferReport,
     map_skeleton,
-    on_avatar,
     source_clips,
     style_tag,
-    stylised_on_model,
+    stylised_onto,
     transfer_motion,
 )
 
@@ -440,40 +438,31 @@ def transfer_onto_fbx(
     if kind not in (".fbx", ".bvh"):
         raise StyleERDError(f"{output}: onto an FBX character the output must be .fbx or .bvh")
     check_output(output, source, avatar)
-    fps = model.meta["data"]["fps"]
-    if source.suffix.lower() == ".fbx":
-        motions = [(name, motion) for name, _, motion, _ in fbx_clips(source, options.animation)[1]]
-        explicit = options.explicit_map
-    else:
-        motions, explicit = source_clips(source, model, options)
+    motions, explicit = source_clips(source, model, options)  # an FBX's takes through Blender too
     if kind == ".bvh":
         _single(output, motions)
     arm, file_fps = import_fbx(avatar)  # a new scene: the source's armature (already read) is gone
-    originals = {name: action for name, action, _ in takes(arm, "all", str(avatar))} if arm.animation_data else {}
+    try:  # the character's own takes, if it has any
+        originals = {name: action for name, action, _ in takes(arm, "all", str(avatar))}
+    except StyleERDError:
+        originals = {}
     rest = fbx_rest(arm)
     onto = map_skeleton(rest.skeleton, model, None, str(avatar), rest.rotations[0])
-    if report:
-        report(f"onto {avatar.name} (model -> avatar):\n{onto.describe()}")
-    labels: list = []
-    outs = []
-    for k, (name, motion) in enumerate(motions):
-        on_model, _ = stylised_on_model(
-            motion,
-            model,
-            fps,
-            replace(options, explicit_map=explicit or None),
-            str(source),
-            report if k == 0 else None,
-            labels,
-        )
-        out = on_avatar(on_model, onto, rest)
-        outs.append((name, originals.get(name), out, range(1, out.n_frames + 1)))
+    worn, label = stylised_onto(
+        motions, explicit, rest, onto, model, model.meta["data"]["fps"], options, source, avatar, report
+    )
     if kind == ".bvh":
-        bvh.write(output, outs[0][2])
+        bvh.write(output, worn[0][1])
     else:
         if not options.keep_original:
             for action in originals.values():
                 blender().data.actions.remove(action)
-        _write_takes(arm, [(n, None, m, f) for n, _, m, f in outs], options)
-        export_fbx(output, arm, outs[0][3], file_fps, every_action=len(outs) > 1 or options.keep_original)
-    return TransferReport(sum(o[2].n_frames for o in outs), outs[0][2].fps, labels[-1] if labels else None, len(outs))
+        _write_takes(arm, [(name, None, m, range(1, m.n_frames + 1)) for name, m in worn], options)
+        export_fbx(
+            output,
+            arm,
+            range(1, worn[0][1].n_frames + 1),
+            file_fps,
+            every_action=len(worn) > 1 or options.keep_original,
+        )
+    return TransferReport(sum(m.n_frames for _, m in worn), worn[0][1].fps, label, len(worn))

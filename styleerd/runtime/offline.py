@@ -374,9 +374,31 @@ def transfer_onto(
     onto = map_skeleton(
         rest.skeleton, model, humanoid_joint_map(model, character, None), str(avatar), rest.rotations[0]
     )
+    out, label = stylised_onto(motions, explicit, rest, onto, model, fps, options, source, avatar, report)
+    if kind == ".bvh":
+        bvh.write(output, out[0][1])
+    else:
+        write_gltf_animations(output, character, out)
+    return TransferReport(sum(m.n_frames for _, m in out), out[0][1].fps, label, len(out))
+
+
+def stylised_onto(
+    motions: list[tuple[str, Motion]],
+    explicit: dict[str, str] | None,
+    rest: Motion,
+    onto: JointMap,
+    model: GeneratorWeights,
+    fps: float,
+    options: TransferOptions,
+    source: Path,
+    avatar: Path,
+    report: Callable[[str], None] | None,
+) -> tuple[list[tuple[str, Motion]], tuple[str, str] | None]:
+    """Each (name, motion) stylised and put on a character (``on_avatar``: ``rest`` its rest pose,
+    ``onto`` its map onto the model), and the labels inferred at the last frame."""
     if report:
         report(f"onto {avatar.name} (model -> avatar):\n{onto.describe()}")
-    lines: list[str] = []
+    labels: list = []
     out = []
     for k, (name, motion) in enumerate(motions):
         on_model, _ = stylised_on_model(
@@ -386,14 +408,10 @@ def transfer_onto(
             replace(options, explicit_map=explicit or None),
             str(source),
             report if k == 0 else None,
-            lines,
+            labels,
         )
         out.append((name, on_avatar(on_model, onto, rest)))
-    if kind == ".bvh":
-        bvh.write(output, out[0][1])
-    else:
-        write_gltf_animations(output, character, out)
-    return TransferReport(sum(m.n_frames for _, m in out), out[0][1].fps, lines[-1] if lines else None, len(out))
+    return out, labels[-1] if labels else None
 
 
 def on_avatar(on_model: Motion, onto: JointMap, rest: Motion) -> Motion:
