@@ -29,6 +29,14 @@ def _data_prepare(args: argparse.Namespace) -> None:
 def _info(args: argparse.Namespace) -> None:
     from styleerd.motion import bvh
 
+    if args.system:
+        from styleerd.runtime.system import describe, system_report
+
+        print(describe(system_report()))
+        if not args.file:
+            return
+    if not args.file:
+        raise StyleERDError("info: name a BVH file, or --system")
     header, frames = bvh.stream(args.file)
     n_frames = sum(len(chunk) for chunk in frames)  # every frame checked, in bounded memory
     sk, fps = header.skeleton, header.fps
@@ -755,8 +763,13 @@ def _use_commands(command: Callable[[str, str], argparse.ArgumentParser]) -> Non
     p.add_argument("--model", help=MODEL_HELP)
     p.set_defaults(func=_styles)
 
-    p = command("info", "describe a BVH file")
-    p.add_argument("file")
+    p = command("info", "describe a BVH file, or (--system) this machine as the engine sees it")
+    p.add_argument("file", nargs="?")
+    p.add_argument(
+        "--system",
+        action="store_true",
+        help="the CPU, the BLAS libraries and threading layers loaded, numba's threads, the engine's settings",
+    )
     p.set_defaults(func=_info)
 
     p = command("resample", "change a BVH file's frame rate")

@@ -68,3 +68,31 @@ def test_the_many_stream_step_on_2_threads_prints_no_openblas_warning(first):
     )
     assert done.returncode == 0 and "done" in done.stdout, done.stderr[-3000:]
     assert "OpenBLAS" not in done.stderr, done.stderr.count("\n")
+
+
+def test_info_system_names_the_cpu_the_blas_libraries_and_the_engines_settings():
+    """``styleerd info --system``: the CPU model as /proc/cpuinfo has it, every BLAS and OpenMP
+    library threadpoolctl finds loaded, numba's threads and layer, and the engine's settings."""
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    from styleerd.runtime import compiled
+
+    done = subprocess.run(
+        [sys.executable, "-m", "styleerd.cli", "info", "--system"],
+        capture_output=True,
+        text=True,
+        timeout=300,
+        check=False,
+    )
+    assert done.returncode == 0, done.stderr
+    out = done.stdout
+    cpuinfo = Path("/proc/cpuinfo")
+    if cpuinfo.exists():
+        model = next(
+            line.split(":", 1)[1].strip() for line in cpuinfo.read_text().splitlines() if line.startswith("model name")
+        )
+        assert f"CPU: {model} (" in out
+    assert "openblas" in out and "thread pools loaded:" in out and "numba" in out
+    assert f"blocks of {compiled.BLOCK_ROWS} streams" in out and "not calibrated" in out

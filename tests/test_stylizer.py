@@ -489,7 +489,7 @@ def test_without_a_thread_safe_layer_the_kernels_stay_on_one_thread(model, monke
         return load(name, *args, **kwargs)
 
     monkeypatch.setattr(parallel.importlib, "import_module", unloadable)
-    parallel._threadsafe_layer.cache_clear()
+    parallel.threadsafe_layer.cache_clear()
     try:
         assert parallel.kernel_threads(2, 1000) == 1
         ms = [walking_motion(3, seed=k) for k in range(40)]
@@ -502,7 +502,7 @@ def test_without_a_thread_safe_layer_the_kernels_stay_on_one_thread(model, monke
             assert np.abs(two.step(*frame(t))[0] - one.step(*frame(t))[0]).max() <= 1e-5
     finally:
         monkeypatch.undo()
-        parallel._threadsafe_layer.cache_clear()
+        parallel.threadsafe_layer.cache_clear()
     assert parallel.kernel_threads(2, 1000) == min(2, numba.config.NUMBA_NUM_THREADS)
 
 

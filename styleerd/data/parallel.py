@@ -20,7 +20,8 @@ PARALLEL_FROM = 32
 
 
 @cache
-def _threadsafe_layer() -> bool:
+def threadsafe_layer() -> bool:
+    """Whether one of numba's thread-safe layers (TBB, OpenMP) loads here; it is then the one used."""
     for layer in ("tbbpool", "omppool"):
         try:
             importlib.import_module(f"numba.np.ufunc.{layer}")
@@ -37,7 +38,7 @@ def kernel_threads(threads: int, n_streams: int) -> int:
     one shard of streams each: at most numba's threads, and one for small steps or where no
     thread-safe layer loads. Sets numba's threads for this thread's next parallel loops to it
     (set inside the kernels, the setting would keep them from numba's disk cache)."""
-    if threads <= 1 or n_streams < PARALLEL_FROM or not _threadsafe_layer():
+    if threads <= 1 or n_streams < PARALLEL_FROM or not threadsafe_layer():
         return 1
     shards = min(threads, nb.config.NUMBA_NUM_THREADS)
     nb.set_num_threads(shards)

@@ -38,6 +38,7 @@ from styleerd.runtime.backends import BACKENDS, make_backend
 from styleerd.runtime.channels import ChannelStylizer
 from styleerd.runtime.offline import map_skeleton
 from styleerd.runtime.stylizer import OWN_THREADS, StreamStylizer, _slices
+from styleerd.runtime.system import describe, system_report
 
 PAPER_GTX1060_MS = {"online per frame": 1.73, "L=60": 7.47, "L=90": 10.18, "L=120": 13.22, "input frames needed": 1}
 STREAMS = (1, 4, 10, 16, 64, 100, 256, 1000, 4096)  # the throughput curve's points
@@ -279,6 +280,7 @@ def state_bytes(model: StyleERD) -> dict:
 
 def run_bench(model: StyleERD, steps: int = 2000, streams: tuple[int, ...] = STREAMS, progress=print) -> dict:
     report: dict = {
+        "system": system_report(),
         "cpu_count": os.cpu_count(),
         "flops_per_frame": flops_per_frame(model),
         "memory_per_stream_bytes": state_bytes(model),
@@ -392,6 +394,8 @@ def table(report: dict) -> str:
         "whole clip L=120 (ms)": "13.22",
     }
     lines = ["| | " + " | ".join(names) + " | paper, GTX 1060 |", "|" + " --- |" * (len(names) + 2)]
+    if "system" in report:  # the machine first: figures of another CPU are other figures
+        lines = ["```", describe(report["system"]), "```", "", *lines]
     for label, f in rows:
         lines.append(
             f"| {label} | " + " | ".join(f(report["backends"][n]) for n in names) + f" | {paper.get(label, '')} |"
