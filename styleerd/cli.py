@@ -429,6 +429,16 @@ def _eval_actions(args: argparse.Namespace) -> None:
         print(f"wrote {path}")
 
 
+def _eval_clip_styles(args: argparse.Namespace) -> None:
+    from styleerd.eval.clip_recogniser import evaluate_clip_styles, markdown, write
+    from styleerd.model.stored import load_generator_weights
+
+    out = check_output(args.out)
+    report = evaluate_clip_styles(load_generator_weights(args.model), args.data, args.retrain)
+    write(report, out)
+    print(markdown(report))
+
+
 def _eval_labels(args: argparse.Namespace) -> None:
     from styleerd.eval.labels import evaluate_labels, markdown, write
     from styleerd.model.stored import load_generator_weights, load_labeller_weights
@@ -1091,6 +1101,16 @@ def _eval_subcommands(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--no-feet", action="store_true", help="only the action table")
     p.add_argument("--data", help="data folder")
     p.set_defaults(func=_eval_actions)
+    p = sub.add_parser(
+        "clip-styles",
+        help="a second judge of another design (a GRU on whole clips' joint positions and root velocity): test takes "
+        "streamed back to neutral and into each style, read as their target or still as their source",
+    )
+    p.add_argument("--model", help=MODEL_HELP)
+    p.add_argument("--out", default="docs/clip-styles.md", help="Markdown table (a .json beside it)")
+    p.add_argument("--retrain", action="store_true", help="train the recogniser again (models/clip-recogniser-bandai2)")
+    p.add_argument("--data", help="data folder")
+    p.set_defaults(func=_eval_clip_styles)
     p = sub.add_parser(
         "labels",
         help="what the online labeller reads on other performers' clips (xia-sample, cmu-sample, Bandai-Namco-1): "

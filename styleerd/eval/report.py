@@ -354,6 +354,21 @@ them: the share of windows read as the target), kept in `docs/pose-quality.json`
             + "\n".join(rows)
             + "\n"
         )
+    clips = docs / "clip-styles.md"
+    if clips.is_file():
+        text += (
+            """
+### A second judge of another design: whole clips (`styleerd eval clip-styles`)
+
+The recognisers above read 24-frame windows of every feature channel with a convolution. This one
+is a GRU over whole clips that reads joint positions and the root's velocity only (no rotation),
+trained on the training takes (`models/clip-recogniser-bandai2`); it reads each test take
+streamed through `transfer` (the default pose, labels inferred online) as one clip. Counts of
+takes.
+
+"""
+            + clips.read_text()
+        )
     return text
 
 
