@@ -54,7 +54,8 @@ MAX_FEATURE = 1e6
 # Streams per step from which a numpy or onnx step is split into one shard per thread of the stylizer's pool: below it
 # the GIL and onnxruntime's cost per call make shards lose (measurements: docs/benchmarks.md, "Shards of streams").
 # The numba backend's threads run inside its compiled kernels instead (``data.parallel``).
-SHARD_FROM = {"numpy": 600, "onnx": 128, "onnx-plain": 128}
+NUMPY_SHARD_FROM = 600
+SHARD_FROM = {"numpy": NUMPY_SHARD_FROM, "onnx": 128, "onnx-plain": 128}
 POSES = ("input", "network")  # what a stylised pose is built on (module docstring)
 # backends whose steps run on threads of their own (torch's pool, numba's parallel loops), never on the stylizer's pool
 OWN_THREADS = ("torch", "numba")
@@ -241,7 +242,7 @@ class StreamStylizer:
         # has its own
         self.threads = max(1, threads) if backend not in OWN_THREADS else 1
         self.kernel_threads = max(1, threads) if backend == "numba" else 1
-        self.shard_from = SHARD_FROM.get(backend, SHARD_FROM["numpy"])
+        self.shard_from = SHARD_FROM.get(backend, NUMPY_SHARD_FROM)
         self.backend = make_backend(
             backend, model, n_streams * (1 + len(self.part_passes)), threads=max(1, threads) // self.threads
         )
