@@ -525,6 +525,7 @@ def _serve(args: argparse.Namespace) -> None:
         max_message=args.max_message,
         queue=args.queue,
         backend=args.backend,
+        threads=args.threads,
         data=args.data,
         max_joints=args.max_joints,
         origins=tuple(args.allow_origin),
@@ -561,7 +562,19 @@ def _stream_bvh(args: argparse.Namespace) -> None:
 def _load_test(args: argparse.Namespace) -> None:
     from styleerd.serve.loadtest import run_load_test
 
-    print(run_load_test(args.clients, args.seconds, args.workers, args.output, args.faulty))
+    print(
+        run_load_test(
+            args.clients,
+            args.seconds,
+            args.workers,
+            args.output,
+            args.faulty,
+            args.streams_per_client,
+            args.backend,
+            args.labels,
+            args.threads,
+        )
+    )
 
 
 def _vmc(args: argparse.Namespace) -> None:
@@ -825,6 +838,12 @@ def _live_commands(command: Callable[[str, str], argparse.ArgumentParser]) -> No
     )
     p.add_argument("--queue", type=_whole(1), default=64, help="per stream: frames waiting, and stylised frames unsent")
     p.add_argument("--backend", default="numpy", choices=["numpy", "numba", "onnx"])
+    p.add_argument(
+        "--threads",
+        type=_whole(1),
+        default=1,
+        help="threads of each batched step (numba kernels, or shards of the streams): for hundreds of streams a worker",
+    )
     p.add_argument("--model", help=MODEL_HELP)
     p.add_argument("--data", help="data folder for the viewer's real demo clips (optional)")
     p.add_argument("--max-joints", type=_whole(1), default=512, help="joints of a stream's skeleton (default 512)")
@@ -886,9 +905,22 @@ def _live_commands(command: Callable[[str, str], argparse.ArgumentParser]) -> No
         "load-test",
         "N real-time stream-bvh clients against a fresh server: latency, drops, CPU (with --faulty: a soak test)",
     )
-    p.add_argument("--clients", type=_whole(1), default=200)
+    p.add_argument("--clients", type=_whole(1), default=200, help="connections")
+    p.add_argument(
+        "--streams-per-client",
+        type=_whole(1),
+        default=1,
+        help="streams on each connection, one message a frame for them all (a game's crowd)",
+    )
     p.add_argument("--seconds", type=_positive, default=60.0)
     p.add_argument("--workers", type=_whole(1), default=1, help="server workers")
+    p.add_argument("--backend", choices=["numpy", "numba", "onnx"], default="numpy", help="the server's backend")
+    p.add_argument("--threads", type=_whole(1), default=1, help="the server's threads per batched step")
+    p.add_argument(
+        "--labels",
+        action="store_true",
+        help="the hellos give the clip's input style and content (a neutral walk): no labeller runs on the server",
+    )
     p.add_argument(
         "--faulty",
         type=_whole(0),

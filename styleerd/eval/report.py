@@ -356,8 +356,7 @@ them: the share of windows read as the target), kept in `docs/pose-quality.json`
         )
     clips = docs / "clip-styles.md"
     if clips.is_file():
-        text += (
-            """
+        text += """
 ### A second judge of another design: whole clips (`styleerd eval clip-styles`)
 
 The recognisers above read 24-frame windows of every feature channel with a convolution. This one
@@ -366,9 +365,7 @@ trained on the training takes (`models/clip-recogniser-bandai2`); it reads each 
 streamed through `transfer` (the default pose, labels inferred online) as one clip. Counts of
 takes.
 
-"""
-            + clips.read_text()
-        )
+""" + clips.read_text()
     return text
 
 

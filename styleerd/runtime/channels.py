@@ -38,6 +38,7 @@ class ChannelStylizer:
         parts: str | dict | None = None,
         root_speed: bool = False,
         pose: str = "input",
+        threads: int = 1,
     ):
         self.map = map_skeleton(skeleton, model, explicit_map, first_pose=first_pose)
         self.model, self.explicit_map = model, explicit_map
@@ -55,6 +56,7 @@ class ChannelStylizer:
             parts=parts,
             root_speed=root_speed,
             pose=pose,
+            threads=threads,
         )
         self.lock = FootLock(skeleton, n_streams, fps, legs=self.map.source_legs()) if cleanup else None
 

@@ -21,6 +21,8 @@ from styleerd.motion import bvh
 from styleerd.motion.motion import Motion
 
 SEQ = struct.Struct("<I")
+LABELS = ("normal", "walk")  # the load test's clip (a procedural neutral walk): its input style and content
+PHASE = 7  # frames between the clip's start for consecutive streams of one connection (a crowd not in lockstep)
 IN_FLIGHT = 16  # frames sent ahead of their replies when not in real time (the server queues 64 by default)
 
 
@@ -81,14 +83,17 @@ async def play(
 ) -> StreamResult:
     """Send the motion's frames (looped until ``seconds`` when given) at its frame rate (or,
     not ``realtime``, as fast as replies come: at most ``IN_FLIGHT`` unanswered), one binary
-    frame each, and collect the replies; returns what was sent and received, and how far the
-    replies are from ``reference`` (the expected output of every frame sent) when given."""
-    values = bvh.channel_values(motion).astype("<f4")
-    fps = float(hello_msg["fps"])
-    total = len(values) if seconds is None else int(round(seconds * fps))
+    message each, and collect the replies; returns what was sent and received, and how far the
+    replies are from ``reference`` (the expected output of every frame sent) when given. A hello
+    of ``streams`` K > 1 opens K streams on the connection: stream k plays the clip from frame
+    ``PHASE * k``, and every message carries one frame of each (``reference``: ``[T, K, C]``)."""
+    clip = bvh.channel_values(motion).astype("<f4")
+    fps, count = float(hello_msg["fps"]), int(hello_msg.get("streams", 1))
+    total = len(clip) if seconds is None else int(round(seconds * fps))
+    phases = PHASE * np.arange(count)
     result = StreamResult()
     sent_at = np.zeros(total)
-    kept = np.zeros((total, values.shape[1]), np.float32) if keep else None
+    kept = np.zeros((total, count, clip.shape[1]), np.float32) if keep else None
     try:
         async with connect(url, max_size=1 << 22, open_timeout=20, close_timeout=5, compression=None) as ws:
             await ws.send(json.dumps(hello_msg))
@@ -119,14 +124,16 @@ async def play(
                     result.reordered += seq != expected
                     expected = seq + 1
                     if kept is not None or reference is not None:
-                        out = np.frombuffer(message, "<f4", count=values.shape[1], offset=SEQ.size)
+                        out = np.frombuffer(message, "<f4", count=clip.size // len(clip) * count, offset=SEQ.size)
+                        out = out.reshape(count, -1)
                         if kept is not None:
                             kept[seq] = out
                         if reference is not None:
-                            result.max_error = max(result.max_error, float(np.abs(out - reference[seq]).max()))
-                    result.received += 1
+                            expect = reference[seq] if count > 1 else reference[seq][None]
+                            result.max_error = max(result.max_error, float(np.abs(out - expect).max()))
+                    result.received += count
                     replied.set()
-                    if result.received == total:
+                    if result.received == total * count:
                         return
 
             receiver = asyncio.create_task(receive())
@@ -141,14 +148,15 @@ async def play(
                         result.late_sends += 1
                 else:
                     while (
-                        result.sent - result.received >= min(IN_FLIGHT, max(1, ready.get("queue", IN_FLIGHT) // 2))
+                        result.sent - result.received
+                        >= count * min(IN_FLIGHT, max(1, ready.get("queue", IN_FLIGHT) // 2))
                         and not receiver.done()
                     ):
                         replied.clear()
                         await asyncio.wait_for(replied.wait(), 30.0)
                 sent_at[i] = time.perf_counter()
-                await ws.send(SEQ.pack(i) + values[i % len(values)].tobytes())
-                result.sent += 1
+                await ws.send(SEQ.pack(i) + clip[(i + phases) % len(clip)].tobytes())
+                result.sent += count
                 if receiver.done():
                     break
             try:
@@ -160,7 +168,8 @@ async def play(
     except (OSError, InvalidURI, TimeoutError) as e:
         raise StyleERDError(f"{url}: cannot connect ({e})") from None
     if kept is not None:
-        result.output = kept[: result.received].astype(np.float64)
+        result.output = kept[: result.received // count].astype(np.float64)
+        result.output = result.output if count > 1 else result.output[:, 0]
     return result
 
 
@@ -292,8 +301,11 @@ async def load_test(
     style: str = "elderly",
     faulty: int = 0,
     reference: np.ndarray | None = None,
+    streams_per_client: int = 1,
+    labels: bool = False,
 ) -> dict:
-    """``clients`` concurrent real-time streams of ``seconds`` each, and ``faulty`` clients
+    """``clients`` concurrent real-time connections of ``seconds`` each (``streams_per_client``
+    streams each, one message per frame of them all), and ``faulty`` clients
     misbehaving in turn (``FAULTS``) meanwhile; latency percentiles, dropped and reordered
     frames, the largest difference from ``reference`` (the expected output of the looped
     clip), the server's CPU use over the run, and what happened to each faulty episode."""
@@ -313,7 +325,16 @@ async def load_test(
 
     watcher = asyncio.create_task(watch_loop())
     runs = [
-        play(url, motion, hello(motion, fps, style, 1.0, None, f"load-{i}"), seconds, reference=reference)
+        play(
+            url,
+            motion,
+            {
+                **hello(motion, fps, style, 1.0, None, f"load-{i}", *(LABELS if labels else (None, None))),
+                "streams": streams_per_client,
+            },
+            seconds,
+            reference=reference,
+        )
         for i in range(clients)
     ]
     bad = [_faulty_loop(url, motion, t0 + seconds, i) for i in range(faulty)]
@@ -330,6 +351,7 @@ async def load_test(
         kind[str(e["code"])] = kind.get(str(e["code"]), 0) + 1
     return {
         "clients": clients,
+        "streams_per_client": streams_per_client,
         "seconds": seconds,
         "fps": fps,
         "frames_sent": sent,
@@ -345,6 +367,7 @@ async def load_test(
         "latency_ms_p99": float(np.percentile(lat, 99)),
         "latency_ms_max": float(lat.max()),
         "server_cpu_cores": (after["cpu_seconds"] - before["cpu_seconds"]) / wall,
+        "server_step_cpu_s": after["step_cpu_seconds"] - before["step_cpu_seconds"],
         "wall_s": wall,
         "server_frames": after["frames"] - before["frames"],
         "mean_batch": (after["frames"] - before["frames"]) / max(1, after["steps"] - before["steps"]),

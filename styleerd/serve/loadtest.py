@@ -23,7 +23,7 @@ from styleerd.errors import StyleERDError
 from styleerd.motion import bvh
 from styleerd.motion.motion import Motion
 from styleerd.motion.procedural import walk
-from styleerd.serve.client import load_test
+from styleerd.serve.client import LABELS, PHASE, load_test
 
 
 def free_port() -> int:
@@ -81,29 +81,58 @@ def _rss_mb(pid: int) -> float:
     return float("nan")
 
 
-def expected_output(motion: Motion, frames: int, fps: float = 30.0, style: str = "elderly") -> np.ndarray:
+def expected_output(
+    motion: Motion, frames: int, fps: float = 30.0, style: str = "elderly", streams: int = 1, labels: bool = False
+) -> np.ndarray:
     """What a well-behaved client of the load test should get back: its looped clip stylised
-    locally, one stream, from float32 values as they go over the wire."""
+    locally, from float32 values as they go over the wire: ``[frames, C]``, or for a connection
+    of ``streams`` > 1 (stream k from frame ``PHASE * k``) ``[frames, streams, C]``."""
     from styleerd.model.stored import load_generator_weights
     from styleerd.runtime.channels import ChannelStylizer
 
     values = bvh.channel_values(motion).astype("<f4").astype(np.float64)
-    local = ChannelStylizer(load_generator_weights(), motion.skeleton, {style: 1.0}, fps=fps)
-    return np.stack(
+    model = load_generator_weights()
+    known = LABELS if labels else (None, None)
+    local = ChannelStylizer(model, motion.skeleton, {style: 1.0}, *known, fps=fps, n_streams=streams)
+    phases = PHASE * np.arange(streams)
+    out = np.stack(
         [
-            local.step(values[i % len(values)])[0]
+            local.step(values[(i + phases) % len(values)])
             for i in tqdm(range(frames), desc="local reference", unit="frame", leave=False)
         ]
     )
+    return out if streams > 1 else out[:, 0]
 
 
-def run_load_test(clients: int, seconds: float, workers: int = 1, output: str | None = None, faulty: int = 0) -> str:
+def run_load_test(
+    clients: int,
+    seconds: float,
+    workers: int = 1,
+    output: str | None = None,
+    faulty: int = 0,
+    streams_per_client: int = 1,
+    backend: str = "numpy",
+    labels: bool = False,
+    threads: int = 1,
+) -> str:
     """The load test (and, with ``faulty``, the soak test): every well-behaved client's replies
-    are compared with a local run of the same clip."""
+    are compared with a local run of the same clip. ``labels``: the hellos give the clip's
+    input style and content (a neutral walk), so the server runs no labeller."""
     motion = walk(10.0, fps=30.0)
-    reference = expected_output(motion, int(round(seconds * 30.0)))
+    reference = expected_output(motion, int(round(seconds * 30.0)), streams=streams_per_client, labels=labels)
     port = free_port()
-    server = start_server(port, "--workers", str(workers), "--max-streams", str(max(256, clients + faulty + 8)))
+    room = clients * streams_per_client + faulty + 8
+    server = start_server(
+        port,
+        "--workers",
+        str(workers),
+        "--max-streams",
+        str(max(256, room)),
+        "--backend",
+        backend,
+        "--threads",
+        str(threads),
+    )
     rss: list[float] = []  # the server's memory every 5 s (one worker)
     stop = threading.Event()
 
@@ -115,7 +144,16 @@ def run_load_test(clients: int, seconds: float, workers: int = 1, output: str | 
     sampler.start()
     try:
         figures = asyncio.run(
-            load_test(f"ws://127.0.0.1:{port}/", motion, clients, seconds, faulty=faulty, reference=reference)
+            load_test(
+                f"ws://127.0.0.1:{port}/",
+                motion,
+                clients,
+                seconds,
+                faulty=faulty,
+                reference=reference,
+                streams_per_client=streams_per_client,
+                labels=labels,
+            )
         )
         stop.set()
         sampler.join()
@@ -124,10 +162,18 @@ def run_load_test(clients: int, seconds: float, workers: int = 1, output: str | 
     finally:
         code = stop_server(server)
     figures["server_exit_code"] = code
+    frames = max(1, figures["server_frames"])
+    per_frame_us = figures["server_cpu_cores"] * figures["wall_s"] / frames * 1e6
+    engine_us = figures["server_step_cpu_s"] / frames * 1e6
+    figures["server_cpu_us_per_frame"], figures["engine_cpu_us_per_frame"] = per_frame_us, engine_us
     if output:
         atomic_write_text(Path(output), json.dumps(figures, indent=1))
+    each = f" x {streams_per_client} streams" if streams_per_client > 1 else ""
     lines = [
-        f"{clients} clients x {seconds:g} s at {figures['fps']:g} fps on loopback ({workers} server worker(s))",
+        (
+            f"{clients} clients{each} x {seconds:g} s at {figures['fps']:g} fps on loopback ({workers} server "
+            f"worker(s), {backend} backend, {threads} thread(s){', labels given' if labels else ''})"
+        ),
         (
             f"frames sent {figures['frames_sent']}, received {figures['frames_received']}, dropped "
             f"{figures['dropped']}, reordered {figures['reordered']}, "
@@ -138,7 +184,9 @@ def run_load_test(clients: int, seconds: float, workers: int = 1, output: str | 
             f"{figures['latency_ms_max']:.2f} ms"
         ),
         (
-            f"server CPU {figures['server_cpu_cores']:.2f} cores, mean batch {figures['mean_batch']:.1f} streams per "
+            f"server CPU {figures['server_cpu_cores']:.2f} cores ({per_frame_us:.1f} us a frame: engine "
+            f"{engine_us:.1f}, protocol {per_frame_us - engine_us:.1f}), "
+            f"mean batch {figures['mean_batch']:.1f} streams per "
             "step, "
             f"memory {figures['server_rss_mb'][0]:.0f} -> {figures['server_rss_mb'][-1]:.0f} MB (peak "
             f"{max(figures['server_rss_mb']):.0f}), tracebacks {figures['server_tracebacks']}, "

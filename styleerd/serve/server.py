@@ -94,6 +94,7 @@ class ServeConfig:
     queue: int = 64  # per stream: frames waiting to be stylised, and stylised frames unsent
     batch_wait: float = 0.004  # seconds a frame may wait for other streams' frames to share its step
     backend: str = "numpy"
+    threads: int = 1  # of each pool's batched step (numba's kernels, or numpy/onnx shards of the streams)
     data: str | None = None  # data folder for the viewer's real demo clips (optional)
     max_joints: int = 512  # joints of a hello's skeleton (a humanoid has 20 to 100)
     origins: tuple[str, ...] = ()  # browser origins allowed besides the server's own ("*": any)
@@ -115,7 +116,7 @@ class Stream:
     name: str
     ws: ServerConnection
     pool: Pool
-    row: int
+    rows: np.ndarray  # the pool's slots of this connection's streams (a hello's ``streams``: a crowd on one connection)
     binary: bool
     positions: bool  # send joint positions of input and output with every frame
     outbox: asyncio.Queue
@@ -129,6 +130,10 @@ class Stream:
     closing: bool = False  # refused: its frames are no longer stylised
     humanoid: bool = False  # also receive the VRM humanoid pose of input and output (an avatar to drive)
 
+    @property
+    def count(self) -> int:
+        return len(self.rows)
+
 
 @dataclass(eq=False)
 class Watcher:
@@ -141,6 +146,7 @@ class Watcher:
     fronts: bool = False  # also receive the bones' fronts
     token: str = ""  # a private stream's token, to watch it
     humanoid: bool = False  # also receive the VRM humanoid pose of input and output
+    index: int = 0  # which of a connection's streams it shows
 
 
 class Pool:
@@ -159,6 +165,7 @@ class Pool:
         parts: dict | None = None,
         root_speed: bool = False,
         pose: str = "input",
+        threads: int = 1,
     ):
         neutral = model.config.neutral_style
         self.stylizer = ChannelStylizer(
@@ -174,6 +181,7 @@ class Pool:
             parts=parts,
             root_speed=root_speed,
             pose=pose,
+            threads=threads,
         )
         self.skeleton, self.parts = skeleton, parts or {}
         self.fronts = bone_fronts(skeleton)  # rest fronts of the bones, for viewers that show their roll
@@ -181,7 +189,7 @@ class Pool:
         rest = Motion(model.skeleton, quat.identity((1, model.skeleton.n_joints)), model.skeleton.offsets[None], fps)
         self.metres = guess_metres_per_unit(rest)  # of the model's units, for an avatar's metres
         self.free = list(range(capacity - 1, -1, -1))
-        self.streams: dict[int, Stream] = {}
+        self.streams: dict[int, Stream] = {}  # by stream id
         self.key = (
             key  # (skeleton header, fps, cleanup, parts, root speed, pose): streams that share all six share the pool
         )
@@ -262,6 +270,8 @@ class StyleServer:
         self.host_names = _host_names(config.host, config.hosts)
         self.steps = 0
         self.frames = 0
+        self.step_cpu = 0.0  # CPU seconds (every thread) spent in batched steps: the engine's share of the server's
+        self.refusals: dict[int, int] = {}  # close code -> connections refused or ended with it
 
     # ---- the handshake and the per-connection loop ----
 
@@ -280,9 +290,20 @@ class StyleServer:
         except StyleERDError as e:
             raise ClientError(POLICY, str(e)) from None
 
-    async def _open_stream(self, ws: ServerConnection, msg: dict) -> Stream:
-        if len(self.streams) >= self.config.max_streams:
+    def _open_rows(self) -> int:
+        return sum(s.count for s in self.streams.values())
+
+    def _check_room(self, count: int) -> None:
+        if self._open_rows() + count > self.config.max_streams:
             raise ClientError(TRY_LATER, f"the server is full ({self.config.max_streams} streams); try again later")
+
+    async def _open_stream(self, ws: ServerConnection, msg: dict) -> Stream:
+        count = msg.get("streams", 1)
+        if isinstance(count, bool) or not isinstance(count, int) or not 1 <= count <= self.config.max_streams:
+            raise ClientError(
+                POLICY, f"'streams' must be an integer in [1, {self.config.max_streams}], got {str(count)[:20]}"
+            )
+        self._check_room(count)
         fps = _number(msg, "fps", 30.0, 10.0, 480.0)
         if msg.get("preset") != "model" and not isinstance(msg.get("skeleton"), str):
             raise ClientError(POLICY, "the hello needs 'skeleton' (a BVH HIERARCHY text) or 'preset': 'model'")
@@ -317,12 +338,11 @@ class StyleServer:
                 root_speed,
                 pose,
             )
-        if len(self.streams) >= self.config.max_streams:  # others came in while this one was set up
-            raise ClientError(TRY_LATER, f"the server is full ({self.config.max_streams} streams); try again later")
+        self._check_room(count)  # others came in while this one was set up
         pool = self.pools.setdefault(pool.key, pool)  # registered here, on the event loop
-        row = pool.free.pop()
-        pool.stylizer.reset([row])
-        pool.stylizer.configure([row], labels["input_style"], labels["content"], target)
+        rows = np.array([pool.free.pop() for _ in range(count)])
+        pool.stylizer.reset(rows)
+        pool.stylizer.configure(rows, labels["input_style"], labels["content"], target)
         self.next_id += 1
         name = msg.get("name")
         stream = Stream(
@@ -330,7 +350,7 @@ class StyleServer:
             name[:200] if isinstance(name, str) and name else f"stream-{self.next_id}",
             ws,
             pool,
-            row,
+            rows,
             fmt == "binary",
             bool(msg.get("positions", False)),
             asyncio.Queue(self.config.queue),
@@ -339,7 +359,7 @@ class StyleServer:
             token=secrets.token_urlsafe(16),
             humanoid=bool(msg.get("humanoid", False)),
         )
-        pool.streams[row] = stream
+        pool.streams[stream.id] = stream
         self.streams[stream.id] = stream
         try:  # from here the stream holds a slot: anything that fails gives it back
             for w in self.watchers:
@@ -349,9 +369,10 @@ class StyleServer:
             self._close_stream(stream)
             raise
         log.info(
-            "stream %d %r opened: %d joints, %g fps, target %s",
+            "stream %d %r opened (%d on the connection): %d joints, %g fps, target %s",
             stream.id,
             stream.name,
+            count,
             pool.skeleton.n_joints,
             fps,
             target,
@@ -385,6 +406,7 @@ class StyleServer:
                 parts,
                 root_speed,
                 pose,
+                self.config.threads,
             )
         except StyleERDError as e:
             raise ClientError(POLICY, str(e)) from None
@@ -395,8 +417,8 @@ class StyleServer:
         )
         self.streams.pop(stream.id, None)
         pool = stream.pool
-        if pool.streams.pop(stream.row, None) is not None:
-            pool.free.append(stream.row)
+        if pool.streams.pop(stream.id, None) is not None:
+            pool.free.extend(int(r) for r in stream.rows)
         if not pool.streams:  # a skeleton nobody streams any more holds no memory
             self.pools = {k: p for k, p in self.pools.items() if p is not pool}
         for w in list(stream.watchers):
@@ -410,6 +432,7 @@ class StyleServer:
             "type": "ready",
             "stream": stream.name,
             "id": stream.id,
+            "streams": stream.count,
             **private,
             "channels": stream.pool.stylizer.n_channels,
             "fps": stream.pool.stylizer.fps,
@@ -428,8 +451,8 @@ class StyleServer:
             "queue": self.config.queue,
         }
 
-    def _weights(self, stream: Stream) -> dict[str, float]:
-        w = stream.pool.stylizer.stylizer.blend.end[stream.row]
+    def _weights(self, stream: Stream, index: int = 0) -> dict[str, float]:
+        w = stream.pool.stylizer.stylizer.blend.end[stream.rows[index]]
         return {s: round(float(x), 6) for s, x in zip(self.model.config.styles, w) if x}
 
     async def handle(self, ws: ServerConnection) -> None:
@@ -458,11 +481,13 @@ class StyleServer:
                 self._receive(stream, message)
         except ClientError as e:
             log.info("refused %s: %d %s", ws.remote_address, e.code, e)
+            self.refusals[e.code] = self.refusals.get(e.code, 0) + 1
             await _refuse(ws, e.code, str(e))
         except ConnectionClosed:
             pass
         except Exception as e:  # a bug: this connection ends with a message, the others go on
             log.exception("connection %s failed", ws.remote_address)
+            self.refusals[INTERNAL] = self.refusals.get(INTERNAL, 0) + 1
             await _refuse(ws, INTERNAL, f"internal error ({type(e).__name__}); the server goes on")
         finally:
             if stream is not None:
@@ -471,29 +496,27 @@ class StyleServer:
                 sender.cancel()
 
     def _receive(self, stream: Stream, message: bytes | str) -> None:
+        n, count = stream.pool.stylizer.n_channels, stream.count
         if isinstance(message, bytes):
-            n = stream.pool.stylizer.n_channels
-            if len(message) != SEQ.size + 4 * n:
+            if len(message) != SEQ.size + 4 * n * count:
+                each = f"{count} x " if count > 1 else ""
                 raise ClientError(
                     POLICY,
-                    f"a binary frame is 4 + 4 x {n} = {SEQ.size + 4 * n} bytes (sequence number + {n} float32 channel "
-                    f"values), got {len(message)}",
+                    f"a binary frame is 4 + {each}4 x {n} = {SEQ.size + 4 * n * count} bytes (sequence number + "
+                    f"{each}{n} float32 channel values), got {len(message)}",
                 )
-            self._enqueue(stream, SEQ.unpack_from(message)[0], np.frombuffer(message, "<f4", offset=SEQ.size))
+            values = np.frombuffer(message, "<f4", offset=SEQ.size).reshape(count, n)
+            self._enqueue(stream, SEQ.unpack_from(message)[0], values)
             return
         msg = _json(message)
         kind = msg.get("type")
         if kind == "frame":
-            values = msg.get("values")
-            n = stream.pool.stylizer.n_channels
-            if not isinstance(values, list) or len(values) != n or not all(isinstance(v, (int, float)) for v in values):
-                raise ClientError(POLICY, f"a frame's 'values' must be a list of {n} numbers")
-            self._enqueue(stream, _sequence_number(msg.get("seq", stream.frames)), np.asarray(values, np.float64))
+            self._enqueue(stream, _sequence_number(msg.get("seq", stream.frames)), _frame_values(msg, n, count))
         elif kind == "set":
             self._set_target(stream, msg)
         elif kind == "reset":
             stream.pending.clear()
-            stream.pool.stylizer.reset([stream.row])
+            stream.pool.stylizer.reset(stream.rows)
             _offer(stream.outbox, json.dumps({"type": "reset"}))
         elif kind == "stats":
             _offer(stream.outbox, json.dumps(self.stats(stream)))
@@ -503,9 +526,10 @@ class StyleServer:
     def _enqueue(self, stream: Stream, seq: int, values: np.ndarray) -> None:
         if stream.closing:
             return
-        bad = bvh.channel_problem(stream.pool.skeleton, values[None])  # the same check as transfer's
+        bad = bvh.channel_problem(stream.pool.skeleton, values)  # the same check as transfer's
         if bad is not None:
-            raise ClientError(INVALID_DATA, f"frame {seq}: {bad[1]}")
+            member = f" of stream {bad[0]}" if stream.count > 1 else ""
+            raise ClientError(INVALID_DATA, f"frame {seq}{member}: {bad[1]}")
         if len(stream.pending) >= self.config.queue:
             # whose fault: a client ahead of real time, or a server behind it (never the client's)
             ahead = stream.frames - stream.pool.stylizer.fps * (time.perf_counter() - stream.opened)
@@ -528,13 +552,14 @@ class StyleServer:
     def stats(self, asking: Stream | None = None) -> dict:
         """The server's figures; private streams other than the asker's own are not counted (their
         number is nobody else's business)."""
-        streams = sum(1 for s in self.streams.values() if not s.private or s is asking)
+        streams = sum(s.count for s in self.streams.values() if not s.private or s is asking)
         return {
             "type": "stats",
             "streams": streams,
             "frames": self.frames,
             "steps": self.steps,
             "cpu_seconds": time.process_time(),
+            "step_cpu_seconds": self.step_cpu,
             "pools": len(self.pools),
         }
 
@@ -558,6 +583,7 @@ class StyleServer:
                     await asyncio.sleep(wait)
                     continue
                 for pool, streams in work:
+                    cpu = time.process_time()
                     try:
                         self._step(pool, streams)
                     except Exception:  # a bug anywhere in a step ends only that step's streams, never the stepping task
@@ -565,90 +591,104 @@ class StyleServer:
                         for stream in streams:
                             if not stream.closing:
                                 self._fail(stream, INTERNAL, "internal error while stylising this stream")
+                    self.step_cpu += time.process_time() - cpu
                 await asyncio.sleep(0)  # let replies go out and frames come in
 
     def _step(self, pool: Pool, streams: list[Stream]) -> None:
-        rows = np.array([s.row for s in streams])
+        """One frame of each of ``streams`` (each its connection's rows) in one batched step;
+        each connection's reply is one message."""
+        rows = np.concatenate([s.rows for s in streams])
         items = [s.pending.popleft() for s in streams]
-        values = np.stack([v for _, v, _ in items])
+        values = np.concatenate([v for _, v, _ in items])
+        ends = np.cumsum([s.count for s in streams])
+        spans = [slice(int(e) - s.count, int(e)) for s, e in zip(streams, ends)]
         try:
             out = pool.stylizer.step(values, rows)
-        except StyleERDError:  # a frame the stylizer refuses (no state changed): find it, end only its stream
+        except StyleERDError:  # a frame the stylizer refuses (no state changed): find it, end only its connection
             out = np.full_like(values, np.nan)
-            for i, stream in enumerate(streams):
+            for stream, span, (seq, _, _) in zip(streams, spans, items):
                 try:
-                    out[i] = pool.stylizer.step(values[i : i + 1], rows[i : i + 1])[0]
+                    out[span] = pool.stylizer.step(values[span], rows[span])
                 except StyleERDError as e:
-                    self._fail(stream, INVALID_DATA, f"frame {items[i][0]}: {e}")
+                    self._fail(stream, INVALID_DATA, f"frame {seq}: {e}")
         except Exception:  # a bug must not stop every other stream: these streams end, the server goes on
             log.exception("step failed for streams %s", [s.id for s in streams])
             for stream in streams:
                 self._fail(stream, INTERNAL, "internal error while stylising this stream")
             return
         self.steps += 1
-        self.frames += len(streams)
-        bad = ~np.isfinite(out).all(axis=1)
-        for i in np.nonzero(bad)[0]:
-            if not streams[i].closing:
-                self._fail(streams[i], INTERNAL, f"frame {items[i][0]}: the stylised frame is not finite")
-        wants = [i for i, s in enumerate(streams) if (s.positions or s.watchers) and not bad[i]]
-        if wants:
-            seen, seen_fronts = _joint_positions(pool.skeleton, values[wants], pool.stylizer.fps, pool.fronts)
-            made, made_fronts = _joint_positions(pool.skeleton, out[wants], pool.stylizer.fps, pool.fronts)
-            positions = {i: (seen[k], made[k], seen_fronts[k], made_fronts[k]) for k, i in enumerate(wants)}
-        posed = [i for i, s in enumerate(streams) if (s.humanoid or any(w.humanoid for w in s.watchers)) and not bad[i]]
-        humanoid = {}
-        if posed:
+        self.frames += len(rows)
+        finite = np.isfinite(out).all(axis=1)
+        good = [finite[span].all() for span in spans]
+        for stream, ok, (seq, _, _) in zip(streams, good, items):
+            if not ok and not stream.closing:
+                self._fail(stream, INTERNAL, f"frame {seq}: the stylised frame is not finite")
+        wanted = np.zeros(len(rows), bool)  # rows whose joint positions someone wants
+        posed = np.zeros(len(rows), bool)  # and whose humanoid pose
+        for stream, span, ok in zip(streams, spans, good):
+            if ok and (stream.positions or stream.watchers):
+                wanted[span] = True
+            if ok and (stream.humanoid or any(w.humanoid for w in stream.watchers)):
+                posed[span] = True
+        positions = np.zeros((4, len(rows), pool.skeleton.n_joints, 3), np.float32)
+        if wanted.any():
+            seen, seen_fronts = _joint_positions(pool.skeleton, values[wanted], pool.stylizer.fps, pool.fronts)
+            made, made_fronts = _joint_positions(pool.skeleton, out[wanted], pool.stylizer.fps, pool.fronts)
+            positions[:, wanted] = seen, made, seen_fronts, made_fronts
+        humanoid = None
+        if posed.any():
             seen_pose, made_pose = pool.humanoid_pose(values[posed]), pool.humanoid_pose(out[posed])
-            humanoid = {i: (seen_pose[k], made_pose[k]) for k, i in enumerate(posed)}
-        for i, (stream, (seq, _, _)) in enumerate(zip(streams, items)):
-            if bad[i]:
+            humanoid = np.zeros((2, len(rows), seen_pose.shape[1]), "<f4")
+            humanoid[:, posed] = seen_pose, made_pose
+        for stream, span, ok, (seq, _, _) in zip(streams, spans, good, items):
+            if not ok:
                 continue
-            pos = positions.get(i) if wants else None
+            pos = positions[:, span]
             if stream.binary:
-                parts = [SEQ.pack(seq), out[i].astype("<f4").tobytes()]
+                parts = [SEQ.pack(seq), out[span].astype("<f4").tobytes()]
                 if stream.positions:
-                    parts += [p.astype("<f4").tobytes() for p in (pos if stream.fronts else pos[:2])]
+                    parts += [p.tobytes() for p in (pos if stream.fronts else pos[:2])]
                 if stream.humanoid:
-                    parts += [p.tobytes() for p in humanoid[i]]
+                    parts += [h.tobytes() for h in humanoid[:, span]]
                 message = b"".join(parts)
             else:
-                reply = {"type": "frame", "seq": seq, "values": np.round(out[i], 6).tolist()}
-                if (
-                    pool.stylizer.stylizer.pose == "input"
-                ):  # how far the network's own pose was left for the input's (0..1)
-                    reply["unfamiliar"] = round(float(pool.stylizer.stylizer.unfamiliar[stream.row]), 3)
-                if stream.positions:
-                    reply["input_positions"], reply["output_positions"] = (
-                        np.round(pos[0], 4).tolist(),
-                        np.round(pos[1], 4).tolist(),
-                    )
-                    if stream.fronts:
-                        reply["input_fronts"], reply["output_fronts"] = (
-                            np.round(pos[2], 4).tolist(),
-                            np.round(pos[3], 4).tolist(),
-                        )
-                if stream.humanoid:
-                    reply["input_humanoid"], reply["output_humanoid"] = (np.round(h, 5).tolist() for h in humanoid[i])
-                message = json.dumps(reply)
+                message = json.dumps(self._json_reply(stream, seq, out[span], pos, humanoid, span))
             if not _offer(stream.outbox, message):
                 self._fail(
                     stream, POLICY, f"more than {self.config.queue} stylised frames unsent: the client does not read"
                 )
             for w in stream.watchers:
-                posed_bytes = b"".join(p.tobytes() for p in humanoid[i]) if w.humanoid else b""
-                _offer(
-                    w.outbox,
-                    SEQ.pack(seq)
-                    + b"".join(p.astype("<f4").tobytes() for p in (pos if w.fronts else pos[:2]))
-                    + posed_bytes,
-                    drop_oldest=True,
-                )
+                k = span.start + w.index
+                shown = [p[k] for p in (positions if w.fronts else positions[:2])]
+                shown += [h[k] for h in humanoid] if w.humanoid else []
+                _offer(w.outbox, SEQ.pack(seq) + b"".join(a.tobytes() for a in shown), drop_oldest=True)
+
+    def _json_reply(
+        self, stream: Stream, seq: int, out: np.ndarray, pos: np.ndarray, humanoid: np.ndarray | None, span: slice
+    ) -> dict:
+        """A JSON connection's reply to one frame: for one stream, each field as one frame's list;
+        for several, as a list of one per stream."""
+
+        def listed(a: np.ndarray, digits: int) -> list:
+            values = np.round(a, digits).tolist()
+            return values if stream.count > 1 else values[0]
+
+        reply = {"type": "frame", "seq": seq, "values": listed(out, 6)}
+        if stream.pool.stylizer.stylizer.pose == "input":  # how far the network's own pose was left for the input's
+            reply["unfamiliar"] = listed(stream.pool.stylizer.stylizer.unfamiliar[stream.rows], 3)
+        if stream.positions:
+            reply["input_positions"], reply["output_positions"] = listed(pos[0], 4), listed(pos[1], 4)
+            if stream.fronts:
+                reply["input_fronts"], reply["output_fronts"] = listed(pos[2], 4), listed(pos[3], 4)
+        if stream.humanoid:
+            reply["input_humanoid"], reply["output_humanoid"] = (listed(h[span], 5) for h in humanoid)
+        return reply
 
     def _fail(self, stream: Stream, code: int, message: str) -> None:
         """End a stream from the stepping task: its frames stop here, the client is told."""
         stream.closing = True
         stream.pending.clear()
+        self.refusals[code] = self.refusals.get(code, 0) + 1
         asyncio.ensure_future(_refuse(stream.ws, code, message))
 
     # ---- live viewers ----
@@ -658,11 +698,25 @@ class StyleServer:
         # as bytes: compare_digest raises on a str with non-ASCII characters
         if stream.private and not secrets.compare_digest(watcher.token.encode(), stream.token.encode()):
             return False
-        return watcher.name is None or watcher.name == stream.name
+        return watcher.index < stream.count and (watcher.name is None or watcher.name == stream.name)
 
     def _set_target(self, stream: Stream, msg: dict) -> None:
-        stream.pool.stylizer.stylizer.set_target(self._target(msg), [stream.row])
-        reply = json.dumps({"type": "target", "weights": self._weights(stream)})
+        """A ``set``: a new target for the connection's streams, or for those listed in ``streams``
+        (their indices on the connection)."""
+        which = msg.get("streams", list(range(stream.count)))
+        if not (
+            isinstance(which, list)
+            and which
+            and all(isinstance(i, int) and not isinstance(i, bool) and 0 <= i < stream.count for i in which)
+        ):
+            raise ClientError(
+                POLICY, f"a set's 'streams' must be a list of this connection's stream indices, 0 to {stream.count - 1}"
+            )
+        stream.pool.stylizer.stylizer.set_target(self._target(msg), stream.rows[which])
+        reply = {"type": "target", "weights": self._weights(stream, which[0])}
+        if stream.count > 1:
+            reply["streams"] = which
+        reply = json.dumps(reply)
         _offer(stream.outbox, reply)
         for w in stream.watchers:
             _offer(w.outbox, reply, drop_oldest=True)
@@ -679,7 +733,8 @@ class StyleServer:
                     "stream": stream.name,
                     "joints": list(sk.names),
                     "parents": [int(p) for p in sk.parents],
-                    "target": self._weights(stream),
+                    "target": self._weights(stream, watcher.index),
+                    "index": watcher.index,
                     **({"humanoid": stream.pool.humanoid_layout()} if watcher.humanoid else {}),
                 }
             ),
@@ -687,7 +742,7 @@ class StyleServer:
         )
 
     async def _watch(self, ws: ServerConnection, msg: dict) -> None:
-        name, token = msg.get("stream"), msg.get("token", "")
+        name, token, index = msg.get("stream"), msg.get("token", ""), msg.get("index", 0)
         if len(self.watchers) >= self.config.max_watchers:
             raise ClientError(
                 TRY_LATER, f"this server has its {self.config.max_watchers} live viewers; try again later"
@@ -696,6 +751,8 @@ class StyleServer:
             raise ClientError(
                 POLICY, f"'token' must be the text a private stream's 'ready' carried (at most {MAX_TOKEN} characters)"
             )
+        if isinstance(index, bool) or not isinstance(index, int) or not 0 <= index < self.config.max_streams:
+            raise ClientError(POLICY, "'index' is which of a connection's streams to watch: an integer from 0")
         watcher = Watcher(
             ws,
             name if isinstance(name, str) else None,
@@ -703,6 +760,7 @@ class StyleServer:
             fronts=bool(msg.get("fronts", False)),
             token=token,
             humanoid=bool(msg.get("humanoid", False)),
+            index=index,
         )
         self.watchers.add(watcher)
         sender = None
@@ -718,8 +776,8 @@ class StyleServer:
                 msg = _json(message)
                 if msg.get("type") != "set":
                     raise ClientError(POLICY, f"a watcher may send only 'set' messages, got type {msg.get('type')!r}")
-                if watcher.stream is not None:
-                    self._set_target(watcher.stream, msg)
+                if watcher.stream is not None:  # the stream it shows, unless it lists others
+                    self._set_target(watcher.stream, {"streams": [watcher.index], **msg})
         finally:
             self.watchers.discard(watcher)
             if watcher.stream is not None:
@@ -887,6 +945,19 @@ class StyleServer:
 def _response(status: HTTPStatus, body: bytes, kind: str) -> Response:
     headers = Headers([("Content-Type", kind), ("Content-Length", str(len(body))), ("Cache-Control", "no-store")])
     return Response(status.value, status.phrase, headers, body)
+
+
+def _frame_values(msg: dict, n: int, count: int) -> np.ndarray:
+    """A JSON frame's ``values`` as ``[count, n]``: a list of ``n`` numbers, or, for a connection
+    of ``count`` > 1 streams, a list of ``count`` such lists."""
+    values = msg.get("values")
+    rows = values if count > 1 and isinstance(values, list) else [values]
+    if len(rows) != count or not all(
+        isinstance(r, list) and len(r) == n and all(isinstance(v, (int, float)) for v in r) for r in rows
+    ):
+        what = f"a list of {count} lists of {n} numbers (one per stream)" if count > 1 else f"a list of {n} numbers"
+        raise ClientError(POLICY, f"a frame's 'values' must be {what}")
+    return np.asarray(rows, np.float64)
 
 
 def _sequence_number(value) -> int:
