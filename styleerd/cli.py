@@ -6,6 +6,7 @@ import argparse
 import json
 import math
 import os
+import re
 import sys
 from collections.abc import Callable
 from pathlib import Path
@@ -526,6 +527,7 @@ def _serve(args: argparse.Namespace) -> None:
         queue=args.queue,
         backend=args.backend,
         threads=args.threads,
+        server_id=args.id,
         data=args.data,
         max_joints=args.max_joints,
         origins=tuple(args.allow_origin),
@@ -555,6 +557,7 @@ def _stream_bvh(args: argparse.Namespace) -> None:
             args.content,
             not args.fast,
             args.root_speed,
+            args.reconnect,
         )
     )
 
@@ -598,6 +601,13 @@ def _demo(args: argparse.Namespace) -> None:
     from styleerd.eval.demo import run_demo
 
     print(run_demo(Path(args.out), args.data))
+
+
+def _server_id(text: str) -> str:
+    """An argument type: a server's name, as a token's prefix and a metrics label take it."""
+    if not re.fullmatch(r"[A-Za-z0-9_-]{1,40}", text):
+        raise argparse.ArgumentTypeError(f"{text[:60]!r}: a server's name is 1 to 40 letters, digits, '-' or '_'")
+    return text
 
 
 def _whole(low: int):
@@ -834,6 +844,12 @@ def _live_commands(command: Callable[[str, str], argparse.ArgumentParser]) -> No
     p.add_argument("--max-streams", type=_whole(1), default=256, help="open streams per worker")
     p.add_argument("--max-watchers", type=_whole(1), default=64, help="live viewers at once per worker")
     p.add_argument(
+        "--id",
+        type=_server_id,
+        default="",
+        help="this process's name behind a load balancer (deploy/): private tokens start with it, /metrics label it",
+    )
+    p.add_argument(
         "--max-message", type=_whole(1024), default=1 << 20, help="largest message in bytes (larger: closed with 1009)"
     )
     p.add_argument("--queue", type=_whole(1), default=64, help="per stream: frames waiting, and stylised frames unsent")
@@ -876,6 +892,12 @@ def _live_commands(command: Callable[[str, str], argparse.ArgumentParser]) -> No
         "--root-speed",
         action="store_true",
         help="the root's ground speed in the target style too (the hello's root_speed)",
+    )
+    p.add_argument(
+        "--reconnect",
+        action="store_true",
+        help="when the connection is lost or the server goes away, connect again (with backoff: through a balancer, "
+        "to another server) and go on from the first unanswered frame",
     )
     p.add_argument("-o", "--output", help="write the stylised stream as BVH")
     p.set_defaults(func=_stream_bvh)

@@ -4,9 +4,11 @@
 from __future__ import annotations
 
 import asyncio
+import functools
 import json
 import socket
 import struct
+import sys
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -40,6 +42,9 @@ class StreamResult:
     close_code: int | None = None
     output: np.ndarray | None = None  # the stylised channel values, when kept
     max_error: float = 0.0  # largest difference from ``reference`` (float32 on the wire), when given
+    reconnects: int = 0  # connections opened again after one was lost (``play(reconnect=True)``)
+    lost_at: float | None = None  # perf_counter when the first lost connection was noticed
+    reconnected_ms: float | None = None  # from then to the first stylised frame on a new connection
 
 
 def hello(
@@ -72,6 +77,10 @@ def hello(
     return msg
 
 
+RECONNECT_CODES = {1001, 1006, 1011, 1012, 1013}  # going away, lost, a server fault, restart, overloaded: try again
+BACKOFF_S = (0.1, 0.2, 0.5, 1.0, 2.0, 4.0, 8.0)  # waits before each reconnection attempt; then give up
+
+
 async def play(
     url: str,
     motion: Motion,
@@ -80,13 +89,19 @@ async def play(
     keep: bool = False,
     realtime: bool = True,
     reference: np.ndarray | None = None,
+    reconnect: bool = False,
+    say=None,
 ) -> StreamResult:
     """Send the motion's frames (looped until ``seconds`` when given) at its frame rate (or,
     not ``realtime``, as fast as replies come: at most ``IN_FLIGHT`` unanswered), one binary
     message each, and collect the replies; returns what was sent and received, and how far the
     replies are from ``reference`` (the expected output of every frame sent) when given. A hello
     of ``streams`` K > 1 opens K streams on the connection: stream k plays the clip from frame
-    ``PHASE * k``, and every message carries one frame of each (``reference``: ``[T, K, C]``)."""
+    ``PHASE * k``, and every message carries one frame of each (``reference``: ``[T, K, C]``).
+
+    ``reconnect``: a connection lost or closed by a server going away (``RECONNECT_CODES``)
+    is opened again after ``BACKOFF_S`` waits (a balancer sends it to a live process), the hello
+    sent again, and the frames from the first unanswered one sent again; ``say`` is told each time."""
     clip = bvh.channel_values(motion).astype("<f4")
     fps, count = float(hello_msg["fps"]), int(hello_msg.get("streams", 1))
     total = len(clip) if seconds is None else int(round(seconds * fps))
@@ -94,83 +109,118 @@ async def play(
     result = StreamResult()
     sent_at = np.zeros(total)
     kept = np.zeros((total, count, clip.shape[1]), np.float32) if keep else None
-    try:
-        async with connect(url, max_size=1 << 22, open_timeout=20, close_timeout=5, compression=None) as ws:
-            await ws.send(json.dumps(hello_msg))
-            ready = json.loads(await ws.recv())
-            if ready.get("type") != "ready":
-                raise StyleERDError(f"{url}: the server refused the stream: {ready.get('message', ready)}")
-
-            replied = asyncio.Event()
-
-            async def receive() -> None:
-                try:
-                    await receive_replies()
-                except ConnectionClosed as e:
-                    result.close_code = e.rcvd.code if e.rcvd else None
-                finally:
-                    replied.set()  # a sender waiting for replies stops waiting
-
-            async def receive_replies() -> None:
-                expected = 0
-                async for message in ws:
-                    if isinstance(message, str):
-                        reply = json.loads(message)
-                        if reply.get("type") == "error":
-                            result.error, result.error_at = reply["message"], time.perf_counter() - start
-                        continue
-                    seq = SEQ.unpack_from(message)[0]
-                    result.latencies_ms.append((time.perf_counter() - sent_at[seq]) * 1e3)
-                    result.reordered += seq != expected
-                    expected = seq + 1
-                    if kept is not None or reference is not None:
-                        out = np.frombuffer(message, "<f4", count=clip.size // len(clip) * count, offset=SEQ.size)
-                        out = out.reshape(count, -1)
-                        if kept is not None:
-                            kept[seq] = out
-                        if reference is not None:
-                            expect = reference[seq] if count > 1 else reference[seq][None]
-                            result.max_error = max(result.max_error, float(np.abs(out - expect).max()))
-                    result.received += count
-                    replied.set()
-                    if result.received == total * count:
-                        return
-
-            receiver = asyncio.create_task(receive())
-            start = time.perf_counter()
-            for i in range(total):
-                if realtime:
-                    due = start + i / fps
-                    wait = due - time.perf_counter()
-                    if wait > 0:
-                        await asyncio.sleep(wait)
-                    elif wait < -1.0 / fps:
-                        result.late_sends += 1
-                else:
-                    while (
-                        result.sent - result.received
-                        >= count * min(IN_FLIGHT, max(1, ready.get("queue", IN_FLIGHT) // 2))
-                        and not receiver.done()
-                    ):
-                        replied.clear()
-                        await asyncio.wait_for(replied.wait(), 30.0)
-                sent_at[i] = time.perf_counter()
-                await ws.send(SEQ.pack(i) + clip[(i + phases) % len(clip)].tobytes())
-                result.sent += count
-                if receiver.done():
-                    break
-            try:
-                await asyncio.wait_for(receiver, 10.0)
-            except TimeoutError:
-                receiver.cancel()
-    except ConnectionClosed as e:
-        result.close_code = e.rcvd.code if e.rcvd else None
-    except (OSError, InvalidURI, TimeoutError) as e:
-        raise StyleERDError(f"{url}: cannot connect ({e})") from None
+    for attempt in range(len(BACKOFF_S) + 1):
+        try:
+            await _play_once(url, hello_msg, clip, total, phases, realtime, result, sent_at, kept, reference)
+        except ConnectionClosed as e:
+            result.close_code = e.rcvd.code if e.rcvd else 1006
+        except (OSError, InvalidURI, TimeoutError) as e:
+            if not reconnect or isinstance(e, InvalidURI) or attempt == len(BACKOFF_S):
+                raise StyleERDError(f"{url}: cannot connect ({e})") from None
+            result.close_code = 1006
+        done = result.received >= total * count
+        if done or not reconnect or result.close_code not in RECONNECT_CODES or attempt == len(BACKOFF_S):
+            break
+        result.lost_at = result.lost_at or time.perf_counter()
+        result.error = None  # the going-away message of a server that ended: this stream goes on
+        if say is not None:
+            say(
+                f"{url}: the connection was lost (code {result.close_code}) after {result.received // count} frames; "
+                f"reconnecting in {BACKOFF_S[attempt]:g} s"
+            )
+        await asyncio.sleep(BACKOFF_S[attempt])
+        result.reconnects += 1
     if kept is not None:
         result.output = kept[: result.received // count].astype(np.float64)
         result.output = result.output if count > 1 else result.output[:, 0]
     return result
+
+
+async def _play_once(
+    url: str,
+    hello_msg: dict,
+    clip: np.ndarray,
+    total: int,
+    phases: np.ndarray,
+    realtime: bool,
+    result: StreamResult,
+    sent_at: np.ndarray,
+    kept: np.ndarray | None,
+    reference: np.ndarray | None,
+) -> None:
+    """One connection of ``play``: from the first frame without a reply to the last."""
+    fps, count = float(hello_msg["fps"]), len(phases)
+    first = result.received // count
+    result.sent = result.received  # frames sent and never answered are sent again
+    async with connect(url, max_size=1 << 22, open_timeout=20, close_timeout=5, compression=None) as ws:
+        await ws.send(json.dumps(hello_msg))
+        ready = json.loads(await ws.recv())
+        if ready.get("type") != "ready":
+            raise StyleERDError(f"{url}: the server refused the stream: {ready.get('message', ready)}")
+        replied = asyncio.Event()
+
+        async def receive() -> None:
+            try:
+                await receive_replies()
+            finally:
+                replied.set()  # a sender waiting for replies stops waiting
+
+        async def receive_replies() -> None:
+            expected = first
+            async for message in ws:
+                if isinstance(message, str):
+                    reply = json.loads(message)
+                    if reply.get("type") == "error":
+                        result.error, result.error_at = reply["message"], time.perf_counter() - start
+                    continue
+                seq = SEQ.unpack_from(message)[0]
+                now = time.perf_counter()
+                result.latencies_ms.append((now - sent_at[seq]) * 1e3)
+                if result.lost_at is not None and result.reconnected_ms is None:
+                    result.reconnected_ms = (now - result.lost_at) * 1e3
+                result.reordered += seq != expected
+                expected = seq + 1
+                if kept is not None or reference is not None:
+                    out = np.frombuffer(message, "<f4", count=clip.shape[1] * count, offset=SEQ.size)
+                    out = out.reshape(count, -1)
+                    if kept is not None:
+                        kept[seq] = out
+                    if reference is not None:
+                        expect = reference[seq] if count > 1 else reference[seq][None]
+                        result.max_error = max(result.max_error, float(np.abs(out - expect).max()))
+                result.received += count
+                replied.set()
+                if result.received == total * count:
+                    return
+
+        receiver = asyncio.create_task(receive())
+        receiver.add_done_callback(lambda t: t.cancelled() or t.exception())  # raised again below, or moot
+        start = time.perf_counter() - first / fps
+        for i in range(first, total):
+            if realtime:
+                due = start + i / fps
+                wait = due - time.perf_counter()
+                if wait > 0:
+                    await asyncio.sleep(wait)
+                elif wait < -1.0 / fps:
+                    result.late_sends += 1
+            else:
+                while (
+                    result.sent - result.received >= count * min(IN_FLIGHT, max(1, ready.get("queue", IN_FLIGHT) // 2))
+                    and not receiver.done()
+                ):
+                    replied.clear()
+                    await asyncio.wait_for(replied.wait(), 30.0)
+            if receiver.done():
+                break
+            sent_at[i] = time.perf_counter()
+            await ws.send(SEQ.pack(i) + clip[(i + phases) % len(clip)].tobytes())
+            result.sent += count
+        try:
+            await asyncio.wait_for(asyncio.shield(receiver), 10.0)
+        except TimeoutError:
+            receiver.cancel()
+        receiver.result()  # a lost connection raises here
 
 
 def stream_bvh(
@@ -184,16 +234,21 @@ def stream_bvh(
     content: str | None = None,
     realtime: bool = True,
     root_speed: bool = False,
+    reconnect: bool = False,
 ) -> str:
     """``styleerd stream-bvh``: play a BVH file to the server in real time; optionally write
-    the stylised stream as a BVH. Returns a summary."""
+    the stylised stream as a BVH; with ``reconnect``, a lost connection is opened again (said
+    on stderr). Returns a summary."""
     motion = bvh.read(path)
     if motion.n_frames == 0:
         raise StyleERDError(f"{path}: the motion has no frames")
     msg = hello(motion, motion.fps, style, intensity, mix, Path(path).stem, input_style, content)
     if root_speed:
         msg["root_speed"] = True
-    result = asyncio.run(play(url, motion, msg, keep=output is not None, realtime=realtime))
+    say = functools.partial(print, file=sys.stderr, flush=True)
+    result = asyncio.run(
+        play(url, motion, msg, keep=output is not None, realtime=realtime, reconnect=reconnect, say=say)
+    )
     if result.error:
         raise StyleERDError(f"the server closed the stream: {result.error}")
     if output is not None and result.received == motion.n_frames:
@@ -204,6 +259,12 @@ def stream_bvh(
         f"{path}: sent {result.sent} frames at {motion.fps:g} fps, received {result.received}, reordered "
         f"{result.reordered}; "
         f"latency p50 {np.percentile(lat, 50):.2f} ms, p99 {np.percentile(lat, 99):.2f} ms"
+        + (
+            f"; reconnected {result.reconnects} time(s), the first stylised frame {result.reconnected_ms:.0f} ms "
+            "after the connection was lost"
+            if result.reconnects and result.reconnected_ms is not None
+            else ""
+        )
         + (f"; wrote {output}" if output else "")
     )
 

@@ -100,6 +100,7 @@ class ServeConfig:
     origins: tuple[str, ...] = ()  # browser origins allowed besides the server's own ("*": any)
     hosts: tuple[str, ...] = ()  # host names answered besides the bound address and, on loopback, localhost
     model: str | None = None  # a model file or name (default: the shipped model)
+    server_id: str = ""  # this process's name behind a balancer: private tokens start "ID.", so watchers reach it
 
 
 class ClientError(Exception):
@@ -268,6 +269,9 @@ class StyleServer:
         self.due = asyncio.Event()
         self.setup = asyncio.Lock()  # one hello set up at a time, off the event loop
         self.host_names = _host_names(config.host, config.hosts)
+        self.token_prefix = f"{config.server_id}." if config.server_id else ""
+        self.started = time.time()
+        self.rate_mark = (time.perf_counter(), 0)  # (when, frames): the frames/s of /metrics since the last look
         self.steps = 0
         self.frames = 0
         self.step_cpu = 0.0  # CPU seconds (every thread) spent in batched steps: the engine's share of the server's
@@ -356,7 +360,7 @@ class StyleServer:
             asyncio.Queue(self.config.queue),
             bool(msg.get("fronts", False)),
             private=bool(msg.get("private", False)),
-            token=secrets.token_urlsafe(16),
+            token=self.token_prefix + secrets.token_urlsafe(16),
             humanoid=bool(msg.get("humanoid", False)),
         )
         pool.streams[stream.id] = stream
@@ -433,6 +437,7 @@ class StyleServer:
             "stream": stream.name,
             "id": stream.id,
             "streams": stream.count,
+            **({"server": self.config.server_id} if self.config.server_id else {}),
             **private,
             "channels": stream.pool.stylizer.n_channels,
             "fps": stream.pool.stylizer.fps,
@@ -562,6 +567,50 @@ class StyleServer:
             "step_cpu_seconds": self.step_cpu,
             "pools": len(self.pools),
         }
+
+    def metrics(self) -> str:
+        """The Prometheus text exposition of this process's figures."""
+        now = time.perf_counter()
+        then, frames_then = self.rate_mark
+        self.rate_mark = (now, self.frames)
+        label = f'{{server="{self.config.server_id}"}}' if self.config.server_id else ""
+        rows = [
+            ("streams", "gauge", "open streams (every stream of a connection counts)", self._open_rows()),
+            ("connections", "gauge", "open stream connections", len(self.streams)),
+            ("watchers", "gauge", "live viewers", len(self.watchers)),
+            ("pools", "gauge", "pools (skeleton and settings) being stepped", len(self.pools)),
+            (
+                "queue_depth",
+                "gauge",
+                "frames waiting to be stylised",
+                sum(len(s.pending) for s in self.streams.values()),
+            ),
+            ("frames_total", "counter", "frames stylised", self.frames),
+            ("steps_total", "counter", "batched steps", self.steps),
+            (
+                "frames_per_second",
+                "gauge",
+                "frames stylised a second since the last scrape",
+                (self.frames - frames_then) / max(now - then, 1e-9),
+            ),
+            ("step_cpu_seconds_total", "counter", "CPU seconds in batched steps (the engine)", self.step_cpu),
+            ("cpu_seconds_total", "counter", "CPU seconds of the process", time.process_time()),
+            ("uptime_seconds", "gauge", "seconds since the process started serving", time.time() - self.started),
+        ]
+        lines = []
+        for name, kind, text, value in rows:
+            lines += [
+                f"# HELP styleerd_{name} {text}",
+                f"# TYPE styleerd_{name} {kind}",
+                f"styleerd_{name}{label} {value!r}",
+            ]
+        lines += [
+            "# HELP styleerd_refusals_total connections refused or ended, by close code",
+            "# TYPE styleerd_refusals_total counter",
+        ]
+        server = f'server="{self.config.server_id}",' if self.config.server_id else ""
+        lines += [f'styleerd_refusals_total{{{server}code="{code}"}} {n}' for code, n in sorted(self.refusals.items())]
+        return "\n".join(lines) + "\n"
 
     # ---- stepping ----
 
@@ -921,6 +970,14 @@ class StyleServer:
             text = self.clips.bvh_text(path[len("/clips/") :])
             if text is not None:
                 return _response(HTTPStatus.OK, text.encode(), "text/plain; charset=utf-8")
+        elif path == "/healthz":  # a balancer's check: 503 when full, so new streams go to another process
+            full = self._open_rows() >= self.config.max_streams
+            body = {"status": "full" if full else "ok", "server": self.config.server_id, "streams": self._open_rows()}
+            return _response(
+                HTTPStatus.SERVICE_UNAVAILABLE if full else HTTPStatus.OK, json.dumps(body).encode(), "application/json"
+            )
+        elif path == "/metrics":
+            return _response(HTTPStatus.OK, self.metrics().encode(), "text/plain; version=0.0.4; charset=utf-8")
         elif path == "/streams":
             body = [{"stream": s.name, "frames": s.frames} for s in self.streams.values() if not s.private]
             return _response(HTTPStatus.OK, json.dumps(body).encode(), "application/json")

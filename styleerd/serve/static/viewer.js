@@ -118,10 +118,23 @@ function buildFigures(parents, firstPositions) {
 
 // ---- files the server reads for the page: a glTF motion into BVH text, a GLB avatar into its humanoid ----
 const PIECE = 1 << 19; // bytes a message: under the server's message limit (1 MiB)
+// the page's own query goes with every socket: a load balancer routes a watcher by its token or server
+// (deploy/haproxy.cfg); wss behind a TLS proxy
+const socketUrl = () => `${location.protocol === "https:" ? "wss" : "ws"}://${location.host}/${location.search}`;
+const pageQuery = new URLSearchParams(location.search);
+
+/** What the page's address asks to watch: ?stream=NAME&token=TOKEN&index=K (each optional). */
+function watchTarget() {
+  const target = {};
+  if (pageQuery.get("stream")) target.stream = pageQuery.get("stream");
+  if (pageQuery.get("token")) target.token = pageQuery.get("token");
+  if (pageQuery.get("index")) target.index = Number(pageQuery.get("index"));
+  return target;
+}
 
 function upload(file, purpose) {
   return new Promise((resolve, reject) => {
-    const sock = new WebSocket(`ws://${location.host}/`);
+    const sock = new WebSocket(socketUrl());
     sock.binaryType = "arraybuffer";
     sock.onopen = async () => {
       const bytes = new Uint8Array(await file.arrayBuffer());
@@ -304,7 +317,7 @@ function connect(hello, onReady) {
   clearInterval(timer);
   viewer.ready = false;
   fail("");
-  ws = new WebSocket(`ws://${location.host}/`);
+  ws = new WebSocket(socketUrl());
   ws.binaryType = "arraybuffer";
   ws.onopen = () => ws.send(JSON.stringify(hello));
   ws.onclose = (e) => { viewer.ready = false; setStatus(`closed (${e.code}${e.reason ? ": " + e.reason : ""})`); };
@@ -385,7 +398,7 @@ function watchLive() {
   ui.live.classList.add("on");
   figures?.forEach((f) => f.dispose());
   figures = null; follow = null;
-  connect({ type: "watch", fronts: true, humanoid: !!avatars }, (msg) => {
+  connect({ type: "watch", fronts: true, humanoid: !!avatars, ...watchTarget() }, (msg) => {
     if (msg.type === "waiting") { viewer.ready = true; viewer.stream = null; setStatus(msg.streams.length ? "live: attaching…" : "live: waiting for a stream (styleerd stream-bvh FILE)"); }
     if (msg.type === "watching") {
       joints = msg.joints.length; viewer.parents = msg.parents; viewer.stream = msg.stream; viewer.target = msg.target;
@@ -453,6 +466,7 @@ async function main() {
   for (const el of [ui.mix, ui.intensity]) el.oninput = sendTarget;
   ui.play.onclick = () => { playing = !playing; ui.play.textContent = playing ? "pause" : "play"; };
   ui.scrub.oninput = () => { if (viewer.mode === "clip" && viewer.ready) seek(parseInt(ui.scrub.value, 10)); };
-  if (names.length) loadClip(names[0]);
+  if (pageQuery.get("stream") || pageQuery.get("token")) watchLive(); // a link to a live stream
+  else if (names.length) loadClip(names[0]);
 }
 main().catch((e) => fail(String(e.message || e)));
