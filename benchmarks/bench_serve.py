@@ -1,31 +1,62 @@
-"""The style server under load: N real-time clients (30 fps) on loopback for T seconds.
+"""The style server under load, its protocols side by side in one run: the same real-time
+clients (30 fps, loopback) against a fresh server for each row.
 
-    python benchmarks/bench_serve.py [--clients 200] [--seconds 60] [--workers 1] [-o docs/load-test.json]
-    python benchmarks/bench_serve.py --clients 200 --seconds 600 --faulty 20 -o docs/soak.json   # the soak test
+    python benchmarks/bench_serve.py [--seconds 20] [-o docs/protocol-bench.json]
 
-Starts ``styleerd serve`` in its own process, runs the clients in this one (the same
-``play`` loop as ``styleerd stream-bvh``), prints frame latency p50/p99, dropped and reordered
-frames, every reply's difference from a local run, the server's CPU use and memory. With
-``--faulty``, that many more clients misbehave in turn meanwhile (malformed frames, slow
-readers, vanishing mid-stream, bad hellos). CI runs it at a reduced size (tests/test_server.py).
+Rows: 200 single-stream connections (the protocol as it was, on asyncio's event loop, and on
+uvloop); the same 200 streams on 2 connections of 100 (a hello's ``streams``); 1,000 streams on
+10 connections (the numba backend, labels given: no labeller). Each row prints the server's CPU
+a frame, split into the engine (its batched steps) and the protocol (everything else), latency
+p50/p99/max, and frames dropped, reordered or changed (every reply against a local run). The
+load generator shares the machine's cores with the server. ``styleerd load-test`` runs one row
+(and the soak test, ``--faulty``); CI runs a reduced size (tests/test_server.py, test_crowd.py).
 """
 
 from __future__ import annotations
 
 import argparse
+import json
 
+from styleerd.atomic import atomic_write_text
+from styleerd.runtime.system import system_report
 from styleerd.serve.loadtest import run_load_test
+
+ROWS = [  # (name, connections, streams each, labels given, server options)
+    ("200 x 1 stream, asyncio loop", 200, 1, False, ("--loop", "asyncio")),
+    ("200 x 1 stream, uvloop", 200, 1, False, ("--loop", "uvloop")),
+    ("2 x 100 streams, uvloop", 2, 100, False, ("--loop", "uvloop")),
+    ("10 x 100 streams, numba, labels given", 10, 100, True, ("--loop", "uvloop", "--backend", "numba")),
+]
 
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--clients", type=int, default=200)
-    ap.add_argument("--seconds", type=float, default=60.0)
-    ap.add_argument("--workers", type=int, default=1)
-    ap.add_argument("--faulty", type=int, default=0)
-    ap.add_argument("-o", "--output", default="docs/load-test.json")
+    ap.add_argument("--seconds", type=float, default=20.0)
+    ap.add_argument("-o", "--output", default="docs/protocol-bench.json")
     args = ap.parse_args()
-    print(run_load_test(args.clients, args.seconds, args.workers, args.output, args.faulty))
+    rows = []
+    for name, clients, each, labels, server in ROWS:
+        summary, figures = run_load_test(
+            clients, args.seconds, streams_per_client=each, labels=labels, server_args=server
+        )
+        print(f"## {name}\n{summary}\n", flush=True)
+        rows.append({"row": name, "server_args": list(server), **figures})
+    print(
+        "| load | server CPU a frame (us) | engine | protocol | latency p50 / p99 / max (ms) | dropped | reordered "
+        "| largest difference from a local run (deg) |"
+    )
+    print("| --- | --- | --- | --- | --- | --- | --- | --- |")
+    for r in rows:
+        print(
+            f"| {r['row']} | {r['server_cpu_us_per_frame']:.1f} | {r['engine_cpu_us_per_frame']:.1f} | "
+            f"{r['server_cpu_us_per_frame'] - r['engine_cpu_us_per_frame']:.1f} | {r['latency_ms_p50']:.0f} / "
+            f"{r['latency_ms_p99']:.0f} / {r['latency_ms_max']:.0f} | {r['dropped']} | {r['reordered']} | "
+            f"{r['max_error_deg']:.2g} |"
+        )
+    atomic_write_text(
+        args.output, json.dumps({"system": system_report(), "seconds": args.seconds, "rows": rows}, indent=1)
+    )
+    print(f"wrote {args.output}")
 
 
 if __name__ == "__main__":

@@ -527,7 +527,8 @@ def _serve(args: argparse.Namespace) -> None:
         queue=args.queue,
         backend=args.backend,
         threads=args.threads,
-        server_id=args.id,
+        server_id=args.id or "",
+        loop=args.loop,
         data=args.data,
         max_joints=args.max_joints,
         origins=tuple(args.allow_origin),
@@ -565,19 +566,12 @@ def _stream_bvh(args: argparse.Namespace) -> None:
 def _load_test(args: argparse.Namespace) -> None:
     from styleerd.serve.loadtest import run_load_test
 
-    print(
-        run_load_test(
-            args.clients,
-            args.seconds,
-            args.workers,
-            args.output,
-            args.faulty,
-            args.streams_per_client,
-            args.backend,
-            args.labels,
-            args.threads,
-        )
+    server = ("--workers", str(args.workers), "--backend", args.backend, "--threads", str(args.threads))
+    server += ("--loop", args.loop)
+    summary, _ = run_load_test(
+        args.clients, args.seconds, args.output, args.faulty, args.streams_per_client, args.labels, server
     )
+    print(summary)
 
 
 def _vmc(args: argparse.Namespace) -> None:
@@ -844,9 +838,14 @@ def _live_commands(command: Callable[[str, str], argparse.ArgumentParser]) -> No
     p.add_argument("--max-streams", type=_whole(1), default=256, help="open streams per worker")
     p.add_argument("--max-watchers", type=_whole(1), default=64, help="live viewers at once per worker")
     p.add_argument(
+        "--loop",
+        choices=["auto", "uvloop", "asyncio"],
+        default="auto",
+        help="the event loop: uvloop where installed (auto), or asyncio's own",
+    )
+    p.add_argument(
         "--id",
         type=_server_id,
-        default="",
         help="this process's name behind a load balancer (deploy/): private tokens start with it, /metrics label it",
     )
     p.add_argument(
@@ -938,6 +937,7 @@ def _live_commands(command: Callable[[str, str], argparse.ArgumentParser]) -> No
     p.add_argument("--workers", type=_whole(1), default=1, help="server workers")
     p.add_argument("--backend", choices=["numpy", "numba", "onnx"], default="numpy", help="the server's backend")
     p.add_argument("--threads", type=_whole(1), default=1, help="the server's threads per batched step")
+    p.add_argument("--loop", choices=["auto", "uvloop", "asyncio"], default="auto", help="the server's event loop")
     p.add_argument(
         "--labels",
         action="store_true",

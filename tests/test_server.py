@@ -464,7 +464,7 @@ def test_soak_reduced_size(tmp_path):
     docs/soak.json): well-behaved clients lose nothing and get what a local run gives, while
     faulty ones (malformed frames, slow readers, vanishing, bad hellos) are each closed with
     the right code and leave no stream behind."""
-    report = run_load_test(clients=20, seconds=12.0, output=str(tmp_path / "soak.json"), faulty=6)
+    report, _ = run_load_test(clients=20, seconds=12.0, output=str(tmp_path / "soak.json"), faulty=6)
     f = json.loads((tmp_path / "soak.json").read_text())
     assert f["dropped"] == 0 and f["reordered"] == 0 and not f["errors"] and f["frames_received"] == 20 * 360, report
     assert f["max_error_deg"] < 1e-2, report  # float32 on the wire

@@ -54,10 +54,17 @@ FIRST_FRAMES = 10
 
 @torch.no_grad()
 def responsiveness(
-    model: StyleERD, s: Setup, style_rec, fmd: MotionAutoencoder, window: int = 24, split: str = "test"
+    model: StyleERD,
+    s: Setup,
+    style_rec,
+    fmd: MotionAutoencoder,
+    window: int = 24,
+    split: str = "test",
+    start: int = 0,
 ) -> dict:
-    """Each clip of ``split`` streamed from its first frame into its transfer target(s): SRA and FMD
-    of the first ``FIRST_FRAMES`` output frames and of the 24-frame windows after them."""
+    """Each clip of ``split`` streamed from its first frame (or from frame ``start``: a stream
+    opened mid-motion, as after a reconnection) into its transfer target(s): SRA and FMD of the
+    first ``FIRST_FRAMES`` output frames and of the 24-frame windows after them."""
     model.eval()
     data, fs = s.data, s.fs
     reference = torch.as_tensor(data.stats.reference, dtype=torch.float32)
@@ -66,6 +73,7 @@ def responsiveness(
     hit_first = hit_rest = 0
     for c in fs.clips(split):
         sl = fs.frames(c)
+        sl = slice(sl.start + start, sl.stop)
         if sl.stop - sl.start < FIRST_FRAMES + window:
             continue
         st, ct = data.styles.index(fs.styles[c]), data.contents.index(fs.contents[c])

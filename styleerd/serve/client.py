@@ -16,7 +16,7 @@ from urllib.parse import urlsplit
 
 import numpy as np
 from websockets.asyncio.client import connect
-from websockets.exceptions import ConnectionClosed, InvalidURI
+from websockets.exceptions import ConnectionClosed, InvalidStatus, InvalidURI
 
 from styleerd.errors import StyleERDError
 from styleerd.motion import bvh
@@ -45,6 +45,7 @@ class StreamResult:
     reconnects: int = 0  # connections opened again after one was lost (``play(reconnect=True)``)
     lost_at: float | None = None  # perf_counter when the first lost connection was noticed
     reconnected_ms: float | None = None  # from then to the first stylised frame on a new connection
+    resent: int = 0  # frames sent, never answered on a lost connection, and sent again on the next
 
 
 def hello(
@@ -114,8 +115,14 @@ async def play(
             await _play_once(url, hello_msg, clip, total, phases, realtime, result, sent_at, kept, reference)
         except ConnectionClosed as e:
             result.close_code = e.rcvd.code if e.rcvd else 1006
-        except (OSError, InvalidURI, TimeoutError) as e:
-            if not reconnect or isinstance(e, InvalidURI) or attempt == len(BACKOFF_S):
+        except (OSError, InvalidURI, InvalidStatus, TimeoutError) as e:
+            # a balancer with no live process behind it yet answers 502-504: worth another try
+            unavailable = isinstance(e, InvalidStatus) and e.response.status_code in (502, 503, 504)
+            if (
+                not reconnect
+                or not (unavailable or isinstance(e, (OSError, TimeoutError)))
+                or attempt == len(BACKOFF_S)
+            ):
                 raise StyleERDError(f"{url}: cannot connect ({e})") from None
             result.close_code = 1006
         done = result.received >= total * count
@@ -151,6 +158,7 @@ async def _play_once(
     """One connection of ``play``: from the first frame without a reply to the last."""
     fps, count = float(hello_msg["fps"]), len(phases)
     first = result.received // count
+    result.resent += result.sent - result.received
     result.sent = result.received  # frames sent and never answered are sent again
     async with connect(url, max_size=1 << 22, open_timeout=20, close_timeout=5, compression=None) as ws:
         await ws.send(json.dumps(hello_msg))

@@ -107,32 +107,22 @@ def expected_output(
 def run_load_test(
     clients: int,
     seconds: float,
-    workers: int = 1,
     output: str | None = None,
     faulty: int = 0,
     streams_per_client: int = 1,
-    backend: str = "numpy",
     labels: bool = False,
-    threads: int = 1,
-) -> str:
+    server_args: tuple[str, ...] = (),
+) -> tuple[str, dict]:
     """The load test (and, with ``faulty``, the soak test): every well-behaved client's replies
     are compared with a local run of the same clip. ``labels``: the hellos give the clip's
-    input style and content (a neutral walk), so the server runs no labeller."""
+    input style and content (a neutral walk), so the server runs no labeller. ``server_args``:
+    ``styleerd serve``'s options (``--workers 2``, ``--backend numba``...). -> (a summary, the figures)."""
     motion = walk(10.0, fps=30.0)
     reference = expected_output(motion, int(round(seconds * 30.0)), streams=streams_per_client, labels=labels)
     port = free_port()
     room = clients * streams_per_client + faulty + 8
-    server = start_server(
-        port,
-        "--workers",
-        str(workers),
-        "--max-streams",
-        str(max(256, room)),
-        "--backend",
-        backend,
-        "--threads",
-        str(threads),
-    )
+    server = start_server(port, "--max-streams", str(max(256, room)), *server_args)
+    workers = int(server_args[server_args.index("--workers") + 1]) if "--workers" in server_args else 1
     rss: list[float] = []  # the server's memory every 5 s (one worker)
     stop = threading.Event()
 
@@ -172,7 +162,7 @@ def run_load_test(
     lines = [
         (
             f"{clients} clients{each} x {seconds:g} s at {figures['fps']:g} fps on loopback ({workers} server "
-            f"worker(s), {backend} backend, {threads} thread(s){', labels given' if labels else ''})"
+            f"worker(s){', ' + ' '.join(server_args) if server_args else ''}{', labels given' if labels else ''})"
         ),
         (
             f"frames sent {figures['frames_sent']}, received {figures['frames_received']}, dropped "
@@ -198,4 +188,4 @@ def run_load_test(
             f"{faulty} faulty clients, {figures['faulty_episodes']} episodes: "
             f"{json.dumps(figures['faulty_outcomes'])}; streams left open {figures['streams_left']}"
         )
-    return "\n".join(lines)
+    return "\n".join(lines), figures
