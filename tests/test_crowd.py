@@ -3,6 +3,8 @@ each stream's output equal to a local stream of its own, steered one by one, wat
 one, and every bad message refused with what is wrong."""
 
 import json
+import urllib.error
+import urllib.request
 
 import numpy as np
 import pytest
@@ -126,3 +128,34 @@ def test_a_crowd_counts_every_stream_against_the_servers_room(server, clip):
     code, texts = closed_with(ws)
     assert code == 1013 and "the server is full" in texts[-1]["message"]
     first.close()
+
+
+@pytest.mark.parametrize("index", [-1, True, "2", 1.5, 10**9])
+def test_a_watch_with_a_bad_index_is_refused(server, index):
+    ws = connect(server, open_timeout=20, legacy=True)
+    ws.send(json.dumps({"type": "watch", "stream": "crowd", "index": index}))
+    code, texts = closed_with(ws)
+    assert code == 1008 and "'index' is which of a connection's streams to watch" in texts[-1]["message"]
+
+
+def test_healthz_and_metrics_count_a_crowds_streams(server, clip):
+    from prometheus_client.parser import text_string_to_metric_families
+
+    m, _ = clip
+    port = server.rsplit(":", 1)[1].strip("/")
+    ws, _ = open_stream(server, m, streams=3)
+    with urllib.request.urlopen(f"http://127.0.0.1:{port}/healthz", timeout=10) as r:
+        assert r.status == 200 and json.loads(r.read()) == {"status": "ok", "server": "", "streams": 3}
+    with urllib.request.urlopen(f"http://127.0.0.1:{port}/metrics", timeout=10) as r:
+        assert r.headers["Content-Type"].startswith("text/plain; version=0.0.4")
+        samples = {s.name: s.value for f in text_string_to_metric_families(r.read().decode()) for s in f.samples}
+    assert samples["styleerd_streams"] == 3 and samples["styleerd_connections"] == 1, samples
+    assert samples["styleerd_uptime_seconds"] > 0 and samples["styleerd_frames_total"] >= 0, samples
+    full, _ = open_stream(server, m, streams=MAX_STREAMS - 3)
+    try:
+        urllib.request.urlopen(f"http://127.0.0.1:{port}/healthz", timeout=10)
+        raise AssertionError("a full server answered 200")
+    except urllib.error.HTTPError as e:
+        assert e.code == 503 and json.loads(e.read())["status"] == "full"
+    full.close()
+    ws.close()
