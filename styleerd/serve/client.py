@@ -102,7 +102,8 @@ async def play(
 
     ``reconnect``: a connection lost or closed by a server going away (``RECONNECT_CODES``)
     is opened again after ``BACKOFF_S`` waits (a balancer sends it to a live process), the hello
-    sent again, and the frames from the first unanswered one sent again; ``say`` is told each time."""
+    sent again, and the frames from the first unanswered one sent again; ``say`` is told each time.
+    It gives up after ``len(BACKOFF_S)`` attempts in a row that brought no reply."""
     clip = bvh.channel_values(motion).astype("<f4")
     fps, count = float(hello_msg["fps"]), int(hello_msg.get("streams", 1))
     total = len(clip) if seconds is None else int(round(seconds * fps))
@@ -110,7 +111,9 @@ async def play(
     result = StreamResult()
     sent_at = np.zeros(total)
     kept = np.zeros((total, count, clip.shape[1]), np.float32) if keep else None
-    for attempt in range(len(BACKOFF_S) + 1):
+    failures = 0  # connections in a row that gave no reply
+    while True:
+        before, refused = result.received, None
         try:
             await _play_once(url, hello_msg, clip, total, phases, realtime, result, sent_at, kept, reference)
         except ConnectionClosed as e:
@@ -118,24 +121,27 @@ async def play(
         except (OSError, InvalidURI, InvalidStatus, TimeoutError) as e:
             # a balancer with no live process behind it yet answers 502-504: worth another try
             unavailable = isinstance(e, InvalidStatus) and e.response.status_code in (502, 503, 504)
-            if (
-                not reconnect
-                or not (unavailable or isinstance(e, (OSError, TimeoutError)))
-                or attempt == len(BACKOFF_S)
-            ):
+            if not reconnect or not (unavailable or isinstance(e, (OSError, TimeoutError))):
                 raise StyleERDError(f"{url}: cannot connect ({e})") from None
-            result.close_code = 1006
-        done = result.received >= total * count
-        if done or not reconnect or result.close_code not in RECONNECT_CODES or attempt == len(BACKOFF_S):
+            result.close_code, refused = 1006, e
+        failures = 0 if result.received > before else failures + 1
+        if failures == len(BACKOFF_S) and refused is not None:
+            raise StyleERDError(f"{url}: cannot connect ({refused}); gave up after {failures} attempts")
+        if (
+            result.received >= total * count
+            or not reconnect
+            or result.close_code not in RECONNECT_CODES
+            or failures == len(BACKOFF_S)
+        ):
             break
         result.lost_at = result.lost_at or time.perf_counter()
         result.error = None  # the going-away message of a server that ended: this stream goes on
         if say is not None:
             say(
                 f"{url}: the connection was lost (code {result.close_code}) after {result.received // count} frames; "
-                f"reconnecting in {BACKOFF_S[attempt]:g} s"
+                f"reconnecting in {BACKOFF_S[failures]:g} s"
             )
-        await asyncio.sleep(BACKOFF_S[attempt])
+        await asyncio.sleep(BACKOFF_S[failures])
         result.reconnects += 1
     if kept is not None:
         result.output = kept[: result.received // count].astype(np.float64)

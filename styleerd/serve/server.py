@@ -278,6 +278,15 @@ class StyleServer:
         self.step_cpu = 0.0  # CPU seconds (every thread) spent in batched steps: the engine's share of the server's
         self.refusals: dict[int, int] = {}  # close code -> connections refused or ended with it
 
+    def warm_up(self) -> None:
+        """One stream of the model's skeleton stepped twice: the first step in a process loads
+        the compiled kernels and the labeller (about 0.2 s), which would otherwise stall the
+        first client's frames and everyone else's with them."""
+        pool = self._pool(None, 30.0, True, {}, False, "input")
+        frame = np.zeros((1, pool.stylizer.n_channels))
+        for _ in range(2):
+            pool.stylizer.step(frame, np.array([0]))
+
     # ---- the handshake and the per-connection loop ----
 
     def _target(self, msg: dict) -> dict[str, float]:
@@ -680,12 +689,12 @@ class StyleServer:
                 wanted[span] = True
             if ok and (stream.humanoid or any(w.humanoid for w in stream.watchers)):
                 posed[span] = True
-        positions = np.zeros((4, len(rows), pool.skeleton.n_joints, 3), np.float32)
+        positions = humanoid = None  # [4 or 2, rows, ...] for the rows that want them
         if wanted.any():
+            positions = np.zeros((4, len(rows), pool.skeleton.n_joints, 3), np.float32)
             seen, seen_fronts = _joint_positions(pool.skeleton, values[wanted], pool.stylizer.fps, pool.fronts)
             made, made_fronts = _joint_positions(pool.skeleton, out[wanted], pool.stylizer.fps, pool.fronts)
             positions[:, wanted] = seen, made, seen_fronts, made_fronts
-        humanoid = None
         if posed.any():
             seen_pose, made_pose = pool.humanoid_pose(values[posed]), pool.humanoid_pose(out[posed])
             humanoid = np.zeros((2, len(rows), seen_pose.shape[1]), "<f4")
@@ -693,16 +702,17 @@ class StyleServer:
         for stream, span, ok, (seq, _, _) in zip(streams, spans, good, items):
             if not ok:
                 continue
-            pos = positions[:, span]
+            pos = None if positions is None else positions[:, span]
+            pose = None if humanoid is None else humanoid[:, span]
             if stream.binary:
                 parts = [SEQ.pack(seq), out[span].astype("<f4").tobytes()]
                 if stream.positions:
                     parts += [p.tobytes() for p in (pos if stream.fronts else pos[:2])]
                 if stream.humanoid:
-                    parts += [h.tobytes() for h in humanoid[:, span]]
+                    parts += [h.tobytes() for h in pose]
                 message = b"".join(parts)
             else:
-                message = json.dumps(self._json_reply(stream, seq, out[span], pos, humanoid, span))
+                message = json.dumps(self._json_reply(stream, seq, out[span], pos, pose))
             if not _offer(stream.outbox, message):
                 self._fail(
                     stream, POLICY, f"more than {self.config.queue} stylised frames unsent: the client does not read"
@@ -714,7 +724,7 @@ class StyleServer:
                 _offer(w.outbox, SEQ.pack(seq) + b"".join(a.tobytes() for a in shown), drop_oldest=True)
 
     def _json_reply(
-        self, stream: Stream, seq: int, out: np.ndarray, pos: np.ndarray, humanoid: np.ndarray | None, span: slice
+        self, stream: Stream, seq: int, out: np.ndarray, pos: np.ndarray | None, pose: np.ndarray | None
     ) -> dict:
         """A JSON connection's reply to one frame: for one stream, each field as one frame's list;
         for several, as a list of one per stream."""
@@ -731,7 +741,7 @@ class StyleServer:
             if stream.fronts:
                 reply["input_fronts"], reply["output_fronts"] = listed(pos[2], 4), listed(pos[3], 4)
         if stream.humanoid:
-            reply["input_humanoid"], reply["output_humanoid"] = (listed(h[span], 5) for h in humanoid)
+            reply["input_humanoid"], reply["output_humanoid"] = (listed(h, 5) for h in pose)
         return reply
 
     def _fail(self, stream: Stream, code: int, message: str) -> None:
@@ -1090,6 +1100,7 @@ async def run_server(
 ) -> None:
     """Serve until SIGINT/SIGTERM; then every client gets a clean close (1001, going away)."""
     server = StyleServer(config)
+    server.warm_up()
     stepper = asyncio.create_task(server.step_forever())
     stop = asyncio.get_running_loop().create_future()
     for sig in (signal.SIGINT, signal.SIGTERM):
