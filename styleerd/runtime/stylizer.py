@@ -54,6 +54,10 @@ MAX_FEATURE = 1e6
 # Streams per step from which a numpy or onnx step is split into one shard per thread of the stylizer's pool: below it
 # the GIL and onnxruntime's cost per call make shards lose (measurements: docs/benchmarks.md, "Shards of streams").
 # The numba backend's threads run inside its compiled kernels instead (``data.parallel``).
+# From this many streams, the numba backend's labeller runs its numpy products on one BLAS thread:
+# numpy's BLAS threads beside scipy's (the compiled step's) spin against each other, 2.4x slower at
+# 100 streams on 2 cores (benchmarks/labeller_blas.py); the limit costs about 0.2 ms a step.
+LABELLER_ONE_BLAS_FROM = 64  # at 32 streams the limit costs more than it saves
 NUMPY_SHARD_FROM = 600
 SHARD_FROM = {"numpy": NUMPY_SHARD_FROM, "onnx": 128, "onnx-plain": 128}
 POSES = ("input", "network")  # what a stylised pose is built on (module docstring)
@@ -243,6 +247,7 @@ class StreamStylizer:
         self.threads = max(1, threads) if backend not in OWN_THREADS else 1
         self.kernel_threads = max(1, threads) if backend == "numba" else 1
         self.shard_from = SHARD_FROM.get(backend, NUMPY_SHARD_FROM)
+        self.backend_name = backend
         self.backend = make_backend(
             backend, model, n_streams * (1 + len(self.part_passes)), threads=max(1, threads) // self.threads
         )
@@ -518,7 +523,11 @@ class StreamStylizer:
         rows = None if sel is _ALL else sel
         style, content = self.given_style[sel], self.given_content[sel]
         if self.labeller is not None:
-            p_style, p_content, labeller_state = self.labeller.step(x, rows)
+            if self.backend_name == "numba" and len(x) >= LABELLER_ONE_BLAS_FROM:
+                with one_blas_thread():
+                    p_style, p_content, labeller_state = self.labeller.step(x, rows)
+            else:
+                p_style, p_content, labeller_state = self.labeller.step(x, rows)
             p_style = toward_neutral(p_style, self.neutral)
             style = np.where(self.known_style[sel, None], style, p_style)
             content = np.where(self.known_content[sel, None], content, p_content)
