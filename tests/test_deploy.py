@@ -98,6 +98,7 @@ def test_streams_spread_over_the_processes_and_tokens_find_theirs(balanced):
     opened = [open_stream(url, private=True, name=f"p{i}") for i in range(6)]
     where = Counter(ready["server"] for _, ready in opened)
     assert where == {"s0": 2, "s1": 2, "s2": 2}, where
+    assert get(f"http://127.0.0.1:{front}/metrics")[0] == 404  # only each process's own Prometheus reads them
     for name, (port, _) in servers.items():
         figures = metrics(port)
         assert figures["styleerd_streams"] == 2 and figures["styleerd_connections"] == 2, (name, figures)
