@@ -37,7 +37,7 @@ import socket
 import struct
 import tempfile
 import time
-from collections import deque
+from collections import Counter, deque
 from dataclasses import dataclass, field
 from http import HTTPStatus
 from pathlib import Path
@@ -276,7 +276,7 @@ class StyleServer:
         self.steps = 0
         self.frames = 0
         self.step_cpu = 0.0  # CPU seconds (every thread) spent in batched steps: the engine's share of the server's
-        self.refusals: dict[int, int] = {}  # close code -> connections refused or ended with it
+        self.refusals: Counter[int] = Counter()  # close code -> connections refused or ended with it
 
     def warm_up(self) -> None:
         """One stream of the model's skeleton stepped twice: the first step in a process loads
@@ -496,13 +496,13 @@ class StyleServer:
                 self._receive(stream, message)
         except ClientError as e:
             log.info("refused %s: %d %s", ws.remote_address, e.code, e)
-            self.refusals[e.code] = self.refusals.get(e.code, 0) + 1
+            self.refusals[e.code] += 1
             await _refuse(ws, e.code, str(e))
         except ConnectionClosed:
             pass
         except Exception as e:  # a bug: this connection ends with a message, the others go on
             log.exception("connection %s failed", ws.remote_address)
-            self.refusals[INTERNAL] = self.refusals.get(INTERNAL, 0) + 1
+            self.refusals[INTERNAL] += 1
             await _refuse(ws, INTERNAL, f"internal error ({type(e).__name__}); the server goes on")
         finally:
             if stream is not None:
@@ -748,7 +748,7 @@ class StyleServer:
         """End a stream from the stepping task: its frames stop here, the client is told."""
         stream.closing = True
         stream.pending.clear()
-        self.refusals[code] = self.refusals.get(code, 0) + 1
+        self.refusals[code] += 1
         asyncio.ensure_future(_refuse(stream.ws, code, message))
 
     # ---- live viewers ----
@@ -930,16 +930,34 @@ class StyleServer:
             return _response(HTTPStatus.REQUEST_URI_TOO_LONG, b"the path is too long", "text/plain")
         if request.method not in ("GET", "HEAD"):
             return _response(HTTPStatus.METHOD_NOT_ALLOWED, b"GET or HEAD only", "text/plain")
+        path, _, query = request.path.partition("?")
         try:
-            path, _, query = request.path.partition("?")
-            # in a worker thread: reading a 14 MB file or making the browser step's graph and
+            # the server's own figures on the event loop, which alone changes them; files in a
+            # worker thread: reading a 14 MB file or making the browser step's graph and
             # reference clip (up to a second) must not stall the streams' stepping loop
-            response = await asyncio.to_thread(self._page, path, parse_qs(query))
+            response = self._status_page(path) or await asyncio.to_thread(self._page, path, parse_qs(query))
         except (OSError, StyleERDError, ValueError) as e:  # a name the file system refuses, a clip that cannot be read
             response = _response(HTTPStatus.NOT_FOUND, f"not found: {e}".encode(errors="replace"), "text/plain")
         if request.method == "HEAD":  # the GET's headers, Content-Length included, and no body
             return Response(response.status_code, response.reason_phrase, response.headers, b"")
         return response
+
+    def _status_page(self, path: str) -> Response | None:
+        """``/healthz``, ``/metrics`` and ``/streams``: read from the streams on the event loop
+        (a worker thread could see them change as it reads), else None."""
+        if path == "/healthz":  # a balancer's check: 503 when full, so new streams go to another process
+            streams = self._open_rows()
+            full = streams >= self.config.max_streams
+            body = {"status": "full" if full else "ok", "server": self.config.server_id, "streams": streams}
+            return _response(
+                HTTPStatus.SERVICE_UNAVAILABLE if full else HTTPStatus.OK, json.dumps(body).encode(), "application/json"
+            )
+        if path == "/metrics":
+            return _response(HTTPStatus.OK, self.metrics().encode(), "text/plain; version=0.0.4; charset=utf-8")
+        if path == "/streams":
+            body = [{"stream": s.name, "frames": s.frames} for s in self.streams.values() if not s.private]
+            return _response(HTTPStatus.OK, json.dumps(body).encode(), "application/json")
+        return None
 
     def _engine_file(self, name: str, query: dict[str, list[str]]) -> bytes | None:
         """The files the in-browser step (static/engine.html) reads: the step graph and its
@@ -981,17 +999,6 @@ class StyleServer:
             text = self.clips.bvh_text(path[len("/clips/") :])
             if text is not None:
                 return _response(HTTPStatus.OK, text.encode(), "text/plain; charset=utf-8")
-        elif path == "/healthz":  # a balancer's check: 503 when full, so new streams go to another process
-            full = self._open_rows() >= self.config.max_streams
-            body = {"status": "full" if full else "ok", "server": self.config.server_id, "streams": self._open_rows()}
-            return _response(
-                HTTPStatus.SERVICE_UNAVAILABLE if full else HTTPStatus.OK, json.dumps(body).encode(), "application/json"
-            )
-        elif path == "/metrics":
-            return _response(HTTPStatus.OK, self.metrics().encode(), "text/plain; version=0.0.4; charset=utf-8")
-        elif path == "/streams":
-            body = [{"stream": s.name, "frames": s.frames} for s in self.streams.values() if not s.private]
-            return _response(HTTPStatus.OK, json.dumps(body).encode(), "application/json")
         elif path.startswith("/onnx/"):
             body = self._engine_file(path[len("/onnx/") :], query)
             if body is not None:
