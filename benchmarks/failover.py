@@ -18,9 +18,6 @@ from __future__ import annotations
 import argparse
 import asyncio
 import json
-import os
-import shutil
-import subprocess
 import time
 from pathlib import Path
 
@@ -29,7 +26,7 @@ import numpy as np
 from styleerd.atomic import atomic_write_text
 from styleerd.motion.procedural import walk
 from styleerd.serve.client import hello, play
-from styleerd.serve.loadtest import free_port, start_server, stop_server
+from styleerd.serve.loadtest import start_behind_haproxy, stop_behind_haproxy
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -41,33 +38,20 @@ async def clients_through(url: str, n: int, seconds: float) -> list:
 
 
 def live_failover(clients: int, seconds: float) -> dict:
-    haproxy = shutil.which("haproxy") or "/usr/sbin/haproxy"
-    ports = {f"s{i}": free_port() for i in range(3)}
-    servers = {name: start_server(port, "--id", name) for name, port in ports.items()}
-    front = free_port()
-    env = {**os.environ, "STYLEERD_BIND": f"127.0.0.1:{front}"}
-    env.update({f"STYLEERD_{name.upper()}": f"127.0.0.1:{port}" for name, port in ports.items()})
-    proxy = subprocess.Popen(
-        [haproxy, "-db", "-f", str(ROOT / "deploy/haproxy.cfg")], env=env, stderr=subprocess.DEVNULL
-    )
-    time.sleep(3)  # the balancer's first checks
+    front, servers, proxy = start_behind_haproxy(ROOT / "deploy/haproxy.cfg")
     try:
 
         async def run() -> list:
             task = asyncio.create_task(clients_through(f"ws://127.0.0.1:{front}/", clients, seconds))
             await asyncio.sleep(seconds / 3)
-            servers["s0"].kill()  # SIGKILL: no close frames, the kernel resets the connections
+            servers["s0"][1].kill()  # SIGKILL: no close frames, the kernel resets the connections
             return await task
 
         t0 = time.perf_counter()
         results = asyncio.run(run())
         wall = time.perf_counter() - t0
     finally:
-        proxy.terminate()
-        proxy.wait(10)
-        for proc in servers.values():
-            if proc.poll() is None:
-                stop_server(proc)
+        stop_behind_haproxy(servers, proxy)
     moved = [r for r in results if r.reconnects]
     total = int(round(seconds * 30))
     back = np.array([r.reconnected_ms for r in moved if r.reconnected_ms is not None])

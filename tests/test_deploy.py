@@ -23,7 +23,7 @@ from websockets.sync.client import connect
 from styleerd.motion import bvh
 from styleerd.motion.procedural import walk
 from styleerd.serve.client import SEQ, hello
-from styleerd.serve.loadtest import free_port, start_server, stop_server
+from styleerd.serve.loadtest import start_behind_haproxy, stop_behind_haproxy
 
 ROOT = Path(__file__).resolve().parents[1]
 HAPROXY = shutil.which("haproxy") or "/usr/sbin/haproxy"
@@ -43,38 +43,9 @@ def get(url: str) -> tuple[int, str]:
 @pytest.fixture(scope="module")
 def balanced():
     """(front port, {server name: (port, process)}, haproxy process)."""
-    ports = {f"s{i}": free_port() for i in (0, 1, 2)}
-    procs = {name: start_server(port, "--id", name, "--max-streams", "16") for name, port in ports.items()}
-    front = free_port()
-    env = {**os.environ, "STYLEERD_BIND": f"127.0.0.1:{front}"}
-    env.update({f"STYLEERD_{name.upper()}": f"127.0.0.1:{port}" for name, port in ports.items()})
-    check = subprocess.run(
-        [HAPROXY, "-c", "-f", str(ROOT / "deploy/haproxy.cfg")], env=env, capture_output=True, check=False
-    )
-    assert check.returncode == 0, check.stdout + check.stderr
-    proxy = subprocess.Popen(
-        [HAPROXY, "-db", "-f", str(ROOT / "deploy/haproxy.cfg")],
-        env=env,
-        stdout=subprocess.DEVNULL,
-        stderr=subprocess.DEVNULL,
-    )
-    deadline = time.time() + 20
-    while get_or_none(f"http://127.0.0.1:{front}/healthz") != 200 and time.time() < deadline:
-        time.sleep(0.2)
-    time.sleep(2.5)  # two checks of every process (inter 1s, rise 2)
-    yield front, {name: (ports[name], procs[name]) for name in ports}, proxy
-    proxy.terminate()
-    proxy.wait(10)
-    for proc in procs.values():
-        if proc.poll() is None:
-            assert stop_server(proc) == 0
-
-
-def get_or_none(url: str) -> int | None:
-    try:
-        return get(url)[0]
-    except OSError:
-        return None
+    front, servers, proxy = start_behind_haproxy(ROOT / "deploy/haproxy.cfg", "--max-streams", "16")
+    yield front, servers, proxy
+    assert all(code == 0 for code in stop_behind_haproxy(servers, proxy))
 
 
 def open_stream(url: str, **extra):
@@ -126,8 +97,7 @@ def send_frames(ws, stop: threading.Event) -> None:
 
 
 def test_the_viewer_page_watches_a_private_stream_through_the_balancer(balanced, tmp_path):
-    from playwright.sync_api import sync_playwright
-    from test_viewer import ARGS, CHROMIUM
+    from test_viewer import CHROMIUM, chromium_page
 
     if not Path(CHROMIUM).exists():
         pytest.skip("Chromium not installed (.ci/run installs Debian's chromium)")
@@ -137,19 +107,13 @@ def test_the_viewer_page_watches_a_private_stream_through_the_balancer(balanced,
     sender = threading.Thread(target=send_frames, args=(ws, stop), daemon=True)
     sender.start()
     try:
-        with sync_playwright() as p:
-            browser = p.chromium.launch(executable_path=CHROMIUM, args=ARGS)
-            page = browser.new_page(viewport={"width": 1280, "height": 720})
-            errors = []
-            page.on("pageerror", lambda e: errors.append(str(e)))
-            page.goto(f"http://127.0.0.1:{front}/?token={ready['token']}")
+        with chromium_page(f"http://127.0.0.1:{front}/?token={ready['token']}") as (page, errors):
             page.wait_for_function("window.viewer.stream === 'behind-the-balancer'", timeout=30000)
             page.wait_for_function("window.viewer.drawn && window.viewer.drawn.size > 10", timeout=30000)
             shot = Path(os.environ.get("STYLEERD_SCREENSHOT_DIR") or tmp_path) / "viewer-balancer.png"
             page.screenshot(path=str(shot))
             assert "live: behind-the-balancer" in page.locator("#status").inner_text()
             assert not errors, errors
-            browser.close()
     finally:
         stop.set()
         sender.join(5)

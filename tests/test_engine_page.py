@@ -8,7 +8,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from test_viewer import ARGS, CHROMIUM
+from test_viewer import CHROMIUM, chromium_page
 
 from styleerd.serve.loadtest import free_port, start_server, stop_server
 
@@ -19,18 +19,11 @@ pytestmark = pytest.mark.skipif(
 
 @pytest.mark.parametrize("style", ["elderly", "feminine"])
 def test_the_browser_step_equals_the_server_and_draws(style, tmp_path):
-    from playwright.sync_api import sync_playwright
-
     port = free_port()
     server = start_server(port)
     try:
-        with sync_playwright() as p:
-            browser = p.chromium.launch(executable_path=CHROMIUM, args=ARGS)
-            page = browser.new_page(viewport={"width": 1000, "height": 500})
-            errors = []
-            page.on("pageerror", lambda e: errors.append(str(e)))
-            page.on("console", lambda m: errors.append(m.text) if m.type == "error" else None)
-            page.goto(f"http://127.0.0.1:{port}/static/engine.html?style={style}")
+        url = f"http://127.0.0.1:{port}/static/engine.html?style={style}"
+        with chromium_page(url, 1000, 500, console=True) as (page, errors):
             page.wait_for_function("window.result !== undefined", timeout=120000)
             result = page.evaluate("window.result")
             pixels = np.frombuffer(page.locator("#view").screenshot(path=str(tmp_path / "engine.png")), np.uint8)
@@ -38,7 +31,6 @@ def test_the_browser_step_equals_the_server_and_draws(style, tmp_path):
                 const c = document.getElementById('view');
                 const d = c.getContext('2d').getImageData(0, 0, c.width, c.height).data;
                 let n = 0; for (let i = 0; i < d.length; i += 4) if (d[i] > 150 && d[i + 1] < 100) n++; return n; }""")
-            browser.close()
     finally:
         assert stop_server(server) == 0
     assert not errors, errors

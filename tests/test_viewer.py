@@ -6,6 +6,7 @@ import os
 import shutil
 import subprocess
 import sys
+from contextlib import contextmanager
 from pathlib import Path
 
 import numpy as np
@@ -30,21 +31,33 @@ pytestmark = pytest.mark.skipif(
 )
 
 
-@pytest.fixture(scope="module")
-def page():
+@contextmanager
+def chromium_page(url: str, width: int = 1280, height: int = 720, console: bool = False):
+    """Debian's Chromium on ``url`` -> (the page, the errors it raises; with ``console``, the
+    errors it logs too)."""
     from playwright.sync_api import sync_playwright
 
-    port = free_port()
-    server = start_server(port)
     with sync_playwright() as p:
         browser = p.chromium.launch(executable_path=CHROMIUM, args=ARGS)
-        page = browser.new_page(viewport={"width": 1280, "height": 720})
-        errors = []
-        page.on("pageerror", lambda e: errors.append(str(e)))
-        page.goto(f"http://127.0.0.1:{port}/")
+        try:
+            page = browser.new_page(viewport={"width": width, "height": height})
+            errors = []
+            page.on("pageerror", lambda e: errors.append(str(e)))
+            if console:
+                page.on("console", lambda m: errors.append(m.text) if m.type == "error" else None)
+            page.goto(url)
+            yield page, errors
+        finally:
+            browser.close()
+
+
+@pytest.fixture(scope="module")
+def page():
+    port = free_port()
+    server = start_server(port)
+    with chromium_page(f"http://127.0.0.1:{port}/") as (page, errors):
         page.port, page.errors = port, errors
         yield page
-        browser.close()
     assert stop_server(server) == 0
 
 

@@ -7,12 +7,14 @@ from __future__ import annotations
 import asyncio
 import json
 import os
+import shutil
 import socket
 import subprocess
 import sys
 import tempfile
 import threading
 import time
+import urllib.request
 from pathlib import Path
 
 import numpy as np
@@ -67,6 +69,42 @@ def stop_server(proc: subprocess.Popen) -> int:
         return proc.wait()
     finally:
         proc.log.close()
+
+
+def start_behind_haproxy(
+    config: Path, *server_args: str, names: tuple[str, ...] = ("s0", "s1", "s2")
+) -> tuple[int, dict[str, tuple[int, subprocess.Popen]], subprocess.Popen]:
+    """``styleerd serve --id NAME`` for each name, behind HAProxy with ``config`` (deploy/haproxy.cfg:
+    addresses from ``STYLEERD_*``), all on loopback; returns (the balancer's port, {name: (port,
+    process)}, HAProxy's process) once HAProxy has seen every process healthy."""
+    haproxy = shutil.which("haproxy") or "/usr/sbin/haproxy"
+    servers = {}
+    for name in names:
+        port = free_port()
+        servers[name] = (port, start_server(port, "--id", name, *server_args))
+    front = free_port()
+    env = {**os.environ, "STYLEERD_BIND": f"127.0.0.1:{front}"}
+    env.update({f"STYLEERD_{name.upper()}": f"127.0.0.1:{port}" for name, (port, _) in servers.items()})
+    check = subprocess.run([haproxy, "-c", "-f", str(config)], env=env, capture_output=True, text=True, check=False)
+    if check.returncode != 0:
+        raise StyleERDError(f"{config}: HAProxy refuses it: {check.stdout}{check.stderr}")
+    proxy = subprocess.Popen([haproxy, "-db", "-f", str(config)], env=env, stderr=subprocess.DEVNULL)
+    deadline = time.time() + 20
+    while time.time() < deadline:
+        try:
+            with urllib.request.urlopen(f"http://127.0.0.1:{front}/healthz", timeout=2):
+                break
+        except OSError:  # not listening yet, or 503: no process up yet
+            time.sleep(0.2)
+    time.sleep(2.5)  # two checks of every process (inter 1s, rise 2)
+    return front, servers, proxy
+
+
+def stop_behind_haproxy(servers: dict[str, tuple[int, subprocess.Popen]], proxy: subprocess.Popen) -> list[int]:
+    """Stop HAProxy and every server still running; -> the servers' exit codes."""
+    proxy.terminate()
+    proxy.wait(10)
+    return [stop_server(proc) for _, proc in servers.values() if proc.poll() is None]
 
 
 def server_log(proc: subprocess.Popen) -> str:
