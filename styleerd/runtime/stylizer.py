@@ -26,6 +26,7 @@ from __future__ import annotations
 import math
 import threading
 from concurrent.futures import ThreadPoolExecutor, wait
+from contextlib import nullcontext
 from dataclasses import dataclass
 
 import numba as nb
@@ -55,7 +56,7 @@ MAX_FEATURE = 1e6
 # the GIL and onnxruntime's cost per call make shards lose (measurements: docs/benchmarks.md, "Shards of streams").
 # The numba backend's threads run inside its compiled kernels instead (``data.parallel``).
 # From this many streams, the numba backend's labeller runs its numpy products on one BLAS thread:
-# numpy's BLAS threads beside scipy's (the compiled step's) spin against each other, 2.4x slower at
+# numpy's BLAS threads beside scipy's (the compiled step's) spin against each other, 2.3x slower at
 # 100 streams on 2 cores (benchmarks/labeller_blas.py); the limit costs about 0.2 ms a step.
 LABELLER_ONE_BLAS_FROM = 64  # at 32 streams the limit costs more than it saves
 NUMPY_SHARD_FROM = 600
@@ -523,10 +524,8 @@ class StreamStylizer:
         rows = None if sel is _ALL else sel
         style, content = self.given_style[sel], self.given_content[sel]
         if self.labeller is not None:
-            if self.backend_name == "numba" and len(x) >= LABELLER_ONE_BLAS_FROM:
-                with one_blas_thread():
-                    p_style, p_content, labeller_state = self.labeller.step(x, rows)
-            else:
+            one_thread = self.backend_name == "numba" and len(x) >= LABELLER_ONE_BLAS_FROM
+            with one_blas_thread() if one_thread else nullcontext():
                 p_style, p_content, labeller_state = self.labeller.step(x, rows)
             p_style = toward_neutral(p_style, self.neutral)
             style = np.where(self.known_style[sel, None], style, p_style)
