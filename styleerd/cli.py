@@ -648,6 +648,8 @@ POSE_HELP = (
     "what the output's poses are built on: input (default), the input's own pose plus the style's posture, "
     "which keeps any action; network, the network's pose (the paper's output)"
 )
+SERVE_BACKENDS = ["numpy", "numba", "onnx"]  # serve's and load-test's --backend
+EVENT_LOOPS = ["auto", "uvloop", "asyncio"]  # serve's and load-test's --loop
 MODEL_HELP = "a model file, or a model name in $STYLEERD_MODELS or among the shipped ones (default: styleerd-bandai2)"
 GROUPS = {
     "use": ("transfer", "styles", "info", "resample", "export-onnx", "demo"),
@@ -839,7 +841,7 @@ def _live_commands(command: Callable[[str, str], argparse.ArgumentParser]) -> No
     p.add_argument("--max-watchers", type=_whole(1), default=64, help="live viewers at once per worker")
     p.add_argument(
         "--loop",
-        choices=["auto", "uvloop", "asyncio"],
+        choices=EVENT_LOOPS,
         default="auto",
         help="the event loop: uvloop where installed (auto), or asyncio's own",
     )
@@ -852,7 +854,7 @@ def _live_commands(command: Callable[[str, str], argparse.ArgumentParser]) -> No
         "--max-message", type=_whole(1024), default=1 << 20, help="largest message in bytes (larger: closed with 1009)"
     )
     p.add_argument("--queue", type=_whole(1), default=64, help="per stream: frames waiting, and stylised frames unsent")
-    p.add_argument("--backend", default="numpy", choices=["numpy", "numba", "onnx"])
+    p.add_argument("--backend", default="numpy", choices=SERVE_BACKENDS)
     p.add_argument(
         "--threads",
         type=_whole(1),
@@ -935,9 +937,9 @@ def _live_commands(command: Callable[[str, str], argparse.ArgumentParser]) -> No
     )
     p.add_argument("--seconds", type=_positive, default=60.0)
     p.add_argument("--workers", type=_whole(1), default=1, help="server workers")
-    p.add_argument("--backend", choices=["numpy", "numba", "onnx"], default="numpy", help="the server's backend")
+    p.add_argument("--backend", choices=SERVE_BACKENDS, default="numpy", help="the server's backend")
     p.add_argument("--threads", type=_whole(1), default=1, help="the server's threads per batched step")
-    p.add_argument("--loop", choices=["auto", "uvloop", "asyncio"], default="auto", help="the server's event loop")
+    p.add_argument("--loop", choices=EVENT_LOOPS, default="auto", help="the server's event loop")
     p.add_argument(
         "--labels",
         action="store_true",
