@@ -58,7 +58,8 @@ def main() -> None:
                     "p99_ms": None if figures is None else round(figures["latency_ms_p99"], 1),
                 }
             )
-    cores = system_report()["cores"]
+    system = system_report()
+    cores = system["cores"]
     print("| processes | streams a connection | streams at 30 fps, p99 <= 33 ms | streams a core | p99 (ms) |")
     print("| --- | --- | --- | --- | --- |")
     for r in rows:
@@ -66,9 +67,7 @@ def main() -> None:
             f"| {r['processes']} | {r['streams_a_connection']} | {r['streams']} | {r['streams'] / cores:.0f} | "
             f"{r['p99_ms']} |"
         )
-    atomic_write_text(
-        args.output, json.dumps({"system": system_report(), "seconds": args.seconds, "rows": rows}, indent=1)
-    )
+    atomic_write_text(args.output, json.dumps({"system": system, "seconds": args.seconds, "rows": rows}, indent=1))
     print(f"wrote {args.output}")
 
 
