@@ -36,7 +36,7 @@ def test_the_clips_measured_on_are_never_trained_on_and_the_neutral_walk_reads_n
     clips = outside_clips(str(shared_data))
     groups = {c.group for c in clips}
     assert groups == {"xia-sample", "cmu-sample iclone", "cmu-sample asf-names", "bandai-namco-1 kept back"}
-    for c in clips:  # the training's own exclusion rules (train.labeller.outside_clips) cover every one
+    for c in clips:  # the training's own exclusion rules (train.batches.outside_clips) cover every one
         if c.group.startswith("cmu"):
             assert held_out(c.name.removeprefix("cmu "), "cmu-sample"), c.name
         elif c.group.startswith("bandai"):

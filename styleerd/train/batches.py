@@ -6,11 +6,17 @@ from dataclasses import dataclass
 
 import numpy as np
 import torch
+from tqdm import tqdm
 
-from styleerd.data.cache import FeatureSet
-from styleerd.data.features import FeatureLayout, FeatureStats
+from styleerd.data.cache import FeatureSet, prepare
+from styleerd.data.datasets import BANDAI1_AS_BANDAI2, bandai1_kept_back, data_root, unpack
+from styleerd.data.features import FeatureLayout, FeatureStats, motion_features
+from styleerd.data.outside import held_out
 from styleerd.data.windows import window_starts
 from styleerd.model import torch_quat
+from styleerd.motion import bvh
+from styleerd.motion.resample import resample
+from styleerd.motion.retarget import joint_map, to_target
 
 
 @dataclass
@@ -40,6 +46,28 @@ class TrainingData:
         return torch.nn.functional.one_hot(torch.as_tensor(idx), len(self.contents)).float()
 
 
+@dataclass
+class OutsideWindows:
+    """Windows of other performers' clips (``outside_clips``) in styles the model has."""
+
+    frames: torch.Tensor  # [rows, D] normalised features
+    starts: np.ndarray  # [N] first row of each window
+    style: np.ndarray  # [N] style index
+
+    def gather(self, rows: np.ndarray, length: int) -> torch.Tensor:
+        return self.frames[torch.as_tensor(self.starts[rows][:, None] + np.arange(length))]
+
+
+def outside_windows(
+    fs: FeatureSet, data: TrainingData, stride: int, data_dir: str | None = None, progress: bool = True
+) -> OutsideWindows:
+    """Every ``data.window``-frame window, each ``stride`` frames, of the ``outside_clips`` whose style
+    the model has (one it lacks has no own style to be rebuilt in)."""
+    frames, clip_start, style, _ = outside_clips(fs, data, data_dir, progress)
+    starts = window_starts(clip_start, np.nonzero(style >= 0)[0], data.window, stride)
+    return OutsideWindows(frames, starts, style[np.searchsorted(clip_start, starts, side="right") - 1])
+
+
 def training_data(fs: FeatureSet, window: int) -> TrainingData:
     stats = fs.stats("train")
     frames = torch.from_numpy(stats.normalize(fs.features).astype(np.float32))
@@ -66,3 +94,34 @@ def window_rotations(data: TrainingData, starts: np.ndarray) -> torch.Tensor:
         data.stats.mean[rot], dtype=torch.float32
     )
     return torch_quat.normalize(q.reshape(*x.shape[:2], J, 4))
+
+
+def outside_clips(
+    fs: FeatureSet, data: TrainingData, data_dir: str | None = None, progress: bool = True
+) -> tuple[torch.Tensor, np.ndarray, np.ndarray, np.ndarray]:
+    """Other performers' clips that no evaluation uses: Bandai-Namco-1's but its kept-back and
+    held-out ones, and cmu-sample's subjects but the held-out ones (retargeted onto ``fs``'s
+    skeleton): (normalised frames ``[N, D]``, clip starts ``[C + 1]``, style and content index per
+    clip, -1 where the model has no such label: a style to be unsure of, a content not taught)."""
+    frames, starts, styles, contents = [], [0], [], []
+
+    def add(features: np.ndarray, style: str, content: str) -> None:
+        frames.append(data.stats.normalize(features).astype(np.float32))
+        starts.append(starts[-1] + len(features))
+        styles.append(data.styles.index(style) if style in data.styles else -1)
+        contents.append(data.contents.index(content) if content in data.contents else -1)
+
+    bandai1 = prepare("bandai-namco-1", data_dir, fs.params, progress=progress)
+    for c, name in enumerate(bandai1.names):
+        style, content = str(bandai1.styles[c]), str(bandai1.contents[c])
+        if not (bandai1_kept_back(name, content) or held_out(name, "bandai-namco-1", content, style)):
+            add(bandai1.features[bandai1.frames(c)], BANDAI1_AS_BANDAI2.get(style, style), content)
+    cmu = unpack(data_root(data_dir) / "cmu-sample.tar.xz") / "cmu-sample"
+    paths = [p for folder in ("iclone", "asf-names") for p in sorted((cmu / folder).glob("*.bvh"))]
+    for path in tqdm(paths, desc="cmu-sample", disable=not progress, leave=False):
+        if held_out(path.stem, "cmu-sample"):
+            continue
+        motion = resample(bvh.read(path), fs.params.fps)
+        jm = joint_map(fs.skeleton, motion.skeleton, None, data.stats.reference, motion.rotations[0])
+        add(motion_features(to_target(motion, jm))[0], "normal", "")
+    return torch.from_numpy(np.concatenate(frames)), np.array(starts), np.array(styles), np.array(contents)

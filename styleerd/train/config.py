@@ -44,6 +44,11 @@ class TrainConfig:
     cyc_every: int = 1  # lazy cycle: on every k-th step only, weighted by k (it is a third generator pass)
     w_cls: float = 0.0  # content cross-entropy of the perceptual classifier on transfers, beyond the paper; 0 = off
     r1_every: int = 4  # lazy R1: every k critic steps, weighted by k
+    # > 0: every step also reconstructs this many windows of other performers' clips (kicks, dances, climbing: ``train.
+    # batches.outside_clips``) in their own style, told a random content, so that poses the training data lacks pass
+    # through and no content label is needed; the weight of that loss is ``w_outside``
+    outside_batch: int = 0
+    w_outside: float = 1.0
     # optimisation
     init_from: str = ""  # fine-tune: a saved generator (stem or shipped name) whose weights start the run
     # > 0: validate and export a moving average of the generator's weights, this decay per step; 0 = the weights
@@ -67,7 +72,7 @@ class TrainConfig:
     labeller_epochs: int = 6
     labeller_lr: float = 2e-3
     labeller_init_from: str = ""  # fine-tune: a saved labeller (a path without suffix) whose weights start the run
-    labeller_outside: bool = False  # other performers' clips join the training clips (``train.labeller.outside_clips``)
+    labeller_outside: bool = False  # other performers' clips join the training clips (``train.batches.outside_clips``)
 
     @classmethod
     def from_yaml(cls, path: str | Path, **overrides) -> TrainConfig:

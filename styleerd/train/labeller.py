@@ -25,19 +25,14 @@ import torch.nn.functional as F
 from tqdm import tqdm
 
 from styleerd.data.augment import other_performer
-from styleerd.data.cache import FeatureSet, prepare
-from styleerd.data.datasets import BANDAI1_AS_BANDAI2, bandai1_kept_back, data_root, unpack
+from styleerd.data.cache import FeatureSet
 from styleerd.data.features import features_to_motion, motion_features
-from styleerd.data.outside import held_out
 from styleerd.data.windows import window_starts
 from styleerd.model import checkpoint as ckpt
 from styleerd.model.labeller import OnlineLabeller
 from styleerd.model.stored import toward_neutral
 from styleerd.models import LABELLER, MODELS_DIR
-from styleerd.motion import bvh
-from styleerd.motion.resample import resample
-from styleerd.motion.retarget import joint_map, to_target
-from styleerd.train.batches import TrainingData, windows
+from styleerd.train.batches import TrainingData, outside_clips, windows
 from styleerd.train.config import TrainConfig
 from styleerd.train.trainer import setup
 
@@ -104,37 +99,6 @@ def augmented_clips(
         starts.append(starts[-1] + len(frames[-1]))
         styles.append(data.styles.index(fs.styles[c]))
         contents.append(data.contents.index(content))
-    return torch.from_numpy(np.concatenate(frames)), np.array(starts), np.array(styles), np.array(contents)
-
-
-def outside_clips(
-    fs: FeatureSet, data: TrainingData, data_dir: str | None = None, progress: bool = True
-) -> tuple[torch.Tensor, np.ndarray, np.ndarray, np.ndarray]:
-    """Other performers' clips that no evaluation uses: Bandai-Namco-1's but its kept-back and
-    held-out ones, and cmu-sample's subjects but the held-out ones (retargeted onto ``fs``'s
-    skeleton): (normalised frames ``[N, D]``, clip starts ``[C + 1]``, style and content index per
-    clip, -1 where the model has no such label: a style to be unsure of, a content not taught)."""
-    frames, starts, styles, contents = [], [0], [], []
-
-    def add(features: np.ndarray, style: str, content: str) -> None:
-        frames.append(data.stats.normalize(features).astype(np.float32))
-        starts.append(starts[-1] + len(features))
-        styles.append(data.styles.index(style) if style in data.styles else -1)
-        contents.append(data.contents.index(content) if content in data.contents else -1)
-
-    bandai1 = prepare("bandai-namco-1", data_dir, fs.params, progress=progress)
-    for c, name in enumerate(bandai1.names):
-        style, content = str(bandai1.styles[c]), str(bandai1.contents[c])
-        if not (bandai1_kept_back(name, content) or held_out(name, "bandai-namco-1", content, style)):
-            add(bandai1.features[bandai1.frames(c)], BANDAI1_AS_BANDAI2.get(style, style), content)
-    cmu = unpack(data_root(data_dir) / "cmu-sample.tar.xz") / "cmu-sample"
-    paths = [p for folder in ("iclone", "asf-names") for p in sorted((cmu / folder).glob("*.bvh"))]
-    for path in tqdm(paths, desc="cmu-sample", disable=not progress, leave=False):
-        if held_out(path.stem, "cmu-sample"):
-            continue
-        motion = resample(bvh.read(path), fs.params.fps)
-        jm = joint_map(fs.skeleton, motion.skeleton, None, data.stats.reference, motion.rotations[0])
-        add(motion_features(to_target(motion, jm))[0], "normal", "")
     return torch.from_numpy(np.concatenate(frames)), np.array(starts), np.array(styles), np.array(contents)
 
 

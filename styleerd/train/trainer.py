@@ -37,7 +37,7 @@ from styleerd.model.fmd import MotionAutoencoder
 from styleerd.model.generator import GeneratorConfig, StyleERD
 from styleerd.models import MODELS_DIR, RECOGNISERS
 from styleerd.train import losses
-from styleerd.train.batches import TrainingData, WindowSet, training_data, windows
+from styleerd.train.batches import OutsideWindows, TrainingData, WindowSet, outside_windows, training_data, windows
 from styleerd.train.classifiers import accuracy, train_classifier
 from styleerd.train.config import TrainConfig
 from styleerd.train.validation import realism_margin, transfer_quality, transfers, validate
@@ -53,6 +53,7 @@ class Setup:
     data: TrainingData
     train: WindowSet
     val: WindowSet
+    outside: OutsideWindows | None = None  # other performers' windows (``outside_batch``)
 
 
 def setup(config: TrainConfig, data_dir: str | None, progress: bool = True) -> Setup:
@@ -247,10 +248,13 @@ def train_step(
     target: np.ndarray,
     step: int,
     tick=lambda part: None,
+    outside: tuple[np.ndarray, np.ndarray] | None = None,
 ) -> dict[str, float]:
     """One optimisation step of the generator, then of the critic, on the training windows
-    ``rows`` sent to the styles ``target``; returns the losses it computed. ``tick(part)`` is
-    called as each part of the step ends (benchmarks/bench_train_step.py times them)."""
+    ``rows`` sent to the styles ``target``, and with ``outside`` (rows of ``s.outside``, content
+    weights ``[n, C]``) the reconstruction of other performers' windows; returns the losses it
+    computed. ``tick(part)`` is called as each part of the step ends (benchmarks/bench_train_step.py
+    times them)."""
     B, J, L, dev = len(rows), G.config.n_joints, G.layout, G.mean.device
     seen = critic_channels(config, L)
     x = s.data.gather(s.train.starts[rows]).to(dev)
@@ -299,6 +303,18 @@ def train_step(
         loss_g = loss_g + config.w_cyc * config.cyc_every * loss_cyc
         logs["cyc"] = loss_cyc.item()
         tick("cycle pass + loss")
+    if outside is not None:
+        # actions the data lacks, told a content that is not theirs: rebuilt as they are
+        o_rows, o_content = outside
+        xo = s.outside.gather(o_rows, config.window).to(dev)
+        own = s.data.onehot_style(s.outside.style[o_rows]).to(dev)
+        rot_o, vel_o, _ = G(xo, own, torch.from_numpy(o_content).float().to(dev), own)
+        loss_o = losses.reconstruction_loss(
+            rot_o, G.raw_rotations(xo), G.motion_channels(rot_o, vel_o), xo[..., : 10 * J], L
+        )
+        loss_g = loss_g + config.w_outside * loss_o
+        logs["outside"] = loss_o.item()
+        tick("outside reconstruction")
     opt_g.zero_grad(set_to_none=True)
     loss_g.backward()
     _average_gradients([p for p in G.parameters() if p.requires_grad])
@@ -348,6 +364,8 @@ def train(
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     s = setup(config, data_dir, progress)
+    if config.outside_batch:
+        s.outside = outside_windows(s.fs, s.data, config.stride, data_dir, progress)
     torch.manual_seed(config.seed)
     G = make_generator(config, s).to(config.device)
     D = make_critic(config, s).to(config.device)
@@ -407,7 +425,11 @@ def train(
                 styled = rng.choice(styled_rows, B - half)
             rows = np.concatenate([rng.choice(neutral_rows, half), styled])
             target = np.where(s.train.style[rows] == neutral, rng.choice(others, B), neutral)
-            logs = train_step(G, D, opt_g, opt_d, per_classifier, config, s, rows, target, step)
+            outside = None
+            if s.outside is not None:  # contents from one-hot to uniform (Dirichlet 0.3)
+                o_rows = rng.integers(0, len(s.outside.starts), config.outside_batch)
+                outside = (o_rows, rng.dirichlet(np.full(len(s.data.contents), 0.3), len(o_rows)))
+            logs = train_step(G, D, opt_g, opt_d, per_classifier, config, s, rows, target, step, outside=outside)
             if G_avg is not None:
                 update_average(G_avg, G, config.ema)
             for k, v in logs.items():  # the mean of each loss over the steps that computed it
