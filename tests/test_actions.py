@@ -61,14 +61,6 @@ def test_the_measures_on_hand_made_cases(demo_walk):
     assert A._compare(a, a) == (pytest.approx(1.0), pytest.approx(1.0))
 
 
-def test_in_place_keeps_the_root_where_it_started():
-    m = walk(2.0, fps=30.0)
-    still = A.in_place(m)
-    assert np.ptp(still.positions[:, 0, [0, 2]], axis=0).max() == 0.0 and np.array_equal(
-        still.positions[:, 0, 1], m.positions[:, 0, 1]
-    )
-
-
 @pytest.mark.slow
 def test_held_out_actions_keep_their_action_with_the_input_pose(shared_data, model):
     """Issue 35's bar on a held-out kick and a CMU punch on their own rigs: the identity transfer

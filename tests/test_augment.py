@@ -6,6 +6,7 @@ from scipy.spatial.transform import Rotation
 
 from styleerd.data.augment import (
     MIRRORED_CONTENT,
+    in_place,
     mirror,
     other_performer,
     random_joint_offsets,
@@ -74,6 +75,27 @@ def test_proportions_speed_and_joint_offsets(model_walk):
     assert np.degrees((a.inv() * Rotation.from_quat(g1.reshape(-1, 4), scalar_first=True)).magnitude()).max() < 1e-6
     other, content = other_performer(m, "wave-left-hand", g.stats().reference, rng)
     assert content in ("wave-left-hand", "wave-right-hand") and np.isfinite(other.rotations).all()
+
+
+def test_in_place_keeps_the_root_where_it_started():
+    from styleerd.motion.procedural import walk
+
+    m = walk(2.0, fps=30.0)
+    still = in_place(m)
+    assert np.ptp(still.positions[:, 0, [0, 2]], axis=0).max() == 0.0 and np.array_equal(
+        still.positions[:, 0, 1], m.positions[:, 0, 1]
+    )
+
+
+def test_walks_and_runs_come_in_place_a_quarter_of_the_time_and_nothing_else_does(model_walk):
+    """Game libraries ship walks in place: the labeller is taught them as walks."""
+    g, m = model_walk
+    rng = np.random.default_rng(1)
+    travelled = lambda motion: np.ptp(motion.positions[:, 0, [0, 2]], axis=0).max()
+    walks = [travelled(other_performer(m, "walk", g.stats().reference, rng)[0]) == 0.0 for _ in range(40)]
+    assert 4 <= sum(walks) <= 18  # about 10 of 40
+    waves = [travelled(other_performer(m, "wave-left-hand", g.stats().reference, rng)[0]) for _ in range(20)]
+    assert min(waves) > 0.0
 
 
 def test_unsure_posteriors_lean_to_neutral():

@@ -1,6 +1,7 @@
 """Motions as other performers and rigs would give them, for training what must hold outside
 the training set (the online labeller): other proportions, other speeds, the small constant
-per-joint rotation offsets that retargeting from another rig's conventions leaves, mirroring.
+per-joint rotation offsets that retargeting from another rig's conventions leaves, mirroring,
+walks in place.
 
 All work on motions of the model's skeleton; mirroring goes through the skeleton's canonical
 T-pose frames (``motion.retarget.tpose_rotations``), which are symmetric whatever the rig's
@@ -25,6 +26,8 @@ MIRRORED_CONTENT = {
     "walk-turn-left": "walk-turn-right",
 }
 MIRRORED_CONTENT.update({v: k for k, v in MIRRORED_CONTENT.items()})
+# contents whose root travels, which game and three.js animation libraries also ship in place
+TRAVELLING = ("walk", "run", "walk-turn-left", "walk-turn-right")
 
 
 def with_proportions(motion: Motion, legs: float, arms: float, trunk: float) -> Motion:
@@ -94,14 +97,24 @@ def mirror(motion: Motion, reference_pose: np.ndarray) -> Motion:
     return Motion(sk, quat.normalize(local_rotations(g_new, sk.parents)), pos, motion.fps)
 
 
+def in_place(m: Motion) -> Motion:
+    """The motion with its root's ground path removed (height kept), as game libraries ship walks."""
+    positions = m.positions.copy()
+    positions[:, 0, [0, 2]] = positions[:1, 0, [0, 2]]
+    return Motion(m.skeleton, m.rotations, positions, m.fps)
+
+
 def other_performer(
     motion: Motion, content: str, reference_pose: np.ndarray, rng: np.random.Generator
 ) -> tuple[Motion, str]:
     """A random mix of the above: proportions within 15 %, speed 0.8-1.25 x, joint offsets up
-    to 12 degrees, mirrored half of the time (the content label mirrored with it)."""
+    to 12 degrees, mirrored half of the time (the content label mirrored with it), and a walk or a
+    run in place a quarter of the time."""
     m = with_proportions(motion, *rng.uniform(0.85, 1.15, 3))
     m = with_speed(m, float(np.exp(rng.uniform(np.log(0.8), np.log(1.25)))))
     m = with_joint_offsets(m, random_joint_offsets(m.skeleton.n_joints, 12.0, rng))
     if rng.random() < 0.5:
         m, content = mirror(m, reference_pose), MIRRORED_CONTENT.get(content, content)
+    if content in TRAVELLING and rng.random() < 0.25:
+        m = in_place(m)
     return m, content

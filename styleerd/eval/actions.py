@@ -31,6 +31,7 @@ from pathlib import Path
 import numpy as np
 from tqdm import tqdm
 
+from styleerd.data.augment import in_place
 from styleerd.data.datasets import Clip, data_root, find_clips, load_motion, unpack
 from styleerd.data.outside import CMU_HELD_OUT, CMU_REPORTED_SWIMS, XIA_ACTIONS, held_out
 from styleerd.data.windows import split_takes
@@ -312,13 +313,6 @@ def json_summary(summary: dict) -> str:
 
 
 # ---------------------------------------------------------------- feet and pace
-
-
-def in_place(m: Motion) -> Motion:
-    """The motion with its root's ground path removed (height kept), as game libraries ship walks."""
-    positions = m.positions.copy()
-    positions[:, 0, [0, 2]] = positions[:1, 0, [0, 2]]
-    return Motion(m.skeleton, m.rotations, positions, m.fps)
 
 
 def walk_clips(data_dir: str | None = None) -> list[ActionClip]:

@@ -4,7 +4,7 @@ Training sequences are ``length``-frame stretches of training clips, each starti
 fresh state (a stream can begin anywhere in a motion); the loss is the labels' cross-entropy
 at every frame, so early frames learn to guess and later ones to be sure. Beside the clips as
 recorded, ``copies`` versions of each as another performer on another rig would give it
-(``data.augment.other_performer``: proportions, speed, joint offsets, mirroring) keep the
+(``data.augment.other_performer``: proportions, speed, joint offsets, mirroring, in place) keep the
 labeller from reading one performer's build or one rig's conventions as a style. Clips of other
 performers join them too (``outside_clips``): Bandai-Namco-1's, with its styles in the model's
 names and its styles the model does not have taught to read as unsure (the cross-entropy of
