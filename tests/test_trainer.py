@@ -486,7 +486,9 @@ def test_other_performers_windows_are_rebuilt_in_their_own_style_whatever_conten
     them, trained on alone, is rebuilt better and better."""
     import numpy as np
 
-    from styleerd.train.batches import outside_windows
+    from styleerd.data.augment import TRAVELLING
+    from styleerd.data.features import FeatureLayout
+    from styleerd.train.batches import in_place_clips, outside_windows
     from styleerd.train.trainer import make_critic, make_generator, make_optimisers, setup, train_step
 
     config = TrainConfig(**TINY, use_adv=False, use_per=False, w_rec=0.0, outside_batch=16)
@@ -497,6 +499,16 @@ def test_other_performers_windows_are_rebuilt_in_their_own_style_whatever_conten
     assert set(np.unique(o.style)) >= {s.data.styles.index(k) for k in ("normal", "elderly", "active")}
     assert o.gather(np.arange(len(o.starts)), config.window).abs().max() <= 16.0  # beyond the training data's range
     assert s.data.gather(s.train.starts).abs().max() <= 16.0
+    # and walks of the training split in place: their rotations as they were, the root's ground speed 0
+    frames, starts, style = in_place_clips(s.fs, s.data)
+    c = next(c for c in s.fs.clips("train") if s.fs.contents[c] in TRAVELLING)
+    first = frames[starts[0] : starts[1]].numpy()
+    L = FeatureLayout(s.fs.skeleton.n_joints)
+    mean, std = s.data.stats.mean, s.data.stats.std
+    root_velocity = first[:, L.velocities][:, [0, 2]] * std[L.velocities][[0, 2]] + mean[L.velocities][[0, 2]]
+    assert np.abs(root_velocity).max() < 1e-4 and style[0] == s.data.styles.index(s.fs.styles[c])
+    given = s.data.frames[s.fs.frames(c)].numpy()
+    assert np.abs(first[:, L.rotations] - given[:, L.rotations]).max() < 1e-3
     torch.manual_seed(0)
     G, D = make_generator(config, s), make_critic(config, s)
     opt_g, opt_d = make_optimisers(config, G, D)

@@ -8,9 +8,10 @@ import numpy as np
 import torch
 from tqdm import tqdm
 
+from styleerd.data.augment import TRAVELLING, in_place
 from styleerd.data.cache import FeatureSet, prepare
 from styleerd.data.datasets import BANDAI1_AS_BANDAI2, bandai1_kept_back, data_root, unpack
-from styleerd.data.features import FeatureLayout, FeatureStats, motion_features
+from styleerd.data.features import FeatureLayout, FeatureStats, features_to_motion, motion_features
 from styleerd.data.outside import held_out
 from styleerd.data.windows import window_starts
 from styleerd.model import torch_quat
@@ -58,6 +59,20 @@ class OutsideWindows:
         return self.frames[torch.as_tensor(self.starts[rows][:, None] + np.arange(length))]
 
 
+def in_place_clips(fs: FeatureSet, data: TrainingData, every: int = 4) -> tuple[torch.Tensor, np.ndarray, np.ndarray]:
+    """Every ``every``-th walk, turn and run of the training split with its root's ground path
+    removed, as game and three.js libraries ship them: (normalised frames ``[N, D]``, clip starts
+    ``[C + 1]``, style index per clip)."""
+    frames, starts, styles = [], [0], []
+    for c in [c for c in fs.clips("train") if fs.contents[c] in TRAVELLING][::every]:
+        sl = fs.frames(int(c))
+        motion = in_place(features_to_motion(fs.features[sl], fs.trajectory[sl], fs.skeleton, fs.params.fps))
+        frames.append(data.stats.normalize(motion_features(motion)[0]).astype(np.float32))
+        starts.append(starts[-1] + len(frames[-1]))
+        styles.append(data.styles.index(fs.styles[c]))
+    return torch.from_numpy(np.concatenate(frames)), np.array(starts), np.array(styles)
+
+
 def outside_windows(
     fs: FeatureSet,
     data: TrainingData,
@@ -67,11 +82,14 @@ def outside_windows(
     bound: float = 16.0,
 ) -> OutsideWindows:
     """Every ``data.window``-frame window, each ``stride`` frames, of the ``outside_clips`` whose style
-    the model has (one it lacks has no own style to be rebuilt in), but those with a feature beyond
-    ``bound`` standard deviations: none of Bandai-Namco-2's training windows reaches 16, and the 1.3 %
-    of other performers' that do (glitches and flailing of cmu-sample's) would otherwise make 40 % of
-    the loss."""
+    the model has (one it lacks has no own style to be rebuilt in) and of the ``in_place_clips``, but
+    those with a feature beyond ``bound`` standard deviations: none of Bandai-Namco-2's training
+    windows reaches 16, and the 1.3 % of other performers' that do (glitches and flailing of
+    cmu-sample's) would otherwise make 40 % of the loss."""
     frames, clip_start, style, _ = outside_clips(fs, data, data_dir, progress)
+    more, more_start, more_style = in_place_clips(fs, data)
+    frames, clip_start = torch.cat([frames, more]), np.concatenate([clip_start, clip_start[-1] + more_start[1:]])
+    style = np.concatenate([style, more_style])
     starts = window_starts(clip_start, np.nonzero(style >= 0)[0], data.window, stride)
     inside = frames[torch.as_tensor(starts[:, None] + np.arange(data.window))].abs().amax((1, 2)) <= bound
     starts = starts[inside.numpy()]
