@@ -44,9 +44,9 @@ class TrainConfig:
     cyc_every: int = 1  # lazy cycle: on every k-th step only, weighted by k (it is a third generator pass)
     w_cls: float = 0.0  # content cross-entropy of the perceptual classifier on transfers, beyond the paper; 0 = off
     r1_every: int = 4  # lazy R1: every k critic steps, weighted by k
-    # > 0: every step also reconstructs this many windows of other performers' clips (kicks, dances, climbing: ``train.
-    # batches.outside_clips``) in their own style, told a random content, so that poses the training data lacks pass
-    # through and no content label is needed; the weight of that loss is ``w_outside``
+    # > 0: every step also rebuilds this many windows of other performers' clips (kicks, dances, climbing) and of
+    # training walks in place (``train.batches.outside_windows``) in their own style, told a random content, so that
+    # poses the training data lacks pass through and no content label is needed; that loss weighs ``w_outside``
     outside_batch: int = 0
     w_outside: float = 1.0
     # optimisation
