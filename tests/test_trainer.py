@@ -509,6 +509,11 @@ def test_other_performers_windows_are_rebuilt_in_their_own_style_whatever_conten
     assert np.abs(root_velocity).max() < 1e-4 and style[0] == s.data.styles.index(s.fs.styles[c])
     given = s.data.frames[s.fs.frames(c)].numpy()
     assert np.abs(first[:, L.rotations] - given[:, L.rotations]).max() < 1e-3
+    # outside_neutral: other performers' clips in the neutral style only (the walks in place come last)
+    n = s.data.styles.index("normal")
+    only = outside_windows(s.fs, s.data, config.stride, shared_data, progress=False, neutral=n)
+    performers = only.starts < len(only.frames) - len(frames)
+    assert (only.style[performers] == n).all() and 0 < performers.sum() < (o.starts < len(o.frames) - len(frames)).sum()
     torch.manual_seed(0)
     G, D = make_generator(config, s), make_critic(config, s)
     opt_g, opt_d = make_optimisers(config, G, D)

@@ -49,6 +49,7 @@ class TrainConfig:
     # poses the training data lacks pass through and no content label is needed; that loss weighs ``w_outside``
     outside_batch: int = 0
     w_outside: float = 1.0
+    outside_neutral: bool = False  # only other performers' neutral clips (and the walks in place, in every style)
     # optimisation
     init_from: str = ""  # fine-tune: a saved generator (stem or shipped name) whose weights start the run
     # > 0: validate and export a moving average of the generator's weights, this decay per step; 0 = the weights

@@ -365,7 +365,8 @@ def train(
     out.mkdir(parents=True, exist_ok=True)
     s = setup(config, data_dir, progress)
     if config.outside_batch:
-        s.outside = outside_windows(s.fs, s.data, config.stride, data_dir, progress)
+        neutral = s.data.styles.index(config.neutral_style) if config.outside_neutral else None
+        s.outside = outside_windows(s.fs, s.data, config.stride, data_dir, progress, neutral=neutral)
     torch.manual_seed(config.seed)
     G = make_generator(config, s).to(config.device)
     D = make_critic(config, s).to(config.device)
