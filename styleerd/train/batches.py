@@ -49,7 +49,8 @@ class TrainingData:
 
 @dataclass
 class OutsideWindows:
-    """Windows of other performers' clips (``outside_clips``) in styles the model has."""
+    """Windows of other performers' clips and of training walks in place (``outside_windows``), in
+    styles the model has."""
 
     frames: torch.Tensor  # [rows, D] normalised features
     starts: np.ndarray  # [N] first row of each window
