@@ -15,7 +15,7 @@ import argparse
 import json
 from pathlib import Path
 
-BAR_CRA, BAR_FMD = 0.95, 3.0  # of the content recogniser's ceiling, of the FMD floor (per target style)
+from styleerd.train.validation import CRA_BAR, FMD_BAR, style_ratios
 
 
 def row(name: str, actions: dict, quality: dict) -> list[str]:
@@ -29,10 +29,9 @@ def row(name: str, actions: dict, quality: dict) -> list[str]:
         for c in ("generated walk in place", "xia neutral walk in place")
         if c in feet
     ]
-    fmd = {s: quality["fmd_per_style"][s] / quality["fmd_floor_per_style"][s] for s in quality["fmd_per_style"]}
-    cra = {s: quality["cra_per_style"][s] / quality["content_ceiling_per_style"][s] for s in quality["cra_per_style"]}
+    fmd, cra = style_ratios(quality)
     worst_fmd, worst_cra = max(fmd, key=fmd.get), min(cra, key=cra.get)
-    meets = fmd[worst_fmd] <= BAR_FMD and cra[worst_cra] >= BAR_CRA
+    meets = fmd[worst_fmd] <= FMD_BAR and cra[worst_cra] >= CRA_BAR
     return [
         name,
         f"{net['identity_error_cm']['mean']:.1f} / {net['identity_correlation']['mean']:.2f}",
