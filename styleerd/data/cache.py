@@ -29,9 +29,10 @@ from styleerd.data.datasets import (
     find_clips,
     load_motion,
 )
-from styleerd.data.features import FeatureStats, motion_features
+from styleerd.data.features import FeatureStats, features_to_motion, motion_features
 from styleerd.data.windows import split_takes
 from styleerd.errors import StyleERDError
+from styleerd.motion.motion import Motion
 from styleerd.motion.resample import resample
 from styleerd.motion.skeleton import Skeleton
 
@@ -67,6 +68,11 @@ class FeatureSet:
 
     def frames(self, clip: int) -> slice:
         return slice(int(self.clip_start[clip]), int(self.clip_start[clip + 1]))
+
+    def motion(self, clip: int) -> Motion:
+        """Clip ``clip`` as a motion again (``features_to_motion``)."""
+        sl = self.frames(clip)
+        return features_to_motion(self.features[sl], self.trajectory[sl], self.skeleton, self.params.fps)
 
     def stats(self, split: str = "train") -> FeatureStats:
         rows = np.concatenate([np.arange(self.clip_start[c], self.clip_start[c + 1]) for c in self.clips(split)])

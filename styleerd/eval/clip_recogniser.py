@@ -22,7 +22,7 @@ from tqdm import tqdm
 
 from styleerd.atomic import atomic_write_text
 from styleerd.data.cache import FeatureSet, prepare
-from styleerd.data.features import FeatureLayout, features_to_motion, motion_features
+from styleerd.data.features import FeatureLayout, motion_features
 from styleerd.model.checkpoint import load_tensors, save_tensors
 from styleerd.model.stored import GeneratorWeights
 from styleerd.runtime.offline import TransferOptions, transfer_motion
@@ -118,7 +118,7 @@ def evaluate_clip_styles(model: GeneratorWeights, data_dir: str | None = None, r
         sl = fs.frames(clip)
         style = str(fs.styles[clip])
         reads.setdefault(style, []).append(read_style(recogniser, fs.features[sl], J, styles))
-        motion = features_to_motion(fs.features[sl], fs.trajectory[sl], fs.skeleton, fs.params.fps)
+        motion = fs.motion(clip)
         for target in [t for t in styles if t != neutral] if style == neutral else [neutral]:
             jobs.append((style, target, motion))
     out["ceiling"] = {s: {"takes": len(r), "read_as_own": sum(x == s for x in r)} for s, r in reads.items()}

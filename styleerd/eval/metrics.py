@@ -33,7 +33,7 @@ from tqdm import tqdm
 
 from styleerd.data.cache import prepare
 from styleerd.data.datasets import data_root, find_clips, load_motion
-from styleerd.data.features import features_to_motion, motion_features
+from styleerd.data.features import motion_features
 from styleerd.data.windows import gather_windows, split_takes
 from styleerd.model.fmd import MotionAutoencoder, fmd_features
 from styleerd.model.generator import StyleERD
@@ -361,7 +361,7 @@ def runtime_transfers(
         sl = fs.frames(clip)
         if sl.stop - sl.start < window:
             continue
-        motion = features_to_motion(fs.features[sl], fs.trajectory[sl], fs.skeleton, fs.params.fps)
+        motion = fs.motion(clip)
         style, content = str(fs.styles[clip]), str(fs.contents[clip])
         targets = [t for t in c.input_styles if t != neutral] if style == neutral else [neutral]
         n = len(targets)

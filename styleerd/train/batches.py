@@ -11,7 +11,7 @@ from tqdm import tqdm
 from styleerd.data.augment import TRAVELLING, in_place
 from styleerd.data.cache import FeatureSet, prepare
 from styleerd.data.datasets import BANDAI1_AS_BANDAI2, bandai1_kept_back, data_root, unpack
-from styleerd.data.features import FeatureLayout, FeatureStats, features_to_motion, motion_features
+from styleerd.data.features import FeatureLayout, FeatureStats, motion_features
 from styleerd.data.outside import held_out
 from styleerd.data.windows import window_starts
 from styleerd.model import torch_quat
@@ -66,8 +66,7 @@ def in_place_clips(fs: FeatureSet, data: TrainingData, every: int = 4) -> tuple[
     ``[C + 1]``, style index per clip)."""
     frames, starts, styles = [], [0], []
     for c in [c for c in fs.clips("train") if fs.contents[c] in TRAVELLING][::every]:
-        sl = fs.frames(int(c))
-        motion = in_place(features_to_motion(fs.features[sl], fs.trajectory[sl], fs.skeleton, fs.params.fps))
+        motion = in_place(fs.motion(int(c)))
         frames.append(data.stats.normalize(motion_features(motion)[0]).astype(np.float32))
         starts.append(starts[-1] + len(frames[-1]))
         styles.append(data.styles.index(fs.styles[c]))
@@ -96,9 +95,9 @@ def outside_windows(
     frames, clip_start = torch.cat([frames, more]), np.concatenate([clip_start, clip_start[-1] + more_start[1:]])
     style = np.concatenate([style, more_style])
     starts = window_starts(clip_start, np.nonzero(style >= 0)[0], data.window, stride)
-    inside = frames[torch.as_tensor(starts[:, None] + np.arange(data.window))].abs().amax((1, 2)) <= bound
-    starts = starts[inside.numpy()]
-    return OutsideWindows(frames, starts, style[np.searchsorted(clip_start, starts, side="right") - 1])
+    every = OutsideWindows(frames, starts, style[np.searchsorted(clip_start, starts, side="right") - 1])
+    inside = (every.gather(np.arange(len(starts)), data.window).abs().amax((1, 2)) <= bound).numpy()
+    return OutsideWindows(frames, starts[inside], every.style[inside])
 
 
 def training_data(fs: FeatureSet, window: int) -> TrainingData:

@@ -26,7 +26,7 @@ from tqdm import tqdm
 
 from styleerd.data.augment import other_performer
 from styleerd.data.cache import FeatureSet
-from styleerd.data.features import features_to_motion, motion_features
+from styleerd.data.features import motion_features
 from styleerd.data.windows import window_starts
 from styleerd.model import checkpoint as ckpt
 from styleerd.model.labeller import OnlineLabeller
@@ -92,9 +92,7 @@ def augmented_clips(
     rng = np.random.default_rng(seed + 1)
     frames, starts, styles, contents = [], [0], [], []
     for c in tqdm(np.repeat(clips, copies), desc="other performers", disable=not progress, leave=False):
-        sl = fs.frames(int(c))
-        motion = features_to_motion(fs.features[sl], fs.trajectory[sl], fs.skeleton, fs.params.fps)
-        motion, content = other_performer(motion, str(fs.contents[c]), reference_pose, rng)
+        motion, content = other_performer(fs.motion(int(c)), str(fs.contents[c]), reference_pose, rng)
         frames.append(data.stats.normalize(motion_features(motion)[0]).astype(np.float32))
         starts.append(starts[-1] + len(frames[-1]))
         styles.append(data.styles.index(fs.styles[c]))
