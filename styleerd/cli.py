@@ -30,10 +30,20 @@ def _data_prepare(args: argparse.Namespace) -> None:
 def _info(args: argparse.Namespace) -> None:
     from styleerd.motion import bvh
 
+    if args.recalibrate and not args.system:
+        raise StyleERDError("info: --recalibrate goes with --system")
     if args.system:
+        from styleerd.model.stored import load_generator_weights
+        from styleerd.runtime.calibration import STREAMS, engine_settings
         from styleerd.runtime.system import describe, system_report
 
-        print(describe(system_report()))
+        model = load_generator_weights(args.model)
+        if args.recalibrate:
+            from tqdm import tqdm
+
+            with tqdm(total=len(STREAMS), desc="calibrating the numba step", unit="batch size") as bar:
+                engine_settings(model, again=True, progress=lambda *_: bar.update())
+        print(describe(system_report(model)))
         if not args.file:
             return
     if not args.file:
@@ -797,8 +807,16 @@ def _use_commands(command: Callable[[str, str], argparse.ArgumentParser]) -> Non
     p.add_argument(
         "--system",
         action="store_true",
-        help="the CPU, the BLAS libraries and threading layers loaded, numba's threads, the engine's settings",
+        help="the CPU, the BLAS libraries and threading layers loaded, numba's threads, the engine's settings (the "
+        "numba step's are measured on this machine at first use, a few seconds, and cached)",
     )
+    p.add_argument(
+        "--recalibrate",
+        action="store_true",
+        help="with --system: measure the numba step's settings again (after a change of hardware, or a first use "
+        "on a busy machine)",
+    )
+    p.add_argument("--model", help=f"with --system: the model whose step is measured; {MODEL_HELP}")
     p.set_defaults(func=_info)
 
     p = command("resample", "change a BVH file's frame rate")

@@ -86,19 +86,22 @@ def test_the_added_style_is_its_own_and_backends_agree_on_it(models):
     assert np.abs(_run(added, "torch", x, style, content, like) - ref).max() > 1e-2
 
 
-def test_many_streams_take_the_numba_backends_blas_path_with_the_added_style(models):
-    """Beyond LOOPS_UP_TO streams, the compiled step's products are BLAS calls, the added
-    style's decoder rows included: equal to the numpy backend's."""
-    from styleerd.runtime.compiled import LOOPS_UP_TO
+@pytest.mark.parametrize("loops", [False, True])
+def test_the_numba_backends_loops_and_blas_paths_take_the_added_style(models, loops):
+    """Either path of the compiled step's products, compiled loops or BLAS calls, takes the added
+    style's decoder rows: equal to the numpy backend's."""
+    from styleerd.runtime.calibration import EngineSettings, StepChoice
+    from styleerd.runtime.compiled import CompiledBackend
 
     _, added, _ = models
-    n = LOOPS_UP_TO + 40
+    n = 41
     x, style, content = _frames(added, n=6, streams=n)
     t = np.eye(len(added.config.styles), dtype=np.float32)[np.arange(n) % len(added.config.styles)]
     t[::3, -1] += 0.5  # some mixtures with the added style
-    np.testing.assert_allclose(
-        _run(added, "numba", x, style, content, t), _run(added, "numpy", x, style, content, t), atol=1e-5
-    )
+    choice = StepChoice(16, loops, 1)
+    b = CompiledBackend(generator_weights(added), n, settings=EngineSettings((1,), (choice,), (choice,), "test"))
+    got = np.stack([b.step(x[k], style, content, t)[0] for k in range(len(x))])
+    np.testing.assert_allclose(got, _run(added, "numpy", x, style, content, t), atol=1e-5)
 
 
 def test_onnx_graph_of_the_added_style_alone(models):

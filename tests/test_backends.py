@@ -387,15 +387,15 @@ def test_the_products_alone_are_the_numba_steps_own_and_count_its_flops(model):
     bench counts), each ``x @ W`` of the step's own weights (the first, the encoder's first layer,
     checked against numpy)."""
     from styleerd.eval.bench import flops_per_frame, products_alone, step_products
-    from styleerd.runtime.compiled import BLOCK_ROWS, products
+    from styleerd.runtime.compiled import products
 
     P, calls = step_products(model)
     assert 2 * int((calls[:, 1] * calls[:, 2]).sum()) == flops_per_frame(model)
     # the first call is the encoder's first layer: on the buffer's inputs, x @ W (rows in three blocks)
-    N, (w, n_in, n_out) = 2 * BLOCK_ROWS + 5, calls[0]
+    N, (w, n_in, n_out) = 2 * 32 + 5, calls[0]
     buffer = np.random.default_rng(0).normal(0, 1, 2 * N * int(calls[:, 1:].max())).astype(np.float32)
     x = buffer[: N * n_in].reshape(N, n_in).copy()
-    products(P, calls[:1], N, buffer)
+    products(P, calls[:1], N, buffer, 32)
     half = len(buffer) // 2
     assert n_in == model.config.feature_dim + len(model.config.input_styles) + len(model.config.contents)
     assert (

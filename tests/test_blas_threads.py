@@ -77,8 +77,6 @@ def test_info_system_names_the_cpu_the_blas_libraries_and_the_engines_settings()
     import sys
     from pathlib import Path
 
-    from styleerd.runtime import compiled
-
     done = subprocess.run(
         [sys.executable, "-m", "styleerd.cli", "info", "--system"],
         capture_output=True,
@@ -95,4 +93,4 @@ def test_info_system_names_the_cpu_the_blas_libraries_and_the_engines_settings()
         )
         assert f"CPU: {model} (" in out
     assert "openblas" in out and "thread pools loaded:" in out and "numba" in out
-    assert f"blocks of {compiled.BLOCK_ROWS} streams" in out and "not calibrated" in out
+    assert "numba step, by batch size (calibrated on this machine" in out and " 1024 | BLAS, blocks of " in out

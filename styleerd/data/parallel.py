@@ -33,12 +33,13 @@ def threadsafe_layer() -> bool:
     return False
 
 
-def kernel_threads(threads: int, n_streams: int) -> int:
+def kernel_threads(threads: int, n_streams: int, from_streams: int = PARALLEL_FROM) -> int:
     """The threads a compiled kernel runs ``n_streams`` streams on when asked for ``threads``,
-    one shard of streams each: at most numba's threads, and one for small steps or where no
-    thread-safe layer loads. Sets numba's threads for this thread's next parallel loops to it
-    (set inside the kernels, the setting would keep them from numba's disk cache)."""
-    if threads <= 1 or n_streams < PARALLEL_FROM or not threadsafe_layer():
+    one shard of streams each: at most numba's threads, and one for steps of fewer than
+    ``from_streams`` streams or where no thread-safe layer loads. Sets numba's threads for this
+    thread's next parallel loops to it (set inside the kernels, the setting would keep them from
+    numba's disk cache)."""
+    if threads <= 1 or n_streams < from_streams or not threadsafe_layer():
         return 1
     shards = min(threads, nb.config.NUMBA_NUM_THREADS)
     nb.set_num_threads(shards)

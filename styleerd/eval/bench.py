@@ -225,21 +225,23 @@ def products_alone(
     model: StyleERD, n_streams: int = 1000, seconds: float = 1.5, threads: int = 2, windows: int = 1
 ) -> float:
     """Frames/s of the numba step's matrix products alone (``step_products``): the same BLAS
-    calls on the same shapes (blocks of ``compiled.BLOCK_ROWS`` streams), one shard of streams
-    per thread, nothing else (no activations, no copies). The whole step's fraction of peak
-    sits under this one."""
+    calls on the same shapes (blocks of the streams the step takes at a time on this machine at
+    ``n_streams``: ``runtime.calibration``), one shard of streams per thread, nothing else (no
+    activations, no copies). The whole step's fraction of peak sits under this one."""
     from concurrent.futures import ThreadPoolExecutor
 
     from threadpoolctl import threadpool_limits
 
+    from styleerd.runtime.calibration import engine_settings
     from styleerd.runtime.compiled import products
 
+    block_rows = engine_settings(generator_weights(model)).choice(n_streams, threads).block_rows
     P, calls = step_products(model)
     shards = _slices(n_streams, threads)
     rng = np.random.default_rng(0)
     buffers = [rng.normal(0, 1, 2 * (s.stop - s.start) * int(calls[:, 1:].max())).astype(np.float32) for s in shards]
     with ThreadPoolExecutor(len(shards)) as pool, threadpool_limits(1):
-        run = lambda k: products(P, calls, shards[k].stop - shards[k].start, buffers[k])
+        run = lambda k: products(P, calls, shards[k].stop - shards[k].start, buffers[k], block_rows)
         return _steady_rate(lambda: list(pool.map(run, range(len(shards)))), n_streams, seconds, windows)
 
 

@@ -3,9 +3,10 @@ gate order) in one compiled, GIL-free call, so a frame pays for its floating-poi
 for a hundred numpy dispatches; a step of many streams runs one shard of streams per thread in
 numba's parallel loops (``compiled_step_on_shards``, ``data.parallel``).
 The products are BLAS calls from inside the compiled step (``_gemm``: sgemm reading the
-state's columns in place and accumulating into its output, nothing copied), but for a single
-stream (``LOOPS_UP_TO``) compiled loops. Many streams go through the whole network a block of
-``BLOCK_ROWS`` at a time, so a block's state and gates stay in cache between layers.
+state's columns in place and accumulating into its output, nothing copied), or compiled loops for
+a few streams. Many streams go through the whole network a block of streams at a time, so a
+block's state and gates stay in cache between layers. Which path, what block and how many threads
+at each batch size is measured on the machine (``runtime.calibration``).
 
 The activations use ``tanh_fraction``, a rational approximation that vectorises (np.tanh in a
 compiled loop is a scalar libm call). Compiled on first use and cached on disk
@@ -24,14 +25,8 @@ from numba.extending import get_cython_function_address
 
 from styleerd.data.parallel import kernel_threads
 from styleerd.model.stored import GeneratorWeights
+from styleerd.runtime.calibration import EngineSettings, engine_settings
 from styleerd.runtime.numpy_step import NumpyBackend, StepWeights, one_blas_thread
-
-# Streams a step takes through the whole network at a time, so that a block's state, gates and
-# activations stay in cache from one layer to the next (docs/benchmarks.md, "Tuned constants").
-BLOCK_ROWS = 32
-# Up to this many streams a step's products are compiled loops, beyond it BLAS calls (the same page).
-LOOPS_UP_TO = 1
-
 
 # BLAS sgemm called by name from compiled code (resolved when the code is linked, so it caches):
 # unlike np.dot it takes row-strided operands (a block of a state's columns) and accumulates
@@ -116,10 +111,10 @@ def _axpy(a, x, y):
 
 
 @nb.njit(cache=True, fastmath=True, error_model="numpy", nogil=True)
-def _dense(P, entry, x, y, accumulate):
+def _dense(P, entry, x, y, accumulate, loops_up_to):
     """``y (+)= x @ W (+ b)`` for the matrix ``entry`` of the packed parameters (offset, rows,
-    columns, bias offset or -1): BLAS for many rows, compiled loops for a few."""
-    if x.shape[0] > LOOPS_UP_TO:
+    columns, bias offset or -1): BLAS for more than ``loops_up_to`` rows, compiled loops for fewer."""
+    if x.shape[0] > loops_up_to:
         _blas(P, entry[0], entry[1], entry[2], entry[3], x, y, accumulate)
     else:
         _loops(P, entry[0], entry[1], entry[2], entry[3], x, y, accumulate)
@@ -167,7 +162,7 @@ def _relu(y):
 
 
 @nb.njit(cache=True, fastmath=True, error_model="numpy", nogil=True)
-def _stack(P, table, first_entry, layers, x, hs, cs, at, g):
+def _stack(P, table, first_entry, layers, x, hs, cs, at, g, loops_up_to):
     """LSTM layers ``table[first_entry + 2i]`` (input weights and bias), ``+ 2i + 1`` (hidden
     weights, stored right after the input weights) on ``x [N, in]``. Layer i's state is the
     columns ``at + iH`` to ``at + (i + 1)H`` of hs, cs ``[N, S]``, updated in place; the last
@@ -176,7 +171,7 @@ def _stack(P, table, first_entry, layers, x, hs, cs, at, g):
     N, H = x.shape[0], g.shape[1] // 4
     for i in range(layers):
         e, e_h, a = table[first_entry + 2 * i], table[first_entry + 2 * i + 1], at + i * H
-        if N <= LOOPS_UP_TO:
+        if N <= loops_up_to:
             _loops(P, e[0], e[1], e[2], -1, x if i == 0 else hs[:, a - H : a], g, False)
             _loops(P, e_h[0], e_h[1], e_h[2], -1, hs[:, a : a + H], g, True)
         elif i == 0:
@@ -203,15 +198,35 @@ def _stack(P, table, first_entry, layers, x, hs, cs, at, g):
 
 
 @nb.njit(cache=True, fastmath=True, error_model="numpy", nogil=True)
-def compiled_step(x, style, content, target, P, table, sizes, inits, branch_styles, h, c, hb, cb, first, rot, vel):
+def compiled_step(
+    x,
+    style,
+    content,
+    target,
+    P,
+    table,
+    sizes,
+    inits,
+    branch_styles,
+    h,
+    c,
+    hb,
+    cb,
+    first,
+    rot,
+    vel,
+    block_rows,
+    loops_up_to,
+):
     """The whole step in one compiled call, on the packed parameters (``pack``). Writes ``rot
     [N, J, 4]``, ``vel [N, 3J]``; updates ``first`` and the states in place, streams first and
     each stream's row flat: h, c ``[N, L0 * H]``, hb, cb ``[N, K * L1 * H]`` (branch, layer).
-    Steps ``BLOCK_ROWS`` streams at a time through the whole network."""
+    Steps ``block_rows`` streams at a time through the whole network; products of up to
+    ``loops_up_to`` rows are compiled loops, of more BLAS calls."""
     _refuse_unless_fitting(x, style, content, target, table, sizes, h, c, hb, cb, first, rot, vel)
     N = x.shape[0]
-    for s in range(0, N, BLOCK_ROWS):
-        e = min(N, s + BLOCK_ROWS)
+    for s in range(0, N, block_rows):
+        e = min(N, s + block_rows)
         _step_block(
             x[s:e],
             style[s:e],
@@ -229,12 +244,31 @@ def compiled_step(x, style, content, target, P, table, sizes, inits, branch_styl
             first[s:e],
             rot[s:e],
             vel[s:e],
+            loops_up_to,
         )
 
 
 @nb.njit(cache=True, nogil=True, parallel=True)
 def compiled_step_on_shards(
-    shards, x, style, content, target, P, table, sizes, inits, branch_styles, h, c, hb, cb, first, rot, vel
+    shards,
+    x,
+    style,
+    content,
+    target,
+    P,
+    table,
+    sizes,
+    inits,
+    branch_styles,
+    h,
+    c,
+    hb,
+    cb,
+    first,
+    rot,
+    vel,
+    block_rows,
+    loops_up_to,
 ):
     """``compiled_step`` on ``shards`` slices of the streams at once, one per thread, each
     holding BLAS to itself (``_blas_threads_here``). Inputs that do not fit are refused before the split (a shard of
@@ -263,6 +297,8 @@ def compiled_step_on_shards(
             first[s:e],
             rot[s:e],
             vel[s:e],
+            block_rows,
+            loops_up_to,
         )
     _blas_threads_here(callers)
 
@@ -289,7 +325,9 @@ def _refuse_unless_fitting(x, style, content, target, table, sizes, h, c, hb, cb
 
 
 @nb.njit(cache=True, fastmath=True, error_model="numpy", nogil=True)
-def _step_block(x, style, content, target, P, table, sizes, inits, branch_styles, h, c, hb, cb, first, rot, vel):
+def _step_block(
+    x, style, content, target, P, table, sizes, inits, branch_styles, h, c, hb, cb, first, rot, vel, loops_up_to
+):
     """``compiled_step`` on one block of rows that fit."""
     n_enc, L0, L1, n_dec, J = sizes[0], sizes[1], sizes[2], sizes[3], sizes[4]
     N, H, K = x.shape[0], h.shape[1] // L0, len(branch_styles)
@@ -311,12 +349,12 @@ def _step_block(x, style, content, target, P, table, sizes, inits, branch_styles
         z[n, :D], z[n, D : D + nS], z[n, D + nS :] = x[n], style[n], content[n]
     for i in range(n_enc):
         y = np.empty((N, table[i, 2]), np.float32)
-        _dense(P, table[i], z, y, False)
+        _dense(P, table[i], z, y, False, loops_up_to)
         if i < n_enc - 1:
             _relu(y)
         z = y
     g = np.empty((N, 4 * H), np.float32)
-    _stack(P, table, n_enc, L0, z, h, c, 0, g)
+    _stack(P, table, n_enc, L0, z, h, c, 0, g, loops_up_to)
     out = np.empty((N, H), np.float32)
     for n in range(N):
         out[n] = h[n, (L0 - 1) * H :]
@@ -326,14 +364,14 @@ def _step_block(x, style, content, target, P, table, sizes, inits, branch_styles
         if len(rows) == 0:
             continue
         if len(rows) == N:  # every stream: the state in place, no gather
-            _stack(P, table, first_entry, L1, z, hb, cb, at, g)
+            _stack(P, table, first_entry, L1, z, hb, cb, at, g, loops_up_to)
             for n in range(N):
                 _axpy(target[n, s], hb[n, at + (L1 - 1) * H : at + L1 * H], out[n])
             continue
         hk, ck = np.empty((len(rows), L1 * H), np.float32), np.empty((len(rows), L1 * H), np.float32)
         for r in range(len(rows)):
             hk[r], ck[r] = hb[rows[r], at : at + L1 * H], cb[rows[r], at : at + L1 * H]
-        _stack(P, table, first_entry, L1, z[rows], hk, ck, 0, g[: len(rows)])
+        _stack(P, table, first_entry, L1, z[rows], hk, ck, 0, g[: len(rows)], loops_up_to)
         for r in range(len(rows)):
             hb[rows[r], at : at + L1 * H], cb[rows[r], at : at + L1 * H] = hk[r], ck[r]
             _axpy(target[rows[r], s], hk[r, (L1 - 1) * H :], out[rows[r]])
@@ -345,9 +383,9 @@ def _step_block(x, style, content, target, P, table, sizes, inits, branch_styles
     for i in range(n_dec):
         e = table[first_dec + i]
         o = np.empty((N, e[2]), np.float32)
-        _dense(P, e, y, o, False)
+        _dense(P, e, y, o, False, loops_up_to)
         if i == 0 and nI < target.shape[1]:  # the added styles' target rows, apart (see StyleERD.decode)
-            _dense(P, table[first_dec + n_dec], target[:, nI:], o, True)
+            _dense(P, table[first_dec + n_dec], target[:, nI:], o, True, loops_up_to)
         if i < n_dec - 1:
             _relu(o)
         y = o
@@ -367,13 +405,13 @@ def _step_block(x, style, content, target, P, table, sizes, inits, branch_styles
 
 
 @nb.njit(cache=True, nogil=True)
-def products(P, calls, N, buffer):
+def products(P, calls, N, buffer, block_rows):
     """The products ``calls`` (rows: offset in P, inputs, outputs) on ``N`` rows of ``buffer``
-    (its first half the inputs, its second the outputs), ``BLOCK_ROWS`` rows at a time as the
+    (its first half the inputs, its second the outputs), ``block_rows`` rows at a time as the
     step makes them, nothing else: what the step's products alone cost (``eval.bench.products_alone``)."""
     half = len(buffer) // 2
-    for s in range(0, N, BLOCK_ROWS):
-        e = min(N, s + BLOCK_ROWS)
+    for s in range(0, N, block_rows):
+        e = min(N, s + block_rows)
         for k in range(len(calls)):
             w, n_in, n_out = calls[k, 0], calls[k, 1], calls[k, 2]
             x, y = buffer[: N * n_in].reshape((N, n_in)), buffer[half : half + N * n_out].reshape((N, n_out))
@@ -432,17 +470,22 @@ def pack(w: StepWeights) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray
 
 class CompiledBackend(NumpyBackend):
     """The ``numba`` backend: NumpyBackend's state, stepped by the compiled step; a step of
-    many streams on up to ``threads`` threads (``data.parallel``)."""
+    many streams on up to ``threads`` threads (``data.parallel``), each batch size by the path
+    ``settings`` chooses (by default, the one measured fastest on this machine)."""
 
-    def __init__(self, model: GeneratorWeights, n_streams: int, threads: int = 1):
+    def __init__(
+        self, model: GeneratorWeights, n_streams: int, threads: int = 1, settings: EngineSettings | None = None
+    ):
         super().__init__(model, n_streams)
         self.threads = threads
+        self.settings = settings or engine_settings(model)
         self.params, self.table, self.sizes, self.inits = pack(self.w)
         self.branch_styles = np.array(self.w.branch_styles, dtype=np.int64)
         self._whole = (self.h, *(_rows(a) for a in (self.h, self.c, self.hb, self.cb)))  # the whole state, flat, once
 
     def _arithmetic(self, x, style, content, target, h, c, hb, cb, first) -> tuple[np.ndarray, np.ndarray]:
         N = len(x)
+        choice = self.settings.choice(N, self.threads)
         rot, vel = np.empty((N, self.w.n_joints, 4), np.float32), np.empty((N, 3 * self.w.n_joints), np.float32)
         flat = self._whole[1:] if h is self._whole[0] else tuple(_rows(a) for a in (h, c, hb, cb))
         args = (
@@ -459,8 +502,10 @@ class CompiledBackend(NumpyBackend):
             first,
             rot,
             vel,
+            choice.block_rows,
+            2**31 if choice.loops else 0,
         )
-        shards = kernel_threads(self.threads, N)
+        shards = kernel_threads(min(self.threads, choice.threads), N, from_streams=1)
         if shards == 1:
             compiled_step(*args)
         else:

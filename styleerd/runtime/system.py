@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import os
 import platform
+from dataclasses import asdict
 from pathlib import Path
 
 import numba as nb
@@ -15,7 +16,8 @@ import scipy
 from threadpoolctl import threadpool_info
 
 from styleerd.data.parallel import PARALLEL_FROM, threadsafe_layer
-from styleerd.runtime import compiled
+from styleerd.model.stored import GeneratorWeights, load_generator_weights
+from styleerd.runtime.calibration import EngineSettings, engine_settings
 from styleerd.runtime.stylizer import SHARD_FROM
 
 
@@ -40,8 +42,9 @@ def cpu_flags() -> list[str]:
     return [f for f in ("sse4_2", "avx", "avx2", "fma", "avx512f", "avx512_vnni", "amx_tile") if f in flags]
 
 
-def system_report() -> dict:
-    """The machine and the engine's settings on it (module docstring)."""
+def system_report(model: GeneratorWeights | None = None) -> dict:
+    """The machine and the engine's settings on it for ``model`` (default: the shipped one;
+    calibrated now if this machine has not been: ``runtime.calibration``)."""
     scipy.linalg.blas  # noqa: B018  loads scipy's BLAS, which numba's compiled products call
     try:
         import onnxruntime
@@ -66,11 +69,20 @@ def system_report() -> dict:
             for info in threadpool_info()
         ],
         "engine": {
-            "block_rows": compiled.BLOCK_ROWS,
-            "loops_up_to_streams": compiled.LOOPS_UP_TO,
-            "threads_from_streams": PARALLEL_FROM,
+            "numba_step": engine_choices(engine_settings(model or load_generator_weights())),
+            "kernels_threads_from_streams": PARALLEL_FROM,
             "shards_from_streams": SHARD_FROM,
         },
+    }
+
+
+def engine_choices(settings: EngineSettings) -> dict:
+    """The numba step's choice at each batch size, as a report reads it."""
+    return {
+        "source": settings.source,
+        "from_streams": list(settings.streams),
+        "one_thread": [asdict(c) for c in settings.one_thread],
+        "many_threads": [asdict(c) for c in settings.many_threads],
     }
 
 
@@ -90,11 +102,15 @@ def describe(report: dict) -> str:
         about += [f"threading {pool['threading_layer']}"] * bool(pool["threading_layer"])
         about += [f"{pool['architecture']} kernels"] * bool(pool["architecture"])
         lines.append(f"  {pool['internal_api']} {pool['version'] or ''}".rstrip() + f" ({'; '.join(about)})")
-    e = report["engine"]
+    e, step = report["engine"], report["engine"]["numba_step"]
+    lines.append(f"numba step, by batch size ({step['source']}):")
+    lines.append("  streams from | one thread asked | more threads asked")
+    path = lambda c: f"{'loops' if c['loops'] else 'BLAS'}, blocks of {c['block_rows']}, {c['threads']} thread(s)"
+    for n, one, many in zip(step["from_streams"], step["one_thread"], step["many_threads"], strict=True):
+        lines.append(f"  {n:>12} | {path(one)} | {path(many)}")
     lines.append(
-        f"engine: blocks of {e['block_rows']} streams; loops up to {e['loops_up_to_streams']} stream(s), BLAS above; "
-        f"numba threads from {e['threads_from_streams']} streams; numpy/onnx shards from "
+        f"other kernels: numba threads from {e['kernels_threads_from_streams']} streams; numpy/onnx shards from "
         + ", ".join(f"{k} {v}" for k, v in e["shards_from_streams"].items())
-        + " streams (fixed settings, not calibrated on this machine)"
+        + " streams (fixed settings)"
     )
     return "\n".join(lines)

@@ -1,0 +1,87 @@
+"""The numba step's settings measured per machine (``runtime.calibration``): every path it may
+choose steps as the numpy backend does, the choice is the fastest it timed, and it is cached by
+machine, libraries and model shape (read back, not measured again; measured again when the file
+is damaged or was written for another machine)."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from styleerd.model.stored import load_generator_weights
+from styleerd.runtime import calibration
+from styleerd.runtime.backends import make_backend
+from styleerd.runtime.calibration import EngineSettings, StepChoice, candidates, engine_settings, fixed_settings
+from styleerd.runtime.compiled import CompiledBackend
+
+
+@pytest.fixture(scope="module")
+def model():
+    return load_generator_weights()
+
+
+@pytest.mark.parametrize("n", [1, 5, 8, 40, 300])
+def test_every_path_the_calibration_may_choose_steps_as_the_numpy_backend(model, n):
+    c = model.config
+    rng = np.random.default_rng(n)
+    style = np.eye(len(c.input_styles), dtype=np.float32)[rng.integers(0, len(c.input_styles), n)]
+    content = np.eye(len(c.contents), dtype=np.float32)[rng.integers(0, len(c.contents), n)]
+    target = rng.dirichlet(np.ones(len(c.styles)) * 0.3, n).astype(np.float32)  # mixtures: every branch runs
+    x = rng.normal(0, 1, (5, n, c.feature_dim)).astype(np.float32)
+    ref = make_backend("numpy", model, n)
+    want = [ref.step(x[t], style, content, target) for t in range(len(x))]
+    options = candidates(n, 2)
+    assert {o.loops for o in options} == ({True, False} if n <= 8 else {False})
+    for choice in options:
+        fast = CompiledBackend(model, n, 2, EngineSettings((1,), (choice,), (choice,), "test"))
+        for t in range(len(x)):
+            rot, vel = fast.step(x[t], style, content, target)
+            assert np.abs(rot - want[t][0]).max() <= 1e-5 and np.abs(vel - want[t][1]).max() <= 1e-4, (choice, t)
+
+
+def test_the_choice_for_a_batch_is_the_one_calibrated_at_or_below_it():
+    one = tuple(StepChoice(b, False, 1) for b in (1, 2, 3))
+    many = tuple(StepChoice(b, False, 2) for b in (1, 2, 3))
+    s = EngineSettings((1, 16, 256), one, many, "test")
+    assert s.choice(0, 1) == one[0] and s.choice(15, 1) == one[0] and s.choice(16, 1) == one[1]
+    assert s.choice(10_000, 1) == one[2] and s.choice(255, 4) == many[1] and s.choice(256, 2) == many[2]
+    fixed = fixed_settings(2)  # today's constants: loops for 1 stream, BLAS blocks of 32, threads from 32
+    assert fixed.choice(1, 2) == StepChoice(32, True, 1) and fixed.choice(31, 2) == StepChoice(32, False, 1)
+    assert fixed.choice(32, 2) == StepChoice(32, False, 2) and fixed.choice(5000, 1).threads == 1
+
+
+def test_calibration_is_cached_by_machine_and_model_shape(model, tmp_path, monkeypatch):
+    monkeypatch.setenv("STYLEERD_CACHE", str(tmp_path))
+    monkeypatch.setattr(calibration, "STREAMS", (1, 4, 40))
+    monkeypatch.setattr(calibration, "ROUNDS", 1)
+    monkeypatch.setattr(calibration, "_known", {})
+    measured = []
+    real = calibration.calibrate
+    monkeypatch.setattr(calibration, "calibrate", lambda *a, **k: measured.append(1) or real(*a, **k))
+
+    first = engine_settings(model)
+    (path,) = (tmp_path / "engine").glob("calibration-*.json")
+    record = json.loads(path.read_text())
+    assert measured == [1] and record["key"] == calibration.machine_key(model) and str(path) in first.source
+    for row in record["choices"]:  # the fastest timed, among the candidates of its size
+        timed = {(t["block_rows"], t["loops"], t["threads"]): t["us_per_step"] for t in row["timed"]}
+        assert set(timed) == {(c.block_rows, c.loops, c.threads) for c in candidates(row["streams"], record["threads"])}
+        many, one = row["many_threads"], row["one_thread"]
+        assert many["us_per_step"] == min(timed.values())
+        assert one["threads"] == 1 and one["us_per_step"] == min(v for k, v in timed.items() if k[2] == 1)
+
+    monkeypatch.setattr(calibration, "_known", {})  # another process: read back, not measured
+    assert engine_settings(model) == first and measured == [1]
+    path.write_text(path.read_text()[:-20])  # damaged: measured again, and whole again
+    monkeypatch.setattr(calibration, "_known", {})
+    engine_settings(model)
+    assert measured == [1, 1] and json.loads(path.read_text())["key"] == record["key"]
+    path.write_text(json.dumps(record | {"key": record["key"] | {"cpu": "another CPU"}}))  # another machine's
+    monkeypatch.setattr(calibration, "_known", {})
+    engine_settings(model)
+    assert measured == [1, 1, 1]
+
+    monkeypatch.setenv("STYLEERD_CALIBRATE", "0")
+    assert engine_settings(model) == fixed_settings()
