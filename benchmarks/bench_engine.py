@@ -9,9 +9,9 @@ graph of every style's branches, and of one style's), end to end at batch 1 (raw
 and 256 streams on 2 threads (numba, end to end), and 1,000 streams on 2 threads (numba: end to end, and the network
 alone; numpy and ONNX: the network alone) against the float32 matrix-multiply peak measured in the same process.
 
-    python benchmarks/bench_engine.py [--before COMMIT] [--rounds 3]
+    python benchmarks/bench_engine.py [--before COMMIT] [--rounds 3] [--json docs/engine-bench.json]
 
-Writes docs/engine-bench.json and prints a table.
+Writes the JSON (with the CPU's model) and prints a table.
 """
 
 from __future__ import annotations
@@ -46,6 +46,7 @@ FIGURES = (
     "fraction_of_peak 1000 streams numba, products alone",
     "frames_per_s 64 streams numba",
     "frames_per_s 256 streams numba",
+    *(f"frames_per_s {n} streams {b}, network alone" for n in (1, 4, 16, 64, 256) for b in ("numba", "numpy")),
 )
 
 
@@ -86,6 +87,11 @@ def measure(steps: int) -> dict:
         out["fraction_of_peak 1000 streams numba, network alone"] = round(net * flops_per_frame(model) / peak, 4)
         for backend in ("numpy", "onnx"):
             out[f"frames_per_s 1000 streams {backend}, network alone"] = round(bench.network_throughput(model, backend))
+        for n in (1, 4, 16, 64, 256):  # numpy sharded over threads only from many streams, as StreamStylizer does
+            for backend, threads in (("numba", 2), ("numpy", 1)):
+                out[f"frames_per_s {n} streams {backend}, network alone"] = round(
+                    bench.network_throughput(model, backend, n, seconds=0.7, threads=threads)
+                )
     if hasattr(bench, "products_alone"):  # the ceiling: the numba step's matrix products alone
         out["fraction_of_peak 1000 streams numba, products alone"] = round(
             bench.products_alone(model) * flops_per_frame(model) / peak, 4
@@ -196,6 +202,7 @@ def main() -> None:
     parser.add_argument("--before", default=BEFORE)
     parser.add_argument("--rounds", type=int, default=3)
     parser.add_argument("--steps", type=int, default=2000)
+    parser.add_argument("--json", type=Path, default=ROOT / "docs" / "engine-bench.json")
     args = parser.parse_args()
     with tempfile.TemporaryDirectory() as tmp:
         before = Path(tmp) / "before"
@@ -216,7 +223,10 @@ def main() -> None:
         finally:
             subprocess.run(["git", "-C", str(ROOT), "worktree", "remove", "--force", str(before)], check=False)
     median, best = summary(rounds)
+    from styleerd.runtime.system import cpu_model
+
     report = {
+        "cpu": cpu_model(),
         "rounds": args.rounds,
         "steps": args.steps,
         "cpu_count": os.cpu_count(),
@@ -224,12 +234,13 @@ def main() -> None:
         "best": best,
         "each_round": rounds,
     }
-    out = ROOT / "docs" / "engine-bench.json"
+    out = args.json
     out.write_text(json.dumps(report, indent=1) + "\n")
     b, a = median.values()
     bb, ab = best.values()
+    print(f"\nCPU: {report['cpu']}, {report['cpu_count']} cores")
     print(
-        f"\n| figure ({args.rounds} alternating rounds) | {' | '.join(median)}: median | speed-up | best round: "
+        f"| figure ({args.rounds} alternating rounds) | {' | '.join(median)}: median | speed-up | best round: "
         f"{' | '.join(best)} | speed-up |\n| --- | --- | --- | --- | --- | --- | --- |"
     )
     for k in FIGURES:
