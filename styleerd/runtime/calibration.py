@@ -34,8 +34,11 @@ from styleerd.model.stored import GeneratorWeights
 STREAMS = (1, 2, 4, 8, 16, 32, 64, 128, 256, 512, 1024)  # the batch sizes timed
 BLOCKS = (8, 16, 32, 64, 128, 256, 512)  # block sizes tried below a shard's rows (the whole shard too)
 LOOPS_UP_TO = 8  # loops are tried for shards of up to this many streams (BLAS wins beyond: docs/benchmarks.md)
-ROUNDS = 3  # candidates timed in alternating rounds, each one's best round kept
-MEASURE_S = 0.002  # least time a candidate steps in a round (at least 2 steps)
+ROUNDS = 5  # candidates timed in alternating rounds
+MEASURE_S = 0.002  # least time a candidate steps in a round (at least 2 steps), each step timed
+# Each candidate's figure is the median of its steps' times: on a virtual machine a step on two
+# threads now and then waits ~8 ms for a descheduled vCPU, which a window's mean takes in whole
+# (docs/benchmarks.md, "The engine on other CPUs").
 FORMAT = 1  # the cache file's layout; a new one recalibrates
 
 
@@ -103,21 +106,22 @@ def _timer(model: GeneratorWeights, n_streams: int, threads: int):
         one_hot(int(backend.sizes[6]), (c.neutral_index + 1) % len(c.input_styles)),
     )
 
-    def time_step(choice: StepChoice) -> float:
+    def time_steps(choice: StepChoice) -> list[float]:
         backend.settings = EngineSettings((1,), (choice,), (choice,), "calibrating")
         backend.step(*inputs)  # untimed: the first call of a path (and a thread pool's start)
-        steps, t0 = 0, time.perf_counter()
-        while steps < 2 or time.perf_counter() - t0 < MEASURE_S:
+        times, t_end = [], time.perf_counter() + MEASURE_S
+        while len(times) < 2 or time.perf_counter() < t_end:
+            t0 = time.perf_counter()
             backend.step(*inputs)
-            steps += 1
-        return (time.perf_counter() - t0) / steps
+            times.append(time.perf_counter() - t0)
+        return times
 
-    return time_step
+    return time_steps
 
 
 def calibrate(model: GeneratorWeights, threads: int | None = None, progress=None) -> dict:
     """Time every candidate at every batch size (``ROUNDS`` alternating rounds, each candidate's
-    best kept) and choose the fastest per batch size, for one thread and for up to ``threads``
+    median step) and choose the fastest per batch size, for one thread and for up to ``threads``
     (numba's threads; only where a thread-safe layer loads). Returns the cache file's record."""
     threads = threads or nb.config.NUMBA_NUM_THREADS
     if not threadsafe_layer():
@@ -125,11 +129,12 @@ def calibrate(model: GeneratorWeights, threads: int | None = None, progress=None
     t_start, rows = time.perf_counter(), []
     for n in STREAMS:
         options = candidates(n, threads)
-        time_step = _timer(model, n, threads)
-        best = [float("inf")] * len(options)
+        time_steps = _timer(model, n, threads)
+        steps: list[list[float]] = [[] for _ in options]
         for _ in range(ROUNDS):
             for k, choice in enumerate(options):
-                best[k] = min(best[k], time_step(choice))
+                steps[k] += time_steps(choice)
+        best = [float(np.median(t)) for t in steps]
         one = min((k for k, c in enumerate(options) if c.threads == 1), key=best.__getitem__)
         many = min(range(len(options)), key=best.__getitem__)
         rows.append(
@@ -137,7 +142,10 @@ def calibrate(model: GeneratorWeights, threads: int | None = None, progress=None
                 "streams": n,
                 "one_thread": asdict(options[one]) | {"us_per_step": round(best[one] * 1e6, 1)},
                 "many_threads": asdict(options[many]) | {"us_per_step": round(best[many] * 1e6, 1)},
-                "timed": [asdict(c) | {"us_per_step": round(s * 1e6, 1)} for c, s in zip(options, best, strict=True)],
+                "timed": [
+                    asdict(c) | {"us_per_step": round(s * 1e6, 1), "steps": len(t)}
+                    for c, s, t in zip(options, best, steps, strict=True)
+                ],
             }
         )
         if progress:

@@ -222,9 +222,14 @@ def compiled_step(
     [N, J, 4]``, ``vel [N, 3J]``; updates ``first`` and the states in place, streams first and
     each stream's row flat: h, c ``[N, L0 * H]``, hb, cb ``[N, K * L1 * H]`` (branch, layer).
     Steps ``block_rows`` streams at a time through the whole network; products of up to
-    ``loops_up_to`` rows are compiled loops, of more BLAS calls."""
+    ``loops_up_to`` rows are compiled loops, of more BLAS calls. BLAS runs on the calling thread
+    alone: threads are the caller's choice (``compiled_step_on_shards``), and OpenBLAS's own, left
+    spinning after a product, took a core from the next parallel step (a step of 256 streams now
+    and then 3.5x slower on 2 cores)."""
     _refuse_unless_fitting(x, style, content, target, table, sizes, h, c, hb, cb, first, rot, vel)
     N = x.shape[0]
+    blas = min(N, block_rows) > loops_up_to
+    callers = _blas_threads_here(1) if blas else 1
     for s in range(0, N, block_rows):
         e = min(N, s + block_rows)
         _step_block(
@@ -246,6 +251,8 @@ def compiled_step(
             vel[s:e],
             loops_up_to,
         )
+    if blas:
+        _blas_threads_here(callers)
 
 
 @nb.njit(cache=True, nogil=True, parallel=True)
