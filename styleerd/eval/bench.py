@@ -282,7 +282,7 @@ def state_bytes(model: StyleERD) -> dict:
 
 def run_bench(model: StyleERD, steps: int = 2000, streams: tuple[int, ...] = STREAMS, progress=print) -> dict:
     report: dict = {
-        "system": system_report(),
+        "system": system_report(generator_weights(model)),
         "cpu_count": os.cpu_count(),
         "flops_per_frame": flops_per_frame(model),
         "memory_per_stream_bytes": state_bytes(model),

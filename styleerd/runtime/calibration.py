@@ -4,9 +4,9 @@ the whole network at a time, one thread or numba's threads) and keeps the fastes
 cached by CPU, libraries and the model's shape, so later processes start at once.
 
 Constants tuned on one CPU do not carry to another: blocks of 32 streams were 1.15x the whole
-shard on the Intel machine they were tuned on and 0.55x on an AMD EPYC with OpenBLAS's Haswell
-kernels, where sgemm's cost per call (packing both operands) outweighs the cache it saves
-(docs/benchmarks.md, "The engine on other CPUs"). ``STYLEERD_CALIBRATE=0`` keeps the fixed settings.
+shard on the Intel machine they were tuned on and 0.58-0.72x the best block on an AMD EPYC, where
+each sgemm call costs about as much as its arithmetic (docs/benchmarks.md, "The engine on other
+CPUs"). ``STYLEERD_CALIBRATE=0`` keeps the fixed settings.
 """
 
 from __future__ import annotations
