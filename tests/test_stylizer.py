@@ -177,6 +177,7 @@ def test_numba_kernels_on_threads_from_two_callers_at_once_equal_one_thread(mode
 
     from styleerd.runtime import compiled
 
+    monkeypatch.setenv("STYLEERD_CALIBRATE", "0")  # the fixed settings: the network on threads from 32 streams
     n, frames = 40, 10  # at least data.parallel.PARALLEL_FROM streams
     ms = [walking_motion(frames, seed=k) for k in range(n)]
     targets = [{"old": 1.0}, {"angry": 0.5, "old": 0.5}, {"normal": 1.0}, {"angry": 1.0}] * (n // 4)
@@ -511,3 +512,25 @@ def test_the_command_line_offers_the_stylizers_poses():
     from styleerd.cli import POSES as CLI_POSES
 
     assert CLI_POSES == POSES
+
+
+@pytest.mark.parametrize("threads", [1, 2])
+def test_posture_change_is_the_rotation_of_the_weighted_rotation_vectors(threads, monkeypatch):
+    """``posture_change``'s compiled pass against scipy: per stream and joint, the rotation whose
+    vector is the postures weighted by the stream's weights (zero weights: the identity), on one
+    thread and on the kernel threads."""
+    from scipy.spatial.transform import Rotation
+
+    from styleerd.data import parallel
+    from styleerd.runtime.stylizer import posture_change
+
+    monkeypatch.setattr(parallel, "PARALLEL_FROM", 4)
+    rng = np.random.default_rng(2)
+    posture = rng.normal(0, 0.4, (7, 21, 3))
+    weights = rng.normal(0, 0.7, (9, 7))
+    weights[3] = 0.0
+    got = posture_change(posture, weights, threads)
+    vectors = np.einsum("ns,sjc->njc", weights, posture)
+    want = Rotation.from_rotvec(vectors.reshape(-1, 3)).as_quat()[:, [3, 0, 1, 2]].reshape(9, 21, 4)
+    assert np.abs(quat.positive_w(got) - quat.positive_w(want)).max() < 1e-12
+    assert np.array_equal(got[3], np.tile([1.0, 0.0, 0.0, 0.0], (21, 1)))
