@@ -522,9 +522,12 @@ def test_posture_change_is_the_rotation_of_the_weighted_rotation_vectors(threads
     from scipy.spatial.transform import Rotation
 
     from styleerd.data import parallel
+    from styleerd.runtime import stylizer
     from styleerd.runtime.stylizer import posture_change
 
     monkeypatch.setattr(parallel, "PARALLEL_FROM", 4)
+    splits, on_shards = [], stylizer._posture_rotations_on_shards
+    monkeypatch.setattr(stylizer, "_posture_rotations_on_shards", lambda k, *a: splits.append(k) or on_shards(k, *a))
     rng = np.random.default_rng(2)
     posture = rng.normal(0, 0.4, (7, 21, 3))
     weights = rng.normal(0, 0.7, (9, 7))
@@ -534,3 +537,5 @@ def test_posture_change_is_the_rotation_of_the_weighted_rotation_vectors(threads
     want = Rotation.from_rotvec(vectors.reshape(-1, 3)).as_quat()[:, [3, 0, 1, 2]].reshape(9, 21, 4)
     assert np.abs(quat.positive_w(got) - quat.positive_w(want)).max() < 1e-12
     assert np.array_equal(got[3], np.tile([1.0, 0.0, 0.0, 0.0], (21, 1)))
+    shards = parallel.kernel_threads(threads, 9)  # 1 where numba has one thread or no thread-safe layer
+    assert splits == ([shards] if shards > 1 else [])

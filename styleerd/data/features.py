@@ -24,7 +24,7 @@ from dataclasses import dataclass
 import numba as nb
 import numpy as np
 
-from styleerd.data.parallel import kernel_threads
+from styleerd.data.parallel import on_kernel_threads
 from styleerd.motion import quat
 from styleerd.motion.kinematics import (
     facing_directions,
@@ -124,7 +124,6 @@ def stream_features(
     N, J = rot.shape[:2]
     x, traj = np.empty((N, FeatureLayout(J).dim), np.float32), np.empty((N, 7))
     g, facing, ok = np.empty((N, J, 3)), np.empty((N, 3)), np.empty(N, np.bool_)
-    shards = kernel_threads(threads, N)
     args = (
         rot,
         pos,
@@ -145,10 +144,7 @@ def stream_features(
         facing,
         ok,
     )
-    if shards > 1:
-        _stream_features_on_shards(shards, *args)
-    else:
-        _stream_features_kernel(*args)
+    on_kernel_threads(threads, N, _stream_features_kernel, _stream_features_on_shards, *args)
     return x, traj, g, facing, ok
 
 

@@ -33,14 +33,25 @@ def threadsafe_layer() -> bool:
     return False
 
 
-def kernel_threads(threads: int, n_streams: int, from_streams: int = PARALLEL_FROM) -> int:
+def kernel_threads(threads: int, n_streams: int, from_streams: int | None = None) -> int:
     """The threads a compiled kernel runs ``n_streams`` streams on when asked for ``threads``,
     one shard of streams each: at most numba's threads, and one for steps of fewer than
-    ``from_streams`` streams or where no thread-safe layer loads. Sets numba's threads for this
-    thread's next parallel loops to it (set inside the kernels, the setting would keep them from
-    numba's disk cache)."""
-    if threads <= 1 or n_streams < from_streams or not threadsafe_layer():
+    ``from_streams`` streams (default ``PARALLEL_FROM``, read at each call) or where no thread-safe
+    layer loads. Sets numba's threads for this thread's next parallel loops to it (set inside the
+    kernels, the setting would keep them from numba's disk cache)."""
+    least = PARALLEL_FROM if from_streams is None else from_streams
+    if threads <= 1 or n_streams < least or not threadsafe_layer():
         return 1
     shards = min(threads, nb.config.NUMBA_NUM_THREADS)
     nb.set_num_threads(shards)
     return shards
+
+
+def on_kernel_threads(threads: int, n_streams: int, serial, on_shards, *args) -> None:
+    """``on_shards(shards, *args)`` where ``kernel_threads`` splits ``n_streams`` streams over
+    threads, else ``serial(*args)``: a compiled kernel and its parallel twin."""
+    shards = kernel_threads(threads, n_streams)
+    if shards > 1:
+        on_shards(shards, *args)
+    else:
+        serial(*args)

@@ -107,7 +107,7 @@ def _timer(model: GeneratorWeights, n_streams: int, threads: int):
     )
 
     def time_steps(choice: StepChoice) -> list[float]:
-        backend.settings, backend._plans = EngineSettings((1,), (choice,), (choice,), "calibrating"), {}
+        backend.use(EngineSettings((1,), (choice,), (choice,), "calibrating"))
         backend.step(*inputs)  # untimed: the first call of a path (and a thread pool's start)
         times, t_end = [], time.perf_counter() + MEASURE_S
         while len(times) < 2 or time.perf_counter() < t_end:
@@ -199,9 +199,9 @@ def _machine() -> dict:
     }
 
 
-def cache_path(model: GeneratorWeights) -> Path:
-    key = json.dumps(machine_key(model), sort_keys=True)
-    digest = hashlib.sha256(key.encode()).hexdigest()[:16]
+def cache_path(key: dict) -> Path:
+    """The cache file of the choices for ``key`` (``machine_key``)."""
+    digest = hashlib.sha256(json.dumps(key, sort_keys=True).encode()).hexdigest()[:16]
     return cache_dir() / "engine" / f"calibration-{digest}.json"
 
 
@@ -215,11 +215,12 @@ def engine_settings(model: GeneratorWeights, again: bool = False, progress=None)
     where ``STYLEERD_CALIBRATE=0``. Where the cache cannot be written, the choices hold for this process."""
     if os.environ.get("STYLEERD_CALIBRATE", "1") == "0":
         return fixed_settings()
-    path = cache_path(model)
+    key = machine_key(model)
+    path = cache_path(key)
     with _lock:  # a server's threads opening streams at once calibrate once
         if path in _known and not again:
             return _known[path]
-        record = None if again else _read(path, machine_key(model))
+        record = None if again else _read(path, key)
         if record is None:
             record = calibrate(model, progress=progress)
             try:

@@ -486,11 +486,15 @@ class CompiledBackend(NumpyBackend):
     ):
         super().__init__(model, n_streams)
         self.threads = threads
-        self.settings = settings or engine_settings(model)
-        self._plans: dict[int, tuple[int, int, int]] = {}  # by streams stepped: block rows, loops up to, threads
+        self.use(settings or engine_settings(model))
         self.params, self.table, self.sizes, self.inits = pack(self.w)
         self.branch_styles = np.array(self.w.branch_styles, dtype=np.int64)
         self._whole = (self.h, *(_rows(a) for a in (self.h, self.c, self.hb, self.cb)))  # the whole state, flat, once
+
+    def use(self, settings: EngineSettings) -> None:
+        """Step by ``settings`` from now on (the state is kept)."""
+        self.settings = settings
+        self._plans: dict[int, tuple[int, int, int]] = {}  # by streams stepped: block rows, loops up to, threads
 
     def _arithmetic(self, x, style, content, target, h, c, hb, cb, first) -> tuple[np.ndarray, np.ndarray]:
         N = len(x)

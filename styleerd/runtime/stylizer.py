@@ -33,7 +33,7 @@ import numba as nb
 import numpy as np
 
 from styleerd.data.features import FeatureLayout, stream_features
-from styleerd.data.parallel import kernel_threads
+from styleerd.data.parallel import on_kernel_threads
 from styleerd.errors import StyleERDError
 from styleerd.model.config import FAMILIAR, RELEASE, UNFAMILIAR
 from styleerd.model.stored import (
@@ -118,11 +118,7 @@ def posture_change(posture: np.ndarray, weights: np.ndarray, threads: int = 1) -
     to quaternions took 3.4 ms a step, more than the blend that uses them)."""
     posture, weights = np.ascontiguousarray(posture, np.float64), np.ascontiguousarray(weights, np.float64)
     out = np.empty((len(weights), posture.shape[1], 4))
-    shards = kernel_threads(threads, len(out))
-    if shards > 1:
-        _posture_rotations_on_shards(shards, posture, weights, out)
-    else:
-        _posture_rotations(posture, weights, out)
+    on_kernel_threads(threads, len(out), _posture_rotations, _posture_rotations_on_shards, posture, weights, out)
     return out
 
 
@@ -518,11 +514,8 @@ class StreamStylizer:
 
     def _on_heading(self, rot: np.ndarray, traj: np.ndarray, out: np.ndarray) -> np.ndarray:
         """``_root_on_heading`` into ``out``, on the kernel threads from ``PARALLEL_FROM`` streams."""
-        shards = kernel_threads(self.kernel_threads, len(out))
-        if shards > 1:
-            _root_on_heading_on_shards(shards, np.ascontiguousarray(rot), traj, out)
-        else:
-            _root_on_heading(np.ascontiguousarray(rot), traj, out)
+        rot = np.ascontiguousarray(rot)
+        on_kernel_threads(self.kernel_threads, len(out), _root_on_heading, _root_on_heading_on_shards, rot, traj, out)
         return out
 
     def _stylised_root(self, sel, x: np.ndarray, velocities: np.ndarray, positions: np.ndarray) -> np.ndarray:
@@ -582,12 +575,13 @@ class StreamStylizer:
             )
             seen = np.where(self.started[sel], self.unfamiliar[sel] - RELEASE, 0.0)
             weight = np.empty(len(out))
-            blend = (np.ascontiguousarray(rotations), same, out, change, seen, FAMILIAR, UNFAMILIAR, weight)
-            shards = kernel_threads(self.kernel_threads, len(out))
-            if shards > 1:
-                _towards_the_input_on_shards(shards, *blend)
-            else:
-                _towards_the_input(*blend)
+            on_kernel_threads(
+                self.kernel_threads,
+                len(out),
+                _towards_the_input,
+                _towards_the_input_on_shards,
+                *(np.ascontiguousarray(rotations), same, out, change, seen, FAMILIAR, UNFAMILIAR, weight),
+            )
             self.unfamiliar[sel] = weight
             self.unfamiliar_sum[sel] += weight
         if len(self.input_joints):  # parts that keep the input's own motion
