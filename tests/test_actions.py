@@ -4,6 +4,7 @@ and the held-out clips through ``transfer`` as users run it."""
 import numpy as np
 import pytest
 
+from styleerd.data.augment import in_place
 from styleerd.data.outside import held_out
 from styleerd.eval import actions as A
 from styleerd.model.stored import load_generator_weights
@@ -41,6 +42,13 @@ def test_the_measures_on_hand_made_cases(demo_walk):
     assert f["stride_cm"]["input"] == f["stride_cm"]["output"] > 30.0
     same = A.feet_figures(m, m, jm, scale)
     assert same["below_floor_cm"] == 0.0 and same["slide_cm_s"]["input"] == same["slide_cm_s"]["output"]
+    # in place, planted feet move back under the still body as on a treadmill: that is their ground, so the
+    # walk in place itself does not slide, and feet that stand still in the world under it (the travelling
+    # walk's) slide at the walk's pace
+    placed = in_place(m)
+    assert A.feet_figures(placed, placed, jm, scale)["slide_cm_s"] == {"input": 0.0, "output": 0.0}
+    pace = np.linalg.norm(np.diff(m.positions[:, 0, [0, 2]], axis=0), axis=-1).mean() * m.fps * scale
+    assert A.feet_figures(placed, m, jm, scale)["slide_cm_s"]["output"] == pytest.approx(pace, rel=0.2)
     # the style change is read in the body's own frame: the same bent elbow on a body turned by 1.2
     # rad about the vertical gives the same change
     bend = quat.from_angle_axis(np.array([0.5]), np.array([0.0, 0.6, 0.8]))  # not about the forearm itself

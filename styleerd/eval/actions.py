@@ -343,32 +343,45 @@ def walk_clips(data_dir: str | None = None) -> list[ActionClip]:
     return out
 
 
-def _feet(m: Motion, jm: JointMap) -> tuple[np.ndarray, np.ndarray]:
-    """Global positions of the feet's lowest joints ``[T, 2, 2, 3]`` (side, ankle/toe) and of the ankles."""
+def _feet(m: Motion, jm: JointMap) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Global positions of the feet's joints ``[T, 2, k, 3]`` (side; ankle, and toe where mapped), of
+    the ankles ``[T, 2, 3]``, and of the body (between the hips) ``[T, 3]``."""
     g = forward_positions(m.rotations, m.positions, m.skeleton.parents)
     source = {jm.target.names[t]: s for t, s in jm.pairs}
     joints = [[source[f"{p}_{s}"] for p in ("Foot", "Toes") if f"{p}_{s}" in source] for s in "LR"]
-    return g[:, [j for side in joints for j in side]], g[:, [side[0] for side in joints]]
+    k = min(len(side) for side in joints)
+    hips = [source[f"UpperLeg_{s}"] for s in "LR"]
+    return g[:, [side[:k] for side in joints]], g[:, [side[0] for side in joints]], g[:, hips].mean(1)
 
 
 def feet_figures(given: Motion, output: Motion, jm: JointMap, scale: float) -> dict:
-    """Below the floor (cm under the input's lowest foot point over the clip), planted feet's
-    slide (median cm/s where the input's ankle moves under 15 % of a leg length per second),
-    and the stride (95th percentile of the ankles' horizontal gap), input and output."""
-    fin, ain = _feet(given, jm)
-    fout, aout = _feet(output, jm)
+    """Below the floor (cm under the input's lowest foot point over the clip), planted feet's slide,
+    and the stride (95th percentile of the ankles' horizontal gap), input and output.
+
+    A foot is planted where the input's ankle moves under 15 % of a leg length per second, or where
+    the input's body (between the hips) stands still (as slowly) and its foot is flat on its floor (every joint of it
+    within 5 % of a leg length of the lowest it goes): a walk in place, whose planted feet move back
+    under a still body as on a treadmill. The slide is the median horizontal speed (cm/s at the
+    clip's own rate) of a planted foot against its ground: the world where the input's foot is still,
+    the input's own foot where it moves along its floor (on a treadmill, or sliding in a dance)."""
+    fin, ain, body = _feet(given, jm)
+    fout, aout, _ = _feet(output, jm)
     floor = fin[..., 1].min()
     below = max(0.0, float(floor - fout[..., 1].min())) * scale
-    speed = lambda a: np.linalg.norm(np.diff(a[..., [0, 2]], axis=0), axis=-1) * given.fps * scale
-    s_in, s_out = speed(ain), speed(aout)
-    planted = s_in < 0.15 * 0.45 * BODY_CM  # a leg is about 0.45 of the body
+    leg = 0.45 * BODY_CM  # a leg is about 0.45 of the body
+    velocity = lambda a: np.diff(a[..., [0, 2]], axis=0) * given.fps * scale
+    v_in, v_out = velocity(ain), velocity(aout)
+    still = np.linalg.norm(v_in, axis=-1) < 0.15 * leg
+    body_still = np.linalg.norm(velocity(body), axis=-1) < 0.15 * leg
+    flat = (((fin[..., 1] - fin[..., 1].min(0)) * scale < 0.05 * leg).all(-1))[1:]
+    planted = still | (body_still[:, None] & flat)
+    ground = np.where(still[..., None], 0.0, v_in)  # what a planted foot stands on moves so
+    off = lambda v: np.linalg.norm(v - ground, axis=-1)[planted]
+    slide = lambda v: round(float(np.median(off(v))), 2) if planted.any() else None
     gap = lambda a: np.percentile(np.linalg.norm(a[:, 0, [0, 2]] - a[:, 1, [0, 2]], axis=-1), 95) * scale
     return {
         "below_floor_cm": round(below, 2),
-        "slide_cm_s": {
-            "input": round(float(np.median(s_in[planted])), 2) if planted.any() else None,
-            "output": round(float(np.median(s_out[planted])), 2) if planted.any() else None,
-        },
+        "slide_cm_s": {"input": slide(v_in), "output": slide(v_out)},
         "stride_cm": {"input": round(float(gap(ain)), 1), "output": round(float(gap(aout)), 1)},
     }
 

@@ -1,12 +1,16 @@
 """Online foot cleanup: where the input's foot is planted, pin the output's foot.
 
-Contacts come from the input (a foot is planted while the input's ankle moves slower than
-``contact_speed`` leg lengths per second: the same causal rule as the features). When a
-contact begins, the output ankle's ground position at that frame, at the input ankle's height,
-becomes the anchor (a style that bends the legs would otherwise plant feet in or above the
-input's floor); while the
-contact lasts, two-bone IK (hip, knee) holds the output ankle on it; when it ends, the target
-slides from the anchor back to the raw ankle over ``release_frames`` frames, so nothing pops.
+Contacts come from the input: a foot is planted while the input's ankle moves slower than
+``contact_speed`` leg lengths per second (the same causal rule as the features), or while the
+input's body (between the hips) stands still and its foot is flat on its floor (ankle and toe within ``floor_band``
+leg lengths of the lowest they have been): a walk in place, as game libraries ship them, whose
+planted feet move back under a still body as on a treadmill. When a contact begins, the output
+ankle's ground position at that frame, at the input ankle's height, becomes the anchor (a style
+that bends the legs would otherwise plant feet in or above the input's floor); while the contact
+lasts, two-bone IK (hip, knee) holds the output ankle on the anchor moved as the input's ankle has
+moved since (on frames it moved faster than a still foot: pinned where the input's foot is still,
+carried back where it walks in place); when it ends, the target slides from there back to the raw
+ankle over ``release_frames`` frames, so nothing pops.
 The floor: no output ankle, and no toe (the ankle's first child), goes lower than the input's own
 ankle and toe have been so far (their running minimum); a foot that would is lifted by the same IK,
 and a toe still under it (it turns with the shin) is raised by pitching the foot up about the ankle.
@@ -33,6 +37,7 @@ class FootLock:
         n_streams: int = 1,
         fps: float = 30.0,
         contact_speed: float = 0.25,
+        floor_band: float = 0.05,
         release_frames: int = 4,
         legs: list[list[int]] | None = None,
     ):
@@ -54,10 +59,11 @@ class FootLock:
         leg = np.linalg.norm(P[self.legs[0, 1]] - P[self.legs[0, 0]]) + np.linalg.norm(
             P[self.legs[0, 2]] - P[self.legs[0, 1]]
         )
-        self.max_speed = contact_speed * leg
+        self.max_speed, self.floor_band = contact_speed * leg, floor_band * leg
         self.n, self.release_frames = n_streams, max(1, release_frames)
         self.previous = np.zeros((n_streams, 2, 3))  # input ankles of the last frame (once started)
         self.anchor = np.zeros((n_streams, 2, 3))  # where a planted foot is held (while planted)
+        self.previous_body = np.zeros((n_streams, 3))  # the input's point between the hips at the last frame
         self.since_release = np.full((n_streams, 2), self.release_frames)  # frames since a contact ended
         self.planted = np.zeros((n_streams, 2), dtype=bool)
         self.started = np.zeros(n_streams, dtype=bool)
@@ -94,9 +100,11 @@ class FootLock:
             self.across[1],
             float(self.fps),
             float(self.max_speed),
+            float(self.floor_band),
             int(self.release_frames),
             bool(self.enabled),
             self.previous,
+            self.previous_body,
             self.anchor,
             self.since_release,
             self.planted,
@@ -120,9 +128,11 @@ def _foot_lock_kernel(
     across_r,
     fps,
     max_speed,
+    floor_band,
     release,
     enabled,
     previous,
+    previous_body,
     anchor,
     since_release,
     planted,
@@ -130,32 +140,42 @@ def _foot_lock_kernel(
     floor,
     out,
 ):
-    """Per stream (row ``state[i]`` of the state arrays): contacts from the input's ankles,
-    anchors and release weights, the input's floor, then IK of each leg with a weight and a lift
-    (``out``: local rotations, cleaned in place)."""
+    """Per stream (row ``state[i]`` of the state arrays): contacts from the input's ankles and hips,
+    anchors (carried by the input ankle's moves while planted) and release weights, the input's
+    floor, then IK of each leg with a weight and a lift (``out``: local rotations, cleaned in place)."""
     J = out.shape[1]
     g_rot, g_pos = np.empty((J, 4)), np.empty((J, 3))
     hip_g, knee_g, target, left = np.empty(4), np.empty(4), np.empty(3), np.empty(3)
-    weight, now = np.empty(2), np.empty(2, np.bool_)
+    weight, now, moved = np.empty(2), np.empty(2, np.bool_), np.empty((2, 3))
     for i in range(len(state)):
         r = state[i]
         forward_pose(in_rot[i], in_pos[i], parents, g_rot, g_pos)
+        body = 0.5 * (g_pos[legs[0, 0]] + g_pos[legs[1, 0]])  # between the hips: a root may be a still reference node
+        body_still = (
+            np.sqrt((body[0] - previous_body[r, 0]) ** 2 + (body[2] - previous_body[r, 2]) ** 2) * fps < max_speed
+            if started[r]
+            else True
+        )
+        previous_body[r] = body
         for side in range(2):
             ankle = g_pos[legs[side, 2]].copy()
             before = previous[r, side].copy() if started[r] else ankle
-            now[side] = np.sqrt(np.sum((ankle - before) ** 2)) * fps < max_speed
+            still = np.sqrt(np.sum((ankle - before) ** 2)) * fps < max_speed
+            moved[side] = (ankle - before) * (0.0 if still else 1.0)
             previous[r, side] = ankle
             toe_y = g_pos[toes[side], 1] if toes[side] >= 0 else ankle[1]
             floor[r, side, 0] = min(floor[r, side, 0], ankle[1]) if started[r] else ankle[1]
             floor[r, side, 1] = min(floor[r, side, 1], toe_y) if started[r] else toe_y
+            flat = ankle[1] - floor[r, side, 0] < floor_band and toe_y - floor[r, side, 1] < floor_band
+            now[side] = still or (body_still and flat)
         started[r] = True
         forward_pose(out[i], positions[i], parents, g_rot, g_pos)
         for side in range(2):
-            if (
-                now[side] and not planted[r, side]
-            ):  # a contact begins: hold the output ankle here, at the input's height
+            if now[side] and not planted[r, side]:  # a contact begins: held here, at the input's height
                 anchor[r, side] = g_pos[legs[side, 2]]
                 anchor[r, side, 1] = previous[r, side, 1]
+            elif now[side]:  # planted: carried as the input's foot moves along its floor
+                anchor[r, side] += moved[side]
             since = 0 if now[side] else (1 if planted[r, side] else min(since_release[r, side] + 1, release))
             planted[r, side], since_release[r, side] = now[side], since
             weight[side] = 1.0 if now[side] else 1.0 - since / release
