@@ -3,6 +3,7 @@ skipped, every other file written exactly as a single transfer writes it."""
 
 from __future__ import annotations
 
+import json
 import subprocess
 import sys
 from pathlib import Path
@@ -176,3 +177,23 @@ def test_a_killed_worker_costs_its_file_and_sigterm_stops_everything_cleanly(tmp
         if Path(f"/proc/{p}").exists() and "zombie" not in Path(f"/proc/{p}/status").read_text().lower()
     ]
     assert not [p for p in (tmp_path / "out2").iterdir() if p.suffix != ".bvh"]
+
+
+def test_a_numba_batch_measures_the_engine_once_before_its_workers_start(tmp_path, monkeypatch):
+    """On a machine never calibrated, the batch's own process measures the numba step's settings
+    and its workers read them back: a worker measuring too would write a record of every batch size."""
+    from styleerd.runtime import calibration
+    from styleerd.runtime.batch import transfer_batch
+    from styleerd.runtime.offline import TransferOptions
+
+    monkeypatch.setenv("STYLEERD_CACHE", str(tmp_path / "cache"))  # read by the spawned workers too
+    monkeypatch.setattr(calibration, "STREAMS", (1, 4))  # the batch's own measure: two sizes only
+    monkeypatch.setattr(calibration, "ROUNDS", 1)
+    monkeypatch.setattr(calibration, "_known", {})
+    for name in ("a", "b"):
+        bvh.write(tmp_path / f"{name}.bvh", procedural.walk(seconds=1.0))
+    pairs = [(tmp_path / f"{n}.bvh", tmp_path / "out" / f"{n}.bvh") for n in ("a", "b")]
+    assert transfer_batch(pairs, None, TransferOptions({"elderly": 1.0}, backend="numba"), workers=2) == []
+    (record,) = (tmp_path / "cache" / "engine").glob("calibration-*.json")
+    assert [row["streams"] for row in json.loads(record.read_text())["choices"]] == [1, 4]
+    assert all(out.exists() for _, out in pairs)

@@ -19,6 +19,7 @@ from styleerd.atomic import remove_orphans
 from styleerd.errors import StyleERDError
 from styleerd.model.stored import GeneratorWeights, load_generator_weights
 from styleerd.motion.gltf import GLTF_INPUTS
+from styleerd.runtime.calibration import engine_settings
 from styleerd.runtime.offline import TransferOptions, TransferReport, transfer_file
 
 MOTION_FILES = (".bvh", *GLTF_INPUTS, ".fbx")
@@ -155,6 +156,10 @@ def transfer_batch(
     if not pairs:
         return []
     workers = max(1, min(workers or os.cpu_count() or 1, len(pairs)))
+    if options.backend == "numba" and workers > 1:
+        # the engine's settings measured here once and read back by every worker: each measuring at once, beside the
+        # others, took longer and measured their noise
+        engine_settings(load_generator_weights(model_name))
     ctx = get_context("spawn")
     memory = int(max_memory_gb * 2**30) if max_memory_gb else None
     todo, failed, pool = list(reversed(pairs)), [], []
