@@ -3,9 +3,10 @@ clients (30 fps, loopback) against a fresh server for each row.
 
     python benchmarks/bench_serve.py [--seconds 20] [-o docs/protocol-bench.json]
 
-Rows: 200 single-stream connections (the protocol as it was, on asyncio's event loop, and on
-uvloop); the same 200 streams on 2 connections of 100 (a hello's ``streams``); 1,000 streams on
-10 connections (the numba backend, labels given: no labeller). Each row prints the server's CPU
+Rows: 40 single-stream connections (a light live load) on the numpy step (the server's default
+until now) and on the numba step (the default); 200 single-stream connections (numpy on asyncio's
+event loop and on uvloop, then numba); the same 200 streams on 2 connections of 100 (a hello's
+``streams``); 1,000 streams on 10 connections (labels given: no labeller). Each row prints the server's CPU
 a frame, split into the engine (its batched steps) and the protocol (everything else), latency
 p50/p99/max, and frames dropped, reordered or changed (every reply against a local run). The
 load generator shares the machine's cores with the server. ``styleerd load-test`` runs one row
@@ -22,9 +23,12 @@ from styleerd.runtime.system import system_report
 from styleerd.serve.loadtest import run_load_test
 
 ROWS = [  # (name, connections, streams each, labels given, server options)
-    ("200 x 1 stream, asyncio loop", 200, 1, False, ("--loop", "asyncio")),
-    ("200 x 1 stream, uvloop", 200, 1, False, ("--loop", "uvloop")),
-    ("2 x 100 streams, uvloop", 2, 100, False, ("--loop", "uvloop")),
+    ("40 x 1 stream, numpy (the default until now)", 40, 1, False, ("--backend", "numpy")),
+    ("40 x 1 stream, numba (the default)", 40, 1, False, ("--backend", "numba")),
+    ("200 x 1 stream, numpy, asyncio loop", 200, 1, False, ("--loop", "asyncio", "--backend", "numpy")),
+    ("200 x 1 stream, numpy, uvloop", 200, 1, False, ("--loop", "uvloop", "--backend", "numpy")),
+    ("200 x 1 stream, numba, uvloop", 200, 1, False, ("--loop", "uvloop", "--backend", "numba")),
+    ("2 x 100 streams, numba, uvloop", 2, 100, False, ("--loop", "uvloop", "--backend", "numba")),
     ("10 x 100 streams, numba, labels given", 10, 100, True, ("--loop", "uvloop", "--backend", "numba")),
 ]
 

@@ -872,7 +872,12 @@ def _live_commands(command: Callable[[str, str], argparse.ArgumentParser]) -> No
         "--max-message", type=_whole(1024), default=1 << 20, help="largest message in bytes (larger: closed with 1009)"
     )
     p.add_argument("--queue", type=_whole(1), default=64, help="per stream: frames waiting, and stylised frames unsent")
-    p.add_argument("--backend", default="numpy", choices=SERVE_BACKENDS)
+    p.add_argument(
+        "--backend",
+        default="numba",
+        choices=SERVE_BACKENDS,
+        help="the network step (default numba: compiled on the first start after an install, then cached)",
+    )
     p.add_argument(
         "--threads",
         type=_whole(1),
@@ -955,7 +960,7 @@ def _live_commands(command: Callable[[str, str], argparse.ArgumentParser]) -> No
     )
     p.add_argument("--seconds", type=_positive, default=60.0)
     p.add_argument("--workers", type=_whole(1), default=1, help="server workers")
-    p.add_argument("--backend", choices=SERVE_BACKENDS, default="numpy", help="the server's backend")
+    p.add_argument("--backend", choices=SERVE_BACKENDS, default="numba", help="the server's backend")
     p.add_argument("--threads", type=_whole(1), default=1, help="the server's threads per batched step")
     p.add_argument("--loop", choices=EVENT_LOOPS, default="auto", help="the server's event loop")
     p.add_argument(

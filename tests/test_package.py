@@ -156,7 +156,7 @@ def _served_viewer(cli: Path, cwd: Path, env: dict):
         [cli, "serve", "--port", str(port)], cwd=cwd, env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT
     )
     try:
-        deadline, page = time.monotonic() + 120, None
+        deadline, page = time.monotonic() + 300, None  # the first start compiles the numba engine
         while page is None:
             try:
                 page = urllib.request.urlopen(f"http://127.0.0.1:{port}/", timeout=5).read().decode()

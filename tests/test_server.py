@@ -8,8 +8,11 @@ import os
 import signal
 import socket
 import struct
+import subprocess
+import sys
 import time
 import urllib.request
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -596,3 +599,27 @@ def test_bone_fronts_follow_each_bones_roll(server, clip):
             assert abs(np.dot(fronts[j], bone / np.linalg.norm(bone))) < 1e-3 and np.isclose(
                 np.linalg.norm(fronts[j]), 1, atol=1e-4
             )
+
+
+def test_the_load_tests_server_cpu_counts_every_worker():
+    """``load-test --workers N`` reads the CPU of the server's whole process tree (the stats answer
+    for one worker): a parent that sleeps while its child burns a second of CPU counts that second."""
+    from styleerd.serve.loadtest import tree_cpu_seconds
+
+    burn = (
+        "import time\nt = time.process_time()\nwhile time.process_time() - t < 1.0: pass\n"
+        "print('done', flush=True)\ntime.sleep(30)"
+    )
+    parent = subprocess.Popen(
+        [sys.executable, "-c", f"import subprocess, sys; subprocess.run([sys.executable, '-c', {burn!r}])"],
+        stdout=subprocess.PIPE,
+        text=True,
+    )
+    try:
+        assert parent.stdout.readline().strip() == "done"
+        own = sum(map(int, Path(f"/proc/{parent.pid}/stat").read_text().rsplit(")", 1)[1].split()[11:13]))
+        assert own / os.sysconf("SC_CLK_TCK") < 0.5
+        assert 0.95 <= tree_cpu_seconds(parent.pid) < 3.0
+    finally:
+        parent.kill()
+        parent.wait()
