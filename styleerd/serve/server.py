@@ -93,7 +93,7 @@ class ServeConfig:
     max_message: int = 1 << 20  # bytes; a larger message closes its connection with 1009
     queue: int = 64  # per stream: frames waiting to be stylised, and stylised frames unsent
     batch_wait: float = 0.004  # seconds a frame may wait for other streams' frames to share its step
-    backend: str = "numba"  # 0.67x numpy's engine CPU a frame at 40 and 200 clients (docs/DEPLOY.md)
+    backend: str = "numba"  # about 0.7x numpy's engine CPU a frame at 40 and 200 clients (docs/DEPLOY.md)
     threads: int = 1  # of each pool's batched step (numba's kernels, or numpy/onnx shards of the streams)
     data: str | None = None  # data folder for the viewer's real demo clips (optional)
     max_joints: int = 512  # joints of a hello's skeleton (a humanoid has 20 to 100)
