@@ -23,18 +23,18 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import json
+from functools import partial
+from itertools import islice
 from pathlib import Path
 
 import numpy as np
-from tqdm import tqdm
 
 import styleerd.runtime.stylizer as stylizer_module
 from styleerd.eval import actions
 from styleerd.model.stored import GeneratorWeights, load_generator_weights
 from styleerd.motion import quat
 from styleerd.motion.kinematics import facing_directions, forward_kinematics, heading_rotations
-from styleerd.runtime.posture import training_walks
-from styleerd.runtime.stylizer import StreamStylizer
+from styleerd.runtime.posture import measure_posture, training_walks
 
 FRAMES = ("joint", "parent", "body")
 
@@ -77,29 +77,10 @@ def as_local(frame: str, model: GeneratorWeights, given: np.ndarray, change: np.
     return quat.mul(quat.mul(quat.inv(given), turned), given)
 
 
-def measure(model: GeneratorWeights, walks: int) -> dict[str, np.ndarray]:
+def postures(model: GeneratorWeights, walks: int) -> dict[str, np.ndarray]:
     """Each frame's posture ``[styles, J, 3]`` over the first ``walks`` neutral training walks."""
-    styles = model.config.styles
-    neutral = styles.index(model.config.neutral_style)
-    total = {f: np.zeros((len(styles), model.config.n_joints, 3)) for f in FRAMES}
-    frames = 0
-    for motion, content in tqdm(list(training_walks(model))[:walks], desc="posture", unit="walk"):
-        s = StreamStylizer(
-            model,
-            model.config.neutral_style,
-            content,
-            [{k: 1.0} for k in styles],
-            len(styles),
-            motion.fps,
-            pose="network",
-        )
-        for t in range(motion.n_frames):
-            out = s.step(*(np.repeat(a[t : t + 1], len(styles), 0) for a in (motion.rotations, motion.positions)))[0]
-            same = np.repeat(out[neutral : neutral + 1], len(styles), 0)
-            for f in FRAMES:
-                total[f] += quat.to_scaled_angle_axis(quat.positive_w(change_in(f, model, same, out)))
-        frames += motion.n_frames
-    return {f: v / frames for f, v in total.items()}
+    chosen = list(islice(training_walks(model), walks))
+    return {f: measure_posture(model, chosen, partial(change_in, f, model)) for f in FRAMES}
 
 
 def with_frame(frame: str, model: GeneratorWeights, serial):
@@ -143,7 +124,7 @@ def main() -> None:
     p.add_argument("--out", default=None, help="write the figures as JSON")
     a = p.parse_args()
     model = load_generator_weights(None)
-    postures = measure(model, a.walks)
+    measured = postures(model, a.walks)
     serial, shards = stylizer_module._towards_the_input, stylizer_module._towards_the_input_on_shards
     report = {"walks": a.walks, "posture_alone_on_walks": posture_alone_on_walks(model, 4), "frames": {}}
     print("the shipped posture alone on 4 Bandai-Namco-2 test walks, cosine against the network's change:")
@@ -156,7 +137,7 @@ def main() -> None:
         )
         try:
             table = actions.evaluate_actions(
-                dataclasses.replace(model, posture=postures[frame]), poses=("input",), walks=a.reference_walks
+                dataclasses.replace(model, posture=measured[frame]), poses=("input",), walks=a.reference_walks
             )["poses"]["input"]
         finally:
             stylizer_module._towards_the_input, stylizer_module._towards_the_input_on_shards = serial, shards

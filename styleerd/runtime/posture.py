@@ -12,7 +12,7 @@ shows on walks (measurements: docs/RESULTS.md, "Any action, any performer").
 
 from __future__ import annotations
 
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 
 import numpy as np
 from tqdm import tqdm
@@ -37,9 +37,13 @@ def training_walks(model: GeneratorWeights, data_dir: str | None = None) -> Iter
             yield motion[: int(round(SECONDS * motion.fps))], c.content
 
 
-def measure_posture(model: GeneratorWeights, walks: list[tuple[Motion, str]]) -> np.ndarray:
+def measure_posture(
+    model: GeneratorWeights, walks: list[tuple[Motion, str]], change: Callable | None = None
+) -> np.ndarray:
     """Each style's posture ``[styles, J, 3]``: the mean rotation vector of inv(identity) * styled per
-    joint (the network's outputs, its root's in the world) over every frame of ``walks``."""
+    joint (the network's outputs, its root's in the world) over every frame of ``walks``; or of
+    ``change(identity [1, J, 4], styled [styles, J, 4])``, a change in another frame
+    (``benchmarks/posture_frames.py``)."""
     styles = model.config.styles
     neutral = styles.index(model.config.neutral_style)
     total = np.zeros((len(styles), model.config.n_joints, 3))
@@ -57,7 +61,8 @@ def measure_posture(model: GeneratorWeights, walks: list[tuple[Motion, str]]) ->
         for t in range(motion.n_frames):
             rot = np.repeat(motion.rotations[t : t + 1], len(styles), 0)
             out = stylizer.step(rot, np.repeat(motion.positions[t : t + 1], len(styles), 0))[0]
-            total += quat.to_scaled_angle_axis(quat.mul(quat.inv(out[neutral : neutral + 1]), out))
+            same = out[neutral : neutral + 1]
+            total += quat.to_scaled_angle_axis(quat.mul(quat.inv(same), out) if change is None else change(same, out))
         frames += motion.n_frames
     return total / max(frames, 1)
 
