@@ -1,12 +1,16 @@
 """The numpy, numba and onnxruntime step backends against the torch reference: same outputs (<= 1e-5)
 over streams that start, switch styles, mix, and restart."""
 
+from dataclasses import replace
+
 import numpy as np
 import onnx
 import pytest
+import torch
 
 from styleerd.errors import StyleERDError
 from styleerd.model.checkpoint import load_generator
+from styleerd.model.generator import StyleERD
 from styleerd.runtime.backends import BACKENDS, make_backend
 from styleerd.runtime.onnx_export import FORMS, OPSET, state_layers, state_shape, step_graph
 
@@ -31,7 +35,23 @@ def schedule(model, n_streams=3, frames=12, seed=0):
         yield rng.normal(0, 1, (n_streams, c.feature_dim)).astype(np.float32), style, content, target
 
 
-def test_backends_agree_with_the_torch_reference(model):
+def pose_change_twin(model, seed: int = 0):
+    """``model`` as a ``pose_change`` network (its decoder's rotations a change to the input's own),
+    the change's layer perturbed so that every joint turns."""
+    twin = StyleERD(replace(model.config, pose_change=True), model.skeleton, model.stats())
+    twin.load_state_dict(model.state_dict())
+    noise = torch.Generator().manual_seed(seed)
+    with torch.no_grad():
+        last, J = twin.decoder[-1], model.config.n_joints
+        last.weight[: 4 * J] = 0.05 * torch.randn(last.weight[: 4 * J].shape, generator=noise)
+        last.bias[: 4 * J] = torch.tensor([1.0, 0.0, 0.0, 0.0]).repeat(J)
+    return twin.eval()
+
+
+@pytest.mark.parametrize("pose_change", [False, True], ids=["pose", "change to the input's pose"])
+def test_backends_agree_with_the_torch_reference(model, pose_change):
+    if pose_change:
+        model = pose_change_twin(model)
     backends = {name: make_backend(name, model, 3) for name in BACKENDS}
     for t, (x, s, c, w) in enumerate(schedule(model)):
         if t == 7:

@@ -13,6 +13,7 @@ import yaml
 
 from styleerd.errors import StyleERDError
 from styleerd.model import checkpoint as ckpt
+from styleerd.model import torch_quat
 from styleerd.train.config import TrainConfig
 
 pytestmark = pytest.mark.slow
@@ -298,6 +299,22 @@ def test_fine_tune_from_a_saved_generator_with_a_critic_that_sees_rotations(shar
             tmp_path / "c",
             progress=False,
         )
+    # pose_change from a model without it: the run starts from "no change", every pose the input's own
+    train(
+        TrainConfig(**{**TINY, "lr_g": 0.0}, epochs=1, init_from=str(tmp_path / "start"), pose_change=True),
+        tmp_path / "p",
+        progress=False,
+        export=tmp_path / "change",
+    )
+    change, _ = ckpt.load_generator(tmp_path / "change")
+    assert change.config.pose_change and not start.config.pose_change
+    x = torch.randn(3, 8, change.config.feature_dim)
+    style = torch.eye(len(change.config.styles))[[0, 1, 2]]
+    content = torch.eye(len(change.config.contents))[[0, 3, 4]]
+    rot, _, _ = change(x, style, content, torch.eye(len(change.config.styles))[[4, 1, 6]])
+    assert torch_quat.angle(rot, change.raw_rotations(x)).max() < 1e-3  # radians
+    rot_start, _, _ = start(x, style, content, torch.eye(len(change.config.styles))[[4, 1, 6]])
+    assert torch_quat.angle(rot_start, start.raw_rotations(x)).max() > 0.5  # the pose network rebuilds it
     # a run that resumes takes its weights from its checkpoint: the model it started from may be gone
     for suffix in (".safetensors", ".json"):
         (tmp_path / "start").with_suffix(suffix).unlink()

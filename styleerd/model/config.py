@@ -26,6 +26,9 @@ class GeneratorConfig:
     style_layers: int = 4
     decoder: tuple[int, ...] = (58, 86, 128)
     learned_init: bool = True  # False: the "zero initial states" ablation
+    # the decoder's rotations are each joint's change to the input's own rotation (given * change), not the
+    # rotation itself: a pose the network never learnt passes through, and the style is what it adds
+    pose_change: bool = False
     # styles added after training (``styleerd add-style``), the last of ``styles``: targets
     # only (the encoder and the labeller read input labels over ``input_styles``)
     added_styles: tuple[str, ...] = ()

@@ -5,8 +5,9 @@ latent z_t. The neutral branch r_0 (an LSTM stack whose initial state is learned
 and the branch of each target style r_s (an LSTM stack with its own learned initial state)
 read z_t; z'_t = r_0(z_t) + sum_s w_s r_s(z_t), with w the target weights (one-hot for one
 style; a mixture or intensity otherwise). The decoder, conditioned on w, outputs joint
-rotations (unit quaternions per joint) and joint velocities; joint positions follow by
-differentiable forward kinematics. Only branches with a non-zero weight run.
+rotations (unit quaternions per joint; with ``pose_change``, each joint's change to the input's
+own rotation) and joint velocities; joint positions follow by differentiable forward
+kinematics. Only branches with a non-zero weight run.
 
 All tensors are batch-first. ``forward`` takes T frames; ``step`` takes one frame and an
 explicit recurrent state, and the two agree exactly.
@@ -114,7 +115,7 @@ class StyleERD(nn.Module):
         out, neutral_state = self.neutral(z, state.neutral)
         out, branches = self._add_branches(z, out, target, dict(state.branches))
         rotations, velocities = self.decode(out, target)
-        return rotations, velocities, RecurrentState(neutral_state, branches)
+        return self.posed(rotations, x), velocities, RecurrentState(neutral_state, branches)
 
     def forward_targets(
         self, x: torch.Tensor, style: torch.Tensor, content: torch.Tensor, targets: torch.Tensor
@@ -127,7 +128,8 @@ class StyleERD(nn.Module):
         z = self.encode(x, style, content)
         out, _ = self.neutral(z, self.initial_state(content).neutral)
         out, _ = self._add_branches(z.repeat(k, 1, 1), out.repeat(k, 1, 1), targets, {})
-        return self.decode(out, targets)
+        rotations, velocities = self.decode(out, targets)
+        return self.posed(rotations, x.repeat(k, 1, 1)), velocities
 
     def _add_branches(
         self, z: torch.Tensor, out: torch.Tensor, target: torch.Tensor, branches: dict[int, State]
@@ -168,6 +170,11 @@ class StyleERD(nn.Module):
         y = self.decoder[1:](y)
         J = self.config.n_joints
         return torch_quat.normalize(y[..., : 4 * J].reshape(B, T, J, 4)), y[..., 4 * J :]
+
+    def posed(self, decoded: torch.Tensor, x: torch.Tensor) -> torch.Tensor:
+        """The output's rotations ``[B, T, J, 4]`` from the decoder's: themselves, or with
+        ``pose_change`` each applied to the input's own rotation of features ``x``."""
+        return torch_quat.mul(self.raw_rotations(x), decoded) if self.config.pose_change else decoded
 
     def step(
         self,

@@ -44,7 +44,7 @@ def _hamilton_table() -> np.ndarray:
     return t.reshape(16, 4)
 
 
-_HAMILTON = _hamilton_table()
+HAMILTON = _hamilton_table()
 SMALL = 256  # quaternions: below this, per-call overhead dominates and one matmul beats 28 ufunc calls
 
 
@@ -52,7 +52,7 @@ def mul(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     """The Hamilton product ``a * b`` (rotate by ``b``, then by ``a``), broadcast over leading axes."""
     if a.size + b.size <= 8 * SMALL:  # per-frame work: outer product and one matmul (3 numpy calls)
         ab = a[..., :, None] * b[..., None, :]
-        return ab.reshape(ab.shape[:-2] + (16,)) @ _HAMILTON
+        return ab.reshape(ab.shape[:-2] + (16,)) @ HAMILTON
     aw, ax, ay, az = a[..., 0], a[..., 1], a[..., 2], a[..., 3]
     bw, bx, by, bz = b[..., 0], b[..., 1], b[..., 2], b[..., 3]
     return np.stack(

@@ -11,6 +11,7 @@ from functools import cache
 import numpy as np
 
 from styleerd.model.stored import GeneratorWeights, LabellerWeights, generator_weights, labeller_weights
+from styleerd.motion import quat
 
 
 @dataclass
@@ -30,6 +31,9 @@ class StepWeights:
     hidden: int
     input_styles: int  # the style labels the encoder reads; targets cover these and the added styles
     decoder_added: np.ndarray | None = None  # [added styles, decoder[0] outputs]: their target rows, apart
+    # ``pose_change``: the rotation features' mean and std [4J], to read the input's own rotations back; None: the
+    # decoder's rotations are the pose
+    given: tuple[np.ndarray, np.ndarray] | None = None
 
 
 def step_weights(model) -> StepWeights:
@@ -62,6 +66,7 @@ def step_weights(model) -> StepWeights:
         hidden=c.hidden,
         input_styles=len(c.input_styles),
         decoder_added=sd.get("decoder_added"),
+        given=(sd["mean"][: 4 * c.n_joints], sd["std"][: 4 * c.n_joints]) if c.pose_change else None,
     )
 
 
@@ -127,13 +132,14 @@ class NumpyBackend:
             f32(target, np.float32),
         )
         if rows is None:
-            return self._arithmetic(x, style, content, target, self.h, self.c, self.hb, self.cb, self.first)
-        sel = rows
-        h, c, hb, cb, first = self.h[sel], self.c[sel], self.hb[sel], self.cb[sel], self.first[sel]
-        out = self._arithmetic(x, style, content, target, h, c, hb, cb, first)
-        if not isinstance(sel, slice):  # rows by index gave copies: put them back
-            self.h[sel], self.c[sel], self.hb[sel], self.cb[sel], self.first[sel] = h, c, hb, cb, first
-        return out
+            rot, vel = self._arithmetic(x, style, content, target, self.h, self.c, self.hb, self.cb, self.first)
+        else:
+            sel = rows
+            h, c, hb, cb, first = self.h[sel], self.c[sel], self.hb[sel], self.cb[sel], self.first[sel]
+            rot, vel = self._arithmetic(x, style, content, target, h, c, hb, cb, first)
+            if not isinstance(sel, slice):  # rows by index gave copies: put them back
+                self.h[sel], self.c[sel], self.hb[sel], self.cb[sel], self.first[sel] = h, c, hb, cb, first
+        return (rot if self.w.given is None else posed(self.w, x, rot)), vel
 
     def _arithmetic(self, x, style, content, target, h, c, hb, cb, first) -> tuple[np.ndarray, np.ndarray]:
         """The step on explicit state arrays (updated in place); the numba backend overrides it."""
@@ -164,6 +170,14 @@ def _numpy_step(w: StepWeights, x, style, content, target, h, c, hb, cb, first) 
         _dense_layers(np.concatenate([out, target[:, :nI]], -1), w.decoder, (target[:, nI:], w.decoder_added)),
         w.n_joints,
     )
+
+
+def posed(w: StepWeights, x: np.ndarray, change: np.ndarray) -> np.ndarray:
+    """``pose_change``: the decoder's rotations ``[N, J, 4]`` applied to the input's own rotations,
+    read from the features ``x`` (given * change)."""
+    mean, std = w.given
+    given = (x[:, : 4 * w.n_joints] * std + mean).reshape(len(x), w.n_joints, 4)
+    return quat.mul(quat.normalize(given), change).astype(np.float32)
 
 
 def _dense_layers(

@@ -31,6 +31,7 @@ from styleerd.atomic import atomic_write, atomic_write_text
 from styleerd.data.features import CONTACT_SPEED
 from styleerd.errors import StyleERDError
 from styleerd.model.stored import GeneratorWeights, generator_weights
+from styleerd.motion import quat
 from styleerd.motion.skeleton import BodyRoles
 from styleerd.runtime.numpy_step import step_weights
 
@@ -345,6 +346,25 @@ def _plain_form(
     return g.op("Concat", out, "target", axis=1), np.eye(H, dtype=np.float32)
 
 
+def _posed(g: _Graph, change: str, w) -> None:
+    """Writes ``rotations``: the input's own rotations (read back from ``features``) times
+    ``change [N, J, 4]``, as the outer product of each pair and one product with the Hamilton table."""
+    J = w.n_joints
+    mean, std = w.given
+    given = g.op("Slice", "features", _ints(g, 0), _ints(g, 4 * J), _ints(g, 1))
+    given = g.op("Reshape", g.op("Add", g.op("Mul", given, g.const(std)), g.const(mean)), _ints(g, -1, J, 4))
+    norm = g.op("Clip", g.op("ReduceL2", given, axes=[2], keepdims=1), g.const(np.array(1e-8, np.float32)))
+    given = g.op("Unsqueeze", g.op("Div", given, norm), _ints(g, 3))
+    pairs = g.op("Mul", given, g.op("Unsqueeze", change, _ints(g, 2)))
+    g.nodes.append(
+        helper.make_node(
+            "MatMul",
+            [g.op("Reshape", pairs, _ints(g, -1, J, 16)), g.const(quat.HAMILTON.astype(np.float32))],
+            ["rotations"],
+        )
+    )
+
+
 def state_shape(model: GeneratorWeights, form: str = "lstm", styles: tuple[str, ...] | None = None) -> tuple:
     """The shape of ``h`` and ``c`` (N: the number of streams): ``[1, N, S H]`` in the LSTM
     form, ``[S, N, H]`` in the plain one (S = ``len(state_layers)``)."""
@@ -417,7 +437,10 @@ def step_graph(
     norm = g.op(
         "Clip", g.op("ReduceL2", q, axes=[2], keepdims=1), g.const(np.array(1e-8, np.float32))
     )  # Clip, not Max: no broadcasting (1,000 streams: 10x faster)
-    g.nodes.append(helper.make_node("Div", [q, norm], ["rotations"]))
+    if w.given is None:
+        g.nodes.append(helper.make_node("Div", [q, norm], ["rotations"]))
+    else:  # pose_change: the unit change applied to the input's own rotation (given * change)
+        _posed(g, g.op("Div", q, norm), w)
 
     f32, state = TensorProto.FLOAT, list(state_shape(model, form, styles))
     inputs = [

@@ -260,9 +260,10 @@ def add_style(
     B = config.batch_size
     rot_new = G2.raw_rotations(new.x)
 
-    def stylised(z, neutral_out, rows):
+    def stylised(x, z, neutral_out, rows):
         y, _ = branch(z[rows], G2.branch_initial_state(K, len(rows)))
         rot, vel = G2.decode(neutral_out[rows] + y, target.expand(len(rows), -1))
+        rot = G2.posed(rot, x[rows])
         return rot, vel, G2.motion_channels(rot, vel)
 
     log: list[dict] = []
@@ -270,8 +271,8 @@ def add_style(
     t_train = time.perf_counter()
     for step in bar:
         rc, rs = rng.choice(len(zc), B), rng.choice(len(zs), B)
-        _, _, fake = stylised(zc, nc, rc)
-        rot_r, _, ch_r = stylised(zs, ns, rs)
+        _, _, fake = stylised(xc, zc, nc, rc)
+        rot_r, _, ch_r = stylised(new.x, zs, ns, rs)
         real_s = new.x[rs][..., : 10 * J]
         ones = torch.ones(B, 1)
         loss_rec = losses.reconstruction_loss(rot_r, rot_new[rs], ch_r, real_s, L)

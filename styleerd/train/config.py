@@ -29,6 +29,9 @@ class TrainConfig:
     style_layers: int = 4
     decoder: tuple[int, ...] = (58, 86, 128)
     learned_init: bool = True
+    # the decoder outputs each joint's change to the input's rotation (``GeneratorConfig.pose_change``); fine-tuned
+    # from a model without it, the decoder's rotation outputs start at no change
+    pose_change: bool = False
     # supervision (ablation switches: rec only = use_adv False + use_per False)
     use_adv: bool = True
     use_per: bool = True

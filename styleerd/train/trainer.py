@@ -80,6 +80,7 @@ def make_generator(config: TrainConfig, s: Setup) -> StyleERD:
         style_layers=config.style_layers,
         decoder=config.decoder,
         learned_init=config.learned_init,
+        pose_change=config.pose_change,
     )
     return StyleERD(gc, s.fs.skeleton, s.data.stats)
 
@@ -495,11 +496,20 @@ def train(
 
 
 def _start_from(G: StyleERD, stem: str) -> None:
-    """Fine-tuning: the generator starts from a saved one of the same architecture and data."""
+    """Fine-tuning: the generator starts from a saved one of the same architecture and data. A
+    ``pose_change`` run may start from a model without it: the decoder's last layer then says
+    "no change" for every joint (its rotation rows zero, their bias the identity), so the run
+    starts from the input's own pose and the rest of the network as it was."""
     start, _ = ckpt.load_generator(stem)
-    if start.config.to_dict() != G.config.to_dict():
+    theirs = {**start.config.to_dict(), "pose_change": G.config.pose_change}
+    if theirs != G.config.to_dict():
         raise StyleERDError(f"init_from {stem}: its generator config differs from this run's")
     G.load_state_dict(start.state_dict())
+    if G.config.pose_change and not start.config.pose_change:
+        last, J = G.decoder[-1], G.config.n_joints
+        with torch.no_grad():
+            last.weight[: 4 * J] = 0.0
+            last.bias[: 4 * J] = torch.tensor([1.0, 0.0, 0.0, 0.0]).repeat(J)
 
 
 def _realism_judges(
