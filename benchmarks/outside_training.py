@@ -1,6 +1,7 @@
-"""Models fine-tuned with other performers' motion (``outside_batch``) beside the one they
-started from, as one Markdown table, from what ``styleerd eval actions`` and ``styleerd eval
-quality --pose input`` wrote for each. Measure first, e.g. for ``models/recipes/bandai2-outside``
+"""Models fine-tuned from the shipped one for other performers' actions (``outside_batch``, and
+``pose_change``: a network that predicts a change to the input's pose) beside it, as one Markdown
+table, from what ``styleerd eval actions`` and ``styleerd eval quality --pose input`` wrote for
+each. Measure first, e.g. for ``models/recipes/bandai2-outside``
 (M), keeping the actions JSON:
 
     styleerd eval actions --model M --out /tmp/o/actions.md
