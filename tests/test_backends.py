@@ -40,11 +40,11 @@ def pose_change_twin(model, seed: int = 0):
     the change's layer perturbed so that every joint turns."""
     twin = StyleERD(replace(model.config, pose_change=True), model.skeleton, model.stats())
     twin.load_state_dict(model.state_dict())
+    twin.start_at_no_change()
     noise = torch.Generator().manual_seed(seed)
     with torch.no_grad():
-        last, J = twin.decoder[-1], model.config.n_joints
-        last.weight[: 4 * J] = 0.05 * torch.randn(last.weight[: 4 * J].shape, generator=noise)
-        last.bias[: 4 * J] = torch.tensor([1.0, 0.0, 0.0, 0.0]).repeat(J)
+        rows = twin.decoder[-1].weight[: 4 * model.config.n_joints]
+        rows += 0.05 * torch.randn(rows.shape, generator=noise)
     return twin.eval()
 
 

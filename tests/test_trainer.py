@@ -315,6 +315,8 @@ def test_fine_tune_from_a_saved_generator_with_a_critic_that_sees_rotations(shar
     assert torch_quat.angle(rot, change.raw_rotations(x)).max() < 1e-3  # radians
     rot_start, _, _ = start(x, style, content, torch.eye(len(change.config.styles))[[4, 1, 6]])
     assert torch_quat.angle(rot_start, start.raw_rotations(x)).max() > 0.5  # the pose network rebuilds it
+    with pytest.raises(StyleERDError, match="init_from .* config differs"):  # not back from a change network
+        train(TrainConfig(**TINY, epochs=1, init_from=str(tmp_path / "change")), tmp_path / "q", progress=False)
     # a run that resumes takes its weights from its checkpoint: the model it started from may be gone
     for suffix in (".safetensors", ".json"):
         (tmp_path / "start").with_suffix(suffix).unlink()

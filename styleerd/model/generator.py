@@ -176,6 +176,14 @@ class StyleERD(nn.Module):
         ``pose_change`` each applied to the input's own rotation of features ``x``."""
         return torch_quat.mul(self.raw_rotations(x), decoded) if self.config.pose_change else decoded
 
+    def start_at_no_change(self) -> None:
+        """``pose_change``: the decoder's rotation outputs say "no change" for every joint (their
+        weights zero, their bias the identity), whatever the layers before them hold."""
+        last, J = self.decoder[-1], self.config.n_joints
+        with torch.no_grad():
+            last.weight[: 4 * J] = 0.0
+            last.bias[: 4 * J] = torch.tensor([1.0, 0.0, 0.0, 0.0]).repeat(J)
+
     def step(
         self,
         x: torch.Tensor,

@@ -501,15 +501,15 @@ def _start_from(G: StyleERD, stem: str) -> None:
     "no change" for every joint (its rotation rows zero, their bias the identity), so the run
     starts from the input's own pose and the rest of the network as it was."""
     start, _ = ckpt.load_generator(stem)
-    theirs = {**start.config.to_dict(), "pose_change": G.config.pose_change}
-    if theirs != G.config.to_dict():
+    # the one difference allowed: a pose_change run from a model without it (not the other way)
+    if {
+        **start.config.to_dict(),
+        "pose_change": start.config.pose_change or G.config.pose_change,
+    } != G.config.to_dict():
         raise StyleERDError(f"init_from {stem}: its generator config differs from this run's")
     G.load_state_dict(start.state_dict())
     if G.config.pose_change and not start.config.pose_change:
-        last, J = G.decoder[-1], G.config.n_joints
-        with torch.no_grad():
-            last.weight[: 4 * J] = 0.0
-            last.bias[: 4 * J] = torch.tensor([1.0, 0.0, 0.0, 0.0]).repeat(J)
+        G.start_at_no_change()
 
 
 def _realism_judges(
