@@ -153,7 +153,9 @@ def stages(steps: int) -> dict:
         x = timed("features", st._features, on_model.rotations, on_model.positions, slice(None))[0]
         timed("network", net.step, x, st.given_style, st.given_content, target)
         out = timed("retarget back", to_source, Motion(cs.map.target, rot, pos, cs.fps), cs.map, src)
-        out.rotations = timed("foot cleanup", cs.lock.step, out.rotations, out.positions, src.rotations, src.positions)
+        out.rotations, out.positions = timed(
+            "foot cleanup", cs.lock.step, out.rotations, out.positions, src.rotations, src.positions
+        )
         timed("motion to channels", bvh.channel_values, out)
     us = {k: float(np.median(v[50:])) * 1e6 for k, v in times.items()}
     us["stylizer bookkeeping"] = max(0.0, us.pop("stylizer step") - us["features"] - us["network"])

@@ -103,16 +103,18 @@ def test_foot_lock_pins_planted_feet_releases_smoothly_and_is_causal():
 def test_batched_foot_lock_equals_single_streams():
     (i1, o1), (i2, o2) = sliding_output(30), sliding_output(30)
     o2.rotations[:] = quat.mul(quat.from_angle_axis(0.1, np.array([0, 1.0, 0])), o2.rotations)
-    singles = [clean_feet(o1, i1).rotations, clean_feet(o2, i2).rotations]
+    cleaned = [clean_feet(o1, i1), clean_feet(o2, i2)]
+    singles, positions = [c.rotations for c in cleaned], [c.positions for c in cleaned]
     lock = FootLock(o1.skeleton, 2)
     for t in range(30):
-        r = lock.step(
+        r, p = lock.step(
             np.stack([o1.rotations[t], o2.rotations[t]]),
             np.stack([o1.positions[t], o2.positions[t]]),
             np.stack([i1.rotations[t], i2.rotations[t]]),
             np.stack([i1.positions[t], i2.positions[t]]),
         )
         assert np.allclose(r[0], singles[0][t], atol=1e-12) and np.allclose(r[1], singles[1][t], atol=1e-12)
+        assert np.allclose(p[0], positions[0][t], atol=1e-12) and np.allclose(p[1], positions[1][t], atol=1e-12)
 
 
 def test_no_foot_goes_below_the_inputs_floor():
@@ -166,3 +168,38 @@ def test_feet_of_a_walk_in_place_move_with_the_inputs_treadmill():
         assert clean.mean() < 0.25 * raw.mean()  # the raw output skates (measured: 0.11x)
         checked += moving.sum()
     assert checked > 30
+
+
+def test_pelvis_drops_where_a_planted_foot_is_out_of_reach_and_rises_back_smoothly():
+    """The input stands still on frames 10..24; the output's root (a style's pace) walks on, 1 cm
+    a frame for 10 frames, so the planted foot falls behind, out of the leg's reach. The pelvis drops until the leg
+    reaches: the ankle stays on its anchor (without the drop it is dragged along), no frame moves the
+    root down faster than the fall speed nor up faster than the rise speed, never more than the most
+    drop, and after the contact the root comes back to the output's own height."""
+    inp, out = sliding_output(60)
+    sk = out.skeleton
+    out = Motion(sk, out.rotations, out.positions.copy(), out.fps)  # the input's positions were shared
+    out.positions[10:, 0, 2] += 1.0 * np.minimum(np.arange(50), 10)
+    lock = FootLock(sk, 1, out.fps)
+    cleaned = clean_feet(out, inp)
+    a = np.stack([ankle(cleaned, f) for f in ("Foot_L", "Foot_R")], 1)
+    drop = out.positions[:, 0, 1] - cleaned.positions[:, 0, 1]
+    assert drop[:10].max() == 0.0 and drop.max() > 1.0  # it was needed here
+    assert drop.max() <= lock.max_drop + 1e-9
+    assert np.diff(drop).max() <= lock.fall + 1e-9 and -np.diff(drop).max() <= lock.rise + 1e-9
+    assert drop[-1] == 0.0  # back up
+    assert np.allclose(cleaned.positions[:, 1:], out.positions[:, 1:]) and np.allclose(
+        cleaned.positions[:, 0, [0, 2]], out.positions[:, 0, [0, 2]]
+    )  # only the root, only down
+    held = np.linalg.norm(a[11:25] - a[11], axis=-1)  # both feet
+    no_drop = FootLock(sk, 1, out.fps, max_drop=0.0)
+    stiff = np.empty_like(out.rotations)
+    for t in range(out.n_frames):
+        stiff[t] = no_drop.step(
+            out.rotations[t : t + 1], out.positions[t : t + 1], inp.rotations[t : t + 1], inp.positions[t : t + 1]
+        )[0][0]
+    no_drop_motion = Motion(sk, stiff, out.positions, out.fps)
+    b = np.stack([ankle(no_drop_motion, f) for f in ("Foot_L", "Foot_R")], 1)
+    dragged = np.linalg.norm(b[11:25] - a[11], axis=-1)
+    assert dragged.max() > 2.0, dragged.max()  # without the drop the foot is dragged along
+    assert held.max() < 0.05 * dragged.max(), (held.max(), dragged.max())

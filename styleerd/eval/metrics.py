@@ -196,7 +196,9 @@ def _run(
             for k, target in enumerate(switch["targets"]):
                 st.set_target({target: 1.0}, [k])
         r, out_pos[:, t] = st.step(rot[:, t], pos[:, t])
-        out[:, t] = lock.step(r, out_pos[:, t], rot[:, t], pos[:, t]) if lock else r
+        if lock:
+            r, out_pos[:, t] = lock.step(r, out_pos[:, t], rot[:, t], pos[:, t])
+        out[:, t] = r
     return out, out_pos
 
 
@@ -249,21 +251,21 @@ def runtime_report(
     previous = np.concatenate([g_in[:, :1], g_in[:, :-1]], 1)
     planted = foot_contacts(g_in, previous, ankles, 30.0, 0.25 * roles.leg_length) > 0
     raw, _ = _run(model, rot, pos, styles, contents, targets)
-    cleaned, _ = _run(model, rot, pos, styles, contents, targets, cleanup=True)
+    cleaned, p_cleaned = _run(model, rot, pos, styles, contents, targets, cleanup=True)  # the pelvis may drop
     raw_speed, p_speed = _run(model, rot, pos, styles, contents, targets, root_speed=True)
     pace = _ground_speed(pos)
     moving = pace > 0.05 * roles.leg_length / 30.0
     ratio = _ground_speed(p_speed)[moving] / pace[moving]
-    cleaned_speed, _ = _run(model, rot, pos, styles, contents, targets, cleanup=True, root_speed=True)
+    cleaned_speed, p_cleaned_speed = _run(model, rot, pos, styles, contents, targets, cleanup=True, root_speed=True)
     report["foot_skate_cm_per_frame"] = {
         "streams": len(rot),
         "frames": frames,
         "input": round(foot_skate(g_in, ankles, planted), 4),
         "raw_output": round(foot_skate(world(raw), ankles, planted), 4),
-        "cleaned_output": round(foot_skate(world(cleaned), ankles, planted), 4),
+        "cleaned_output": round(foot_skate(world(cleaned, p_cleaned), ankles, planted), 4),
         # with the root's speed stylised (``root_speed``): the feet follow the moved root
         "raw_output_root_speed": round(foot_skate(world(raw_speed, p_speed), ankles, planted), 4),
-        "cleaned_output_root_speed": round(foot_skate(world(cleaned_speed, p_speed), ankles, planted), 4),
+        "cleaned_output_root_speed": round(foot_skate(world(cleaned_speed, p_cleaned_speed), ankles, planted), 4),
         # per stream, the ground its root covers over the input's (moving streams)
         "root_speed_change": round(float(np.abs(np.log(ratio)).mean()), 3),  # mean |log ratio|
         "root_speed_ratio_range": [round(float(ratio.min()), 3), round(float(ratio.max()), 3)],

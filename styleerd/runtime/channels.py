@@ -93,5 +93,7 @@ class ChannelStylizer:
         if self.stylizer.root_speed:  # the root moved at the style's pace (model units, back to the user's)
             out.positions[:, 0] += (pos[:, 0] - on_model.positions[:, 0]) / self.map.scale
         if self.lock:
-            out.rotations = self.lock.step(out.rotations, out.positions, source.rotations, source.positions, rows)
+            out.rotations, out.positions = self.lock.step(
+                out.rotations, out.positions, source.rotations, source.positions, rows
+            )
         return out

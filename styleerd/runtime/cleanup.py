@@ -10,7 +10,10 @@ that bends the legs would otherwise plant feet in or above the input's floor); w
 lasts, two-bone IK (hip, knee) holds the output ankle on the anchor moved as the input's ankle has
 moved since (on frames it moved faster than a still foot: pinned where the input's foot is still,
 carried back where it walks in place); when it ends, the target slides from there back to the raw
-ankle over ``release_frames`` frames, so nothing pops.
+ankle over ``release_frames`` frames, so nothing pops. Where a planted foot's target is out of its
+leg's reach (a style that bends the body, a heel rising far behind it), the pelvis drops (the root,
+straight down, at most ``max_drop`` leg lengths) until the leg reaches; it rises back at
+``rise_speed`` leg lengths a second once the feet no longer need it, so the body never pops.
 The floor: no output ankle, and no toe (the ankle's first child), goes lower than the input's own
 ankle and toe have been so far (their running minimum); a foot that would is lifted by the same IK,
 and a toe still under it (it turns with the shin) is raised by pitching the foot up about the ankle.
@@ -40,6 +43,9 @@ class FootLock:
         floor_band: float = 0.05,
         release_frames: int = 4,
         legs: list[list[int]] | None = None,
+        max_drop: float = 0.06,
+        fall_speed: float = 0.5,
+        rise_speed: float = 0.1,
     ):
         """``legs``: [[hip, knee, ankle] of the left leg, the same of the right] (default: found
         by joint names and topology, as retargeting finds them)."""
@@ -56,10 +62,12 @@ class FootLock:
         # IK sets hip and knee rotations directly: the leg must be one hip-knee-ankle chain
         self.enabled = all(parents[k] == h and parents[a] == k for h, k, a in self.legs)
         P = forward_positions(quat.identity((skeleton.n_joints,)), skeleton.offsets, skeleton.parents)
-        leg = np.linalg.norm(P[self.legs[0, 1]] - P[self.legs[0, 0]]) + np.linalg.norm(
-            P[self.legs[0, 2]] - P[self.legs[0, 1]]
-        )
+        self.reach = np.array(
+            [np.linalg.norm(P[k] - P[h]) + np.linalg.norm(P[a] - P[k]) for h, k, a in self.legs]
+        )  # each leg's length, hip to ankle, straight
+        leg = self.reach[0]
         self.max_speed, self.floor_band = contact_speed * leg, floor_band * leg
+        self.max_drop, self.fall, self.rise = max_drop * leg, fall_speed * leg / fps, rise_speed * leg / fps
         self.n, self.release_frames = n_streams, max(1, release_frames)
         self.previous = np.zeros((n_streams, 2, 3))  # input ankles of the last frame (once started)
         self.anchor = np.zeros((n_streams, 2, 3))  # where a planted foot is held (while planted)
@@ -68,11 +76,13 @@ class FootLock:
         self.planted = np.zeros((n_streams, 2), dtype=bool)
         self.started = np.zeros(n_streams, dtype=bool)
         self.floor = np.zeros((n_streams, 2, 2))  # per side, the lowest the input's ankle and toe have been
+        self.drop = np.zeros(n_streams)  # how far the pelvis is lowered now
 
     def reset(self, streams=None) -> None:
         """Forget the past of some (default all) streams."""
         rows = slice(None) if streams is None else np.asarray(streams, dtype=int)
         self.since_release[rows], self.planted[rows], self.started[rows] = self.release_frames, False, False
+        self.drop[rows] = 0.0
 
     def step(
         self,
@@ -81,21 +91,25 @@ class FootLock:
         input_rotations: np.ndarray,
         input_positions: np.ndarray,
         rows=None,
-    ) -> np.ndarray:
+    ) -> tuple[np.ndarray, np.ndarray]:
         """Output frame ``rotations [N, J, 4]`` (local) with ``positions [N, J, 3]``, and the
-        input frame it came from -> cleaned local rotations; of every stream, or of the
-        streams ``rows`` only."""
+        input frame it came from -> cleaned local rotations and positions (the root lowered where
+        a leg needs it); of every stream, or of the streams ``rows`` only."""
         f64 = lambda a: np.ascontiguousarray(a, dtype=np.float64)
-        out = f64(rotations).copy()
+        out, out_pos = f64(rotations).copy(), f64(positions).copy()
         state = np.arange(self.n)[slice(None) if rows is None else np.asarray(rows, dtype=int)]
         _foot_lock_kernel(
-            f64(positions),
+            out_pos,
             f64(input_rotations),
             f64(input_positions),
             state,
             self.skeleton.parents,
             self.legs,
             self.toes,
+            self.reach,
+            float(self.max_drop),
+            float(self.fall),
+            float(self.rise),
             self.across[0],
             self.across[1],
             float(self.fps),
@@ -110,9 +124,10 @@ class FootLock:
             self.planted,
             self.started,
             self.floor,
+            self.drop,
             out,
         )
-        return out
+        return out, out_pos
 
 
 @nb.njit(cache=True)
@@ -124,6 +139,10 @@ def _foot_lock_kernel(
     parents,
     legs,
     toes,
+    reach,
+    max_drop,
+    fall,
+    rise,
     across_l,
     across_r,
     fps,
@@ -138,11 +157,13 @@ def _foot_lock_kernel(
     planted,
     started,
     floor,
+    drop,
     out,
 ):
     """Per stream (row ``state[i]`` of the state arrays): contacts from the input's ankles and hips,
     anchors (carried by the input ankle's moves while planted) and release weights, the input's
-    floor, then IK of each leg with a weight and a lift (``out``: local rotations, cleaned in place)."""
+    floor, the pelvis's drop, then IK of each leg with a weight and a lift (``out``: local
+    rotations, and ``positions``: local positions whose root is lowered, cleaned in place)."""
     J = out.shape[1]
     g_rot, g_pos = np.empty((J, 4)), np.empty((J, 3))
     hip_g, knee_g, target, left = np.empty(4), np.empty(4), np.empty(3), np.empty(3)
@@ -181,6 +202,20 @@ def _foot_lock_kernel(
             weight[side] = 1.0 if now[side] else 1.0 - since / release
         if not enabled:
             continue
+        need = 0.0  # the pelvis drop that lets each planted leg reach its target, nearly straight
+        for side in range(2):
+            if weight[side] > 0.0:
+                ankle, hip = legs[side, 2], legs[side, 0]
+                target[:] = g_pos[ankle] + weight[side] * (anchor[r, side] - g_pos[ankle])
+                ground2 = (target[0] - g_pos[hip, 0]) ** 2 + (target[2] - g_pos[hip, 2]) ** 2
+                length = 0.999 * reach[side]
+                above = g_pos[hip, 1] - target[1]
+                over = above - np.sqrt(length * length - ground2) if ground2 < length * length else above
+                need = max(need, over)
+        drop[r] = max(min(need, max_drop, drop[r] + fall), drop[r] - rise, 0.0)
+        if drop[r] > 0.0:
+            positions[i, 0, 1] -= drop[r]
+            forward_pose(out[i], positions[i], parents, g_rot, g_pos)
         left[:] = g_pos[across_l] - g_pos[across_r]
         for side in range(2):  # the planted feet on their anchors
             if weight[side] > 0.0:
@@ -250,11 +285,13 @@ def clean_feet(output: Motion, source: Motion) -> Motion:
     """A whole output motion cleaned frame by frame (the same values as streaming it)."""
     lock = FootLock(output.skeleton, 1, output.fps)
     rot = np.empty_like(output.rotations)
+    pos = np.empty_like(output.positions)
     for t in range(output.n_frames):
-        rot[t] = lock.step(
+        r, p = lock.step(
             output.rotations[t : t + 1],
             output.positions[t : t + 1],
             source.rotations[t : t + 1],
             source.positions[t : t + 1],
-        )[0]
-    return Motion(output.skeleton, rot, output.positions, output.fps, output.euler_hint)
+        )
+        rot[t], pos[t] = r[0], p[0]
+    return Motion(output.skeleton, rot, pos, output.fps, output.euler_hint)

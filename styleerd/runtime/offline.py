@@ -519,7 +519,9 @@ def _stylised_rows(
                         out[i0][2] if w == 0.0 else (1 - w) * out[i0][2] + w * out[i0 + 1][2]
                     ) / jm.scale
                 if lock is not None:
-                    back.rotations = lock.step(back.rotations, back.positions, frame.rotations, frame.positions)
+                    back.rotations, back.positions = lock.step(
+                        back.rotations, back.positions, frame.rotations, frame.positions
+                    )
                 rows.append(bvh.channel_values(back)[0])
                 k += 1
             keep_src = min(k, model_input(j)[0] if j < J else k)
