@@ -1,7 +1,7 @@
 """The style server under load, its protocols side by side in one run: the same real-time
 clients (30 fps, loopback) against a fresh server for each row.
 
-    python benchmarks/bench_serve.py [--seconds 20] [-o docs/protocol-bench.json]
+    python benchmarks/bench_serve.py [--seconds 20] [--before COMMIT] [--only NAME ...] [-o docs/protocol-bench.json]
 
 Rows: 40 single-stream connections (a light live load) on the numpy step (the server's default
 until now) and on the numba step (the default); 200 single-stream connections (numpy on asyncio's
@@ -9,7 +9,8 @@ event loop and on uvloop, then numba); the same 200 streams on 2 connections of 
 ``streams``); 1,000 streams on 10 connections (labels given: no labeller). Each row prints the server's CPU
 a frame, split into the engine (its batched steps) and the protocol (everything else), latency
 p50/p99/max, and frames dropped, reordered or changed (every reply against a local run). The
-load generator shares the machine's cores with the server. ``styleerd load-test`` runs one row
+load generator shares the machine's cores with the server. ``--before COMMIT`` serves each row
+also with that commit's server (a git worktree), the two in alternating order, the same clients. ``styleerd load-test`` runs one row
 (and the soak test, ``--faulty``); CI runs a reduced size (tests/test_server.py, test_crowd.py).
 """
 
@@ -17,10 +18,15 @@ from __future__ import annotations
 
 import argparse
 import json
+import subprocess
+import tempfile
+from pathlib import Path
 
 from styleerd.atomic import atomic_write_text
 from styleerd.runtime.system import system_report
 from styleerd.serve.loadtest import run_load_test
+
+ROOT = Path(__file__).resolve().parents[1]
 
 ROWS = [  # (name, connections, streams each, labels given, server options)
     ("40 x 1 stream, numpy (the default until now)", 40, 1, False, ("--backend", "numpy")),
@@ -36,29 +42,49 @@ ROWS = [  # (name, connections, streams each, labels given, server options)
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--seconds", type=float, default=20.0)
+    ap.add_argument("--before", help="also serve each row with this commit's server, in alternating order")
+    ap.add_argument("--only", nargs="*", default=[], help="the rows whose name holds one of these")
     ap.add_argument("-o", "--output", default="docs/protocol-bench.json")
     args = ap.parse_args()
-    rows = []
-    for name, clients, each, labels, server in ROWS:
-        summary, figures = run_load_test(
-            clients, args.seconds, streams_per_client=each, labels=labels, server_args=server
-        )
-        print(f"## {name}\n{summary}\n", flush=True)
-        rows.append({"row": name, "server_args": list(server), **figures})
+    chosen = [r for r in ROWS if not args.only or any(o in r[0] for o in args.only)]
+    with tempfile.TemporaryDirectory() as tmp:
+        servers: dict[str, str | None] = {"now": None}
+        if args.before:
+            tree = str(Path(tmp) / "before")
+            subprocess.run(["git", "-C", str(ROOT), "worktree", "add", "--detach", tree, args.before], check=True)
+            servers = {f"before ({args.before})": tree, "now": None}
+        try:
+            rows = []
+            for i, (name, clients, each, labels, server) in enumerate(chosen):
+                for who in list(servers)[:: 1 if i % 2 == 0 else -1]:
+                    summary, figures = run_load_test(
+                        clients,
+                        args.seconds,
+                        streams_per_client=each,
+                        labels=labels,
+                        server_args=server,
+                        server_code=servers[who],
+                    )
+                    print(f"## {name}, {who}\n{summary}\n", flush=True)
+                    rows.append({"row": name, "server": who, "server_args": list(server), **figures})
+        finally:
+            if args.before:
+                subprocess.run(["git", "-C", str(ROOT), "worktree", "remove", "--force", tree], check=False)
     print(
-        "| load | server CPU a frame (us) | engine | protocol | latency p50 / p99 / max (ms) | dropped | reordered "
-        "| largest difference from a local run (deg) |"
+        "| load | server | server CPU a frame (us) | engine | protocol | latency p50 / p99 / max (ms) | dropped | "
+        "reordered | largest difference from a local run (deg) |"
     )
-    print("| --- | --- | --- | --- | --- | --- | --- | --- |")
+    print("| --- | --- | --- | --- | --- | --- | --- | --- | --- |")
     for r in rows:
         print(
-            f"| {r['row']} | {r['server_cpu_us_per_frame']:.1f} | {r['engine_cpu_us_per_frame']:.1f} | "
+            f"| {r['row']} | {r['server']} | {r['server_cpu_us_per_frame']:.1f} | {r['engine_cpu_us_per_frame']:.1f} | "
             f"{r['server_cpu_us_per_frame'] - r['engine_cpu_us_per_frame']:.1f} | {r['latency_ms_p50']:.0f} / "
             f"{r['latency_ms_p99']:.0f} / {r['latency_ms_max']:.0f} | {r['dropped']} | {r['reordered']} | "
             f"{r['max_error_deg']:.2g} |"
         )
     atomic_write_text(
-        args.output, json.dumps({"system": system_report(), "seconds": args.seconds, "rows": rows}, indent=1)
+        args.output,
+        json.dumps({"system": system_report(), "seconds": args.seconds, "before": args.before, "rows": rows}, indent=1),
     )
     print(f"wrote {args.output}")
 

@@ -395,6 +395,30 @@ class RawClient:
         self.sock.sendall(head + mask + bytes(b ^ mask[i % 4] for i, b in enumerate(payload)))
 
 
+def test_messages_behind_the_hello_in_fragments_and_between_frames_are_taken_in_order(server, clip):
+    """A stream's messages are handed over as websockets parses them (serve.connection), not through
+    a queue: frames sent right behind the hello, before the ready came back, a frame and a stats
+    request each in fragments, and a set between frames are all taken, in the order sent; a text
+    message that is not UTF-8 closes the connection with 1007."""
+    url, _ = server
+    m, values = clip
+    ws = connect(url, open_timeout=20)
+    ws.send(json.dumps(hello(m, 30.0, "elderly", 1.0, None, None)))
+    ws.send(frame(0, values[0]))
+    ws.send(frame(1, values[1]))
+    assert json.loads(ws.recv(timeout=20))["type"] == "ready"
+    data = frame(2, values[2])
+    ws.send([data[:3], data[3:100], data[100:]])
+    ws.send(['{"type": ', '"stats"}'])
+    ws.send(json.dumps({"type": "set", "style": "exhausted"}))
+    ws.send(frame(3, values[3]))
+    seqs, _, texts = replies(ws, 4)
+    assert seqs == [0, 1, 2, 3] and [t["type"] for t in texts] == ["stats", "target"], (seqs, texts)
+    ws.send(b"\xff\xfe", text=True)
+    code, _ = closed_with(ws)
+    assert code == 1007
+
+
 def test_clients_vanishing_mid_stream_and_a_client_that_stops_reading(server, clip):
     url, port = server
     m, values = clip

@@ -34,8 +34,9 @@ def free_port() -> int:
         return s.getsockname()[1]
 
 
-def start_server(port: int, *args: str) -> subprocess.Popen:
-    """``styleerd serve`` on ``port`` in a new process; returns once it accepts connections."""
+def start_server(port: int, *args: str, code: str | None = None) -> subprocess.Popen:
+    """``styleerd serve`` on ``port`` in a new process; returns once it accepts connections.
+    ``code``: a checkout whose ``styleerd`` runs instead of the installed one (another commit's)."""
     # a file, not a pipe: a chatty server never blocks on it; closed with the process
     log = tempfile.TemporaryFile("w+")  # noqa: SIM115
     proc = subprocess.Popen(
@@ -43,7 +44,8 @@ def start_server(port: int, *args: str) -> subprocess.Popen:
         stdout=log,
         stderr=subprocess.STDOUT,
         text=True,
-        env={**os.environ, "OMP_NUM_THREADS": "1"},
+        env={**os.environ, "OMP_NUM_THREADS": "1", **({"PYTHONPATH": code} if code else {})},
+        cwd=code,
     )
     proc.log = log
     deadline = time.time() + 300  # a first start after an install compiles the engine: a minute on 2 cores
@@ -166,16 +168,18 @@ def run_load_test(
     streams_per_client: int = 1,
     labels: bool = False,
     server_args: tuple[str, ...] = (),
+    server_code: str | None = None,
 ) -> tuple[str, dict]:
     """The load test (and, with ``faulty``, the soak test): every well-behaved client's replies
     are compared with a local run of the same clip. ``labels``: the hellos give the clip's
     input style and content (a neutral walk), so the server runs no labeller. ``server_args``:
-    ``styleerd serve``'s options (``--workers 2``, ``--backend numba``...). -> (a summary, the figures)."""
+    ``styleerd serve``'s options (``--workers 2``, ``--backend numba``...); ``server_code``: a checkout
+    of another commit to serve with (``start_server``). -> (a summary, the figures)."""
     motion = walk(10.0, fps=30.0)
     reference = expected_output(motion, int(round(seconds * 30.0)), streams=streams_per_client, labels=labels)
     port = free_port()
     room = clients * streams_per_client + faulty + 8
-    server = start_server(port, "--max-streams", str(max(256, room)), *server_args)
+    server = start_server(port, "--max-streams", str(max(256, room)), *server_args, code=server_code)
     workers = int(server_args[server_args.index("--workers") + 1]) if "--workers" in server_args else 1
     rss: list[float] = []  # the server's memory every 5 s (one worker)
     stop = threading.Event()

@@ -61,6 +61,7 @@ from styleerd.runtime.channels import ChannelStylizer
 from styleerd.runtime.onnx_export import sidecar, step_graph
 from styleerd.runtime.stylizer import POSES, label_vector, part_targets, target_weights
 from styleerd.serve.clips import DemoClips, reference_clip
+from styleerd.serve.connection import Message, MessageConnection, send_now
 from styleerd.serve.uploads import AVATARS, MOTIONS, avatar_rig, motion_bvh
 
 STATIC = Path(__file__).parent / "static"
@@ -116,12 +117,11 @@ class ClientError(Exception):
 class Stream:
     id: int
     name: str
-    ws: ServerConnection
+    ws: MessageConnection
     pool: Pool
     rows: np.ndarray  # the pool's slots of this connection's streams (a hello's ``streams``: a crowd on one connection)
     binary: bool
     positions: bool  # send joint positions of input and output with every frame
-    outbox: asyncio.Queue
     fronts: bool = False  # and, after them, the bones' fronts (their roll)
     pending: deque = field(default_factory=deque)  # (seq, channel values, arrival time) waiting to be stylised
     watchers: set = field(default_factory=set)
@@ -141,7 +141,7 @@ class Stream:
 class Watcher:
     """A viewer in live mode: receives input and output joint positions of a stream."""
 
-    ws: ServerConnection
+    ws: MessageConnection
     name: str | None  # the stream name it follows; None: any stream
     outbox: asyncio.Queue
     stream: Stream | None = None
@@ -311,7 +311,7 @@ class StyleServer:
         if self._open_rows() + count > self.config.max_streams:
             raise ClientError(TRY_LATER, f"the server is full ({self.config.max_streams} streams); try again later")
 
-    async def _open_stream(self, ws: ServerConnection, msg: dict) -> Stream:
+    async def _open_stream(self, ws: MessageConnection, msg: dict) -> Stream:
         count = msg.get("streams", 1)
         if isinstance(count, bool) or not isinstance(count, int) or not 1 <= count <= self.config.max_streams:
             raise ClientError(
@@ -367,7 +367,6 @@ class StyleServer:
             rows,
             fmt == "binary",
             bool(msg.get("positions", False)),
-            asyncio.Queue(self.config.queue),
             bool(msg.get("fronts", False)),
             private=bool(msg.get("private", False)),
             token=self.token_prefix + secrets.token_urlsafe(16),
@@ -470,14 +469,14 @@ class StyleServer:
         w = stream.pool.stylizer.stylizer.blend.end[stream.rows[index]]
         return {s: round(float(x), 6) for s, x in zip(self.model.config.styles, w) if x}
 
-    async def handle(self, ws: ServerConnection) -> None:
-        stream = sender = None
+    async def handle(self, ws: MessageConnection) -> None:
+        stream = None
         sock = ws.transport.get_extra_info("socket")
         if sock is not None:  # a small kernel buffer: a client that stops reading is noticed in seconds, not megabytes
             sock.setsockopt(socket.SOL_SOCKET, socket.SO_SNDBUF, SEND_BUFFER)
         try:
             try:
-                first = await asyncio.wait_for(ws.recv(), HELLO_TIMEOUT_S)
+                first = await asyncio.wait_for(ws.next_message(), HELLO_TIMEOUT_S)
             except TimeoutError:
                 raise ClientError(POLICY, f"no hello within {HELLO_TIMEOUT_S:g} s") from None
             msg = _json(first)
@@ -491,9 +490,8 @@ class StyleServer:
                 )
             stream = await self._open_stream(ws, msg)
             await ws.send(json.dumps(self._ready(stream)))
-            sender = asyncio.create_task(_send_loop(ws, stream.outbox))
-            async for message in ws:
-                self._receive(stream, message)
+            ws.deliver_to(functools.partial(self._deliver, stream))
+            await ws.wait_closed()
         except ClientError as e:
             log.info("refused %s: %d %s", ws.remote_address, e.code, e)
             self.refusals[e.code] += 1
@@ -507,10 +505,28 @@ class StyleServer:
         finally:
             if stream is not None:
                 self._close_stream(stream)
-            if sender is not None:
-                sender.cancel()
 
-    def _receive(self, stream: Stream, message: bytes | str) -> None:
+    def _deliver(self, stream: Stream, message: Message) -> None:
+        """A stream's message, as its connection parses it: a fault ends this connection only."""
+        if stream.closing:
+            return
+        try:
+            self._receive(stream, message)
+        except ClientError as e:
+            log.info("refused %s: %d %s", stream.ws.remote_address, e.code, e)
+            self._fail(stream, e.code, str(e))
+        except Exception as e:  # a bug: this connection ends with a message, the others go on
+            log.exception("connection %s failed", stream.ws.remote_address)
+            self._fail(stream, INTERNAL, f"internal error ({type(e).__name__}); the server goes on")
+
+    def _send(self, stream: Stream, message: Message) -> None:
+        """A reply to a stream's client, written now; a client that leaves ``queue`` replies unread ends."""
+        if not send_now(stream.ws, message, self.config.queue * len(message)) and not stream.closing:
+            self._fail(
+                stream, POLICY, f"more than {self.config.queue} stylised frames unsent: the client does not read"
+            )
+
+    def _receive(self, stream: Stream, message: Message) -> None:
         n, count = stream.pool.stylizer.n_channels, stream.count
         if isinstance(message, bytes):
             if len(message) != SEQ.size + 4 * n * count:
@@ -532,9 +548,9 @@ class StyleServer:
         elif kind == "reset":
             stream.pending.clear()
             stream.pool.stylizer.reset(stream.rows)
-            _offer(stream.outbox, json.dumps({"type": "reset"}))
+            self._send(stream, json.dumps({"type": "reset"}))
         elif kind == "stats":
-            _offer(stream.outbox, json.dumps(self.stats(stream)))
+            self._send(stream, json.dumps(self.stats(stream)))
         else:
             raise ClientError(POLICY, f"unknown message type {kind!r}; valid: frame, set, reset, stats")
 
@@ -713,10 +729,7 @@ class StyleServer:
                 message = b"".join(parts)
             else:
                 message = json.dumps(self._json_reply(stream, seq, out[span], pos, pose))
-            if not _offer(stream.outbox, message):
-                self._fail(
-                    stream, POLICY, f"more than {self.config.queue} stylised frames unsent: the client does not read"
-                )
+            self._send(stream, message)
             for w in stream.watchers:
                 k = span.start + w.index
                 shown = [p[k] for p in (positions if w.fronts else positions[:2])]
@@ -777,7 +790,7 @@ class StyleServer:
         if stream.count > 1:
             reply["streams"] = which
         reply = json.dumps(reply)
-        _offer(stream.outbox, reply)
+        self._send(stream, reply)
         for w in stream.watchers:
             _offer(w.outbox, reply, drop_oldest=True)
 
@@ -801,7 +814,7 @@ class StyleServer:
             drop_oldest=True,
         )
 
-    async def _watch(self, ws: ServerConnection, msg: dict) -> None:
+    async def _watch(self, ws: MessageConnection, msg: dict) -> None:
         name, token, index = msg.get("stream"), msg.get("token", ""), msg.get("index", 0)
         if len(self.watchers) >= self.config.max_watchers:
             raise ClientError(
@@ -832,8 +845,8 @@ class StyleServer:
             if candidates:
                 self._attach(watcher, candidates[-1])
             sender = asyncio.create_task(_send_loop(ws, watcher.outbox))
-            async for message in ws:  # a viewer may steer the style of the stream it watches
-                msg = _json(message)
+            while True:  # a viewer may steer the style of the stream it watches
+                msg = _json(await ws.next_message())
                 if msg.get("type") != "set":
                     raise ClientError(POLICY, f"a watcher may send only 'set' messages, got type {msg.get('type')!r}")
                 if watcher.stream is not None:  # the stream it shows, unless it lists others
@@ -845,7 +858,7 @@ class StyleServer:
             if sender is not None:
                 sender.cancel()
 
-    async def _upload(self, ws: ServerConnection, msg: dict) -> None:
+    async def _upload(self, ws: MessageConnection, msg: dict) -> None:
         """A page's file, announced (``purpose``: motion or avatar, ``name``, ``bytes``) and sent in
         binary pieces of at most ``max_message``: read (``serve.uploads``) and answered with one
         message, ``{"type": purpose, ...}``; the connection then closes."""
@@ -868,7 +881,7 @@ class StyleServer:
             data = bytearray()
             while len(data) < size:
                 try:
-                    piece = await asyncio.wait_for(ws.recv(), UPLOAD_WAIT_S)
+                    piece = await asyncio.wait_for(ws.next_message(), UPLOAD_WAIT_S)
                 except TimeoutError:
                     raise ClientError(POLICY, f"{name[:80]!r}: no data for {UPLOAD_WAIT_S:g} s") from None
                 if isinstance(piece, str):
@@ -1120,6 +1133,7 @@ async def run_server(
         process_request=server.http,
         max_size=config.max_message,
         max_queue=config.queue,
+        create_connection=MessageConnection,
         reuse_port=reuse_port,
         ping_interval=20,
         close_timeout=2,

@@ -1,0 +1,112 @@
+"""The server's WebSocket connection: websockets' own, with each message handed over as it is
+parsed, and replies written as they are made.
+
+websockets' asyncio connection queues every message for a task to ``recv``, and its ``send`` is a
+coroutine: a live stream's frame then costs two task wake-ups and two queues on the server, most
+of what a frame costs outside the network at 200 single-stream clients (docs/DEPLOY.md, "The
+protocol's cost"). Here, once a stream is open (``deliver_to``), each message goes straight to
+its handler from websockets' parser, in order, and ``send_now`` frames a reply and writes it to
+the socket at once. Before that (a hello, a viewer's or an upload's messages), ``next_message``
+waits for them in order, with the same flow control as websockets' queue.
+"""
+
+from __future__ import annotations
+
+import asyncio
+from collections import deque
+from collections.abc import Callable
+
+from websockets.asyncio.server import ServerConnection
+from websockets.frames import CloseCode, Frame, Opcode
+from websockets.protocol import State
+
+Message = bytes | str
+
+
+class MessageConnection(ServerConnection):
+    """A server connection whose messages go to ``on_message`` as they are parsed once it is set
+    (``deliver_to``), and wait for ``next_message`` until then."""
+
+    def __init__(self, *args, **kwargs) -> None:
+        super().__init__(*args, **kwargs)
+        self.on_message: Callable[[Message], None] | None = None
+        self.inbox: deque[Message] = deque()  # messages parsed before ``on_message`` was set
+        self.waiter: asyncio.Future | None = None  # ``next_message`` waiting for one
+        self.parts: list[bytes] = []  # a fragmented message's frames so far
+        self.text = False  # whether the message being assembled is text
+        self.paused = False  # reading paused: ``max_queue_high`` messages wait
+
+    def process_event(self, event) -> None:
+        if not isinstance(event, Frame) or event.opcode not in (Opcode.TEXT, Opcode.BINARY, Opcode.CONT):
+            return super().process_event(event)  # the opening handshake, pings and pongs
+        if event.opcode is not Opcode.CONT:  # the protocol checks continuations follow a first frame
+            self.parts, self.text = [], event.opcode is Opcode.TEXT
+        self.parts.append(event.data)
+        if not event.fin:
+            return
+        data = self.parts[0] if len(self.parts) == 1 else b"".join(self.parts)
+        self.parts = []
+        if self.text:
+            try:
+                message: Message = data.decode()
+            except UnicodeDecodeError:
+                self.protocol.fail(CloseCode.INVALID_DATA, "a text message that is not UTF-8")
+                self.send_data()
+                return
+        else:
+            message = bytes(data)
+        if self.on_message is not None:
+            self.on_message(message)
+            return
+        self.inbox.append(message)
+        if self.max_queue_high is not None and len(self.inbox) >= self.max_queue_high and not self.paused:
+            self.transport.pause_reading()
+            self.paused = True
+        self._wake()
+
+    def connection_lost(self, exc: Exception | None) -> None:
+        super().connection_lost(exc)
+        self._wake()
+
+    def _wake(self) -> None:
+        if self.waiter is not None and not self.waiter.done():
+            self.waiter.set_result(None)
+
+    async def next_message(self) -> Message:
+        """The next message, in order; ``ConnectionClosed`` once the connection is closed and none is left."""
+        while not self.inbox:
+            if self.protocol.state is State.CLOSED:
+                raise self.protocol.close_exc
+            self.waiter = asyncio.get_running_loop().create_future()
+            await self.waiter
+        message = self.inbox.popleft()
+        if self.paused and len(self.inbox) <= (self.max_queue_low or (self.max_queue_high or 4) // 4):
+            self.transport.resume_reading()
+            self.paused = False
+        return message
+
+    def deliver_to(self, on_message: Callable[[Message], None]) -> None:
+        """From now on each message goes to ``on_message`` as it is parsed (which must not raise);
+        those already waiting go first, in order."""
+        while self.inbox:
+            on_message(self.inbox.popleft())
+        self.on_message = on_message
+        if self.paused:
+            self.transport.resume_reading()
+            self.paused = False
+
+
+def send_now(ws: MessageConnection, message: Message, backlog: int) -> bool:
+    """Frame ``message`` and write it to the socket now (no task, no queue). False where more than
+    ``backlog`` bytes are still unsent (a client that does not read); nothing is sent then. A
+    closing connection takes nothing and says True: its end is handled where it closes."""
+    if ws.protocol.state is not State.OPEN:
+        return True
+    if ws.transport.get_write_buffer_size() > backlog:
+        return False
+    if isinstance(message, str):
+        ws.protocol.send_text(message.encode())
+    else:
+        ws.protocol.send_binary(message)
+    ws.send_data()
+    return True
