@@ -342,11 +342,16 @@ def stream(path: str | os.PathLike, chunk: int = 1024) -> tuple[Header, Iterator
     return Header(skeleton, n_frames, 1.0 / frame_time, path), frames()
 
 
+def channel_values_ok(values: np.ndarray) -> np.ndarray:
+    """Per channel value, whether it can be motion: finite and ``|value| < MAX_CHANNEL``."""
+    return np.abs(values) < MAX_CHANNEL  # False for NaN too
+
+
 def channel_problem(skeleton: Skeleton, values: np.ndarray) -> tuple[int, str] | None:
     """The first channel value ``[T, n_channels]`` that cannot be motion (NaN, infinite, or
     ``|value| >= MAX_CHANNEL``) as (frame row, "joint 'Hips' Xposition = 1e+30 is ..."), else
     None. The one check of values to stylise: files (``transfer``) and streams (the server)."""
-    ok = np.abs(values) < MAX_CHANNEL  # False for NaN too
+    ok = channel_values_ok(values)
     if ok.all():
         return None
     row, column = (int(i) for i in np.argwhere(~ok)[0])

@@ -275,7 +275,7 @@ class StyleServer:
         self.rate_mark = (time.perf_counter(), 0)  # (when, frames): the frames/s of /metrics since the last look
         self.steps = 0
         self.frames = 0
-        self.step_cpu = 0.0  # CPU seconds (every thread) spent in batched steps: the engine's share of the server's
+        self.step_cpu = 0.0  # CPU seconds (every thread) in the stylizer's steps: the engine's share of the server's
         self.refusals: Counter[int] = Counter()  # close code -> connections refused or ended with it
 
     def warm_up(self) -> None:
@@ -557,10 +557,6 @@ class StyleServer:
     def _enqueue(self, stream: Stream, seq: int, values: np.ndarray) -> None:
         if stream.closing:
             return
-        bad = bvh.channel_problem(stream.pool.skeleton, values)  # the same check as transfer's
-        if bad is not None:
-            member = f" of stream {bad[0]}" if stream.count > 1 else ""
-            raise ClientError(INVALID_DATA, f"frame {seq}{member}: {bad[1]}")
         if len(stream.pending) >= self.config.queue:
             # whose fault: a client ahead of real time, or a server behind it (never the client's)
             ahead = stream.frames - stream.pool.stylizer.fps * (time.perf_counter() - stream.opened)
@@ -658,7 +654,6 @@ class StyleServer:
                     await asyncio.sleep(wait)
                     continue
                 for pool, streams in work:
-                    cpu = time.process_time()
                     try:
                         self._step(pool, streams)
                     except Exception:  # a bug anywhere in a step ends only that step's streams, never the stepping task
@@ -666,17 +661,28 @@ class StyleServer:
                         for stream in streams:
                             if not stream.closing:
                                 self._fail(stream, INTERNAL, "internal error while stylising this stream")
-                    self.step_cpu += time.process_time() - cpu
                 await asyncio.sleep(0)  # let replies go out and frames come in
 
     def _step(self, pool: Pool, streams: list[Stream]) -> None:
         """One frame of each of ``streams`` (each its connection's rows) in one batched step;
         each connection's reply is one message."""
-        rows = np.concatenate([s.rows for s in streams])
         items = [s.pending.popleft() for s in streams]
         values = np.concatenate([v for _, v, _ in items])
+        if not bvh.channel_values_ok(values).all():  # NaN, inf or absurd values (the check transfer makes): refused
+            for stream, (seq, v, _) in zip(streams, items):
+                bad = bvh.channel_problem(pool.skeleton, v)
+                if bad is not None:
+                    member = f" of stream {bad[0]}" if stream.count > 1 else ""
+                    self._fail(stream, INVALID_DATA, f"frame {seq}{member}: {bad[1]}")
+            kept = [(s, item) for s, item in zip(streams, items) if not s.closing]
+            if not kept:
+                return
+            streams, items = [s for s, _ in kept], [item for _, item in kept]
+            values = np.concatenate([v for _, v, _ in items])
+        rows = np.concatenate([s.rows for s in streams])
         ends = np.cumsum([s.count for s in streams])
         spans = [slice(int(e) - s.count, int(e)) for s, e in zip(streams, ends)]
+        cpu = time.process_time()
         try:
             out = pool.stylizer.step(values, rows)
         except StyleERDError:  # a frame the stylizer refuses (no state changed): find it, end only its connection
@@ -691,10 +697,12 @@ class StyleServer:
             for stream in streams:
                 self._fail(stream, INTERNAL, "internal error while stylising this stream")
             return
+        finally:
+            self.step_cpu += time.process_time() - cpu
         self.steps += 1
         self.frames += len(rows)
-        finite = np.isfinite(out).all(axis=1)
-        good = [finite[span].all() for span in spans]
+        starts = [span.start for span in spans]
+        good = np.logical_and.reduceat(np.isfinite(out).all(axis=1), starts).tolist()  # per connection
         for stream, ok, (seq, _, _) in zip(streams, good, items):
             if not ok and not stream.closing:
                 self._fail(stream, INTERNAL, f"frame {seq}: the stylised frame is not finite")
@@ -715,13 +723,14 @@ class StyleServer:
             seen_pose, made_pose = pool.humanoid_pose(values[posed]), pool.humanoid_pose(out[posed])
             humanoid = np.zeros((2, len(rows), seen_pose.shape[1]), "<f4")
             humanoid[:, posed] = seen_pose, made_pose
+        out32 = out.astype("<f4")
         for stream, span, ok, (seq, _, _) in zip(streams, spans, good, items):
             if not ok:
                 continue
             pos = None if positions is None else positions[:, span]
             pose = None if humanoid is None else humanoid[:, span]
             if stream.binary:
-                parts = [SEQ.pack(seq), out[span].astype("<f4").tobytes()]
+                parts = [SEQ.pack(seq), out32[span].tobytes()]
                 if stream.positions:
                     parts += [p.tobytes() for p in (pos if stream.fronts else pos[:2])]
                 if stream.humanoid:
