@@ -20,7 +20,7 @@ from styleerd.runtime.system import system_report
 from styleerd.serve.loadtest import run_load_test
 
 FRAME_MS = 1000 / 30
-LADDER = (10, 20, 30, 40, 60, 80, 100, 130, 160, 200, 260, 330, 400, 500)
+LADDER = (10, 20, 30, 40, 60, 80, 100, 130, 160, 200, 260, 330, 400, 500, 650, 800, 1000)
 
 
 def holds(streams: int, each: int, processes: int, seconds: float) -> tuple[bool, dict]:

@@ -5,11 +5,12 @@ from conftest import walking_motion
 from scipy.spatial.transform import Rotation
 
 from styleerd.data.augment import in_place
-from styleerd.motion import quat
+from styleerd.motion import bvh, quat
 from styleerd.motion.ik import two_bone_ik
 from styleerd.motion.kinematics import forward_kinematics
 from styleerd.motion.motion import Motion
 from styleerd.motion.procedural import walk
+from styleerd.motion.skeleton import Skeleton
 from styleerd.runtime.cleanup import FootLock, clean_feet
 
 
@@ -203,3 +204,37 @@ def test_pelvis_drops_where_a_planted_foot_is_out_of_reach_and_rises_back_smooth
     dragged = np.linalg.norm(b[11:25] - a[11], axis=-1)
     assert dragged.max() > 2.0, dragged.max()  # without the drop the foot is dragged along
     assert held.max() < 0.05 * dragged.max(), (held.max(), dragged.max())
+
+
+def test_pelvis_drop_under_a_turned_reference_node_is_straight_down_in_the_world():
+    """The same clip with a still root node above the hips that has no translation of its own (a
+    reference node, turned 90 degrees about X: Z up in its frame) and the hips translated under it:
+    the drop goes to the hips' translation, straight down in the world, and the cleaned pose is the
+    same in the world as without the reference node, once written as BVH channels."""
+    inp, out = sliding_output(60)
+    sk = out.skeleton
+    out = Motion(sk, out.rotations, out.positions.copy(), out.fps)
+    out.positions[10:, 0, 2] += 1.0 * np.minimum(np.arange(50), 10)
+    turn = quat.from_angle_axis(np.pi / 2, np.array([1.0, 0.0, 0.0]))
+
+    def under_reference(m: Motion) -> Motion:
+        ref = Skeleton(
+            ("Reference",) + sk.names,
+            np.concatenate([[-1], sk.parents + 1]),
+            np.concatenate([np.zeros((1, 3)), sk.offsets]),
+            (("Zrotation", "Xrotation", "Yrotation"),) + sk.channels,
+        )
+        rot = np.concatenate([np.broadcast_to(turn, (m.n_frames, 1, 4)), m.rotations], 1)
+        rot[:, 1] = quat.mul(quat.inv(turn), m.rotations[:, 0])  # the hips' world rotation kept
+        pos = np.concatenate([np.zeros((m.n_frames, 1, 3)), m.positions], 1)
+        pos[:, 1] = quat.mul_vec(quat.inv(turn), m.positions[:, 0])  # and their world position
+        return Motion(ref, rot, pos, m.fps)
+
+    plain = clean_feet(out, inp)
+    referenced = clean_feet(under_reference(out), under_reference(inp))
+    written = bvh.motion_from_channels(referenced.skeleton, bvh.channel_values(referenced), out.fps)  # as saved
+    g_plain = forward_kinematics(plain.rotations, plain.positions, sk.parents)[1]
+    g_ref = forward_kinematics(written.rotations, written.positions, written.skeleton.parents)[1][:, 1:]
+    assert (out.positions[:, 0, 1] - plain.positions[:, 0, 1]).max() > 1.0  # the drop was needed
+    assert np.abs(g_ref - g_plain).max() < 1e-4
+    assert FootLock(referenced.skeleton).lowered == 1  # the hips, not the reference node (no translation to write)

@@ -458,6 +458,68 @@ def test_raw_socket_garbage_and_half_handshakes(server, clip):
     slow.sock.close()
 
 
+def _wire_frame(opcode: int, payload: bytes, fin: bool) -> bytes:
+    """One masked client frame (RFC 6455), FIN as given."""
+    mask, n = b"\x1f\x2e\x3d\x4c", len(payload)
+    head = bytes([(0x80 if fin else 0) | opcode]) + (
+        bytes([0x80 | n]) if n < 126 else bytes([0x80 | 126]) + struct.pack(">H", n)
+    )
+    return head + mask + bytes(b ^ mask[i % 4] for i, b in enumerate(payload))
+
+
+def _close_code(sock: socket.socket) -> int | None:
+    """Read until the server ends the connection (or is quiet for a second); -> its close code."""
+    sock.settimeout(1.0)
+    data = b""
+    try:
+        while chunk := sock.recv(65536):
+            data += chunk
+    except OSError:
+        pass
+    while len(data) >= 2:  # walk the server's (unmasked) frames to its close frame
+        n, at = data[1] & 0x7F, 2
+        if n == 126:
+            n, at = struct.unpack(">H", data[2:4])[0], 4
+        elif n == 127:
+            n, at = struct.unpack(">Q", data[2:10])[0], 10
+        if data[0] & 0x0F == 0x8:
+            return struct.unpack(">H", data[at : at + 2])[0] if n >= 2 else 1005
+        data = data[at + n :]
+    return None
+
+
+def test_fuzzed_wire_frames_on_an_open_stream_are_taken_or_closed_cleanly(server, clip):
+    """The server hands a stream's messages over as websockets parses them (serve.connection):
+    fragments, continuation frames out of place, pings between fragments, text that is not UTF-8,
+    frames of the wrong length, on an open stream. Each connection is either served or closed with
+    a protocol code (1002 protocol error, 1007 bad data, 1008 policy, 1009 too big), never a crash;
+    the probe stream is served as before and the server logs no traceback (the fixture)."""
+    from hypothesis import HealthCheck, given, settings
+    from hypothesis import strategies as st
+
+    url, port, _ = server
+    m, values, _ = clip
+    good = frame(0, values[0])
+    payloads = st.sampled_from([good, good[:7], good + b"x", b"\xff\xfe\xfd", b'{"type": "stats"}', b""]) | st.binary(
+        max_size=40
+    )
+    frames_ = st.lists(st.tuples(st.sampled_from([0x0, 0x1, 0x2, 0x9, 0xA]), payloads, st.booleans()), max_size=6)
+
+    @settings(max_examples=60, deadline=None, suppress_health_check=list(HealthCheck), derandomize=True)
+    @given(frames_)
+    def run(sent):
+        client = RawClient(port)
+        client.send(0x1, json.dumps(hello(m, 30.0, "elderly", 1.0, None, "wire", "normal", "walk")).encode())
+        client.sock.sendall(b"".join(_wire_frame(op, data, fin) for op, data, fin in sent))
+        client.sock.sendall(_wire_frame(0x8, struct.pack(">H", 1000), True))  # then a clean close
+        code = _close_code(client.sock)
+        client.sock.close()
+        assert code in (None, 1000, 1002, 1007, 1008, 1009), (code, sent)
+
+    run()
+    probe(url, clip)
+
+
 # ---- the message boundary, fuzzed in process: any hello or message is a stream or a ClientError
 
 

@@ -11,8 +11,9 @@ lasts, two-bone IK (hip, knee) holds the output ankle on the anchor moved as the
 moved since (on frames it moved faster than a still foot: pinned where the input's foot is still,
 carried back where it walks in place); when it ends, the target slides from there back to the raw
 ankle over ``release_frames`` frames, so nothing pops. Where a planted foot's target is out of its
-leg's reach (a style that bends the body, a heel rising far behind it), the pelvis drops (the root,
-straight down, at most ``max_drop`` leg lengths) until the leg reaches; it rises back at
+leg's reach (a style that bends the body, a heel rising far behind it), the pelvis drops (straight
+down, at most ``max_drop`` leg lengths, by the translation of the first joint above the legs that
+has one: the root, or the hips under a still reference node) until the leg reaches; it rises back at
 ``rise_speed`` leg lengths a second once the feet no longer need it, so the body never pops.
 The floor: no output ankle, and no toe (the ankle's first child), goes lower than the input's own
 ankle and toe have been so far (their running minimum); a foot that would is lifted by the same IK,
@@ -67,6 +68,12 @@ class FootLock:
         )  # each leg's length, hip to ankle, straight
         leg = self.reach[0]
         self.max_speed, self.floor_band = contact_speed * leg, floor_band * leg
+        above = [int(parents[self.legs[0, 0]])]  # the joint both thighs hang from, and those above it
+        while above[-1] > 0:
+            above.append(int(parents[above[-1]]))
+        # the joint lowered: its translation must be written out (a BVH position channel); none, no drop
+        self.lowered = next((j for j in reversed(above) if j >= 0 and skeleton.has_positions(j)), -1)
+        max_drop = max_drop if self.lowered >= 0 else 0.0
         self.max_drop, self.fall, self.rise = max_drop * leg, fall_speed * leg / fps, rise_speed * leg / fps
         self.n, self.release_frames = n_streams, max(1, release_frames)
         self.previous = np.zeros((n_streams, 2, 3))  # input ankles of the last frame (once started)
@@ -107,6 +114,7 @@ class FootLock:
             self.legs,
             self.toes,
             self.reach,
+            int(self.lowered),
             float(self.max_drop),
             float(self.fall),
             float(self.rise),
@@ -140,6 +148,7 @@ def _foot_lock_kernel(
     legs,
     toes,
     reach,
+    lowered,
     max_drop,
     fall,
     rise,
@@ -213,8 +222,16 @@ def _foot_lock_kernel(
                 over = above - np.sqrt(length * length - ground2) if ground2 < length * length else above
                 need = max(need, over)
         drop[r] = max(min(need, max_drop, drop[r] + fall), drop[r] - rise, 0.0)
-        if drop[r] > 0.0:
-            positions[i, 0, 1] -= drop[r]
+        if drop[r] > 0.0:  # straight down in the world, in the lowered joint's parent's frame
+            p = parents[lowered]
+            dx, dy, dz = (
+                (0.0, -drop[r], 0.0)
+                if p < 0
+                else quat.mul_vec_scalars(g_rot[p, 0], -g_rot[p, 1], -g_rot[p, 2], -g_rot[p, 3], 0.0, -drop[r], 0.0)
+            )
+            positions[i, lowered, 0] += dx
+            positions[i, lowered, 1] += dy
+            positions[i, lowered, 2] += dz
             forward_pose(out[i], positions[i], parents, g_rot, g_pos)
         left[:] = g_pos[across_l] - g_pos[across_r]
         for side in range(2):  # the planted feet on their anchors

@@ -35,10 +35,13 @@ class MessageConnection(ServerConnection):
         self.parts: list[bytes] = []  # a fragmented message's frames so far
         self.text = False  # whether the message being assembled is text
         self.paused = False  # reading paused: ``max_queue_high`` messages wait
+        self.failed = False  # a message broke the protocol: nothing after it is taken
 
     def process_event(self, event) -> None:
         if not isinstance(event, Frame) or event.opcode not in (Opcode.TEXT, Opcode.BINARY, Opcode.CONT):
             return super().process_event(event)  # the opening handshake, pings and pongs
+        if self.failed:
+            return
         if event.opcode is not Opcode.CONT:  # the protocol checks continuations follow a first frame
             self.parts, self.text = [], event.opcode is Opcode.TEXT
         self.parts.append(event.data)
@@ -52,6 +55,7 @@ class MessageConnection(ServerConnection):
             except UnicodeDecodeError:
                 self.protocol.fail(CloseCode.INVALID_DATA, "a text message that is not UTF-8")
                 self.send_data()
+                self.failed = True
                 return
         else:
             message = bytes(data)

@@ -520,8 +520,9 @@ class StyleServer:
             self._fail(stream, INTERNAL, f"internal error ({type(e).__name__}); the server goes on")
 
     def _send(self, stream: Stream, message: Message) -> None:
-        """A reply to a stream's client, written now; a client that leaves ``queue`` replies unread ends."""
-        if not send_now(stream.ws, message, self.config.queue * len(message)) and not stream.closing:
+        """A reply to a stream's client, written now; a client that leaves ``queue`` frames' replies unread ends."""
+        frame_reply = SEQ.size + 4 * stream.pool.stylizer.n_channels * stream.count  # the least a frame's reply is
+        if not send_now(stream.ws, message, self.config.queue * max(len(message), frame_reply)) and not stream.closing:
             self._fail(
                 stream, POLICY, f"more than {self.config.queue} stylised frames unsent: the client does not read"
             )
