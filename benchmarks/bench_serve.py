@@ -1,17 +1,19 @@
 """The style server under load, its protocols side by side in one run: the same real-time
 clients (30 fps, loopback) against a fresh server for each row.
 
-    python benchmarks/bench_serve.py [--seconds 20] [--before COMMIT] [--only NAME ...] [-o docs/protocol-bench.json]
+    python benchmarks/bench_serve.py [--seconds 20] [--before COMMIT] [--only NAME ...]
+                                     [-o docs/protocol-bench.json]
 
 Rows: 40 single-stream connections (a light live load) on the numpy step (the server's default
 until now) and on the numba step (the default); 200 single-stream connections (numpy on asyncio's
 event loop and on uvloop, then numba); the same 200 streams on 2 connections of 100 (a hello's
-``streams``); 1,000 streams on 10 connections (labels given: no labeller). Each row prints the server's CPU
-a frame, split into the engine (its batched steps) and the protocol (everything else), latency
-p50/p99/max, and frames dropped, reordered or changed (every reply against a local run). The
-load generator shares the machine's cores with the server. ``--before COMMIT`` serves each row
-also with that commit's server (a git worktree), the two in alternating order, the same clients. ``styleerd load-test`` runs one row
-(and the soak test, ``--faulty``); CI runs a reduced size (tests/test_server.py, test_crowd.py).
+``streams``); 1,000 streams on 10 connections (labels given: no labeller). Each row prints the
+server's CPU a frame, split into the engine (the stylizer's steps) and the protocol (everything
+else), latency p50/p99/max, and frames dropped, reordered or changed (every reply against a local
+run). The load generator shares the machine's cores with the server. ``--before COMMIT`` serves
+each row also with that commit's server (a git worktree), the two in alternating order, the same
+clients. ``styleerd load-test`` runs one row (and the soak test, ``--faulty``); CI runs a reduced
+size (tests/test_server.py, test_crowd.py).
 """
 
 from __future__ import annotations
