@@ -402,7 +402,7 @@ def test_messages_behind_the_hello_in_fragments_and_between_frames_are_taken_in_
     message that is not UTF-8 closes the connection with 1007."""
     url, _ = server
     m, values = clip
-    ws = connect(url, open_timeout=20)
+    ws = connect(url, open_timeout=20, legacy=True)
     ws.send(json.dumps(hello(m, 30.0, "elderly", 1.0, None, None)))
     ws.send(frame(0, values[0]))
     ws.send(frame(1, values[1]))
