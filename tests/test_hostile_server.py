@@ -14,7 +14,7 @@ from types import SimpleNamespace
 
 import numpy as np
 import pytest
-from test_server import RawClient, closed_with, frame, replies
+from test_server import RawClient, closed_with, frame, replies, wire_frame
 from websockets.exceptions import ConnectionClosed, InvalidStatus
 from websockets.protocol import State
 from websockets.sync.client import connect
@@ -458,15 +458,6 @@ def test_raw_socket_garbage_and_half_handshakes(server, clip):
     slow.sock.close()
 
 
-def _wire_frame(opcode: int, payload: bytes, fin: bool) -> bytes:
-    """One masked client frame (RFC 6455), FIN as given."""
-    mask, n = b"\x1f\x2e\x3d\x4c", len(payload)
-    head = bytes([(0x80 if fin else 0) | opcode]) + (
-        bytes([0x80 | n]) if n < 126 else bytes([0x80 | 126]) + struct.pack(">H", n)
-    )
-    return head + mask + bytes(b ^ mask[i % 4] for i, b in enumerate(payload))
-
-
 def _close_code(sock: socket.socket) -> int | None:
     """Read until the server ends the connection (or is quiet for a second); -> its close code."""
     sock.settimeout(1.0)
@@ -510,8 +501,8 @@ def test_fuzzed_wire_frames_on_an_open_stream_are_taken_or_closed_cleanly(server
     def run(sent):
         client = RawClient(port)
         client.send(0x1, json.dumps(hello(m, 30.0, "elderly", 1.0, None, "wire", "normal", "walk")).encode())
-        client.sock.sendall(b"".join(_wire_frame(op, data, fin) for op, data, fin in sent))
-        client.sock.sendall(_wire_frame(0x8, struct.pack(">H", 1000), True))  # then a clean close
+        client.sock.sendall(b"".join(wire_frame(op, data, fin) for op, data, fin in sent))
+        client.sock.sendall(wire_frame(0x8, struct.pack(">H", 1000), True))  # then a clean close
         code = _close_code(client.sock)
         client.sock.close()
         assert code in (None, 1000, 1002, 1007, 1008, 1009), (code, sent)

@@ -389,10 +389,16 @@ class RawClient:
         assert response.startswith(b"HTTP/1.1 101")
 
     def send(self, opcode: int, payload: bytes) -> None:
-        mask = os.urandom(4)
-        n = len(payload)
-        head = bytes([0x80 | opcode]) + (bytes([0x80 | n]) if n < 126 else bytes([0x80 | 126]) + struct.pack(">H", n))
-        self.sock.sendall(head + mask + bytes(b ^ mask[i % 4] for i, b in enumerate(payload)))
+        self.sock.sendall(wire_frame(opcode, payload))
+
+
+def wire_frame(opcode: int, payload: bytes, fin: bool = True) -> bytes:
+    """One masked client frame (RFC 6455), FIN as given."""
+    mask, n = os.urandom(4), len(payload)
+    head = bytes([(0x80 if fin else 0) | opcode]) + (
+        bytes([0x80 | n]) if n < 126 else bytes([0x80 | 126]) + struct.pack(">H", n)
+    )
+    return head + mask + bytes(b ^ mask[i % 4] for i, b in enumerate(payload))
 
 
 def test_messages_behind_the_hello_in_fragments_and_between_frames_are_taken_in_order(server, clip):
