@@ -46,3 +46,34 @@ def test_the_clips_measured_on_are_never_trained_on_and_the_neutral_walk_reads_n
     walk = next(c for c in clips if c.name.startswith("neutral_01"))
     figures = clip_figures(model, walk)
     assert figures["read"][0] == "normal" and figures["confident_wrong"] == 0.0, figures
+
+
+@pytest.mark.slow
+def test_train_labeller_fine_tunes_with_other_performers_and_records_what_it_did(shared_data, tmp_path):
+    """``styleerd train-labeller`` as configs/labeller-outside.yaml runs it, on a few clips: the
+    fine-tuning starts from the saved labeller, takes other performers' clips with the configured
+    unsure weight, and its test record is what the saved labeller gives again."""
+    from pathlib import Path
+
+    from styleerd.model import checkpoint as ckpt
+    from styleerd.train.config import TrainConfig
+    from styleerd.train.labeller import stream_accuracy, train_and_save
+    from styleerd.train.trainer import setup
+
+    start = Path(__file__).parents[1] / "models" / "labellers" / "labeller-bandai2-scratch"
+    config = TrainConfig(
+        max_train_clips=40,
+        threads=1,
+        labeller_init_from=str(start),
+        labeller_outside=True,
+        labeller_epochs=1,
+        labeller_lr=1e-4,
+        labeller_unsure=1.5,
+    )
+    train_and_save(config, str(shared_data), tmp_path / "labeller", progress=False)
+    labeller, meta = ckpt.load_labeller(tmp_path / "labeller")
+    assert meta["started_from"] == str(start) and len(meta["history"]) == 1
+    assert meta["outside"]["unsure_weight"] == 1.5 and meta["outside"]["clips"] > 100
+    s = setup(config, str(shared_data), progress=False)
+    assert {str(k): v for k, v in stream_accuracy(labeller, s.fs, s.data, "test").items()} == meta["test"]
+    assert meta["test"]["30"]["style"] > 0.9  # a short fine-tuning from a good labeller keeps it good

@@ -77,6 +77,7 @@ class TrainConfig:
     labeller_lr: float = 2e-3
     labeller_init_from: str = ""  # fine-tune: a saved labeller (a path without suffix) whose weights start the run
     labeller_outside: bool = False  # other performers' clips join the training clips (``train.batches.outside_clips``)
+    labeller_unsure: float = 0.5  # weight of the loss that makes a style the model does not have read as unsure
 
     @classmethod
     def from_yaml(cls, path: str | Path, **overrides) -> TrainConfig:

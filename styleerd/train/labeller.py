@@ -232,6 +232,7 @@ def train_and_save(
         max_clips=config.max_train_clips,
         progress=progress,
         outside=outside,
+        unsure=config.labeller_unsure,
         start=start,
     )
     if start is not None:
