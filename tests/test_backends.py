@@ -172,6 +172,38 @@ def test_numba_backend_switches_paths_by_batch_on_one_state(model, n):
         assert np.abs(got[0] - want[0]).max() <= 1e-5 and np.abs(got[1] - want[1]).max() <= 1e-4, t
 
 
+@pytest.mark.parametrize("name, n, threads", [("numpy", 5, 1), ("numba", 5, 1), ("numba", 300, 2)])
+def test_a_paired_step_equals_two_backends_stepped_alike(model, name, n, threads):
+    """``step_pair`` (the default pose's target and identity passes on one encoder and neutral
+    stack) gives what two backends give, each stepped to one of the targets, over streams that
+    start, switch, mix, restart and step some rows at a time (a slice, indices); on 2 threads
+    the numba step splits into shards. A backend not made paired refuses it."""
+    c = model.config
+    nS, nI = len(c.styles), len(c.input_styles)
+    paired = make_backend(name, model, n, threads, paired=True)
+    to_target, to_second = make_backend(name, model, n, threads), make_backend(name, model, n, threads)
+    rng = np.random.default_rng(7)
+    for t in range(12):
+        if t == 6:
+            for b in (paired, to_target, to_second):
+                b.reset(np.array([1, 3]))
+        rows = (None, slice(1, n - 1), np.array([n - 1, 0, 2]))[t % 3]
+        m = n if rows is None else len(np.arange(n)[rows])
+        x = rng.normal(0, 1, (m, c.feature_dim)).astype(np.float32)
+        style = np.eye(nI, dtype=np.float32)[rng.integers(0, nI, m)]
+        content = rng.dirichlet(np.ones(len(c.contents)), m).astype(np.float32)
+        target = rng.dirichlet(np.full(nS, 0.3), m).astype(np.float32) * (rng.random((m, nS)) < 0.6)
+        second = np.zeros((m, nS), np.float32)
+        second[:, :nI] = style  # the identity transfer's target
+        rot, vel, rot2 = paired.step_pair(x, style, content, target, second, rows)
+        want_rot, want_vel = to_target.step(x, style, content, target, rows)
+        want_rot2, _ = to_second.step(x, style, content, second, rows)
+        assert np.abs(rot - want_rot).max() <= 1e-5 and np.abs(vel - want_vel).max() <= 1e-4, t
+        assert np.abs(rot2 - want_rot2).max() <= 1e-5, t
+    with pytest.raises(ValueError, match="paired"):
+        to_target.step_pair(x, style, content, target, second, rows)
+
+
 @pytest.mark.parametrize("name", ["numpy", "numba", "onnx"])
 def test_shards_of_streams_stepped_at_once_equal_one_step_of_all(model, name):
     """What StreamStylizer and the bench's network throughput do on two threads: disjoint

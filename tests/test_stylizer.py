@@ -181,13 +181,13 @@ def test_numba_kernels_on_threads_from_two_callers_at_once_equal_one_thread(mode
     n, frames = 40, 10  # at least data.parallel.PARALLEL_FROM streams
     ms = [walking_motion(frames, seed=k) for k in range(n)]
     targets = [{"old": 1.0}, {"angry": 0.5, "old": 0.5}, {"normal": 1.0}, {"angry": 1.0}] * (n // 4)
-    splits, on_shards = [], compiled.compiled_step_on_shards
+    splits, on_shards = [], compiled.compiled_pair_step_on_shards
 
     def counted(shards, *args):
         splits.append(shards)
         return on_shards(shards, *args)
 
-    monkeypatch.setattr(compiled, "compiled_step_on_shards", counted)
+    monkeypatch.setattr(compiled, "compiled_pair_step_on_shards", counted)
 
     def run(threads: int) -> np.ndarray:
         st = StreamStylizer(model, "normal", "walk", targets, n_streams=n, backend="numba", threads=threads)
@@ -204,8 +204,8 @@ def test_numba_kernels_on_threads_from_two_callers_at_once_equal_one_thread(mode
         got = list(pool.map(run, [2, 2]))
     threads = min(2, numba.config.NUMBA_NUM_THREADS)  # NUMBA_NUM_THREADS=1: the kernels stay on the calling thread
     assert splits == (
-        [threads] * (2 * frames * 2) if threads > 1 else []
-    )  # two stylizers, two passes a step (the target's and the identity's)
+        [threads] * (2 * frames) if threads > 1 else []
+    )  # two stylizers, one pass a step (the target's and the identity's on one encoder and neutral stack)
     for out in got:
         assert np.abs(out - want).max() <= 1e-5
 

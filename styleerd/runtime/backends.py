@@ -210,11 +210,11 @@ class OnnxBackend:
         return rot, vel
 
 
-def make_backend(name: str, model: GeneratorWeights, n_streams: int, threads: int = 1):
+def make_backend(name: str, model: GeneratorWeights, n_streams: int, threads: int = 1, paired: bool = False):
     """The step backend ``name`` for ``n_streams`` streams; ``threads``: the numba step's
     threads for many streams (``data.parallel``), onnxruntime's intra-op threads (StreamStylizer
     on N threads splits large onnx and numpy steps into N shards of streams instead, each on
-    one); torch uses its global pool."""
+    one); torch uses its global pool. ``paired`` (numpy and numba): with ``step_pair``."""
     if name not in BACKENDS:
         raise StyleERDError(f"unknown backend {name!r}; valid: {', '.join(BACKENDS)}")
     model = generator_weights(model)
@@ -222,9 +222,11 @@ def make_backend(name: str, model: GeneratorWeights, n_streams: int, threads: in
         if name == "numba":
             from styleerd.runtime.compiled import CompiledBackend  # imports numba: only when asked for
 
-            return CompiledBackend(model, n_streams, threads)
+            return CompiledBackend(model, n_streams, threads, paired=paired)
         if name in ("onnx", "onnx-plain"):
             return OnnxBackend(model, n_streams, threads, form="plain" if name == "onnx-plain" else "lstm")
-        return {"torch": TorchBackend, "numpy": NumpyBackend}[name](model, n_streams)
+        if name == "numpy":
+            return NumpyBackend(model, n_streams, paired)
+        return TorchBackend(model, n_streams)
     except ImportError as e:  # the light install has numpy and numba; torch and onnxruntime come with styleerd[train]
         raise StyleERDError(f"the {name} backend needs {e.name or e}: pip install 'styleerd[train]'") from None

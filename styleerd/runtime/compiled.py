@@ -311,6 +311,134 @@ def compiled_step_on_shards(
     _blas_threads_here(callers)
 
 
+@nb.njit(cache=True, fastmath=True, error_model="numpy", nogil=True)
+def compiled_pair_step(
+    x,
+    style,
+    content,
+    target,
+    second,
+    P,
+    table,
+    sizes,
+    inits,
+    branch_styles,
+    h,
+    c,
+    hb,
+    cb,
+    hb2,
+    cb2,
+    first,
+    rot,
+    vel,
+    rot2,
+    vel2,
+    block_rows,
+    loops_up_to,
+):
+    """``compiled_step`` to ``target``, and to ``second`` with the branch states ``hb2``, ``cb2``
+    into ``rot2``, ``vel2``, on one encoder and neutral stack: their state depends on the input
+    alone, so two steps alike would compute them twice."""
+    _refuse_unless_fitting(x, style, content, target, table, sizes, h, c, hb, cb, first, rot, vel)
+    _refuse_unless_fitting(x, style, content, second, table, sizes, h, c, hb2, cb2, first, rot2, vel2)
+    N = x.shape[0]
+    blas = min(N, block_rows) > loops_up_to
+    callers = _blas_threads_here(1) if blas else 1
+    for s in range(0, N, block_rows):
+        e = min(N, s + block_rows)
+        _pair_block(
+            x[s:e],
+            style[s:e],
+            content[s:e],
+            target[s:e],
+            second[s:e],
+            P,
+            table,
+            sizes,
+            inits,
+            branch_styles,
+            h[s:e],
+            c[s:e],
+            hb[s:e],
+            cb[s:e],
+            hb2[s:e],
+            cb2[s:e],
+            first[s:e],
+            rot[s:e],
+            vel[s:e],
+            rot2[s:e],
+            vel2[s:e],
+            loops_up_to,
+        )
+    if blas:
+        _blas_threads_here(callers)
+
+
+@nb.njit(cache=True, nogil=True, parallel=True)
+def compiled_pair_step_on_shards(
+    shards,
+    x,
+    style,
+    content,
+    target,
+    second,
+    P,
+    table,
+    sizes,
+    inits,
+    branch_styles,
+    h,
+    c,
+    hb,
+    cb,
+    hb2,
+    cb2,
+    first,
+    rot,
+    vel,
+    rot2,
+    vel2,
+    block_rows,
+    loops_up_to,
+):
+    """``compiled_pair_step`` on ``shards`` slices of the streams at once, as ``compiled_step_on_shards``."""
+    _refuse_unless_fitting(x, style, content, target, table, sizes, h, c, hb, cb, first, rot, vel)
+    _refuse_unless_fitting(x, style, content, second, table, sizes, h, c, hb2, cb2, first, rot2, vel2)
+    N = x.shape[0]
+    callers = _blas_threads_here(1)
+    for k in nb.prange(shards):
+        s, e = N * k // shards, N * (k + 1) // shards
+        _blas_threads_here(1)
+        _blas_threads_here(1)
+        compiled_pair_step(
+            x[s:e],
+            style[s:e],
+            content[s:e],
+            target[s:e],
+            second[s:e],
+            P,
+            table,
+            sizes,
+            inits,
+            branch_styles,
+            h[s:e],
+            c[s:e],
+            hb[s:e],
+            cb[s:e],
+            hb2[s:e],
+            cb2[s:e],
+            first[s:e],
+            rot[s:e],
+            vel[s:e],
+            rot2[s:e],
+            vel2[s:e],
+            block_rows,
+            loops_up_to,
+        )
+    _blas_threads_here(callers)
+
+
 @nb.njit(cache=True, nogil=True)
 def _refuse_unless_fitting(x, style, content, target, table, sizes, h, c, hb, cb, first, rot, vel):
     # no bounds are checked in the step: inputs that do not fit would read or write past them
@@ -337,10 +465,61 @@ def _step_block(
     x, style, content, target, P, table, sizes, inits, branch_styles, h, c, hb, cb, first, rot, vel, loops_up_to
 ):
     """``compiled_step`` on one block of rows that fit."""
-    n_enc, L0, L1, n_dec, J = sizes[0], sizes[1], sizes[2], sizes[3], sizes[4]
-    N, H, K = x.shape[0], h.shape[1] // L0, len(branch_styles)
+    _start_branches(P, inits, first, hb, cb)
+    z, out = _trunk(x, style, content, P, table, sizes, inits, h, c, first, loops_up_to)
+    _head(z, out, target, P, table, sizes, branch_styles, hb, cb, rot, vel, loops_up_to)
+
+
+@nb.njit(cache=True, fastmath=True, error_model="numpy", nogil=True)
+def _pair_block(
+    x,
+    style,
+    content,
+    target,
+    second,
+    P,
+    table,
+    sizes,
+    inits,
+    branch_styles,
+    h,
+    c,
+    hb,
+    cb,
+    hb2,
+    cb2,
+    first,
+    rot,
+    vel,
+    rot2,
+    vel2,
+    loops_up_to,
+):
+    """``compiled_pair_step`` on one block of rows that fit: one encoder and neutral stack, two heads."""
+    _start_branches(P, inits, first, hb, cb)
+    _start_branches(P, inits, first, hb2, cb2)
+    z, out = _trunk(x, style, content, P, table, sizes, inits, h, c, first, loops_up_to)
+    _head(z, out.copy(), target, P, table, sizes, branch_styles, hb, cb, rot, vel, loops_up_to)
+    _head(z, out, second, P, table, sizes, branch_styles, hb2, cb2, rot2, vel2, loops_up_to)
+
+
+@nb.njit(cache=True, fastmath=True, error_model="numpy", nogil=True)
+def _start_branches(P, inits, first, hb, cb):
+    """The style branches' learned initial states for the streams ``first``."""
+    for n in range(hb.shape[0]):
+        if first[n]:
+            for q in range(hb.shape[1]):
+                hb[n, q], cb[n, q] = P[inits[2] + q], P[inits[3] + q]
+
+
+@nb.njit(cache=True, fastmath=True, error_model="numpy", nogil=True)
+def _trunk(x, style, content, P, table, sizes, inits, h, c, first, loops_up_to):
+    """The encoder and the neutral stack (a stream's first frame from the neutral stack's learned
+    initial state by content, its flag cleared): -> (the encoder's output, the stack's)."""
+    n_enc, L0 = sizes[0], sizes[1]
+    N, H = x.shape[0], h.shape[1] // L0
     nC = content.shape[1]
-    for n in range(N):  # a stream's first frame: the learned initial states (the neutral one by content)
+    for n in range(N):
         if first[n]:
             for q in range(L0 * H):
                 sh, sc = np.float32(0.0), np.float32(0.0)
@@ -348,8 +527,6 @@ def _step_block(
                     sh += content[n, label] * P[inits[0] + label * L0 * H + q]
                     sc += content[n, label] * P[inits[1] + label * L0 * H + q]
                 h[n, q], c[n, q] = sh, sc
-            for q in range(K * L1 * H):
-                hb[n, q], cb[n, q] = P[inits[2] + q], P[inits[3] + q]
             first[n] = False
     D, nS = x.shape[1], style.shape[1]
     z = np.empty((N, D + nS + nC), np.float32)
@@ -366,6 +543,16 @@ def _step_block(
     out = np.empty((N, H), np.float32)
     for n in range(N):
         out[n] = h[n, (L0 - 1) * H :]
+    return z, out
+
+
+@nb.njit(cache=True, fastmath=True, error_model="numpy", nogil=True)
+def _head(z, out, target, P, table, sizes, branch_styles, hb, cb, rot, vel, loops_up_to):
+    """The style branches ``target`` weights added to the neutral stack's output ``out`` (in place),
+    then the decoder into ``rot``, ``vel``."""
+    n_enc, L0, L1, n_dec, J = sizes[0], sizes[1], sizes[2], sizes[3], sizes[4]
+    N, H, K = z.shape[0], out.shape[1], len(branch_styles)
+    g = np.empty((N, 4 * H), np.float32)
     for b in range(K):  # only the branches a stream weights run (and advance)
         s, first_entry, at = branch_styles[b], n_enc + 2 * L0 + 2 * L1 * b, b * L1 * H
         rows = np.nonzero(target[:, s])[0]
@@ -482,53 +669,62 @@ class CompiledBackend(NumpyBackend):
     ``settings`` chooses (by default, the one measured fastest on this machine)."""
 
     def __init__(
-        self, model: GeneratorWeights, n_streams: int, threads: int = 1, settings: EngineSettings | None = None
+        self,
+        model: GeneratorWeights,
+        n_streams: int,
+        threads: int = 1,
+        settings: EngineSettings | None = None,
+        paired: bool = False,
     ):
-        super().__init__(model, n_streams)
+        super().__init__(model, n_streams, paired)
         self.threads = threads
         self.use(settings or engine_settings(model))
         self.params, self.table, self.sizes, self.inits = pack(self.w)
         self.branch_styles = np.array(self.w.branch_styles, dtype=np.int64)
-        self._whole = (self.h, *(_rows(a) for a in (self.h, self.c, self.hb, self.cb)))  # the whole state, flat, once
+        # the whole state, flat, once
+        self._whole = (
+            self.h,
+            *(None if a is None else _rows(a) for a in (self.h, self.c, self.hb, self.cb, self.hb2, self.cb2)),
+        )
 
     def use(self, settings: EngineSettings) -> None:
         """Step by ``settings`` from now on (the state is kept)."""
         self.settings = settings
         self._plans: dict[int, tuple[int, int, int]] = {}  # by streams stepped: block rows, loops up to, threads
 
-    def _arithmetic(self, x, style, content, target, h, c, hb, cb, first) -> tuple[np.ndarray, np.ndarray]:
+    def _arithmetic(
+        self, x, style, content, target, second, h, c, hb, cb, hb2, cb2, first
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
         N = len(x)
         plan = self._plans.get(N)
         if plan is None:  # a dict lookup a step, not the settings' search (1-2 us at batch 1)
             choice = self.settings.choice(N, self.threads)
             plan = self._plans[N] = (choice.block_rows, 2**31 if choice.loops else 0, min(self.threads, choice.threads))
         block_rows, loops_up_to, threads = plan
-        rot, vel = np.empty((N, self.w.n_joints, 4), np.float32), np.empty((N, 3 * self.w.n_joints), np.float32)
-        flat = self._whole[1:] if h is self._whole[0] else tuple(_rows(a) for a in (h, c, hb, cb))
-        args = (
-            x,
-            style,
-            content,
-            target,
-            self.params,
-            self.table,
-            self.sizes,
-            self.inits,
-            self.branch_styles,
-            *flat,
-            first,
-            rot,
-            vel,
-            block_rows,
-            loops_up_to,
-        )
+        J = self.w.n_joints
+        rot, vel = np.empty((N, J, 4), np.float32), np.empty((N, 3 * J), np.float32)
+        whole = h is self._whole[0]
+        flat = self._whole[1:5] if whole else tuple(_rows(a) for a in (h, c, hb, cb))
+        head = (x, style, content, target)
+        if second is not None:
+            rot2, vel2 = np.empty_like(rot), np.empty_like(vel)
+            head += (second,)
+            flat += self._whole[5:] if whole else tuple(_rows(a) for a in (hb2, cb2))
+        params = (self.params, self.table, self.sizes, self.inits, self.branch_styles)
+        outputs = (rot, vel) if second is None else (rot, vel, rot2, vel2)
+        args = (*head, *params, *flat, first, *outputs, block_rows, loops_up_to)
         shards = kernel_threads(threads, N, from_streams=1) if threads > 1 else 1
+        one, many = (
+            (compiled_step, compiled_step_on_shards)
+            if second is None
+            else (compiled_pair_step, compiled_pair_step_on_shards)
+        )
         if shards == 1:
-            compiled_step(*args)
+            one(*args)
         else:
             with one_blas_thread():
-                compiled_step_on_shards(shards, *args)
-        return rot, vel
+                many(shards, *args)
+        return rot, vel, None if second is None else rot2
 
 
 def _rows(state: np.ndarray) -> np.ndarray:

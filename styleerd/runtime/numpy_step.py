@@ -105,7 +105,10 @@ def _rotations(y: np.ndarray, n_joints: int) -> tuple[np.ndarray, np.ndarray]:
 
 
 class NumpyBackend:
-    def __init__(self, model: GeneratorWeights, n_streams: int):
+    """``paired``: ``step_pair`` runs a second target on the same encoder and neutral stack (their
+    state depends on the input alone), with style branches of its own (``hb2``, ``cb2``)."""
+
+    def __init__(self, model: GeneratorWeights, n_streams: int, paired: bool = False):
         self.w, self.n = step_weights(model), n_streams
         w, H = self.w, self.w.hidden
         # streams first: a shard of streams (a slice of rows) is one contiguous block
@@ -113,6 +116,7 @@ class NumpyBackend:
         self.c = np.zeros_like(self.h)
         self.hb = np.zeros((n_streams, len(w.branches), len(w.branches[0]) if w.branches else 0, H), np.float32)
         self.cb = np.zeros_like(self.hb)
+        self.hb2, self.cb2 = (np.zeros_like(self.hb), np.zeros_like(self.hb)) if paired else (None, None)
         self.first = np.ones(n_streams, dtype=bool)
 
     def reset(self, streams: np.ndarray | None = None) -> None:
@@ -124,6 +128,26 @@ class NumpyBackend:
         """One frame of every stream, or of the streams ``rows`` only (the others keep their
         state): what a server with streams arriving at different times steps. Rows given as a
         slice are stepped in place (views), so disjoint slices may step concurrently."""
+        rot, vel, _ = self._stepped(x, style, content, target, None, rows)
+        return rot, vel
+
+    def step_pair(
+        self,
+        x: np.ndarray,
+        style: np.ndarray,
+        content: np.ndarray,
+        target: np.ndarray,
+        second: np.ndarray,
+        rows: np.ndarray | None = None,
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """``step`` to ``target``, and the rotations the same step gives to the ``second`` target
+        (a backend made ``paired``, its streams stepped so from their first frame): what two
+        backends stepped alike give, for one encoder and neutral stack instead of two."""
+        if self.hb2 is None:
+            raise ValueError("step_pair needs a backend made paired")
+        return self._stepped(x, style, content, target, np.ascontiguousarray(second, np.float32), rows)
+
+    def _stepped(self, x, style, content, target, second, rows) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
         f32 = np.ascontiguousarray
         x, style, content, target = (
             f32(x, np.float32),
@@ -131,35 +155,47 @@ class NumpyBackend:
             f32(content, np.float32),
             f32(target, np.float32),
         )
-        if rows is None:
-            rot, vel = self._arithmetic(x, style, content, target, self.h, self.c, self.hb, self.cb, self.first)
-        else:
-            sel = rows
-            h, c, hb, cb, first = self.h[sel], self.c[sel], self.hb[sel], self.cb[sel], self.first[sel]
-            rot, vel = self._arithmetic(x, style, content, target, h, c, hb, cb, first)
-            if not isinstance(sel, slice):  # rows by index gave copies: put them back
-                self.h[sel], self.c[sel], self.hb[sel], self.cb[sel], self.first[sel] = h, c, hb, cb, first
-        return (rot if self.w.given is None else posed(self.w, x, rot)), vel
+        sel = slice(None) if rows is None else rows
+        whole = (self.h, self.c, self.hb, self.cb, self.hb2, self.cb2, self.first)
+        state = whole if rows is None else tuple(None if a is None else a[sel] for a in whole)
+        rot, vel, rot2 = self._arithmetic(x, style, content, target, second, *state)
+        if not isinstance(sel, slice):  # rows by index gave copies: put them back
+            for a, part in zip(whole, state):
+                if a is not None:
+                    a[sel] = part
+        if self.w.given is not None:
+            rot, rot2 = posed(self.w, x, rot), None if rot2 is None else posed(self.w, x, rot2)
+        return rot, vel, rot2
 
-    def _arithmetic(self, x, style, content, target, h, c, hb, cb, first) -> tuple[np.ndarray, np.ndarray]:
+    def _arithmetic(
+        self, x, style, content, target, second, h, c, hb, cb, hb2, cb2, first
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
         """The step on explicit state arrays (updated in place); the numba backend overrides it."""
-        return _numpy_step(self.w, x, style, content, target, h, c, hb, cb, first)
+        if first.any():
+            _start(self.w, content, first, h, c, hb, cb, *((hb2, cb2) if second is not None else ()))
+        z = _dense_layers(np.concatenate([x, style, content], -1), self.w.encoder)
+        out = _lstm_stack(self.w.neutral, z, h, c)
+        rot, vel = _head(self.w, z, out.copy(), target, hb, cb)
+        return rot, vel, None if second is None else _head(self.w, z, out.copy(), second, hb2, cb2)[0]
 
 
-def _numpy_step(w: StepWeights, x, style, content, target, h, c, hb, cb, first) -> tuple[np.ndarray, np.ndarray]:
-    """The generator's step on float32 arrays; updates the states h, c [N, L, H], hb, cb
-    [N, K, L, H] and the first-frame flags [N] in place."""
-    if first.any():
-        rows = np.nonzero(first)[0]
-        h[rows] = np.einsum("nc,clh->nlh", content[rows], w.neutral_init[0])
-        c[rows] = np.einsum("nc,clh->nlh", content[rows], w.neutral_init[1])
-        hb[rows], cb[rows] = w.branch_init
-        first[:] = False
-    z = _dense_layers(np.concatenate([x, style, content], -1), w.encoder)
-    out = _lstm_stack(w.neutral, z, h, c).copy()
+def _start(w: StepWeights, content, first, h, c, hb, cb, hb2=None, cb2=None) -> None:
+    """The streams ``first`` start from the learned initial states (the neutral stack's by content)."""
+    rows = np.nonzero(first)[0]
+    h[rows] = np.einsum("nc,clh->nlh", content[rows], w.neutral_init[0])
+    c[rows] = np.einsum("nc,clh->nlh", content[rows], w.neutral_init[1])
+    hb[rows], cb[rows] = w.branch_init
+    if hb2 is not None:
+        hb2[rows], cb2[rows] = w.branch_init
+    first[:] = False
+
+
+def _head(w: StepWeights, z, out, target, hb, cb) -> tuple[np.ndarray, np.ndarray]:
+    """The style branches ``target`` weights (their states hb, cb [N, K, L, H] advanced in place)
+    added to the neutral stack's output ``out``, then the decoder."""
     for k, s in enumerate(w.branch_styles):
         rows = np.nonzero(target[:, s])[0]
-        if len(rows) == len(x):
+        if len(rows) == len(z):
             out += target[:, s, None] * _lstm_stack(w.branches[k], z, hb[:, k], cb[:, k])
         elif len(rows):
             hk, ck = hb[rows, k], cb[rows, k]

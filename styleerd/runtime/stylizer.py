@@ -5,9 +5,11 @@ translations ``[N, J, 3]`` (N streams). Output frame t depends on input frames <
 The output keeps the input's root trajectory (root position and facing) and joint
 translations. ``pose="network"`` takes the network's joint rotations (the paper's output), which
 rebuilds every pose from the actions it was trained on: a kick comes back as standing. So by
-default (``pose="input"``) a second pass, with its own recurrent state, gives the network's output
-in the input's own style (the identity transfer), and how far that is from the input says how
-unfamiliar the input is (``unfamiliar``, per stream and frame, 0..1). Where the network rebuilds
+default (``pose="input"``) a second pass, with style branches of its own, gives the network's
+output in the input's own style (the identity transfer; on the numpy and numba backends it shares
+the target pass's encoder and neutral stack, whose state depends on the input alone:
+``step_pair``), and how far that is from the input says how unfamiliar the input is
+(``unfamiliar``, per stream and frame, 0..1). Where the network rebuilds
 the input well, the output is the network's; where it does not, the input's own pose turned, joint
 by joint, by the target style's posture (``runtime.posture``; for a model without one, by the change
 from the identity output to the target's) (``_towards_the_input``), so a pose the network never
@@ -64,6 +66,7 @@ SHARD_FROM = {"numpy": NUMPY_SHARD_FROM, "onnx": 128, "onnx-plain": 128}
 POSES = ("input", "network")  # what a stylised pose is built on (module docstring)
 # backends whose steps run on threads of their own (torch's pool, numba's parallel loops), never on the stylizer's pool
 OWN_THREADS = ("torch", "numba")
+PAIRED = ("numpy", "numba")  # backends with ``step_pair``: the identity pass shares the encoder and neutral stack
 _ALL = slice(None)  # every stream (state rows as views)
 
 
@@ -278,14 +281,20 @@ class StreamStylizer:
         self.kernel_threads = max(1, threads) if backend == "numba" else 1
         self.shard_from = SHARD_FROM.get(backend, NUMPY_SHARD_FROM)
         self.backend_name = backend
-        self.backend = make_backend(
-            backend, model, n_streams * (1 + len(self.part_passes)), threads=max(1, threads) // self.threads
-        )
-        # pose "input": the identity transfer's pass, whose output the style's change is taken from
+        # pose "input": the identity transfer's pass, whose output the style's change is taken from; the
+        # numpy and numba backends run it on the stylizer's own encoder and neutral stack (``step_pair``)
         self.pose = pose
+        paired = pose == "input" and backend in PAIRED
+        self.backend = make_backend(
+            backend,
+            model,
+            n_streams * (1 + len(self.part_passes)),
+            threads=max(1, threads) // self.threads,
+            paired=paired,
+        )
         self.identity = (
             make_backend(backend, model, n_streams, threads=max(1, threads) // self.threads)
-            if pose == "input"
+            if pose == "input" and not paired
             else None
         )
         self.unfamiliar = np.zeros(n_streams)  # per stream, of its last frame (pose "input")
@@ -497,20 +506,30 @@ class StreamStylizer:
             return slice(p * self.n + start, p * self.n + stop)
         return sel + p * self.n
 
-    def _network(self, sel, x, style, content, weights: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    def _network(
+        self, sel, x, style, content, weights: np.ndarray, identity: np.ndarray | None
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
         """The network's rotations and (normalised) velocities for the streams ``sel``: one
         pass, or with body parts of their own target, each joint's rotation from its part's
-        pass (velocities from the stylizer's target)."""
+        pass (velocities from the stylizer's target); and with ``identity`` (pose "input"), the
+        identity transfer's rotations."""
+        rows = (None if sel is _ALL else sel) if not self.part_passes else self._pass_rows(sel, 0)
+        if identity is None:
+            (rot, vel), same = self.backend.step(x, style, content, weights, rows), None
+        elif self.identity is None:  # paired
+            rot, vel, same = self.backend.step_pair(x, style, content, weights, identity, rows)
+        else:
+            rot, vel = self.backend.step(x, style, content, weights, rows)
+            same = self.identity.step(x, style, content, identity, None if sel is _ALL else sel)[0]
         if not self.part_passes:
-            return self.backend.step(x, style, content, weights, None if sel is _ALL else sel)
-        rot, vel = self.backend.step(x, style, content, weights, self._pass_rows(sel, 0))
+            return rot, vel, same
         rot = rot.copy()
         for p, w in enumerate(self.part_passes, 1):
             joints = self.joint_pass == p
             rot[:, joints] = self.backend.step(
                 x, style, content, np.broadcast_to(w, weights.shape), self._pass_rows(sel, p)
             )[0][:, joints]
-        return rot, vel
+        return rot, vel, same
 
     def _on_heading(self, rot: np.ndarray, traj: np.ndarray, out: np.ndarray) -> np.ndarray:
         """``_root_on_heading`` into ``out``, on the kernel threads from ``PARALLEL_FROM`` streams."""
@@ -530,7 +549,7 @@ class StreamStylizer:
         s_net, s_in = np.hypot(net[:, 0], net[:, 2]), np.hypot(given[:, 0], given[:, 2])
         moving = s_in > 0.05 * self.roles.leg_length
         ratio = np.where(moving, np.clip(s_net / np.maximum(s_in, 1e-9), 0.4, 2.5), 1.0)
-        if self.identity is not None:  # where the legs are the input's own (pose "input", unfamiliar), so is the pace
+        if self.pose == "input":  # where the legs are the input's own (unfamiliar), so is the pace
             ratio = 1.0 + (ratio - 1.0) * (1.0 - self.unfamiliar[sel])
         self.speed_ratio[sel] = 0.7 * self.speed_ratio[sel] + 0.3 * ratio
         step = np.where(self.started[sel, None], positions[:, 0] - self.previous[sel, 0], 0.0)
@@ -556,18 +575,16 @@ class StreamStylizer:
             p_style = toward_neutral(p_style, self.neutral)
             style = np.where(self.known_style[sel, None], style, p_style)
             content = np.where(self.known_content[sel, None], content, p_content)
-        rot, vel = self._network(sel, x, style, content, weights[sel])
+        identity = None
+        if self.pose == "input":
+            identity = np.zeros_like(weights[sel])
+            identity[:, : style.shape[1]] = style  # the input's own style, given or inferred
+        rot, vel, same = self._network(sel, x, style, content, weights[sel], identity)
         if self.root_speed:
             positions = self._stylised_root(sel, x, vel, positions)
         self._on_heading(rot, traj, out)
-        if self.identity is not None:
-            identity = np.zeros_like(weights[sel])
-            identity[:, : style.shape[1]] = style  # the input's own style, given or inferred
-            same = self._on_heading(
-                self.identity.step(x, style, content, identity, None if sel is _ALL else sel)[0],
-                traj,
-                np.empty_like(out),
-            )
+        if identity is not None:
+            same = self._on_heading(same, traj, np.empty_like(out))
             change = (
                 quat.mul(quat.inv(same), out)
                 if self.model.posture is None
