@@ -54,6 +54,7 @@ def test_the_choice_for_a_batch_is_the_one_calibrated_at_or_below_it():
 
 def test_calibration_is_cached_by_machine_and_model_shape(model, tmp_path, monkeypatch):
     monkeypatch.setenv("STYLEERD_CACHE", str(tmp_path))
+    monkeypatch.setattr(calibration, "CONTENDED", float("inf"))  # a busy test machine's calibration is kept too
     monkeypatch.setattr(calibration, "STREAMS", (1, 4, 40))
     monkeypatch.setattr(calibration, "ROUNDS", 1)
     monkeypatch.setattr(calibration, "_known", {})
@@ -85,3 +86,60 @@ def test_calibration_is_cached_by_machine_and_model_shape(model, tmp_path, monke
 
     monkeypatch.setenv("STYLEERD_CALIBRATE", "0")
     assert engine_settings(model) == fixed_settings()
+
+
+def busy_rows(slow_from: int) -> list[dict]:
+    """Calibration rows (``calibrate``'s) of a step that takes 10 us a stream on one thread and
+    half that on two, except from ``slow_from`` streams on, where a step on two threads waits 8 ms
+    for a core another process holds."""
+    rows = []
+    for n in (1, 8, 64):
+        one, two = 10.0 * n, 5.0 * n + (8000.0 if n >= slow_from else 0.0)
+        timed = [{"block_rows": n, "loops": False, "threads": 1, "us_per_step": one, "steps": 10}]
+        timed += (
+            [{"block_rows": n // 2, "loops": False, "threads": 2, "us_per_step": two, "steps": 10}] if n > 1 else []
+        )
+        best = min(timed, key=lambda t: t["us_per_step"])
+        rows.append({"streams": n, "one_thread": timed[0], "many_threads": best, "timed": timed})
+    return rows
+
+
+def test_a_calibration_made_while_another_process_held_a_core_is_not_kept(model, tmp_path, monkeypatch):
+    """Steps on two threads many times slower than on one are another process's doing: such a
+    calibration holds for its own process only (one thread from there on, its source says why), and
+    a cached one that shows it, as an earlier version wrote, is measured again."""
+    assert calibration.contention(busy_rows(10**6)) is None
+    assert calibration.contention(busy_rows(8)) == {"streams": 8, "one_thread_us": 80.0, "threads_us": 8040.0}
+    monkeypatch.setenv("STYLEERD_CACHE", str(tmp_path))
+    monkeypatch.setattr(calibration, "STREAMS", (1, 8, 64))
+    monkeypatch.setattr(calibration, "ROUNDS", 1)
+    monkeypatch.setattr(calibration, "_known", {})
+    real_timer = calibration._timer
+
+    def busy_timer(model, n, threads):  # the second core is another process's from 8 streams on
+        time_steps = real_timer(model, n, threads)
+        return lambda choice: [t + (0.008 if choice.threads > 1 and n >= 8 else 0.0) for t in time_steps(choice)]
+
+    monkeypatch.setattr(calibration, "_timer", busy_timer)
+    settings = engine_settings(model)
+    assert not (tmp_path / "engine").exists() or not list((tmp_path / "engine").glob("*.json"))  # not kept
+    assert "another process held a core" in settings.source and "at 8 streams" in settings.source
+    assert settings.choice(64, 2).threads == 1 and settings.choice(8, 2).threads == 1
+    monkeypatch.setattr(calibration, "_timer", real_timer)
+    key = calibration.machine_key(model)
+    path = calibration.cache_path(key)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text(json.dumps({"format": 1, "key": key, "threads": 2, "seconds": 30.0, "choices": busy_rows(8)}))
+    monkeypatch.setattr(calibration, "_known", {})
+    measured = []
+    real = calibration.calibrate
+
+    def quiet(*a, **k):  # the machine is quiet now (a busy test machine's timings taken as quiet)
+        measured.append(1)
+        with monkeypatch.context() as m:
+            m.setattr(calibration, "CONTENDED", float("inf"))
+            return real(*a, **k)
+
+    monkeypatch.setattr(calibration, "calibrate", quiet)
+    assert str(path) in engine_settings(model).source  # measured again, and kept
+    assert measured == [1] and json.loads(path.read_text())["contended"] is None

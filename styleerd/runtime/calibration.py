@@ -1,7 +1,9 @@
 """The numba step's settings chosen on this machine: at first use, a short calibration times the
 step's possible paths at each batch size (compiled loops or BLAS products, the streams taken through
 the whole network at a time, one thread or numba's threads) and keeps the fastest; the choices are
-cached by CPU, libraries and the model's shape, so later processes start at once.
+cached by CPU, libraries and the model's shape, so later processes start at once. A calibration
+that finds steps on threads far slower than on one (another process held the other core) is kept
+for its process only, and a cached one that shows it is made again (``contention``).
 
 Constants tuned on one CPU do not carry to another: blocks of 32 streams were 1.15x the whole
 shard on the Intel machine they were tuned on and 0.58-0.72x the best block on an AMD EPYC, where
@@ -40,6 +42,10 @@ MEASURE_S = 0.002  # least time a candidate steps in a round (at least 2 steps),
 # threads now and then waits ~8 ms for a descheduled vCPU, which a window's mean takes in whole
 # (docs/benchmarks.md, "The engine on other CPUs").
 FORMAT = 1  # the cache file's layout; a new one recalibrates
+# A step on two threads this many times one thread's, and at least CONTENDED_S more, was not the
+# machine's: another process held the other core (every two-thread step of a calibration made beside
+# a training run took ~8 ms, so it chose one thread for every batch, 3x slower at 1,000 streams).
+CONTENDED, CONTENDED_S = 4.0, 0.001
 
 
 @dataclass(frozen=True)
@@ -126,9 +132,9 @@ def calibrate(model: GeneratorWeights, threads: int | None = None, progress=None
     threads = threads or nb.config.NUMBA_NUM_THREADS
     if not threadsafe_layer():
         threads = 1
-    t_start, rows = time.perf_counter(), []
+    t_start, rows, contended = time.perf_counter(), [], None
     for n in STREAMS:
-        options = candidates(n, threads)
+        options = candidates(n, 1 if contended else threads)  # contended: the second core's timings are not its own
         time_steps = _timer(model, n, threads)
         steps: list[list[float]] = [[] for _ in options]
         for _ in range(ROUNDS):
@@ -148,6 +154,7 @@ def calibrate(model: GeneratorWeights, threads: int | None = None, progress=None
                 ],
             }
         )
+        contended = contended or contention(rows)
         if progress:
             progress(n, rows[-1])
     return {
@@ -157,17 +164,35 @@ def calibrate(model: GeneratorWeights, threads: int | None = None, progress=None
         "seconds": round(time.perf_counter() - t_start, 2),
         "measured": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()),
         "choices": rows,
+        "contended": contended,
     }
+
+
+def contention(rows: list[dict]) -> dict | None:
+    """The first batch size of a calibration's ``rows`` whose best step on several threads took
+    ``CONTENDED`` times its best on one (and ``CONTENDED_S`` more): what another process holding the
+    other core makes, not the machine's own speed; None where there is none."""
+    for row in rows:
+        one = row["one_thread"]["us_per_step"]
+        many = [t["us_per_step"] for t in row["timed"] if t["threads"] > 1]
+        if many and min(many) > CONTENDED * one and min(many) - one > CONTENDED_S * 1e6:
+            return {"streams": row["streams"], "one_thread_us": one, "threads_us": min(many)}
+    return None
 
 
 def settings_from(record: dict, path: Path) -> EngineSettings:
     rows = record["choices"]
     pick = lambda r, kind: StepChoice(int(r[kind]["block_rows"]), bool(r[kind]["loops"]), int(r[kind]["threads"]))
+    busy = record.get("contended")
     return EngineSettings(
         tuple(int(r["streams"]) for r in rows),
         tuple(pick(r, "one_thread") for r in rows),
         tuple(pick(r, "many_threads") for r in rows),
-        f"calibrated on this machine in {record['seconds']} s ({path})",
+        f"calibrated on this machine in {record['seconds']} s ({path})"
+        if not busy
+        else f"calibrated in {record['seconds']} s while another process held a core (at {busy['streams']} streams "
+        f"a step on threads took {busy['threads_us']} us, on one {busy['one_thread_us']} us): one thread from "
+        "there on, for this process only; measured again at the next start",
     )
 
 
@@ -224,8 +249,9 @@ def engine_settings(model: GeneratorWeights, again: bool = False, progress=None)
         if record is None:
             record = calibrate(model, progress=progress)
             try:
-                path.parent.mkdir(parents=True, exist_ok=True)
-                atomic_write(path, lambda tmp: Path(tmp).write_text(json.dumps(record, indent=1)))
+                if not record["contended"]:  # one made on a busy machine holds for this process only
+                    path.parent.mkdir(parents=True, exist_ok=True)
+                    atomic_write(path, lambda tmp: Path(tmp).write_text(json.dumps(record, indent=1)))
             except (OSError, StyleERDError):
                 pass
         _known[path] = settings_from(record, path)
@@ -239,4 +265,5 @@ def _read(path: Path, key: dict) -> dict | None:
         settings_from(record, path)
     except (OSError, ValueError, KeyError, TypeError):
         return None
-    return record if record.get("format") == FORMAT and record.get("key") == key else None
+    whole = record.get("format") == FORMAT and record.get("key") == key
+    return record if whole and not contention(record["choices"]) else None  # one made on a busy machine: again
