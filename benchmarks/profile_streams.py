@@ -60,6 +60,8 @@ def main() -> None:
         (features, "_stream_features_kernel", "features"),
         (compiled, "compiled_step_on_shards", "network"),
         (compiled, "compiled_step", "network"),
+        (compiled, "compiled_pair_step_on_shards", "network"),  # the default pose: the target's and the identity's
+        (compiled, "compiled_pair_step", "network"),
         (stylizer, "_root_on_heading_on_shards", "root_on_heading"),
         (stylizer, "_root_on_heading", "root_on_heading"),
     ):
