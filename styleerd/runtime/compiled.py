@@ -503,7 +503,7 @@ def _pair_block(
     _head(z, out, second, P, table, sizes, branch_styles, hb2, cb2, rot2, vel2, loops_up_to)
 
 
-@nb.njit(cache=True, fastmath=True, error_model="numpy", nogil=True)
+@nb.njit(cache=True, fastmath=True, error_model="numpy", nogil=True, inline="always")
 def _start_branches(P, inits, first, hb, cb):
     """The style branches' learned initial states for the streams ``first``."""
     for n in range(hb.shape[0]):
@@ -512,7 +512,7 @@ def _start_branches(P, inits, first, hb, cb):
                 hb[n, q], cb[n, q] = P[inits[2] + q], P[inits[3] + q]
 
 
-@nb.njit(cache=True, fastmath=True, error_model="numpy", nogil=True)
+@nb.njit(cache=True, fastmath=True, error_model="numpy", nogil=True, inline="always")
 def _trunk(x, style, content, P, table, sizes, inits, h, c, first, loops_up_to):
     """The encoder and the neutral stack (a stream's first frame from the neutral stack's learned
     initial state by content, its flag cleared): -> (the encoder's output, the stack's)."""
@@ -546,7 +546,7 @@ def _trunk(x, style, content, P, table, sizes, inits, h, c, first, loops_up_to):
     return z, out
 
 
-@nb.njit(cache=True, fastmath=True, error_model="numpy", nogil=True)
+@nb.njit(cache=True, fastmath=True, error_model="numpy", nogil=True, inline="always")
 def _head(z, out, target, P, table, sizes, branch_styles, hb, cb, rot, vel, loops_up_to):
     """The style branches ``target`` weights added to the neutral stack's output ``out`` (in place),
     then the decoder into ``rot``, ``vel``."""
