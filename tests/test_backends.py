@@ -457,3 +457,23 @@ def test_the_products_alone_are_the_numba_steps_own_and_count_its_flops(model):
         < 1e-4
     )
     assert products_alone(model, n_streams=64, seconds=0.01) > 0
+
+
+def test_the_kernel_ab_bench_times_this_checkouts_step_against_another_commits():
+    """benchmarks/step_kernel_ab.py compiles another commit's step kernel beside this one's and
+    times both on the same arguments (here this commit against itself)."""
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    done = subprocess.run(
+        [sys.executable, "benchmarks/step_kernel_ab.py", "--before", "HEAD", "--rounds", "2", "--steps", "5"],
+        cwd=Path(__file__).parents[1],
+        capture_output=True,
+        text=True,
+        timeout=600,
+        check=True,
+    )
+    lines = done.stdout.splitlines()
+    assert [line.split(":")[0] for line in lines] == ["before (HEAD)", "now"]
+    assert all(float(line.split("median ")[1].split(" us")[0]) > 0 for line in lines)
