@@ -139,6 +139,33 @@ def test_batched_streams_equal_single_streams(model):
             assert np.allclose(r[k], singles[k].step(m.rotations[t], m.positions[t])[0][0], atol=1e-5)
 
 
+@pytest.mark.parametrize("backend", ["numpy", "numba"])
+def test_rows_in_order_step_as_views_and_equal_the_same_streams_in_any_order(model, backend, monkeypatch):
+    """A server steps the streams whose frames came: in order and consecutive (all of them, a
+    connection's crowd) they are a slice, every per-stream array a view; in any other order,
+    indices. Both give each stream the same frames, and streams not stepped keep their state."""
+    from styleerd.runtime import stylizer
+
+    assert stylizer.as_rows([3, 4, 5]) == slice(3, 6) and stylizer.as_rows([7]) == slice(7, 8)
+    assert list(stylizer.as_rows([5, 4, 3])) == [5, 4, 3] and list(stylizer.as_rows([1, 3])) == [1, 3]
+    ms = [walking_motion(12, seed=k) for k in range(5)]
+    targets = [{"old": 1.0}, {"angry": 1.0}, {"normal": 1.0}, {"old": 0.5, "angry": 0.5}, {"old": 1.0}]
+    make = lambda: StreamStylizer(model, "normal", "walk", targets, n_streams=5, backend=backend)
+    in_order, shuffled = make(), make()
+    seen = []
+    real = stylizer.StreamStylizer._advance
+    monkeypatch.setattr(
+        stylizer.StreamStylizer, "_advance", lambda self, sel, *a: seen.append(sel) or real(self, sel, *a)
+    )
+    frame = lambda t, rows: (np.stack([ms[k].rotations[t] for k in rows]), np.stack([ms[k].positions[t] for k in rows]))
+    for t in range(12):
+        a = in_order.step(*frame(t, [1, 2, 3]), [1, 2, 3])[0]
+        b = shuffled.step(*frame(t, [3, 1, 2]), [3, 1, 2])[0]
+        assert np.abs(a - b[[1, 2, 0]]).max() <= 1e-6, t
+    assert seen[0] == slice(1, 4) and isinstance(seen[1], np.ndarray)
+    assert not in_order.started[[0, 4]].any() and not shuffled.started[[0, 4]].any()
+
+
 @pytest.mark.parametrize("backend", ["numpy", "numba", "onnx"])
 def test_steps_split_over_threads_equal_one_thread_and_reject_as_a_whole(model, backend, monkeypatch):
     from styleerd.data import parallel

@@ -415,8 +415,8 @@ class StreamStylizer:
         """One frame of every stream (or of the streams ``rows``) -> the stylised frame. A
         frame with NaN/inf, or too large to stylise, is rejected with an error and leaves the
         state unchanged."""
-        sel = _ALL if rows is None else np.asarray(rows, dtype=int)  # a slice keeps per-stream state as views
-        n = self.n if rows is None else len(sel)
+        n = self.n if rows is None else len(rows)
+        sel = _ALL if rows is None else as_rows(rows)  # a slice keeps per-stream state as views
         J = self.skeleton.n_joints
         rotations = np.asarray(rotations, dtype=np.float64).reshape(n, J, 4)
         positions = np.asarray(positions, dtype=np.float64).reshape(n, J, 3)
@@ -669,6 +669,16 @@ def _towards_the_input_on_shards(shards, given, same, styled, change, seen, fami
         _towards_the_input(
             given[s:e], same[s:e], styled[s:e], change[s:e], seen[s:e], familiar, unfamiliar, weight[s:e]
         )
+
+
+def as_rows(rows) -> slice | np.ndarray:
+    """Stream rows as a slice where they are consecutive and ascending (a server's batch of all its
+    streams: every per-stream array is then a view, nothing gathered and written back), else as
+    indices."""
+    rows = np.asarray(rows, dtype=int)
+    if len(rows) and (len(rows) == 1 or (np.diff(rows) == 1).all()):
+        return slice(int(rows[0]), int(rows[0]) + len(rows))
+    return rows
 
 
 def _slices(n: int, parts: int) -> list[slice]:
