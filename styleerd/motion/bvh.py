@@ -393,10 +393,14 @@ def _from_channels_kernel(
             positions[t, pos_joint[i], pos_axis[i]] = values[t, pos_col[i]]
         for i in range(len(rot_col)):
             hint[t, rot_joint[i], rot_slot[i]] = values[t, rot_col[i]]
-        for j in range(axes.shape[0]):
-            e = np.radians(hint[t, j])
+        for j in range(axes.shape[0]):  # scalars, not np.radians of a row: no array made per joint
             rotations[t, j, 0], rotations[t, j, 1], rotations[t, j, 2], rotations[t, j, 3] = quat.euler_scalars_to_quat(
-                e[0], e[1], e[2], axes[j, 0], axes[j, 1], axes[j, 2]
+                np.radians(hint[t, j, 0]),
+                np.radians(hint[t, j, 1]),
+                np.radians(hint[t, j, 2]),
+                axes[j, 0],
+                axes[j, 1],
+                axes[j, 2],
             )
 
 
@@ -430,11 +434,19 @@ def _euler_angles_kernel(rotations, axes, hint, angles):
     one is given, else the principal triple."""
     for t in range(rotations.shape[0]):
         for j in range(rotations.shape[1]):
-            q = rotations[t, j]
-            a0, a1, a2 = quat.quat_scalars_to_euler(q[0], q[1], q[2], q[3], axes[j, 0], axes[j, 1], axes[j, 2])
-            if hint.shape[0]:
-                r = np.radians(hint[t, j])
-                a0, a1, a2 = quat.nearest_euler_scalars(a0, a1, a2, r[0], r[1], r[2])
+            a0, a1, a2 = quat.quat_scalars_to_euler(
+                rotations[t, j, 0],
+                rotations[t, j, 1],
+                rotations[t, j, 2],
+                rotations[t, j, 3],
+                axes[j, 0],
+                axes[j, 1],
+                axes[j, 2],
+            )
+            if hint.shape[0]:  # scalars: no array made per joint
+                a0, a1, a2 = quat.nearest_euler_scalars(
+                    a0, a1, a2, np.radians(hint[t, j, 0]), np.radians(hint[t, j, 1]), np.radians(hint[t, j, 2])
+                )
             angles[t, j, 0], angles[t, j, 1], angles[t, j, 2] = a0, a1, a2
 
 
