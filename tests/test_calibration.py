@@ -52,6 +52,34 @@ def test_the_choice_for_a_batch_is_the_one_calibrated_at_or_below_it():
     assert fixed.choice(32, 2) == StepChoice(32, False, 2) and fixed.choice(5000, 1).threads == 1
 
 
+def test_a_choice_that_took_the_whole_shard_takes_it_whole_at_the_sizes_it_stands_for(tmp_path):
+    """Calibrated at 32 streams, blocks of 32 (the whole shard) beat blocks of 16: at 39 streams the
+    step takes one block of 39, not 32 and 7. Where a smaller block won (512 of 1,024 streams on one
+    thread), it stays; on two threads a shard is half the streams."""
+    row = lambda n, one, many: {
+        "streams": n,
+        "one_thread": {"block_rows": one, "loops": False, "threads": 1},
+        "many_threads": {"block_rows": many, "loops": False, "threads": 2},
+    }
+    record = {"seconds": 1.0, "choices": [row(32, 32, 16), row(1024, 512, 256)]}
+    settings = calibration.settings_from(record, tmp_path / "calibration.json")
+    assert (
+        settings.choice(39, 1).block_rows == calibration.WHOLE
+        and settings.choice(39, 2).block_rows == calibration.WHOLE
+    )
+    assert settings.choice(2000, 1).block_rows == 512 and settings.choice(2000, 2).block_rows == 256
+    model = load_generator_weights()
+    c, n = model.config, 39
+    rng = np.random.default_rng(39)
+    style = np.eye(len(c.input_styles), dtype=np.float32)[rng.integers(0, len(c.input_styles), n)]
+    content = np.eye(len(c.contents), dtype=np.float32)[rng.integers(0, len(c.contents), n)]
+    target = rng.dirichlet(np.ones(len(c.styles)) * 0.3, n).astype(np.float32)
+    x = rng.normal(0, 1, (n, c.feature_dim)).astype(np.float32)
+    want = make_backend("numpy", model, n).step(x, style, content, target)
+    got = CompiledBackend(model, n, 2, settings).step(x, style, content, target)  # one whole block on each thread
+    assert np.abs(got[0] - want[0]).max() <= 1e-5 and np.abs(got[1] - want[1]).max() <= 1e-4
+
+
 def test_calibration_is_cached_by_machine_and_model_shape(model, tmp_path, monkeypatch):
     monkeypatch.setenv("STYLEERD_CACHE", str(tmp_path))
     monkeypatch.setattr(calibration, "CONTENDED", float("inf"))  # a busy test machine's calibration is kept too

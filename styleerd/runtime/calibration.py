@@ -180,9 +180,21 @@ def contention(rows: list[dict]) -> dict | None:
     return None
 
 
+WHOLE = 2**31  # block rows of a choice that takes a shard whole at any batch size
+
+
 def settings_from(record: dict, path: Path) -> EngineSettings:
+    """The settings of a calibration's record. A choice that took the whole shard where it was
+    measured takes it whole at the batch sizes it stands for too: 39 streams by the choice measured
+    at 32 (blocks of 32 streams) ran a block of 32 and one of 7, each sgemm call costing as much as
+    its arithmetic, 2.6x the time of one block."""
     rows = record["choices"]
-    pick = lambda r, kind: StepChoice(int(r[kind]["block_rows"]), bool(r[kind]["loops"]), int(r[kind]["threads"]))
+
+    def pick(r: dict, kind: str) -> StepChoice:
+        c = r[kind]
+        whole = int(c["block_rows"]) >= -(-int(r["streams"]) // int(c["threads"]))
+        return StepChoice(WHOLE if whole else int(c["block_rows"]), bool(c["loops"]), int(c["threads"]))
+
     busy = record.get("contended")
     return EngineSettings(
         tuple(int(r["streams"]) for r in rows),

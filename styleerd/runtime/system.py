@@ -17,7 +17,7 @@ from threadpoolctl import threadpool_info
 
 from styleerd.data.parallel import PARALLEL_FROM, threadsafe_layer
 from styleerd.model.stored import GeneratorWeights, load_generator_weights
-from styleerd.runtime.calibration import EngineSettings, engine_settings
+from styleerd.runtime.calibration import WHOLE, EngineSettings, engine_settings
 from styleerd.runtime.stylizer import SHARD_FROM
 
 
@@ -105,7 +105,8 @@ def describe(report: dict) -> str:
     e, step = report["engine"], report["engine"]["numba_step"]
     lines.append(f"numba step, by batch size ({step['source']}):")
     lines.append("  streams from | one thread asked | more threads asked")
-    path = lambda c: f"{'loops' if c['loops'] else 'BLAS'}, blocks of {c['block_rows']}, {c['threads']} thread(s)"
+    blocks = lambda c: "whole shards" if c["block_rows"] >= WHOLE else f"blocks of {c['block_rows']}"
+    path = lambda c: f"{'loops' if c['loops'] else 'BLAS'}, {blocks(c)}, {c['threads']} thread(s)"
     for n, one, many in zip(step["from_streams"], step["one_thread"], step["many_threads"], strict=True):
         lines.append(f"  {n:>12} | {path(one)} | {path(many)}")
     lines.append(
