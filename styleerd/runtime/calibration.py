@@ -186,8 +186,8 @@ WHOLE = 2**31  # block rows of a choice that takes a shard whole at any batch si
 def settings_from(record: dict, path: Path) -> EngineSettings:
     """The settings of a calibration's record. A choice that took the whole shard where it was
     measured takes it whole at the batch sizes it stands for too: 39 streams by the choice measured
-    at 32 (blocks of 32 streams) ran a block of 32 and one of 7, each sgemm call costing as much as
-    its arithmetic, 2.6x the time of one block."""
+    at 32 (blocks of 32 streams) ran a block of 32 and one of 7, each sgemm call costing about as
+    much as its arithmetic (docs/DEPLOY.md, "Whole shards")."""
     rows = record["choices"]
 
     def pick(r: dict, kind: str) -> StepChoice:
