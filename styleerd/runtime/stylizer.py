@@ -676,7 +676,7 @@ def as_rows(rows) -> slice | np.ndarray:
     streams: every per-stream array is then a view, nothing gathered and written back), else as
     indices."""
     rows = np.asarray(rows, dtype=int)
-    if len(rows) and (len(rows) == 1 or (np.diff(rows) == 1).all()):
+    if len(rows) and (np.diff(rows) == 1).all():  # one row: no differences, a slice of one
         return slice(int(rows[0]), int(rows[0]) + len(rows))
     return rows
 
