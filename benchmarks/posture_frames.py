@@ -12,9 +12,12 @@ own frame:
 - ``joint``: given * C per joint, C the mean of inv(identity) * styled (the shipped rule);
 - ``parent``: C * given, in the parent's frame (the root's in the body's heading frame);
 - ``body``: each joint's orientation in the body's heading frame turned by C (children keep
-  their own turn: local change inv(G) inv(C_parent) C G).
+  their own turn: local change inv(G) inv(C_parent) C G);
+- ``reach`` (shipped): ``joint``, then each joint turned by the shortest arc that takes its children
+  where the input's joints are moved by the style's mean joint offsets (``runtime.stylizer._reach``),
+  the offsets measured on the same walks.
 
-Every variant runs the whole ``styleerd eval actions`` table (pose input) through ``transfer``.
+The three frames run without offsets. Every variant runs the whole ``styleerd eval actions`` table (pose input) through ``transfer``.
 Run: ``python benchmarks/posture_frames.py --walks 16 --out docs/posture-frames.json``.
 """
 
@@ -37,6 +40,7 @@ from styleerd.motion.kinematics import facing_directions, forward_kinematics, he
 from styleerd.runtime.posture import measure_posture, training_walks
 
 FRAMES = ("joint", "parent", "body")
+VARIANTS = (*FRAMES, "reach")
 
 
 def body_frames(model: GeneratorWeights, local: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -77,10 +81,12 @@ def as_local(frame: str, model: GeneratorWeights, given: np.ndarray, change: np.
     return quat.mul(quat.mul(quat.inv(given), turned), given)
 
 
-def postures(model: GeneratorWeights, walks: int) -> dict[str, np.ndarray]:
-    """Each frame's posture ``[styles, J, 3]`` over the first ``walks`` neutral training walks."""
+def postures(model: GeneratorWeights, walks: int) -> dict[str, tuple[np.ndarray, np.ndarray | None]]:
+    """Each variant's posture (rotation vectors, offsets or None) ``[styles, J, 3]`` over the first
+    ``walks`` neutral training walks."""
     chosen = list(islice(training_walks(model), walks))
-    return {f: measure_posture(model, chosen, partial(change_in, f, model)) for f in FRAMES}
+    out = {f: measure_posture(model, chosen, partial(change_in, f, model)) for f in FRAMES}
+    return {**{f: (v, None) for f, (v, _) in out.items()}, "reach": out["joint"]}
 
 
 def with_frame(frame: str, model: GeneratorWeights, serial):
@@ -129,15 +135,18 @@ def main() -> None:
     report = {"walks": a.walks, "posture_alone_on_walks": posture_alone_on_walks(model, 4), "frames": {}}
     print("the shipped posture alone on 4 Bandai-Namco-2 test walks, cosine against the network's change:")
     print(json.dumps(report["posture_alone_on_walks"]), flush=True)
-    for frame in FRAMES:
+    for frame in VARIANTS:
         # transfer steps one stream, on the serial kernel: the sharded one must not run (it would use the joint frame)
         stylizer_module._towards_the_input, stylizer_module._towards_the_input_on_shards = (
-            with_frame(frame, model, serial),
+            with_frame(frame, model, serial) if frame in FRAMES else serial,
             None,
         )
+        vectors, offsets = measured[frame]
         try:
             table = actions.evaluate_actions(
-                dataclasses.replace(model, posture=measured[frame]), poses=("input",), walks=a.reference_walks
+                dataclasses.replace(model, posture=vectors, posture_offsets=offsets),
+                poses=("input",),
+                walks=a.reference_walks,
             )["poses"]["input"]
         finally:
             stylizer_module._towards_the_input, stylizer_module._towards_the_input_on_shards = serial, shards
@@ -160,9 +169,9 @@ def main() -> None:
     print(
         f"\nheld-out actions ({report['clips']} clips): cosine / without the swims / clips at 0.7 / size / correlation"
     )
-    print("| style | " + " | ".join(FRAMES) + " |\n|---|" + "---|" * len(FRAMES))
+    print("| style | " + " | ".join(VARIANTS) + " |\n|---|" + "---|" * len(VARIANTS))
     for s in report["frames"]["joint"]:
-        cells = [report["frames"][f][s] for f in FRAMES]
+        cells = [report["frames"][f][s] for f in VARIANTS]
         print(
             f"| {s} | "
             + " | ".join(

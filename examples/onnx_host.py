@@ -15,8 +15,9 @@ target, and into the input's own style (the identity transfer). Where the identi
 the input (the network knows this motion) the output is the network's; where it is far (an action
 it never learnt) the input's pose turned, joint by joint, by the target style's posture (the
 sidecar's ``posture``: rotation vectors; for a model without one, the change from the identity
-output to the target's, input * inv(identity) * target); in between a blend: as styleerd's
-stylizer does.
+output to the target's, input * inv(identity) * target), then turned so that its joints go where
+the posture moves the input's (the sidecar's ``posture_offsets``, ``reach``); in between a blend:
+as styleerd's stylizer does.
 """
 
 from __future__ import annotations
@@ -75,6 +76,40 @@ def slerp(a: np.ndarray, b: np.ndarray, t: float) -> np.ndarray:
     return out / np.linalg.norm(out, axis=-1, keepdims=True)
 
 
+def shortest_arc(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """The rotation by the smallest angle taking ``a``'s direction to ``b``'s (a zero vector: none)."""
+    na, nb = np.linalg.norm(a), np.linalg.norm(b)
+    if na < 1e-12 or nb < 1e-12:
+        return np.array([1.0, 0.0, 0.0, 0.0])
+    a, b = a / na, b / nb
+    w = 1.0 + a @ b
+    if w < 1e-9:  # opposite: a half turn about an axis orthogonal to a
+        q = np.concatenate([[0.0], np.cross(a, [1.0, 0.0, 0.0] if abs(a[0]) < 0.9 else [0.0, 1.0, 0.0])])
+    else:
+        q = np.concatenate([[w], np.cross(a, b)])
+    return q / np.linalg.norm(q)
+
+
+def reach(rot: np.ndarray, pos: np.ndarray, given: np.ndarray, targets: np.ndarray, parents: list[int]) -> np.ndarray:
+    """The pose ``rot [J, 4]`` turned so that each joint's children go towards ``targets [J, 3]``
+    (global): down the chain, each joint but the root by the shortest arc from its children's
+    summed bone vectors to the summed vectors to their targets (no bone turns about itself).
+    ``given``: the input's global joint positions (the root's is kept)."""
+    rot, g_rot, g_pos = rot.copy(), rot.copy(), given.copy()
+    for j, p in enumerate(parents):
+        if p < 0:
+            continue
+        g_rot[j] = qmul(g_rot[p], rot[j])
+        g_pos[j] = g_pos[p] + qrot(g_rot[p], pos[j])
+        kids = [k for k in range(j + 1, len(parents)) if parents[k] == j]
+        if kids:
+            now = sum(qrot(g_rot[j], pos[k]) for k in kids)
+            wanted = sum(targets[k] - g_pos[j] for k in kids)
+            g_rot[j] = qmul(shortest_arc(now, wanted), g_rot[j])
+            rot[j] = qmul(qinv(g_rot[p]), g_rot[j])
+    return rot
+
+
 def forward_kinematics(rot: np.ndarray, pos: np.ndarray, parents: list[int]) -> np.ndarray:
     """Global joint positions ``[J, 3]`` of local rotations and translations."""
     g_rot, g_pos = np.empty_like(rot), np.empty_like(pos)
@@ -116,6 +151,9 @@ class Host:
             if posture is None
             else from_rotation_vectors(np.einsum("s,sjc->jc", (self.target - self.identity)[0], posture))
         )
+        # where the posture moves each joint (the body's heading frame), summed by weight; None: not measured
+        offsets = np.array(s["posture_offsets"]) if s.get("posture_offsets") is not None else None
+        self.moved = None if offsets is None else np.einsum("s,sjc->jc", (self.target - self.identity)[0], offsets)
         rows, _, width = s["state_shapes"]["h"]  # [1, N, S H] (LSTM form) or [S, N, H] (plain); N = 1 here
         self.state = {
             k: [np.zeros((rows, 1, width), np.float32), np.zeros((rows, 1, width), np.float32)]
@@ -126,7 +164,8 @@ class Host:
         self.facing = np.array([0.0, 0.0, 1.0])
 
     def features(self, rot: np.ndarray, pos: np.ndarray, fps: float) -> tuple[np.ndarray, np.ndarray]:
-        """The normalised feature vector ``[1, D]`` of this frame and its heading quaternion."""
+        """The normalised feature vector ``[1, D]`` of this frame and its heading quaternion (its
+        global joint positions are kept in ``self.previous``)."""
         rot = rot / np.linalg.norm(rot, axis=-1, keepdims=True)
         g = forward_kinematics(rot, pos, self.parents)
         # facing: across (left hip + left shoulder - right ones) x up, on the ground; heading about +Y
@@ -183,7 +222,11 @@ class Host:
         self.unfamiliar = now if first[0, 0] else max(now, self.unfamiliar - RELEASE)
         change = qmul(qinv(poses["identity"]), poses["target"]) if self.change is None else self.change
         turned = qmul(given, change)
-        return slerp(poses["target"], turned / np.linalg.norm(turned, axis=-1, keepdims=True), self.unfamiliar)
+        turned /= np.linalg.norm(turned, axis=-1, keepdims=True)
+        if self.moved is not None:  # then turned so that the joints go where the posture moves the input's
+            g = self.previous
+            turned = reach(turned, pos, g, g + qrot(heading, self.moved), self.parents)
+        return slerp(poses["target"], turned, self.unfamiliar)
 
 
 def main() -> None:

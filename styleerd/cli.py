@@ -264,13 +264,16 @@ def _posture(args: argparse.Namespace) -> None:
     frames = sum(m.n_frames for m, _ in walks)
     tensors = {f"generator.{k}": torch.from_numpy(v) for k, v in model.arrays.items()}
     save_tensors(out, tensors, with_posture(meta, model, posture, len(walks), frames))
-    degrees = np.degrees(np.linalg.norm(posture, axis=-1))
-    for style, row in zip(model.config.styles, degrees):
+    degrees = np.degrees(np.linalg.norm(posture[0], axis=-1))
+    moved = np.linalg.norm(posture[1], axis=-1)
+    for style, row, far in zip(model.config.styles, degrees, moved):
         if style != model.config.neutral_style:
-            top = np.argsort(row)[::-1][:3]
+            top, farthest = np.argsort(row)[::-1][:3], np.argsort(far)[::-1][:3]
             print(
                 f"{style}: mean {row.mean():.1f} deg; most: "
                 + ", ".join(f"{model.skeleton.names[j]} {row[j]:.0f}" for j in top)
+                + "; moved most: "
+                + ", ".join(f"{model.skeleton.names[j]} {far[j]:.3g}" for j in farthest)
             )
     print(f"posture of {len(walks)} walks ({frames} frames); wrote {out}.safetensors")
 

@@ -136,6 +136,7 @@ def test_styleerd_posture_measures_the_shipped_posture_again(shared_data, model,
     again = load_generator_weights(tmp_path / "again")
     assert all(np.array_equal(again.arrays[k], v) for k, v in model.arrays.items())
     assert np.abs(again.posture - model.posture).max() <= 1e-6
+    assert np.abs(again.posture_offsets - model.posture_offsets).max() <= 1e-4  # the skeleton's units (cm)
     styles = list(model.config.styles)
     w = np.zeros((3, len(styles)))
     w[0, styles.index("elderly")] = 1.0

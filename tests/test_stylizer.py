@@ -46,7 +46,7 @@ def test_offline_equals_streaming_and_keeps_the_root_trajectory(model):
 
 
 @pytest.mark.parametrize("backend", ["numpy", "numba"])
-@pytest.mark.parametrize("pose", ["network", "input", "input with posture"])
+@pytest.mark.parametrize("pose", ["network", "input", "input with posture", "input with posture offsets"])
 def test_stream_equals_the_generator_forward_on_whole_clip_features(model, backend, pose, monkeypatch):
     """The compiled streaming path (features, normalisation, root put back on its heading)
     against the training-side path: motion_features + FeatureStats.normalize, the torch
@@ -55,10 +55,14 @@ def test_stream_equals_the_generator_forward_on_whole_clip_features(model, backe
     each frame's unfamiliarity (mean joint angle, rising at once, falling by RELEASE a frame), which
     slerps from the styled output to the input's rotations turned by the change from the identity
     output to the styled one (a model with postures: turned by the target's posture less the input
-    style's, scipy's rotation vectors); the thresholds are put inside this random network's range,
-    so the frames span the blend."""
+    style's, scipy's rotation vectors; with posture offsets too, then turned so that the joints go
+    where the input's are moved by the offsets, ``torch_quat.reach``, tested against scipy below);
+    the thresholds are put inside this random network's range, so the frames span the blend."""
     from scipy.spatial.transform import Rotation, Slerp
 
+    from styleerd.model import torch_quat
+    from styleerd.motion.kinematics import facing_directions, heading_rotations
+    from styleerd.motion.skeleton import BodyRoles
     from styleerd.runtime import stylizer
 
     m = walking_motion(30)
@@ -75,7 +79,9 @@ def test_stream_equals_the_generator_forward_on_whole_clip_features(model, backe
 
     want = generator(2)
     posture = np.random.default_rng(5).normal(0.0, 0.4, (len(STYLES), m.skeleton.n_joints, 3))
-    monkeypatch.setattr(model, "posture", torch.tensor(posture) if pose == "input with posture" else None)
+    offsets = np.random.default_rng(6).normal(0.0, 5.0, (len(STYLES), m.skeleton.n_joints, 3))
+    monkeypatch.setattr(model, "posture", torch.tensor(posture) if "posture" in pose else None)
+    monkeypatch.setattr(model, "posture_offsets", torch.tensor(offsets) if "offsets" in pose else None)
     if pose != "network":
         scipy = lambda q: Rotation.from_quat(q.reshape(-1, 4), scalar_first=True)
         same = generator(1)
@@ -93,6 +99,17 @@ def test_stream_equals_the_generator_forward_on_whole_clip_features(model, backe
             else Rotation.from_rotvec(np.tile(posture[2] - posture[1], (30, 1)))
         )
         turned = (scipy(m.rotations) * change).as_quat(scalar_first=True).reshape(want.shape)
+        if model.posture_offsets is not None:
+            _, given = forward_kinematics(m.rotations, m.positions, m.skeleton.parents)
+            roles = BodyRoles.of(m.skeleton)
+            heading = heading_rotations(facing_directions(given, roles.left, roles.right))
+            moved = quat.mul_vec(heading[:, None], offsets[2] - offsets[1])
+            turned = torch_quat.reach(
+                torch.from_numpy(turned),
+                torch.from_numpy(m.skeleton.offsets),
+                torch.from_numpy(given - given[:, :1] + moved),
+                [int(p) for p in m.skeleton.parents],
+            ).numpy()
         want = np.stack(
             [
                 np.stack(
@@ -105,6 +122,7 @@ def test_stream_equals_the_generator_forward_on_whole_clip_features(model, backe
             ]
         )
     s = StreamStylizer(model, "normal", "walk", {"old": 1.0}, backend=backend, pose=pose.split()[0])
+    assert (s.model.posture_offsets is None) == ("offsets" not in pose)
     got = np.stack([s.step(m.rotations[t], m.positions[t])[0][0] for t in range(30)])
     if pose == "network":
         assert np.abs(got - want).max() <= 1e-5
@@ -566,3 +584,57 @@ def test_posture_change_is_the_rotation_of_the_weighted_rotation_vectors(threads
     assert np.array_equal(got[3], np.tile([1.0, 0.0, 0.0, 0.0], (21, 1)))
     shards = parallel.kernel_threads(threads, 9)  # 1 where numba has one thread or no thread-safe layer
     assert splits == ([shards] if shards > 1 else [])
+
+
+def test_reach_turns_each_joint_by_the_shortest_arc_towards_its_childrens_targets():
+    """``_reach`` (compiled) and its torch twin against scipy: down the chain, each joint but the root
+    turned (in the world) by the shortest arc from its children's summed bone vectors to the summed
+    vectors to where the input's joints are moved by the offsets (in the heading frame of the facing
+    direction), so no bone turns about itself; with no offsets, the input's pose comes back."""
+    from scipy.spatial.transform import Rotation
+
+    from styleerd.model import torch_quat
+    from styleerd.motion.kinematics import heading_rotations
+    from styleerd.runtime.stylizer import _reach
+
+    m = walking_motion(5)
+    sk, parents, J = m.skeleton, m.skeleton.parents, m.skeleton.n_joints
+    assert max(np.bincount(parents[1:])) >= 3  # a joint with three children (the chest), one with two
+    rng = np.random.default_rng(4)
+    scipy = lambda q: Rotation.from_quat(q, scalar_first=True)
+    for t in range(5):
+        _, given = forward_kinematics(m.rotations[t], m.positions[t], parents)
+        start = quat.normalize(m.rotations[t] + rng.normal(0, 0.2, (J, 4)))  # the input turned by a posture
+        offsets = rng.normal(0, 0.15, (J, 3)) * np.linalg.norm(sk.offsets, axis=-1).mean()
+        facing = np.array([np.sin(t), 0.0, np.cos(t)])
+        heading = heading_rotations(facing)
+        targets = given + quat.mul_vec(heading, offsets)
+        G, X, want = [None] * J, np.zeros((J, 3)), [scipy(q) for q in start]
+        for j in range(J):
+            p = parents[j]
+            G[j], X[j] = (want[j], given[j]) if p < 0 else (G[p] * want[j], X[p] + G[p].apply(m.positions[t, j]))
+            kids = np.nonzero(parents == j)[0]
+            if p < 0 or not len(kids):
+                continue
+            now = sum(G[j].apply(m.positions[t, k]) for k in kids)
+            wanted = sum(targets[k] - X[j] for k in kids)
+            axis = np.cross(now, wanted)
+            angle = np.arctan2(np.linalg.norm(axis), now @ wanted)
+            G[j] = Rotation.from_rotvec(axis / np.linalg.norm(axis) * angle) * G[j]
+            want[j] = G[p].inv() * G[j]
+        want = np.stack([w.as_quat(scalar_first=True) for w in want])
+
+        got = start.copy()
+        _reach(got, m.positions[t], given, facing[0], facing[2], offsets, parents, np.empty((J, 4)), np.empty((J, 3)))
+        assert np.degrees(quat.angle_between(got, want)).max() < 1e-9
+        twin = torch_quat.reach(  # in the root's parent frame, relative to the root
+            torch.from_numpy(start),
+            torch.from_numpy(sk.offsets),
+            torch.from_numpy(targets - given[0]),
+            [int(p) for p in parents],
+        ).numpy()
+        assert np.degrees(quat.angle_between(twin, want)).max() < 1e-9
+
+        same = m.rotations[t].copy()
+        _reach(same, m.positions[t], given, 0.0, 1.0, np.zeros((J, 3)), parents, np.empty((J, 4)), np.empty((J, 3)))
+        assert np.degrees(quat.angle_between(same, m.rotations[t])).max() < 1e-6

@@ -19,7 +19,7 @@ from styleerd.model.config import GeneratorConfig
 from styleerd.model.fmd import MotionAutoencoder
 from styleerd.model.generator import StyleERD
 from styleerd.model.labeller import OnlineLabeller
-from styleerd.model.stored import GeneratorWeights, load_arrays, loaded, posture_vectors
+from styleerd.model.stored import GeneratorWeights, load_arrays, loaded, posture_offsets, posture_vectors
 from styleerd.models import DEFAULT_MODEL, FMD, LABELLER, RECOGNISERS
 from styleerd.motion.skeleton import Skeleton
 
@@ -67,8 +67,9 @@ def generator_meta(model: StyleERD, skeleton: Skeleton, stats: FeatureStats, **e
 def build_generator(meta: dict) -> StyleERD:
     config = GeneratorConfig.from_dict(meta["config"])
     model = StyleERD(config, Skeleton.from_dict(meta["skeleton"]), FeatureStats.from_dict(meta["stats"]))
-    posture = posture_vectors(meta, config)
+    posture, offsets = posture_vectors(meta, config), posture_offsets(meta, config)
     model.posture = None if posture is None else torch.from_numpy(posture).float()
+    model.posture_offsets = None if offsets is None else torch.from_numpy(offsets).float()
     return model
 
 
@@ -77,6 +78,8 @@ def torch_generator(weights: GeneratorWeights) -> StyleERD:
     model = StyleERD(weights.config, weights.skeleton, weights.stats())
     model.load_state_dict({k: torch.from_numpy(v) for k, v in weights.arrays.items()})
     model.posture = None if weights.posture is None else torch.from_numpy(weights.posture).float()
+    offsets = weights.posture_offsets
+    model.posture_offsets = None if offsets is None else torch.from_numpy(offsets).float()
     return model.eval()
 
 

@@ -74,9 +74,11 @@ class StyleERD(nn.Module):
         self.register_buffer("mean", torch.tensor(stats.mean, dtype=torch.float32))
         self.register_buffer("std", torch.tensor(stats.std, dtype=torch.float32))
         self.register_buffer("reference", torch.tensor(stats.reference, dtype=torch.float32))
-        # the styles' postures ``[styles, J, 3]`` (``runtime.posture``), measured after training and
-        # kept in the model file's configuration, not among the weights; None: not measured
+        # the styles' postures (``runtime.posture``): rotation vectors and joint offsets ``[styles, J, 3]``,
+        # measured after training and kept in the model file's configuration, not among the weights;
+        # None: not measured
         self.posture: torch.Tensor | None = None
+        self.posture_offsets: torch.Tensor | None = None
 
     def stats(self) -> FeatureStats:
         """The feature normalisation the model was trained with."""

@@ -96,6 +96,7 @@ class GeneratorWeights:
     arrays: dict[str, np.ndarray]
     meta: dict = field(default_factory=dict)
     posture: np.ndarray | None = None  # [styles, J, 3] rotation vectors (``posture_vectors``), None: not measured
+    posture_offsets: np.ndarray | None = None  # [styles, J, 3] joint offsets (``posture_offsets``), None: not measured
 
     @property
     def branch_styles(self) -> list[int]:
@@ -111,7 +112,10 @@ def generator_weights(model) -> GeneratorWeights:
         return model
     arrays = {k: v.detach().float().cpu().numpy() for k, v in model.state_dict().items()}
     posture = None if model.posture is None else model.posture.double().numpy()
-    return GeneratorWeights(model.config, model.skeleton, model.stats(), arrays, posture=posture)
+    offsets = None if model.posture_offsets is None else model.posture_offsets.double().numpy()
+    return GeneratorWeights(
+        model.config, model.skeleton, model.stats(), arrays, posture=posture, posture_offsets=offsets
+    )
 
 
 def posture_vectors(meta: dict, config: GeneratorConfig) -> np.ndarray | None:
@@ -129,6 +133,23 @@ def posture_vectors(meta: dict, config: GeneratorConfig) -> np.ndarray | None:
     if not np.isfinite(vectors).all() or np.abs(vectors).max() > np.pi:
         raise ValueError("posture: rotation vectors must be finite and at most pi radians")
     return vectors
+
+
+def posture_offsets(meta: dict, config: GeneratorConfig) -> np.ndarray | None:
+    """Each target style's posture as where it moves each joint (``runtime.posture``), in the body's
+    heading frame and the skeleton's units, ``[styles, J, 3]`` in the model's style order; None
+    where the model file has none (measured before offsets were)."""
+    measured = (meta.get("posture") or {}).get("offsets")
+    if measured is None:
+        return None
+    offsets = np.zeros((len(config.styles), config.n_joints, 3))
+    for style, rows in measured.items():
+        if style not in config.styles:
+            raise ValueError(f"posture offsets of {style!r}, a style the model does not have")
+        offsets[config.styles.index(style)] = rows  # numpy refuses a wrong shape
+    if not np.isfinite(offsets).all():
+        raise ValueError("posture: offsets must be finite")
+    return offsets
 
 
 def _generator(arrays: dict[str, np.ndarray], meta: dict) -> GeneratorWeights:
@@ -149,7 +170,9 @@ def _generator(arrays: dict[str, np.ndarray], meta: dict) -> GeneratorWeights:
             raise ValueError(f"{key} has shape {weights[key].shape}, the configuration says {shape}")
     if skeleton.n_joints != J:
         raise ValueError(f"the skeleton has {skeleton.n_joints} joints, the configuration says {J}")
-    return GeneratorWeights(config, skeleton, stats, weights, meta, posture_vectors(meta, config))
+    return GeneratorWeights(
+        config, skeleton, stats, weights, meta, posture_vectors(meta, config), posture_offsets(meta, config)
+    )
 
 
 def load_generator_weights(name: str | Path | None = None) -> GeneratorWeights:

@@ -66,6 +66,37 @@ def normalize(q: torch.Tensor, eps: float = 1e-8) -> torch.Tensor:
     return q / q.norm(dim=-1, keepdim=True).clamp_min(eps)
 
 
+def between(a: torch.Tensor, b: torch.Tensor, eps: float = 1e-12) -> torch.Tensor:
+    """The shortest-arc rotation taking ``a``'s direction to ``b``'s ``[..., 3]`` (a zero vector:
+    the identity; opposite vectors, left to the half turn's axis ``quat.between`` picks, are not
+    handled here)."""
+    w = a.norm(dim=-1, keepdim=True) * b.norm(dim=-1, keepdim=True)
+    q = torch.cat([w + (a * b).sum(-1, keepdim=True), torch.linalg.cross(a, b, dim=-1)], -1)
+    return torch.where(w > eps, normalize(q, eps), q.new_tensor([1.0, 0.0, 0.0, 0.0]))
+
+
+def reach(rotations: torch.Tensor, offsets: torch.Tensor, targets: torch.Tensor, parents: list[int]) -> torch.Tensor:
+    """``rotations [..., J, 4]`` (local) turned so that each joint's children go towards
+    ``targets [..., J, 3]`` (relative to the root, in the root's parent frame): down the chain, each
+    joint but the root by the shortest arc from its children's summed bone vectors (``offsets
+    [J, 3]``) to the summed vectors to their targets; ``runtime.stylizer._reach``'s twin."""
+    out = list(rotations.unbind(-2))
+    G, X = list(out), [torch.zeros_like(targets[..., 0, :])] * len(parents)
+    for j, p in enumerate(parents):
+        if p < 0:
+            continue
+        G[j] = mul(G[p], out[j])
+        X[j] = X[p] + mul_vec(G[p], offsets[j].expand_as(X[p]))
+        kids = [k for k in range(j + 1, len(parents)) if parents[k] == j]
+        if not kids:
+            continue
+        now = sum(mul_vec(G[j], offsets[k].expand_as(X[j])) for k in kids)
+        wanted = sum(targets[..., k, :] - X[j] for k in kids)
+        G[j] = mul(between(now, wanted), G[j])
+        out[j] = mul(inv(G[p]), G[j])
+    return torch.stack(out, -2)
+
+
 def root_relative_positions(rotations: torch.Tensor, offsets: torch.Tensor, parents: list[int]) -> torch.Tensor:
     """Joint positions ``[..., J, 3]`` relative to the root, in the root's parent frame, from
     local rotations ``[..., J, 4]`` and rest offsets ``[J, 3]`` (forward kinematics with the

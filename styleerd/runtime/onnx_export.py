@@ -513,6 +513,10 @@ def sidecar(
         # per target style (``styles``' order) and joint, the rotation vector (radians) of its posture:
         # what an input the network never learnt is turned by (``runtime.posture``); null: not measured
         "posture": None if model.posture is None else np.round(model.posture, 6).tolist(),
+        # per target style and joint, where its posture moves the joint relative to the root, in the body's
+        # heading frame (the skeleton's units): the input turned by the posture is then turned so its joints
+        # go there (``runtime.stylizer._reach``); null: not measured
+        "posture_offsets": None if model.posture_offsets is None else np.round(model.posture_offsets, 6).tolist(),
         "skeleton": model.skeleton.to_dict(),
         "stats": model.stats().to_dict(),
     }

@@ -21,6 +21,7 @@ from styleerd.data.datasets import data_root, find_clips, load_motion
 from styleerd.data.windows import split_takes
 from styleerd.model.stored import GeneratorWeights
 from styleerd.motion import quat
+from styleerd.motion.kinematics import forward_positions, heading_rotations
 from styleerd.motion.motion import Motion
 from styleerd.runtime.stylizer import StreamStylizer
 
@@ -39,15 +40,18 @@ def training_walks(model: GeneratorWeights, data_dir: str | None = None) -> Iter
 
 def measure_posture(
     model: GeneratorWeights, walks: list[tuple[Motion, str]], change: Callable | None = None
-) -> np.ndarray:
-    """Each style's posture ``[styles, J, 3]``: the mean rotation vector of inv(identity) * styled per
-    joint (the network's outputs, its root's in the world) over every frame of ``walks``; or of
-    ``change(identity [1, J, 4], styled [styles, J, 4])``, a change in another frame
-    (``benchmarks/posture_frames.py``)."""
+) -> tuple[np.ndarray, np.ndarray]:
+    """Each style's posture over every frame of ``walks``, as the network gives it: ``[styles, J, 3]``
+    the mean rotation vector of inv(identity) * styled per joint (its root's in the world; or of
+    ``change(identity [1, J, 4], styled [styles, J, 4])``, a change in another frame,
+    ``benchmarks/posture_frames.py``), and ``[styles, J, 3]`` the mean of styled - identity joint
+    positions relative to the root, in the body's heading frame (the skeleton's units)."""
     styles = model.config.styles
     neutral = styles.index(model.config.neutral_style)
     total = np.zeros((len(styles), model.config.n_joints, 3))
+    moved = np.zeros_like(total)
     frames = 0
+    parents = model.skeleton.parents
     for motion, content in tqdm(walks, desc="posture", unit="walk"):
         stylizer = StreamStylizer(
             model,
@@ -60,22 +64,33 @@ def measure_posture(
         )
         for t in range(motion.n_frames):
             rot = np.repeat(motion.rotations[t : t + 1], len(styles), 0)
-            out = stylizer.step(rot, np.repeat(motion.positions[t : t + 1], len(styles), 0))[0]
+            pos = np.repeat(motion.positions[t : t + 1], len(styles), 0)
+            out = stylizer.step(rot, pos)[0]
             same = out[neutral : neutral + 1]
             total += quat.to_scaled_angle_axis(quat.mul(quat.inv(same), out) if change is None else change(same, out))
+            g = forward_positions(out, pos, parents)
+            g -= g[:, :1]
+            body = quat.inv(heading_rotations(stylizer.facing[:1]))
+            moved += quat.mul_vec(body[:, None], g - g[neutral : neutral + 1])
         frames += motion.n_frames
-    return total / max(frames, 1)
+    return total / max(frames, 1), moved / max(frames, 1)
 
 
-def with_posture(meta: dict, model: GeneratorWeights, posture: np.ndarray, walks: int, frames: int) -> dict:
-    """``meta`` (a model file's configuration) with the measured posture in it."""
+def with_posture(
+    meta: dict, model: GeneratorWeights, posture: tuple[np.ndarray, np.ndarray], walks: int, frames: int
+) -> dict:
+    """``meta`` (a model file's configuration) with the measured posture (``measure_posture``) in it."""
+    vectors, offsets = posture
     neutral = model.config.neutral_style
     return {
         **meta,
         "posture": {
             "measured_on": f"{walks} neutral walks of the training split, {frames} frames (styleerd posture)",
             "rotation_vectors": {
-                s: np.round(posture[k], 6).tolist() for k, s in enumerate(model.config.styles) if s != neutral
+                s: np.round(vectors[k], 6).tolist() for k, s in enumerate(model.config.styles) if s != neutral
+            },
+            "offsets": {
+                s: np.round(offsets[k], 6).tolist() for k, s in enumerate(model.config.styles) if s != neutral
             },
         },
     }

@@ -592,12 +592,18 @@ class StreamStylizer:
             )
             seen = np.where(self.started[sel], self.unfamiliar[sel] - RELEASE, 0.0)
             weight = np.empty(len(out))
+            offsets = (
+                np.empty((len(out), 0, 3))
+                if self.model.posture_offsets is None
+                else self._posture_offsets(weights[sel], identity)
+            )
             on_kernel_threads(
                 self.kernel_threads,
                 len(out),
                 _towards_the_input,
                 _towards_the_input_on_shards,
                 *(np.ascontiguousarray(rotations), same, out, change, seen, FAMILIAR, UNFAMILIAR, weight),
+                *(offsets, np.ascontiguousarray(positions, np.float64), g, facing, self.model.skeleton.parents),
             )
             self.unfamiliar[sel] = weight
             self.unfamiliar_sum[sel] += weight
@@ -620,16 +626,73 @@ class StreamStylizer:
             change[:, joints] = posture_change(self.model.posture[:, joints], w - own, self.kernel_threads)
         return change
 
+    def _posture_offsets(self, weights: np.ndarray, own: np.ndarray) -> np.ndarray:
+        """Per stream and joint, where the target's posture moves the joint from the input's own
+        style ``own`` (``runtime.posture``; the body's heading frame); joints of a body part with a
+        target of its own, that part's."""
+        offsets = np.einsum("ns,sjc->njc", weights - own, self.model.posture_offsets)
+        for p, w in enumerate(self.part_passes, 1):
+            joints = self.joint_pass == p
+            offsets[:, joints] = np.einsum("ns,sjc->njc", w - own, self.model.posture_offsets[:, joints])
+        return offsets
+
 
 @nb.njit(cache=True, nogil=True)
-def _towards_the_input(given, same, styled, change, seen, familiar, unfamiliar, weight):
+def _reach(rot, translations, given, fx, fz, offsets, parents, G, X):
+    """One stream's pose ``rot [J, 4]`` (local rotations, the root's in the world) turned in place so
+    that each joint's children go towards the input's joint positions ``given [J, 3]`` (global) moved
+    by ``offsets [J, 3]`` (the body's heading frame, from the facing direction ``fx, fz``): down the
+    chain, each joint but the root turned by the shortest arc from its children's summed bone
+    vectors to the vectors to their targets (so a bone's twist about itself is kept; a bone's
+    length is, so a target may be out of reach). ``G [J, 4]``, ``X [J, 3]``: scratch."""
+    J = rot.shape[0]
+    half = 0.5 * np.arctan2(fx, fz)
+    hw, hy = np.cos(half), np.sin(half)
+    for j in range(J):
+        p = parents[j]
+        if p < 0:
+            G[j, 0], G[j, 1], G[j, 2], G[j, 3] = rot[j, 0], rot[j, 1], rot[j, 2], rot[j, 3]
+            X[j, 0], X[j, 1], X[j, 2] = given[j, 0], given[j, 1], given[j, 2]
+            continue
+        G[j, 0], G[j, 1], G[j, 2], G[j, 3] = quat.mul_scalars(
+            G[p, 0], G[p, 1], G[p, 2], G[p, 3], rot[j, 0], rot[j, 1], rot[j, 2], rot[j, 3]
+        )
+        vx, vy, vz = quat.mul_vec_scalars(
+            G[p, 0], G[p, 1], G[p, 2], G[p, 3], translations[j, 0], translations[j, 1], translations[j, 2]
+        )
+        X[j, 0], X[j, 1], X[j, 2] = X[p, 0] + vx, X[p, 1] + vy, X[p, 2] + vz
+        cx, cy, cz, dx, dy, dz = 0.0, 0.0, 0.0, 0.0, 0.0, 0.0
+        for k in range(j + 1, J):
+            if parents[k] != j:
+                continue
+            vx, vy, vz = quat.mul_vec_scalars(
+                G[j, 0], G[j, 1], G[j, 2], G[j, 3], translations[k, 0], translations[k, 1], translations[k, 2]
+            )
+            ox, oy, oz = quat.mul_vec_scalars(hw, 0.0, hy, 0.0, offsets[k, 0], offsets[k, 1], offsets[k, 2])
+            cx, cy, cz = cx + vx, cy + vy, cz + vz
+            dx, dy, dz = dx + given[k, 0] + ox - X[j, 0], dy + given[k, 1] + oy - X[j, 1], dz + given[k, 2] + oz - X[j, 2]
+        rw, rx, ry, rz = quat.between_scalars(cx, cy, cz, dx, dy, dz)  # none: no change
+        G[j, 0], G[j, 1], G[j, 2], G[j, 3] = quat.mul_scalars(rw, rx, ry, rz, G[j, 0], G[j, 1], G[j, 2], G[j, 3])
+        rot[j, 0], rot[j, 1], rot[j, 2], rot[j, 3] = quat.mul_scalars(
+            G[p, 0], -G[p, 1], -G[p, 2], -G[p, 3], G[j, 0], G[j, 1], G[j, 2], G[j, 3]
+        )
+
+
+@nb.njit(cache=True, nogil=True)
+def _towards_the_input(
+    given, same, styled, change, seen, familiar, unfamiliar, weight, offsets, translations, globals_, facing, parents
+):
     """Per stream (``[N, J, 4]`` each): its unfamiliarity ``weight`` (the identity output ``same``'s
     mean joint angle to the input ``given``, degrees, from ``familiar`` (0) to ``unfamiliar`` (1),
     at least ``seen``), and ``styled`` slerped by it towards the input turned by the style's
     ``change``, given * change per joint (local rotations, the roots' in the world: the style's
-    posture, or the network's inv(same) * styled for a model without one), in place; one pass, no
-    temporaries."""
+    posture, or the network's inv(same) * styled for a model without one), in place. With posture
+    ``offsets [N, J, 3]`` (``[N, 0, 3]``: none), that pose is then turned so that the joints go
+    where the input's are moved by them (``_reach``; ``translations``, ``globals_``: the input's
+    local joint translations and global positions, ``facing``: its facing directions)."""
     N, J = given.shape[0], given.shape[1]
+    reach = offsets.shape[1] == J
+    target, G, X = np.empty((J, 4)), np.empty((J, 4)), np.empty((J, 3))
     for n in range(N):
         total = 0.0
         for j in range(J):
@@ -644,11 +707,17 @@ def _towards_the_input(given, same, styled, change, seen, familiar, unfamiliar, 
         if u <= 0.0:
             continue
         for j in range(J):
-            sw, sx, sy, sz = styled[n, j, 0], styled[n, j, 1], styled[n, j, 2], styled[n, j, 3]
             gw, gx, gy, gz = given[n, j, 0], given[n, j, 1], given[n, j, 2], given[n, j, 3]
             d = 1.0 / max(np.sqrt(gw * gw + gx * gx + gy * gy + gz * gz), 1e-12)
             cw, cx, cy, cz = change[n, j, 0], change[n, j, 1], change[n, j, 2], change[n, j, 3]
-            tw, tx, ty, tz = quat.mul_scalars(gw * d, gx * d, gy * d, gz * d, cw, cx, cy, cz)
+            target[j, 0], target[j, 1], target[j, 2], target[j, 3] = quat.mul_scalars(
+                gw * d, gx * d, gy * d, gz * d, cw, cx, cy, cz
+            )
+        if reach:
+            _reach(target, translations[n], globals_[n], facing[n, 0], facing[n, 2], offsets[n], parents, G, X)
+        for j in range(J):
+            sw, sx, sy, sz = styled[n, j, 0], styled[n, j, 1], styled[n, j, 2], styled[n, j, 3]
+            tw, tx, ty, tz = target[j, 0], target[j, 1], target[j, 2], target[j, 3]
             dot = sw * tw + sx * tx + sy * ty + sz * tz
             if dot < 0.0:  # the shorter arc
                 tw, tx, ty, tz, dot = -tw, -tx, -ty, -tz, -dot
@@ -661,13 +730,27 @@ def _towards_the_input(given, same, styled, change, seen, familiar, unfamiliar, 
 
 
 @nb.njit(cache=True, nogil=True, parallel=True)
-def _towards_the_input_on_shards(shards, given, same, styled, change, seen, familiar, unfamiliar, weight):
+def _towards_the_input_on_shards(
+    shards, given, same, styled, change, seen, familiar, unfamiliar, weight, offsets, translations, globals_, facing, parents
+):
     """``_towards_the_input`` on ``shards`` slices of the streams, one per thread."""
     N = given.shape[0]
     for k in nb.prange(shards):
         s, e = N * k // shards, N * (k + 1) // shards
         _towards_the_input(
-            given[s:e], same[s:e], styled[s:e], change[s:e], seen[s:e], familiar, unfamiliar, weight[s:e]
+            given[s:e],
+            same[s:e],
+            styled[s:e],
+            change[s:e],
+            seen[s:e],
+            familiar,
+            unfamiliar,
+            weight[s:e],
+            offsets[s:e],
+            translations[s:e],
+            globals_[s:e],
+            facing[s:e],
+            parents,
         )
 
 

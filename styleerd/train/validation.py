@@ -97,6 +97,13 @@ def transfers(model: StyleERD, data: TrainingData, ws: WindowSet, batch: int = 5
                 own[:, : style.shape[1]] = style
                 change = torch_quat.from_scaled_angle_axis(torch.einsum("bs,sjc->bjc", target - own, model.posture))
                 turned = torch_quat.normalize(torch_quat.mul(torch_quat.normalize(given), change[:, None]))
+                if model.posture_offsets is not None:  # and turned so the joints go where the posture moves them
+                    L, J = model.layout, model.config.n_joints
+                    positions = (x[..., L.positions] * model.std[L.positions] + model.mean[L.positions]).unflatten(
+                        -1, (J, 3)
+                    )
+                    moved = torch.einsum("bs,sjc->bjc", target - own, model.posture_offsets)[:, None]
+                    turned = torch_quat.reach(turned, model.offsets, positions + moved, model.parents)
             rot = torch_quat.slerp(rot, turned, weight[..., None].expand(rot.shape[:-1]))
             vel = vel + weight[..., None] * (x[..., model.layout.velocities] - same_vel)
         yield r, t, rot, vel, model.motion_channels(rot, vel)

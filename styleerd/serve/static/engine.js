@@ -5,7 +5,8 @@
 // Each frame runs the graph twice, each run with its own state: into the target and into the
 // input's own style (the identity transfer). Where the identity output is near the input the
 // output is the network's; where it is far (an action the network never learnt) the input's pose
-// turned by the target style's posture (the sidecar's rotation vectors); in between a blend: as the server.
+// turned by the target style's posture (the sidecar's rotation vectors), then so that its joints go where the
+// posture moves the input's (posture_offsets); in between a blend: as the server.
 import * as ort from "/static/vendor/ort.wasm.min.mjs";
 
 ort.env.wasm.wasmPaths = "/static/vendor/";
@@ -31,6 +32,39 @@ function slerp(a, b, t) { // from a (t = 0) to b (t = 1) along the shorter arc
   const theta = Math.acos(Math.min(1, d)), s = Math.sin(theta);
   const [wa, wb] = s < 1e-6 ? [1 - t, t] : [Math.sin((1 - t) * theta) / s, Math.sin(t * theta) / s];
   return normalize(a.map((x, k) => wa * x + wb * b[k]));
+}
+
+function shortestArc(a, b) { // the rotation by the smallest angle taking a's direction to b's (a zero vector: none)
+  const na = Math.hypot(...a), nb = Math.hypot(...b);
+  if (na < 1e-12 || nb < 1e-12) return [1, 0, 0, 0];
+  a = a.map((x) => x / na); b = b.map((x) => x / nb);
+  const w = 1 + a[0] * b[0] + a[1] * b[1] + a[2] * b[2];
+  if (w < 1e-9) return normalize([0, ...cross(a, Math.abs(a[0]) < 0.9 ? [1, 0, 0] : [0, 1, 0])]); // opposite: a half turn
+  return normalize([w, ...cross(a, b)]);
+}
+// The pose rot turned so that each joint's children go towards targets (global): down the chain, each joint but
+// the root by the shortest arc from its children's summed bone vectors to the summed vectors to their targets.
+// given: the input's global joint positions (the root's is kept); as examples/onnx_host.py's reach.
+function reach(rot, pos, given, targets, parents) {
+  rot = rot.slice();
+  const gRot = rot.slice(), gPos = given.slice();
+  parents.forEach((p, j) => {
+    if (p < 0) return;
+    gRot[j] = qmul(gRot[p], rot[j]);
+    gPos[j] = qrot(gRot[p], pos[j]).map((x, k) => x + gPos[p][k]);
+    const now = [0, 0, 0], wanted = [0, 0, 0];
+    let kids = 0;
+    for (let k = j + 1; k < parents.length; k++) {
+      if (parents[k] !== j) continue;
+      kids++;
+      const v = qrot(gRot[j], pos[k]);
+      for (let i = 0; i < 3; i++) { now[i] += v[i]; wanted[i] += targets[k][i] - gPos[j][i]; }
+    }
+    if (!kids) return;
+    gRot[j] = qmul(shortestArc(now, wanted), gRot[j]);
+    rot[j] = qmul(inverse(gRot[p]), gRot[j]);
+  });
+  return rot;
 }
 
 export class StyleHost {
@@ -74,6 +108,10 @@ export class StyleHost {
       const angle = Math.hypot(...v), scale = angle > 1e-12 ? Math.sin(angle / 2) / angle : 0.5;
       return [Math.cos(angle / 2), ...v.map((x) => x * scale)];
     });
+    // where the posture moves each joint (the body's heading frame), summed by weight; null: none measured
+    const offsets = this.side.posture_offsets;
+    this.moved = offsets && offsets[0].map((joint, j) =>
+      [0, 1, 2].map((k) => offsets.reduce((sum, style, s) => sum + (this.target[s] - this.identity[s]) * style[j][k], 0)));
   }
 
   reset() {
@@ -143,7 +181,12 @@ export class StyleHost {
     const now = Math.min(1, Math.max(0, (degrees - FAMILIAR) / (UNFAMILIAR - FAMILIAR)));
     this.unfamiliar = first ? now : Math.max(now, this.unfamiliar - RELEASE);
     const change = (j) => (this.change ? this.change[j] : qmul(inverse(poses.identity[j]), poses.target[j]));
-    return given.map((q, j) => slerp(poses.target[j], normalize(qmul(q, change(j))), this.unfamiliar));
+    let turned = given.map((q, j) => normalize(qmul(q, change(j))));
+    if (this.moved) { // then turned so that the joints go where the posture moves the input's
+      const g = this.previous, targets = g.map((x, j) => qrot(heading, this.moved[j]).map((v, k) => v + x[k]));
+      turned = reach(turned, pos, g, targets, this.parents);
+    }
+    return given.map((_, j) => slerp(poses.target[j], turned[j], this.unfamiliar));
   }
 }
 
