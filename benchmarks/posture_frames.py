@@ -17,7 +17,8 @@ own frame:
   where the input's joints are moved by the style's mean joint offsets (``runtime.stylizer._reach``),
   the offsets measured on the same walks.
 
-The three frames run without offsets. Every variant runs the whole ``styleerd eval actions`` table (pose input) through ``transfer``.
+The three frames run without offsets. Every variant runs the whole ``styleerd eval actions`` table
+(pose input) through ``transfer``.
 Run: ``python benchmarks/posture_frames.py --walks 16 --out docs/posture-frames.json``.
 """
 

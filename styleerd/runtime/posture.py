@@ -89,8 +89,6 @@ def with_posture(
             "rotation_vectors": {
                 s: np.round(vectors[k], 6).tolist() for k, s in enumerate(model.config.styles) if s != neutral
             },
-            "offsets": {
-                s: np.round(offsets[k], 6).tolist() for k, s in enumerate(model.config.styles) if s != neutral
-            },
+            "offsets": {s: np.round(offsets[k], 6).tolist() for k, s in enumerate(model.config.styles) if s != neutral},
         },
     }

@@ -661,7 +661,7 @@ def _reach(rot, translations, given, fx, fz, offsets, parents, G, X):
             G[p, 0], G[p, 1], G[p, 2], G[p, 3], translations[j, 0], translations[j, 1], translations[j, 2]
         )
         X[j, 0], X[j, 1], X[j, 2] = X[p, 0] + vx, X[p, 1] + vy, X[p, 2] + vz
-        cx, cy, cz, dx, dy, dz = 0.0, 0.0, 0.0, 0.0, 0.0, 0.0
+        cx, cy, cz, dx, dy, dz, kids = 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0
         for k in range(j + 1, J):
             if parents[k] != j:
                 continue
@@ -669,8 +669,10 @@ def _reach(rot, translations, given, fx, fz, offsets, parents, G, X):
                 G[j, 0], G[j, 1], G[j, 2], G[j, 3], translations[k, 0], translations[k, 1], translations[k, 2]
             )
             ox, oy, oz = quat.mul_vec_scalars(hw, 0.0, hy, 0.0, offsets[k, 0], offsets[k, 1], offsets[k, 2])
-            cx, cy, cz = cx + vx, cy + vy, cz + vz
-            dx, dy, dz = dx + given[k, 0] + ox - X[j, 0], dy + given[k, 1] + oy - X[j, 1], dz + given[k, 2] + oz - X[j, 2]
+            cx, cy, cz = cx + vx, cy + vy, cz + vz  # the children's bones
+            dx, dy, dz = dx + given[k, 0] + ox, dy + given[k, 1] + oy, dz + given[k, 2] + oz  # their targets
+            kids += 1
+        dx, dy, dz = dx - kids * X[j, 0], dy - kids * X[j, 1], dz - kids * X[j, 2]
         rw, rx, ry, rz = quat.between_scalars(cx, cy, cz, dx, dy, dz)  # none: no change
         G[j, 0], G[j, 1], G[j, 2], G[j, 3] = quat.mul_scalars(rw, rx, ry, rz, G[j, 0], G[j, 1], G[j, 2], G[j, 3])
         rot[j, 0], rot[j, 1], rot[j, 2], rot[j, 3] = quat.mul_scalars(
@@ -731,7 +733,20 @@ def _towards_the_input(
 
 @nb.njit(cache=True, nogil=True, parallel=True)
 def _towards_the_input_on_shards(
-    shards, given, same, styled, change, seen, familiar, unfamiliar, weight, offsets, translations, globals_, facing, parents
+    shards,
+    given,
+    same,
+    styled,
+    change,
+    seen,
+    familiar,
+    unfamiliar,
+    weight,
+    offsets,
+    translations,
+    globals_,
+    facing,
+    parents,
 ):
     """``_towards_the_input`` on ``shards`` slices of the streams, one per thread."""
     N = given.shape[0]
