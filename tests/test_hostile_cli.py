@@ -88,6 +88,18 @@ def _labeller_as_generator(tmp: Path) -> str:
     return str(tmp / "lab")
 
 
+def _model_with_posture_offsets(tmp: Path, offsets: dict) -> str:
+    """The shipped model with its posture's joint offsets replaced by ``offsets`` (style -> rows)."""
+    import json
+
+    from styleerd.model.stored import load_arrays
+
+    arrays, meta = load_arrays(MODELS_DIR / "styleerd-bandai2")
+    meta["posture"]["offsets"] = offsets
+    save_file(arrays, str(tmp / "bent.safetensors"), metadata={"styleerd": json.dumps(meta)})
+    return str(tmp / "bent")
+
+
 def _transfer(make_input, *extra: str, output: str = "out.bvh"):
     def argv(tmp: Path) -> list[str]:
         source = make_input(tmp)
@@ -169,6 +181,22 @@ CASES = {
         "no styleerd configuration",
     ),
     "labeller given as the model": (lambda t: ["styles", "--model", _labeller_as_generator(t)], "incomplete"),
+    "posture offsets not finite": (
+        lambda t: ["styles", "--model", _model_with_posture_offsets(t, {"elderly": [[float("nan")] * 3] * 21})],
+        "posture: offsets must be finite and at most 1e6",
+    ),
+    "posture offsets of 1e30": (
+        lambda t: ["styles", "--model", _model_with_posture_offsets(t, {"elderly": [[1e30, 0.0, 0.0]] * 21})],
+        "posture: offsets must be finite and at most 1e6",
+    ),
+    "posture offsets of a style the model lacks": (
+        lambda t: ["styles", "--model", _model_with_posture_offsets(t, {"zombie": [[0.0] * 3] * 21})],
+        "posture offsets of 'zombie', a style the model does not have",
+    ),
+    "posture offsets of the wrong shape": (
+        lambda t: ["styles", "--model", _model_with_posture_offsets(t, {"elderly": [[0.0, 1.0]]})],
+        "could not broadcast",
+    ),
     "model missing": (
         lambda t: ["transfer", str(_walk(t)), "--style", "elderly", "--model", str(t / "none"), "-o", str(t / "o.bvh")],
         "No such file",

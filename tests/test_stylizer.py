@@ -638,3 +638,39 @@ def test_reach_turns_each_joint_by_the_shortest_arc_towards_its_childrens_target
         same = m.rotations[t].copy()
         _reach(same, m.positions[t], given, 0.0, 1.0, np.zeros((J, 3)), parents, np.empty((J, 4)), np.empty((J, 3)))
         assert np.degrees(quat.angle_between(same, m.rotations[t])).max() < 1e-6
+
+
+@pytest.mark.parametrize("posture", ["none", "rotations", "rotations and offsets"])
+def test_validations_pose_input_is_the_stylizers(model, posture, monkeypatch):
+    """``train.validation.towards_the_input`` (torch, whole windows: what ``eval quality --pose
+    input`` judges) gives the stylizer's pose "input" output frame by frame from a fresh state,
+    with the unfamiliarity thresholds inside this random network's range."""
+    from styleerd.model import torch_quat
+    from styleerd.runtime import stylizer
+    from styleerd.train import validation
+
+    m = walking_motion(30)
+    f, traj = motion_features(m)
+    x = torch.as_tensor(model.stats().normalize(f), dtype=torch.float32)[None]
+    rng = np.random.default_rng(7)
+    shape = (len(STYLES), m.skeleton.n_joints, 3)
+    vectors, offsets = (torch.tensor(rng.normal(0, scale, shape), dtype=torch.float32) for scale in (0.4, 5.0))
+    monkeypatch.setattr(model, "posture", None if posture == "none" else vectors)
+    monkeypatch.setattr(model, "posture_offsets", offsets if "offsets" in posture else None)
+    eye_s, eye_c = torch.eye(len(STYLES)), torch.eye(len(CONTENTS))
+    with torch.no_grad():
+        same, _, _ = model(x, eye_s[[1]], eye_c[[0]], eye_s[[1]])
+        angles = torch.rad2deg(torch_quat.angle(same, model.raw_rotations(x))).mean(-1).numpy()
+    low, high = np.percentile(angles, [30, 70])
+    for module in (stylizer, validation):
+        monkeypatch.setattr(module, "FAMILIAR", low)
+        monkeypatch.setattr(module, "UNFAMILIAR", high)
+    with torch.no_grad():
+        rot, vel, _ = model(x, eye_s[[1]], eye_c[[0]], eye_s[[2]])
+        rot, _ = validation.towards_the_input(model, x, eye_s[[1]], eye_c[[0]], eye_s[[2]], rot, vel)
+    want = rot[0].double().numpy()
+    want[:, 0] = quat.mul(traj[:, 3:7], want[:, 0])
+    s = StreamStylizer(model, "normal", "walk", {"old": 1.0}, pose="input")
+    got = np.stack([s.step(m.rotations[t], m.positions[t])[0][0] for t in range(30)])
+    assert 0.1 < s.unfamiliar_sum[0] / 30 < 0.9  # the frames span the blend
+    assert np.degrees(quat.angle_between(got, want)).max() < 0.01  # float32 networks, composed in float32 and 64

@@ -290,9 +290,10 @@ change to the network's pose averaged over the training split's neutral walks, `
 [Transfer and styles](guide/transfer.md#any-action-pose), "Any action"). Correlation: of the hands'
 and feet's root-relative velocities, input against output (1 = the same action). Cosine and size:
 the style's change (styled output minus identity output, per joint, in the body's frame, averaged
-over the clip) against the same on the walks. A posture is a rotation per joint, so on a body lying
-down (the swims) the same bent neck moves the head another way in the body's heading frame: those
-clips' cosines are low by construction.
+over the clip) against the same on the walks. A posture turns the input's joints towards where the
+style moves them relative to the root in the body's heading frame (up is the world's), so on a body
+lying down (the swims) a head moved forward on a walk is out of reach: those clips' cosines are the
+lowest.
 
 ![a dance](actions-dance-short.png)
 

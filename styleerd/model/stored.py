@@ -147,8 +147,8 @@ def posture_offsets(meta: dict, config: GeneratorConfig) -> np.ndarray | None:
         if style not in config.styles:
             raise ValueError(f"posture offsets of {style!r}, a style the model does not have")
         offsets[config.styles.index(style)] = rows  # numpy refuses a wrong shape
-    if not np.isfinite(offsets).all():
-        raise ValueError("posture: offsets must be finite")
+    if not np.isfinite(offsets).all() or np.abs(offsets).max() > 1e6:
+        raise ValueError("posture: offsets must be finite and at most 1e6 in the skeleton's units")
     return offsets
 
 

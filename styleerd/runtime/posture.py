@@ -6,7 +6,10 @@ network's identity and target outputs are both rebuilt from walks and waves, so 
 them points anywhere (on held-out actions, a cosine of 0.2-0.6 with the same change on walks). The
 posture is the part of a style that does not depend on the action (a bent back, lowered arms,
 turned-in knees): the input's own pose turned by it keeps the action and shows the style the way it
-shows on walks (measurements: docs/RESULTS.md, "Any action, any performer").
+shows on walks (measurements: docs/RESULTS.md, "Any action, any performer"). It is kept two ways:
+per joint the mean rotation, and where the style moves the joint relative to the root in the body's
+heading frame (the mean offset), which the stylizer then turns the joints towards
+(``runtime.stylizer._reach``), as the same rotations move a body in another pose elsewhere.
 
 ``styleerd posture`` measures it once after training and stores it in the model file."""
 

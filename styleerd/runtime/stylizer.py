@@ -12,8 +12,9 @@ the target pass's encoder and neutral stack, whose state depends on the input al
 (``unfamiliar``, per stream and frame, 0..1). Where the network rebuilds
 the input well, the output is the network's; where it does not, the input's own pose turned, joint
 by joint, by the target style's posture (``runtime.posture``; for a model without one, by the change
-from the identity output to the target's) (``_towards_the_input``), so a pose the network never
-learnt passes through with the style on it; in between, a blend of the two.
+from the identity output to the target's), then turned so that its joints go where the posture moves
+the input's (``_reach``, where the posture has joint offsets) (``_towards_the_input``), so a pose the
+network never learnt passes through with the style on it; in between, a blend of the two.
 
 Changing the target (style, intensity, mixture) mid-stream blends the target weights
 linearly over ``blend_frames`` frames, so the output does not pop.
@@ -585,26 +586,17 @@ class StreamStylizer:
         self._on_heading(rot, traj, out)
         if identity is not None:
             same = self._on_heading(same, traj, np.empty_like(out))
-            change = (
-                quat.mul(quat.inv(same), out)
-                if self.model.posture is None
-                else self._posture_change(weights[sel], identity)
-            )
             seen = np.where(self.started[sel], self.unfamiliar[sel] - RELEASE, 0.0)
             weight = np.empty(len(out))
-            offsets = (
-                np.empty((len(out), 0, 3))
-                if self.model.posture_offsets is None
-                else self._posture_offsets(weights[sel], identity)
-            )
-            on_kernel_threads(
-                self.kernel_threads,
-                len(out),
-                _towards_the_input,
-                _towards_the_input_on_shards,
-                *(np.ascontiguousarray(rotations), same, out, change, seen, FAMILIAR, UNFAMILIAR, weight),
-                *(offsets, np.ascontiguousarray(positions, np.float64), g, facing, self.model.skeleton.parents),
-            )
+            blend = (np.ascontiguousarray(rotations), same, seen, weight, identity, positions, g, facing)
+            # a body part with a target of its own: the whole body taken towards that target, the part's joints kept
+            parts = [
+                (self.joint_pass == p, self._blend_towards_the_input(out.copy(), w, *blend))
+                for p, w in enumerate(self.part_passes, 1)
+            ]
+            self._blend_towards_the_input(out, weights[sel], *blend)
+            for joints, turned in parts:
+                out[:, joints] = turned[:, joints]
             self.unfamiliar[sel] = weight
             self.unfamiliar_sum[sel] += weight
         if len(self.input_joints):  # parts that keep the input's own motion
@@ -617,24 +609,33 @@ class StreamStylizer:
         self.frames[sel] += 1
         return out, positions
 
-    def _posture_change(self, weights: np.ndarray, own: np.ndarray) -> np.ndarray:
-        """Per stream and joint, the target's posture change from the input's own style ``own``
-        (``runtime.posture``); joints of a body part with a target of its own, that part's."""
-        change = posture_change(self.model.posture, weights - own, self.kernel_threads)
-        for p, w in enumerate(self.part_passes, 1):
-            joints = self.joint_pass == p
-            change[:, joints] = posture_change(self.model.posture[:, joints], w - own, self.kernel_threads)
-        return change
-
-    def _posture_offsets(self, weights: np.ndarray, own: np.ndarray) -> np.ndarray:
-        """Per stream and joint, where the target's posture moves the joint from the input's own
-        style ``own`` (``runtime.posture``; the body's heading frame); joints of a body part with a
-        target of its own, that part's."""
-        offsets = np.einsum("ns,sjc->njc", weights - own, self.model.posture_offsets)
-        for p, w in enumerate(self.part_passes, 1):
-            joints = self.joint_pass == p
-            offsets[:, joints] = np.einsum("ns,sjc->njc", w - own, self.model.posture_offsets[:, joints])
-        return offsets
+    def _blend_towards_the_input(
+        self, styled, weights, given, same, seen, weight, own, positions, g, facing
+    ) -> np.ndarray:
+        """``styled`` (the network's output into ``weights``) taken, in place, towards the input turned
+        by the change from its own style ``own`` to ``weights`` as far as the input is unfamiliar
+        (``_towards_the_input``, compiled): the target's posture (``runtime.posture``; rotations, and
+        joint offsets where measured) or, for a model without one, the network's change."""
+        posture, offsets = self.model.posture, self.model.posture_offsets
+        change = (
+            quat.mul(quat.inv(same), styled)
+            if posture is None
+            else posture_change(posture, weights - own, self.kernel_threads)
+        )
+        moved = (
+            np.empty((len(styled), 0, 3))
+            if offsets is None
+            else ((weights - own) @ offsets.reshape(len(offsets), -1)).reshape(len(styled), *offsets.shape[1:])
+        )
+        on_kernel_threads(
+            self.kernel_threads,
+            len(styled),
+            _towards_the_input,
+            _towards_the_input_on_shards,
+            *(given, same, styled, change, seen, FAMILIAR, UNFAMILIAR, weight),
+            *(moved, np.ascontiguousarray(positions, np.float64), g, facing, self.model.skeleton.parents),
+        )
+        return styled
 
 
 @nb.njit(cache=True, nogil=True)

@@ -71,9 +71,7 @@ def validate(
 def transfers(model: StyleERD, data: TrainingData, ws: WindowSet, batch: int = 512, pose: str = "network"):
     """The transfer tasks of ``ws`` in batches: (window rows, targets, rotations, velocities,
     normalised motion channels). ``pose``: "network", the network's output (what training
-    judges); "input", what ``StreamStylizer`` gives users by default: towards the input's pose and
-    velocities plus the style's change (the target's posture, or for a model without one the
-    identity transfer's output to the target's) as far as the input is unfamiliar."""
+    judges); "input", what ``StreamStylizer`` gives users by default (``towards_the_input``)."""
     rows, targets = transfer_targets(ws.style, model.config.neutral_index, len(data.styles))
     for i in range(0, len(rows), batch):
         r, t = rows[i : i + batch], targets[i : i + batch]
@@ -81,32 +79,48 @@ def transfers(model: StyleERD, data: TrainingData, ws: WindowSet, batch: int = 5
         style, content = data.onehot_style(ws.style[r]), data.onehot_content(ws.content[r])
         target = data.onehot_style(t)
         rot, vel, _ = model(x, style, content, target)
-        if pose == "input":  # as runtime.stylizer does it, frame by frame
-            same_rot, same_vel, _ = model(x, style, content, style)
-            given = model.raw_rotations(x)
-            now = (
-                (torch.rad2deg(torch_quat.angle(same_rot, given)).mean(-1) - FAMILIAR) / (UNFAMILIAR - FAMILIAR)
-            ).clamp(0.0, 1.0)  # [B, T]
-            weight = now.clone()
-            for frame in range(1, now.shape[1]):
-                weight[:, frame] = torch.maximum(now[:, frame], weight[:, frame - 1] - RELEASE)
-            if model.posture is None:
-                turned = torch_quat.add_change(given, same_rot, rot)
-            else:  # the input turned by the target's posture (``runtime.posture``)
-                own = torch.zeros_like(target)
-                own[:, : style.shape[1]] = style
-                change = torch_quat.from_scaled_angle_axis(torch.einsum("bs,sjc->bjc", target - own, model.posture))
-                turned = torch_quat.normalize(torch_quat.mul(torch_quat.normalize(given), change[:, None]))
-                if model.posture_offsets is not None:  # and turned so the joints go where the posture moves them
-                    L, J = model.layout, model.config.n_joints
-                    positions = (x[..., L.positions] * model.std[L.positions] + model.mean[L.positions]).unflatten(
-                        -1, (J, 3)
-                    )
-                    moved = torch.einsum("bs,sjc->bjc", target - own, model.posture_offsets)[:, None]
-                    turned = torch_quat.reach(turned, model.offsets, positions + moved, model.parents)
-            rot = torch_quat.slerp(rot, turned, weight[..., None].expand(rot.shape[:-1]))
-            vel = vel + weight[..., None] * (x[..., model.layout.velocities] - same_vel)
+        if pose == "input":
+            rot, vel = towards_the_input(model, x, style, content, target, rot, vel)
         yield r, t, rot, vel, model.motion_channels(rot, vel)
+
+
+def towards_the_input(
+    model: StyleERD,
+    x: torch.Tensor,
+    style: torch.Tensor,
+    content: torch.Tensor,
+    target: torch.Tensor,
+    rot: torch.Tensor,
+    vel: torch.Tensor,
+) -> tuple[torch.Tensor, torch.Tensor]:
+    """The network's rotations and velocities ``rot``, ``vel`` of windows ``x [B, T, D]`` into
+    ``target`` taken towards the input as ``runtime.stylizer`` does frame by frame (pose "input"):
+    as far as the identity transfer is from the input, the input turned by the target's posture
+    less its own style's (rotations, then towards the posture's joint offsets where measured), or
+    for a model without one by the change from the identity output to the target's. Roots in the
+    heading frame, as the features have them."""
+    same_rot, same_vel, _ = model(x, style, content, style)
+    given = model.raw_rotations(x)
+    now = ((torch.rad2deg(torch_quat.angle(same_rot, given)).mean(-1) - FAMILIAR) / (UNFAMILIAR - FAMILIAR)).clamp(
+        0.0, 1.0
+    )  # [B, T]
+    weight = now.clone()
+    for frame in range(1, now.shape[1]):
+        weight[:, frame] = torch.maximum(now[:, frame], weight[:, frame - 1] - RELEASE)
+    if model.posture is None:
+        turned = torch_quat.add_change(given, same_rot, rot)
+    else:
+        own = torch.zeros_like(target)
+        own[:, : style.shape[1]] = style
+        change = torch_quat.from_scaled_angle_axis(torch.einsum("bs,sjc->bjc", target - own, model.posture))
+        turned = torch_quat.normalize(torch_quat.mul(torch_quat.normalize(given), change[:, None]))
+        if model.posture_offsets is not None:
+            L, J = model.layout, model.config.n_joints
+            positions = (x[..., L.positions] * model.std[L.positions] + model.mean[L.positions]).unflatten(-1, (J, 3))
+            moved = torch.einsum("bs,sjc->bjc", target - own, model.posture_offsets)[:, None]
+            turned = torch_quat.reach(turned, model.offsets, positions + moved, model.parents)
+    rot = torch_quat.slerp(rot, turned, weight[..., None].expand(rot.shape[:-1]))
+    return rot, vel + weight[..., None] * (x[..., model.layout.velocities] - same_vel)
 
 
 def frechet_distance(a: np.ndarray, b: np.ndarray) -> float:
