@@ -98,11 +98,12 @@ def test_held_out_actions_keep_their_action_with_the_input_pose(shared_data, mod
 
 @pytest.mark.slow
 def test_the_styles_change_on_held_out_actions_points_as_on_walks(shared_data, model):
-    """Issue 35's bar for the style's change: on a held-out kick and a CMU punch on its own rig, the
-    elderly, exhausted and masculine change (styled minus identity output, per joint in the body's
-    frame, over the clip) points as the same change on Bandai-Namco-2 test walks (cosine >= 0.7) with
-    at least half its size, and the action is kept (velocity correlation at least the walks')."""
-    styles = ["elderly", "exhausted", "masculine"]
+    """Issue 35's bar for the style's change: on a held-out kick and a CMU punch on its own rig, every
+    style's change (styled minus identity output, per joint in the body's frame, over the clip)
+    points as the same change on Bandai-Namco-2 test walks (cosine >= 0.7) with at least half its
+    size, and the action is kept (velocity correlation at least the walks'). With the posture's
+    rotations alone (no joint offsets), active's change on the kick pointed elsewhere (0.29)."""
+    styles = [s for s in model.config.styles if s != model.config.neutral_style]
 
     def changes(clip):
         jm = A._map(clip, model)
@@ -126,25 +127,12 @@ def test_the_styles_change_on_held_out_actions_points_as_on_walks(shared_data, m
 @pytest.mark.slow
 def test_styleerd_posture_measures_the_shipped_posture_again(shared_data, model, tmp_path):
     """``styleerd posture`` on the shipped model writes a model whose weights are the shipped ones bit
-    for bit and whose posture is the shipped one (the measure is deterministic); a mixture adds the
-    postures by weight and an intensity scales them."""
+    for bit and whose posture is the shipped one (the measure is deterministic)."""
     from styleerd.cli import main
     from styleerd.model.stored import load_generator_weights
-    from styleerd.runtime.stylizer import posture_change
 
     assert main(["posture", "-o", str(tmp_path / "again"), "--data", str(shared_data)]) == 0
     again = load_generator_weights(tmp_path / "again")
     assert all(np.array_equal(again.arrays[k], v) for k, v in model.arrays.items())
     assert np.abs(again.posture - model.posture).max() <= 1e-6
     assert np.abs(again.posture_offsets - model.posture_offsets).max() <= 1e-4  # the skeleton's units (cm)
-    styles = list(model.config.styles)
-    w = np.zeros((3, len(styles)))
-    w[0, styles.index("elderly")] = 1.0
-    w[1, styles.index("elderly")] = 0.5
-    w[2, [styles.index("elderly"), styles.index("exhausted")]] = 0.5
-    full, half, mix = posture_change(model.posture, w)
-    assert np.allclose(quat.mul(half, half), full, atol=1e-12)  # one axis a joint: half the angle twice
-    both = quat.from_scaled_angle_axis(
-        0.5 * (model.posture[styles.index("elderly")] + model.posture[styles.index("exhausted")])
-    )
-    assert np.allclose(mix, both)

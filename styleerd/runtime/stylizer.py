@@ -114,42 +114,6 @@ def target_weights(
     return out
 
 
-def posture_change(posture: np.ndarray, weights: np.ndarray, threads: int = 1) -> np.ndarray:
-    """Per stream, the rotation each joint is turned by ``[N, J, 4]``: the postures ``[styles, J, 3]``
-    weighted by ``weights [N, styles]`` (target minus the input's own style: 0 gives the input back;
-    an intensity scales the angles, a mixture adds them); on the kernel threads from
-    ``PARALLEL_FROM`` streams. One compiled pass (1,000 streams: numpy's einsum and rotation vectors
-    to quaternions took 3.4 ms a step, more than the blend that uses them)."""
-    posture, weights = np.ascontiguousarray(posture, np.float64), np.ascontiguousarray(weights, np.float64)
-    out = np.empty((len(weights), posture.shape[1], 4))
-    on_kernel_threads(threads, len(out), _posture_rotations, _posture_rotations_on_shards, posture, weights, out)
-    return out
-
-
-@nb.njit(cache=True, nogil=True)
-def _posture_rotations(posture, weights, out):
-    """``posture_change`` into ``out``: per stream and joint the weighted rotation vector, as a
-    quaternion (``quat.from_scaled_angle_axis``)."""
-    N, S, J = weights.shape[0], posture.shape[0], posture.shape[1]
-    for n in range(N):
-        for j in range(J):
-            x, y, z = 0.0, 0.0, 0.0
-            for s in range(S):
-                w = weights[n, s]
-                x, y, z = x + w * posture[s, j, 0], y + w * posture[s, j, 1], z + w * posture[s, j, 2]
-            angle = np.sqrt(x * x + y * y + z * z)
-            f = np.sin(0.5 * angle) / max(angle, 1e-12)
-            out[n, j, 0], out[n, j, 1], out[n, j, 2], out[n, j, 3] = np.cos(0.5 * angle), x * f, y * f, z * f
-
-
-@nb.njit(cache=True, nogil=True, parallel=True)
-def _posture_rotations_on_shards(shards, posture, weights, out):
-    N = weights.shape[0]
-    for k in nb.prange(shards):
-        s, e = N * k // shards, N * (k + 1) // shards
-        _posture_rotations(posture, weights[s:e], out[s:e])
-
-
 def part_targets(model: GeneratorWeights, parts: str | dict | None) -> dict[str, dict[str, float] | None]:
     """Per body part (``BODY_PARTS``), its own target: ``"legs=elderly,torso=exhausted:0.5,arms=input"``
     (a style, a style at an intensity, or ``input``: the input's own motion) or the same as a
@@ -616,24 +580,17 @@ class StreamStylizer:
         by the change from its own style ``own`` to ``weights`` as far as the input is unfamiliar
         (``_towards_the_input``, compiled): the target's posture (``runtime.posture``; rotations, and
         joint offsets where measured) or, for a model without one, the network's change."""
-        posture, offsets = self.model.posture, self.model.posture_offsets
-        change = (
-            quat.mul(quat.inv(same), styled)
-            if posture is None
-            else posture_change(posture, weights - own, self.kernel_threads)
-        )
-        moved = (
-            np.empty((len(styled), 0, 3))
-            if offsets is None
-            else ((weights - own) @ offsets.reshape(len(offsets), -1)).reshape(len(styled), *offsets.shape[1:])
-        )
+        none = np.empty((len(self.model.config.styles), 0, 3))
+        posture = none if self.model.posture is None else self.model.posture
+        offsets = none if self.model.posture_offsets is None else self.model.posture_offsets
         on_kernel_threads(
             self.kernel_threads,
             len(styled),
             _towards_the_input,
             _towards_the_input_on_shards,
-            *(given, same, styled, change, seen, FAMILIAR, UNFAMILIAR, weight),
-            *(moved, np.ascontiguousarray(positions, np.float64), g, facing, self.model.skeleton.parents),
+            *(given, same, styled, np.ascontiguousarray(weights - own, np.float64), posture, offsets, seen),
+            *(FAMILIAR, UNFAMILIAR, weight, np.ascontiguousarray(positions, np.float64), g, facing),
+            self.model.skeleton.parents,
         )
         return styled
 
@@ -683,19 +640,35 @@ def _reach(rot, translations, given, fx, fz, offsets, parents, G, X):
 
 @nb.njit(cache=True, nogil=True)
 def _towards_the_input(
-    given, same, styled, change, seen, familiar, unfamiliar, weight, offsets, translations, globals_, facing, parents
+    given,
+    same,
+    styled,
+    diff,
+    posture,
+    offsets,
+    seen,
+    familiar,
+    unfamiliar,
+    weight,
+    translations,
+    globals_,
+    facing,
+    parents,
 ):
     """Per stream (``[N, J, 4]`` each): its unfamiliarity ``weight`` (the identity output ``same``'s
     mean joint angle to the input ``given``, degrees, from ``familiar`` (0) to ``unfamiliar`` (1),
-    at least ``seen``), and ``styled`` slerped by it towards the input turned by the style's
-    ``change``, given * change per joint (local rotations, the roots' in the world: the style's
-    posture, or the network's inv(same) * styled for a model without one), in place. With posture
-    ``offsets [N, J, 3]`` (``[N, 0, 3]``: none), that pose is then turned so that the joints go
-    where the input's are moved by them (``_reach``; ``translations``, ``globals_``: the input's
-    local joint translations and global positions, ``facing``: its facing directions)."""
-    N, J = given.shape[0], given.shape[1]
-    reach = offsets.shape[1] == J
-    target, G, X = np.empty((J, 4)), np.empty((J, 4)), np.empty((J, 3))
+    at least ``seen``), and ``styled`` slerped by it towards the input turned by the style's change,
+    in place. The change from the input's own style to the target, ``diff [N, styles]`` (weights
+    less the own style's): per joint (local rotations, the roots' in the world) the rotation of the
+    postures' rotation vectors ``posture [styles, J, 3]`` weighted by it (``[styles, 0, 3]``: no
+    posture, the network's own change inv(same) * styled), then, with posture ``offsets [styles, J,
+    3]`` (``[styles, 0, 3]``: none), turned so that the joints go where the input's are moved by the
+    offsets weighted alike (``_reach``; ``translations``, ``globals_``: the input's local joint
+    translations and global positions, ``facing``: its facing directions). The posture is put
+    together only for a stream that needs it."""
+    N, J, S = given.shape[0], given.shape[1], diff.shape[1]
+    turn, reach = posture.shape[1] == J, offsets.shape[1] == J
+    target, moved, G, X = np.empty((J, 4)), np.empty((J, 3)), np.empty((J, 4)), np.empty((J, 3))
     for n in range(N):
         total = 0.0
         for j in range(J):
@@ -710,14 +683,38 @@ def _towards_the_input(
         if u <= 0.0:
             continue
         for j in range(J):
+            if turn:  # the weighted rotation vector, as a quaternion
+                x, y, z = 0.0, 0.0, 0.0
+                for s in range(S):
+                    k = diff[n, s]
+                    x, y, z = x + k * posture[s, j, 0], y + k * posture[s, j, 1], z + k * posture[s, j, 2]
+                angle = np.sqrt(x * x + y * y + z * z)
+                f = np.sin(0.5 * angle) / max(angle, 1e-12)
+                cw, cx, cy, cz = np.cos(0.5 * angle), x * f, y * f, z * f
+            else:
+                cw, cx, cy, cz = quat.mul_scalars(
+                    same[n, j, 0],
+                    -same[n, j, 1],
+                    -same[n, j, 2],
+                    -same[n, j, 3],
+                    styled[n, j, 0],
+                    styled[n, j, 1],
+                    styled[n, j, 2],
+                    styled[n, j, 3],
+                )
             gw, gx, gy, gz = given[n, j, 0], given[n, j, 1], given[n, j, 2], given[n, j, 3]
             d = 1.0 / max(np.sqrt(gw * gw + gx * gx + gy * gy + gz * gz), 1e-12)
-            cw, cx, cy, cz = change[n, j, 0], change[n, j, 1], change[n, j, 2], change[n, j, 3]
             target[j, 0], target[j, 1], target[j, 2], target[j, 3] = quat.mul_scalars(
                 gw * d, gx * d, gy * d, gz * d, cw, cx, cy, cz
             )
         if reach:
-            _reach(target, translations[n], globals_[n], facing[n, 0], facing[n, 2], offsets[n], parents, G, X)
+            for j in range(J):
+                x, y, z = 0.0, 0.0, 0.0
+                for s in range(S):
+                    k = diff[n, s]
+                    x, y, z = x + k * offsets[s, j, 0], y + k * offsets[s, j, 1], z + k * offsets[s, j, 2]
+                moved[j, 0], moved[j, 1], moved[j, 2] = x, y, z
+            _reach(target, translations[n], globals_[n], facing[n, 0], facing[n, 2], moved, parents, G, X)
         for j in range(J):
             sw, sx, sy, sz = styled[n, j, 0], styled[n, j, 1], styled[n, j, 2], styled[n, j, 3]
             tw, tx, ty, tz = target[j, 0], target[j, 1], target[j, 2], target[j, 3]
@@ -738,12 +735,13 @@ def _towards_the_input_on_shards(
     given,
     same,
     styled,
-    change,
+    diff,
+    posture,
+    offsets,
     seen,
     familiar,
     unfamiliar,
     weight,
-    offsets,
     translations,
     globals_,
     facing,
@@ -757,12 +755,13 @@ def _towards_the_input_on_shards(
             given[s:e],
             same[s:e],
             styled[s:e],
-            change[s:e],
+            diff[s:e],
+            posture,
+            offsets,
             seen[s:e],
             familiar,
             unfamiliar,
             weight[s:e],
-            offsets[s:e],
             translations[s:e],
             globals_[s:e],
             facing[s:e],
