@@ -569,10 +569,12 @@ def test_reach_turns_each_joint_by_the_shortest_arc_towards_its_childrens_target
 
     from styleerd.model import torch_quat
     from styleerd.motion.kinematics import heading_rotations
-    from styleerd.runtime.stylizer import _reach
+    from styleerd.runtime.stylizer import _children, _reach
 
     m = walking_motion(5)
     sk, parents, J = m.skeleton, m.skeleton.parents, m.skeleton.n_joints
+    first, children = _children(parents)
+    assert [sorted(children[first[j] : first[j + 1]]) for j in range(J)] == [sk.children(j) for j in range(J)]
     assert max(np.bincount(parents[1:])) >= 3  # a joint with three children (the chest), one with two
     rng = np.random.default_rng(4)
     scipy = lambda q: Rotation.from_quat(q, scalar_first=True)
@@ -599,7 +601,19 @@ def test_reach_turns_each_joint_by_the_shortest_arc_towards_its_childrens_target
         want = np.stack([w.as_quat(scalar_first=True) for w in want])
 
         got = start.copy()
-        _reach(got, m.positions[t], given, facing[0], facing[2], offsets, parents, np.empty((J, 4)), np.empty((J, 3)))
+        _reach(
+            got,
+            m.positions[t],
+            given,
+            facing[0],
+            facing[2],
+            offsets,
+            parents,
+            first,
+            children,
+            np.empty((J, 4)),
+            np.empty((J, 3)),
+        )
         assert np.degrees(quat.angle_between(got, want)).max() < 1e-9
         twin = torch_quat.reach(  # in the root's parent frame, relative to the root
             torch.from_numpy(start),
@@ -610,7 +624,19 @@ def test_reach_turns_each_joint_by_the_shortest_arc_towards_its_childrens_target
         assert np.degrees(quat.angle_between(twin, want)).max() < 1e-9
 
         same = m.rotations[t].copy()
-        _reach(same, m.positions[t], given, 0.0, 1.0, np.zeros((J, 3)), parents, np.empty((J, 4)), np.empty((J, 3)))
+        _reach(
+            same,
+            m.positions[t],
+            given,
+            0.0,
+            1.0,
+            np.zeros((J, 3)),
+            parents,
+            first,
+            children,
+            np.empty((J, 4)),
+            np.empty((J, 3)),
+        )
         assert np.degrees(quat.angle_between(same, m.rotations[t])).max() < 1e-6
 
 

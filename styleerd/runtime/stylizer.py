@@ -596,13 +596,30 @@ class StreamStylizer:
 
 
 @nb.njit(cache=True, nogil=True)
-def _reach(rot, translations, given, fx, fz, offsets, parents, G, X):
+def _children(parents):
+    """Each joint's children: ``kids[first[j]:first[j + 1]]``."""
+    J = len(parents)
+    first, kids, seen = np.zeros(J + 1, np.int64), np.empty(max(J - 1, 0), np.int64), np.zeros(J, np.int64)
+    for k in range(1, J):
+        first[parents[k] + 1] += 1
+    for j in range(J):
+        first[j + 1] += first[j]
+    for k in range(1, J):
+        p = parents[k]
+        kids[first[p] + seen[p]] = k
+        seen[p] += 1
+    return first, kids
+
+
+@nb.njit(cache=True, nogil=True)
+def _reach(rot, translations, given, fx, fz, offsets, parents, first, kids, G, X):
     """One stream's pose ``rot [J, 4]`` (local rotations, the root's in the world) turned in place so
     that each joint's children go towards the input's joint positions ``given [J, 3]`` (global) moved
     by ``offsets [J, 3]`` (the body's heading frame, from the facing direction ``fx, fz``): down the
     chain, each joint but the root turned by the shortest arc from its children's summed bone
     vectors to the vectors to their targets (so a bone's twist about itself is kept; a bone's
-    length is, so a target may be out of reach). ``G [J, 4]``, ``X [J, 3]``: scratch."""
+    length is, so a target may be out of reach). ``first``, ``kids``: the children
+    (``_children``); ``G [J, 4]``, ``X [J, 3]``: scratch."""
     J = rot.shape[0]
     half = 0.5 * np.arctan2(fx, fz)
     hw, hy = np.cos(half), np.sin(half)
@@ -619,18 +636,17 @@ def _reach(rot, translations, given, fx, fz, offsets, parents, G, X):
             G[p, 0], G[p, 1], G[p, 2], G[p, 3], translations[j, 0], translations[j, 1], translations[j, 2]
         )
         X[j, 0], X[j, 1], X[j, 2] = X[p, 0] + vx, X[p, 1] + vy, X[p, 2] + vz
-        cx, cy, cz, dx, dy, dz, kids = 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0
-        for k in range(j + 1, J):
-            if parents[k] != j:
-                continue
+        if first[j] == first[j + 1]:  # a leaf keeps its rotation
+            continue
+        cx, cy, cz, dx, dy, dz = 0.0, 0.0, 0.0, 0.0, 0.0, 0.0
+        for i in range(first[j], first[j + 1]):
+            k = kids[i]
             vx, vy, vz = quat.mul_vec_scalars(
                 G[j, 0], G[j, 1], G[j, 2], G[j, 3], translations[k, 0], translations[k, 1], translations[k, 2]
             )
             ox, oy, oz = quat.mul_vec_scalars(hw, 0.0, hy, 0.0, offsets[k, 0], offsets[k, 1], offsets[k, 2])
-            cx, cy, cz = cx + vx, cy + vy, cz + vz  # the children's bones
-            dx, dy, dz = dx + given[k, 0] + ox, dy + given[k, 1] + oy, dz + given[k, 2] + oz  # their targets
-            kids += 1
-        dx, dy, dz = dx - kids * X[j, 0], dy - kids * X[j, 1], dz - kids * X[j, 2]
+            tx, ty, tz = given[k, 0] + ox - X[j, 0], given[k, 1] + oy - X[j, 1], given[k, 2] + oz - X[j, 2]
+            cx, cy, cz, dx, dy, dz = cx + vx, cy + vy, cz + vz, dx + tx, dy + ty, dz + tz  # bones, and to targets
         rw, rx, ry, rz = quat.between_scalars(cx, cy, cz, dx, dy, dz)  # none: no change
         G[j, 0], G[j, 1], G[j, 2], G[j, 3] = quat.mul_scalars(rw, rx, ry, rz, G[j, 0], G[j, 1], G[j, 2], G[j, 3])
         rot[j, 0], rot[j, 1], rot[j, 2], rot[j, 3] = quat.mul_scalars(
@@ -669,6 +685,7 @@ def _towards_the_input(
     N, J, S = given.shape[0], given.shape[1], diff.shape[1]
     turn, reach = posture.shape[1] == J, offsets.shape[1] == J
     target, moved, G, X = np.empty((J, 4)), np.empty((J, 3)), np.empty((J, 4)), np.empty((J, 3))
+    first, kids = _children(parents)
     for n in range(N):
         total = 0.0
         for j in range(J):
@@ -714,7 +731,7 @@ def _towards_the_input(
                     k = diff[n, s]
                     x, y, z = x + k * offsets[s, j, 0], y + k * offsets[s, j, 1], z + k * offsets[s, j, 2]
                 moved[j, 0], moved[j, 1], moved[j, 2] = x, y, z
-            _reach(target, translations[n], globals_[n], facing[n, 0], facing[n, 2], moved, parents, G, X)
+            _reach(target, translations[n], globals_[n], facing[n, 0], facing[n, 2], moved, parents, first, kids, G, X)
         for j in range(J):
             sw, sx, sy, sz = styled[n, j, 0], styled[n, j, 1], styled[n, j, 2], styled[n, j, 3]
             tw, tx, ty, tz = target[j, 0], target[j, 1], target[j, 2], target[j, 3]
