@@ -104,6 +104,10 @@ def test_unsure_posteriors_lean_to_neutral():
     assert np.allclose(out.sum(-1), 1) and np.allclose(out[0], p[0])  # sure: kept
     assert np.allclose(out[1], [0, 0, 1])  # unsure: neutral
     assert np.allclose(out[2], [0.35, 0.15, 0.5])  # in between: halfway
+    low = toward_neutral(np.array([[0.96, 0.015, 0.025], [0.7, 0.02, 0.28]], np.float32), neutral=2)
+    assert low.dtype == np.float32 and np.allclose(low.sum(-1), 1)
+    assert np.allclose(low[0], [0.96, 0.0, 0.04])  # under ABSENT (0.02): absent, its share to neutral
+    assert np.allclose(low[1], [0.35, 0.0, 0.65])  # halfway, then 0.01 is absent
 
 
 @pytest.mark.slow

@@ -136,21 +136,27 @@ def test_a_graph_of_some_styles_equals_the_reference_on_them(model, form, styles
         step_graph(model, "lstm", ("angry",))
 
 
-def test_numpy_labeller_equals_the_torch_labeller():
+@pytest.mark.parametrize("kind", ["numpy", "compiled"])
+def test_numpy_and_compiled_labellers_equal_the_torch_labeller(kind):
+    """The labeller's step, numpy (the numpy and onnx backends') and compiled (numba's), against torch's
+    over 20 frames of 3 streams, every other frame stepped as rows of the state (2 and 0, then 1)."""
     import torch
 
     from styleerd.model.checkpoint import load_labeller
+    from styleerd.runtime.compiled import CompiledLabeller
     from styleerd.runtime.numpy_step import NumpyLabeller
 
     labeller, _ = load_labeller()
-    x = np.random.default_rng(0).normal(0, 1, (2, 20, labeller.in_dim)).astype(np.float32)
+    x = np.random.default_rng(0).normal(0, 1, (3, 20, labeller.in_dim)).astype(np.float32)
     with torch.no_grad():
         s_logits, c_logits, _ = labeller(torch.from_numpy(x))
-    fast = NumpyLabeller(labeller, 2)
+    fast = (NumpyLabeller if kind == "numpy" else CompiledLabeller)(labeller, 3)
     for t in range(20):
-        p_style, p_content, fast.h = fast.step(x[:, t])
-        assert np.abs(p_style - s_logits[:, t].softmax(-1).numpy()).max() < 1e-5
-        assert np.abs(p_content - c_logits[:, t].softmax(-1).numpy()).max() < 1e-5
+        for rows in [np.array([2, 0]), np.array([1])] if t % 2 else [None]:
+            at = slice(None) if rows is None else rows
+            p_style, p_content, fast.h[at] = fast.step(x[at, t], rows)
+            assert np.abs(p_style - s_logits[at, t].softmax(-1).numpy()).max() < 1e-5
+            assert np.abs(p_content - c_logits[at, t].softmax(-1).numpy()).max() < 1e-5
 
 
 @pytest.mark.parametrize("n", [8, 300])
@@ -477,3 +483,22 @@ def test_the_kernel_ab_bench_times_this_checkouts_step_against_another_commits()
     lines = done.stdout.splitlines()
     assert [line.split(":")[0] for line in lines] == ["before (HEAD)", "now"]
     assert all(float(line.split("median ")[1].split(" us")[0]) > 0 for line in lines)
+
+
+def test_the_labeller_steps_benchmark_prints_both_steps():
+    """benchmarks/labeller_steps.py (where ``COMPILED_LABELLER_BELOW`` comes from) runs and prints
+    a row per number of streams with both steps' times."""
+    import re
+    import subprocess
+    import sys
+
+    done = subprocess.run(
+        [sys.executable, "benchmarks/labeller_steps.py", "--streams", "1", "16", "--rounds", "1"],
+        capture_output=True,
+        text=True,
+        timeout=300,
+        check=False,
+    )
+    assert done.returncode == 0, done.stderr
+    rows = re.findall(r"^\| (\d+) \| ([\d.]+) \| ([\d.]+) \|$", done.stdout, re.M)
+    assert [r[0] for r in rows] == ["1", "16"] and all(float(v) > 0 for r in rows for v in r[1:])

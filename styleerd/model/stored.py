@@ -17,6 +17,7 @@ import os
 from dataclasses import dataclass, field
 from pathlib import Path
 
+import numba as nb
 import numpy as np
 from safetensors import SafetensorError, safe_open
 
@@ -234,14 +235,32 @@ def load_labeller_weights(name: str | Path | None = None) -> LabellerWeights:
 
 
 SURE = 0.9  # a style told with at least this probability is kept as it is (``toward_neutral``)
+# a style told with less than this is read as absent, its share given to the neutral style: the network
+# then runs no branch for it (a posterior has every style above zero, so the input's own-style pass of
+# the default pose ran all the branches on every frame)
+ABSENT = 0.02
 
 
 def toward_neutral(p_style: np.ndarray, neutral: int, unsure: float = 0.5, sure: float = SURE) -> np.ndarray:
-    """Style posteriors ``[N, nS]`` the labeller is unsure of, leaning to the neutral style:
+    """Style posteriors ``[..., nS]`` the labeller is unsure of, leaning to the neutral style:
     a top probability at ``unsure`` or below becomes the neutral label, one at ``sure`` or above
-    is kept, linearly between. Telling the encoder "neutral" when in doubt costs little (the
-    target branch still adds the style); a wrong confident style gets it subtracted."""
-    keep = np.clip((p_style.max(-1, keepdims=True) - unsure) / (sure - unsure), 0.0, 1.0)
-    out = keep * p_style
-    out[..., neutral] += 1.0 - keep[..., 0]
-    return out.astype(p_style.dtype)
+    is kept, linearly between; then a style left under ``ABSENT`` gives its share to the neutral
+    one. Telling the encoder "neutral" when in doubt costs little (the target branch still adds
+    the style); a wrong confident style gets it subtracted. One compiled pass."""
+    p = np.ascontiguousarray(p_style)
+    out = np.empty_like(p)
+    _toward_neutral(p.reshape(-1, p.shape[-1]), neutral, unsure, sure, ABSENT, out.reshape(-1, p.shape[-1]))
+    return out
+
+
+@nb.njit(cache=True, nogil=True)
+def _toward_neutral(p, neutral, unsure, sure, absent, out):
+    for n in range(p.shape[0]):
+        keep = min(1.0, max(0.0, (p[n].max() - unsure) / (sure - unsure)))
+        given = 1.0 - keep
+        for s in range(p.shape[1]):
+            v = keep * p[n, s]
+            if s != neutral and v < absent:
+                given, v = given + v, 0.0
+            out[n, s] = v
+        out[n, neutral] += given
