@@ -7,7 +7,9 @@ Per commit: the network step at batch 1 (numba backend, and the ONNX graphs in o
 graph of every style's branches, and of one style's), end to end at batch 1 (raw BVH channel values in and out of a
 22-joint Mixamo-named skeleton: retargeting both ways, features, network, foot cleanup; numba and numpy backends), 64
 and 256 streams on 2 threads (numba, end to end), and 1,000 streams on 2 threads (numba: end to end, and the network
-alone; numpy and ONNX: the network alone) against the float32 matrix-multiply peak measured in the same process.
+alone; numpy and ONNX: the network alone) against the float32 matrix-multiply peak measured in the same process; and
+end to end at batch 1 and 1,000 streams (numba) with the input's style and content inferred by the labeller, as users'
+streams run.
 
     python benchmarks/bench_engine.py [--before COMMIT] [--rounds 3] [--json docs/engine-bench.json]
 
@@ -46,6 +48,8 @@ FIGURES = (
     "fraction_of_peak 1000 streams numba, products alone",
     "frames_per_s 64 streams numba",
     "frames_per_s 256 streams numba",
+    "end_to_end_us numba, labels inferred",
+    "frames_per_s 1000 streams numba, labels inferred",
     *(f"frames_per_s {n} streams {b}, network alone" for n in (1, 4, 16, 64, 256) for b in ("numba", "numpy")),
 )
 
@@ -71,6 +75,7 @@ def measure(steps: int) -> dict:
         )["p50_us"]
     for backend in ("numba", "numpy"):
         out[f"end_to_end_us {backend}"] = end_to_end(model, backend, steps)["p50_us"]
+    out["end_to_end_us numba, labels inferred"] = inferred_end_to_end(model, steps)
     peak = matmul_peak(2)
     set_threads(2)
     # not kept, for every commit alike: a process's first second of many streams, and the first
@@ -81,6 +86,7 @@ def measure(steps: int) -> dict:
     out["fraction_of_peak 1000 streams numba"] = round(fps * flops_per_frame(model) / peak, 4)
     for n in (64, 256):  # fewer streams than a step once needed to be split over threads
         out[f"frames_per_s {n} streams numba"] = round(throughput(model, "numba", n))
+    out["frames_per_s 1000 streams numba, labels inferred"] = round(inferred_throughput(model, 1000))
     if hasattr(bench, "network_throughput"):  # the network alone, as `styleerd bench` measures it
         net = bench.network_throughput(model, "numba")
         out["frames_per_s 1000 streams numba, network alone"] = round(net)
@@ -99,6 +105,45 @@ def measure(steps: int) -> dict:
     out["matmul_peak_gflops"] = round(peak / 1e9, 1)
     out.update({f"stage_us {k}": v for k, v in stages(steps).items()})
     return out
+
+
+def inferred_end_to_end(model, steps: int) -> float:
+    """``bench.end_to_end`` (numba) with the input's style and content left to the labeller, as users'
+    streams run: p50 us a frame."""
+    import time
+
+    from styleerd.motion import bvh
+    from styleerd.motion.procedural import walk
+    from styleerd.runtime.channels import ChannelStylizer
+
+    source = walk(seconds=steps / 30.0 + 2.0, fps=30.0)
+    values = bvh.channel_values(source)
+    stream = ChannelStylizer(model, source.skeleton, {"elderly": 1.0}, None, None, fps=30.0, backend="numba")
+    times = []
+    for t in range(len(values)):
+        t0 = time.perf_counter()
+        stream.step(values[t])
+        times.append(time.perf_counter() - t0)
+    return round(float(np.median(times[50:])) * 1e6, 1)
+
+
+def inferred_throughput(model, n: int, seconds: float = 1.5) -> float:
+    """``bench.throughput`` (numba, 2 threads) with the labels left to the labeller: frames/s."""
+    import itertools
+
+    from styleerd.eval.bench import _model_walk, _steady_rate
+    from styleerd.runtime.stylizer import StreamStylizer
+
+    m = _model_walk(model, 4.0)
+    st = StreamStylizer(model, None, None, {"elderly": 1.0}, n_streams=n, backend="numba", threads=2)
+    rot, pos = np.repeat(m.rotations[:, None], n, 1), np.repeat(m.positions[:, None], n, 1)
+    frame = itertools.count()
+
+    def step() -> None:
+        t = next(frame) % m.n_frames
+        st.step(rot[t], pos[t])
+
+    return _steady_rate(step, n, seconds)
 
 
 STAGES = (
