@@ -500,5 +500,5 @@ def test_the_labeller_steps_benchmark_prints_both_steps():
         check=False,
     )
     assert done.returncode == 0, done.stderr
-    rows = re.findall(r"^\| (\d+) \| ([\d.]+) \| ([\d.]+) \|$", done.stdout, re.M)
+    rows = re.findall(r"^\| (\d+) \| ([\d.]+) \| ([\d.]+) \|$", done.stdout, re.MULTILINE)
     assert [r[0] for r in rows] == ["1", "16"] and all(float(v) > 0 for r in rows for v in r[1:])
