@@ -334,10 +334,10 @@ class StreamStylizer:
                 c.feature_dim,
             ):
                 raise StyleERDError("the labeller does not fit this model's labels: give --input-style and --content")
-            kind = NumpyLabeller
+            stepper = NumpyLabeller
             if self.backend_name == "numba":  # numba's own modules are imported only when asked for
-                from styleerd.runtime.compiled import CompiledLabeller as kind
-            self.labeller = kind(labeller, self.n)
+                from styleerd.runtime.compiled import CompiledLabeller as stepper
+            self.labeller = stepper(labeller, self.n)
 
     def reset(self, streams=None) -> None:
         """Forget the past of some (default all) streams: their next frame is a first frame
