@@ -15,7 +15,7 @@ heading frame (the mean offset), which the stylizer then turns the joints toward
 
 from __future__ import annotations
 
-from collections.abc import Callable, Iterator
+from collections.abc import Iterator
 
 import numpy as np
 from tqdm import tqdm
@@ -41,14 +41,11 @@ def training_walks(model: GeneratorWeights, data_dir: str | None = None) -> Iter
             yield motion[: int(round(SECONDS * motion.fps))], c.content
 
 
-def measure_posture(
-    model: GeneratorWeights, walks: list[tuple[Motion, str]], change: Callable | None = None
-) -> tuple[np.ndarray, np.ndarray]:
+def measure_posture(model: GeneratorWeights, walks: list[tuple[Motion, str]]) -> tuple[np.ndarray, np.ndarray]:
     """Each style's posture over every frame of ``walks``, as the network gives it: ``[styles, J, 3]``
-    the mean rotation vector of inv(identity) * styled per joint (its root's in the world; or of
-    ``change(identity [1, J, 4], styled [styles, J, 4])``, a change in another frame,
-    ``benchmarks/posture_frames.py``), and ``[styles, J, 3]`` the mean of styled - identity joint
-    positions relative to the root, in the body's heading frame (the skeleton's units)."""
+    the mean rotation vector of inv(identity) * styled per joint (its root's in the world), and
+    ``[styles, J, 3]`` the mean of styled - identity joint positions relative to the root, in the
+    body's heading frame (the skeleton's units)."""
     styles = model.config.styles
     neutral = styles.index(model.config.neutral_style)
     total = np.zeros((len(styles), model.config.n_joints, 3))
@@ -70,7 +67,7 @@ def measure_posture(
             pos = np.repeat(motion.positions[t : t + 1], len(styles), 0)
             out = stylizer.step(rot, pos)[0]
             same = out[neutral : neutral + 1]
-            total += quat.to_scaled_angle_axis(quat.mul(quat.inv(same), out) if change is None else change(same, out))
+            total += quat.to_scaled_angle_axis(quat.mul(quat.inv(same), out))
             g = forward_positions(out, pos, parents)
             g -= g[:, :1]
             body = quat.inv(heading_rotations(stylizer.facing[:1]))
