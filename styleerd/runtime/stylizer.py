@@ -657,6 +657,16 @@ def _reach(rot, translations, given, fx, fz, offsets, parents, first, kids, G, X
         )
 
 
+@nb.njit(cache=True, nogil=True, inline="always")
+def _weighted(weights, per_style, j):
+    """Joint ``j``'s vector of ``per_style [styles, J, 3]`` summed by ``weights [styles]``."""
+    x, y, z = 0.0, 0.0, 0.0
+    for s in range(len(weights)):
+        k = weights[s]
+        x, y, z = x + k * per_style[s, j, 0], y + k * per_style[s, j, 1], z + k * per_style[s, j, 2]
+    return x, y, z
+
+
 @nb.njit(cache=True, nogil=True)
 def _towards_the_input(
     given,
@@ -685,7 +695,7 @@ def _towards_the_input(
     offsets weighted alike (``_reach``; ``translations``, ``globals_``: the input's local joint
     translations and global positions, ``facing``: its facing directions). The posture is put
     together only for a stream that needs it."""
-    N, J, S = given.shape[0], given.shape[1], diff.shape[1]
+    N, J = given.shape[0], given.shape[1]
     turn, reach = posture.shape[1] == J, offsets.shape[1] == J
     target, moved, G, X = np.empty((J, 4)), np.empty((J, 3)), np.empty((J, 4)), np.empty((J, 3))
     first, kids = _children(parents)
@@ -704,10 +714,7 @@ def _towards_the_input(
             continue
         for j in range(J):
             if turn:  # the weighted rotation vector, as a quaternion
-                x, y, z = 0.0, 0.0, 0.0
-                for s in range(S):
-                    k = diff[n, s]
-                    x, y, z = x + k * posture[s, j, 0], y + k * posture[s, j, 1], z + k * posture[s, j, 2]
+                x, y, z = _weighted(diff[n], posture, j)
                 angle = np.sqrt(x * x + y * y + z * z)
                 f = np.sin(0.5 * angle) / max(angle, 1e-12)
                 cw, cx, cy, cz = np.cos(0.5 * angle), x * f, y * f, z * f
@@ -729,11 +736,7 @@ def _towards_the_input(
             )
         if reach:
             for j in range(J):
-                x, y, z = 0.0, 0.0, 0.0
-                for s in range(S):
-                    k = diff[n, s]
-                    x, y, z = x + k * offsets[s, j, 0], y + k * offsets[s, j, 1], z + k * offsets[s, j, 2]
-                moved[j, 0], moved[j, 1], moved[j, 2] = x, y, z
+                moved[j, 0], moved[j, 1], moved[j, 2] = _weighted(diff[n], offsets, j)
             _reach(target, translations[n], globals_[n], facing[n, 0], facing[n, 2], moved, parents, first, kids, G, X)
         for j in range(J):
             sw, sx, sy, sz = styled[n, j, 0], styled[n, j, 1], styled[n, j, 2], styled[n, j, 3]
