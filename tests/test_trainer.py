@@ -473,7 +473,7 @@ def test_bench_train_parallel_times_real_epochs_in_one_and_two_processes(shared_
         cwd=os.path.dirname(os.path.dirname(__file__)),
         check=False,
     )
-    assert bench.returncode == 0, bench.stdout[-2000:] + bench.stderr[-2000:]
+    assert bench.returncode == 0, bench.stdout[-2000:] + bench.stderr[:3000] + "\n...\n" + bench.stderr[-3000:]
     r = json.loads(out.read_text())
     forms = r["forms"]
     assert list(forms) == ["1 process x 1 thread", "1 process x 2 threads", "2 processes x 1 thread (torchrun)"]

@@ -357,8 +357,17 @@ def train(
         torch.empty(0, device=device)
     except (RuntimeError, AssertionError) as e:
         raise StyleERDError(f"device {config.device!r} cannot be used here: {e}") from None
-    if int(os.environ.get("WORLD_SIZE", "1")) > 1 and not dist.is_initialized():
+    grouped = int(os.environ.get("WORLD_SIZE", "1")) > 1 and not dist.is_initialized()
+    if grouped:
         dist.init_process_group("gloo")
+    try:
+        return _train_in_group(config, out, data_dir, progress, export)
+    finally:
+        if grouped:  # left to the interpreter's exit, Gloo's threads can abort it (SIGABRT after the run)
+            dist.destroy_process_group()
+
+
+def _train_in_group(config: TrainConfig, out: Path, data_dir: str | None, progress: bool, export: Path | None) -> dict:
     rank = dist.get_rank() if dist.is_initialized() else 0
     world = dist.get_world_size() if dist.is_initialized() else 1
     progress = progress and rank == 0
