@@ -355,6 +355,44 @@ def test_labels_not_given_are_inferred_causally_and_given_labels_win(model):
         StreamStylizer(model, None, None, {"old": 1.0}, labeller=OnlineLabeller(5, 3, 2))
 
 
+@pytest.mark.parametrize("backend", ["numpy", "numba"])
+def test_a_labeller_state_unlike_its_training_streams_tells_the_neutral_style(model, backend):
+    """``Familiarity`` on the stylizer's inferred labels: wholly familiar states change nothing,
+    unfamiliar ones tell the neutral style on every frame, whatever the posterior."""
+    from styleerd.model.stored import Familiarity
+
+    torch.manual_seed(1)
+    labeller = OnlineLabeller(model.config.feature_dim, len(STYLES), len(CONTENTS), hidden=8).eval()
+    with torch.no_grad():
+        labeller.style.bias[0] = 10.0  # sure of "angry" on every frame
+    m = walking_motion(12)
+
+    def told(far: float) -> np.ndarray:
+        groups = np.ones(2, np.float32)
+        labeller.familiar = (
+            None
+            if far == 0
+            else Familiarity(
+                np.array([4]),
+                np.eye(8, dtype=np.float32),
+                np.zeros((2, 3, 8), np.float32),
+                groups * far / 2,
+                groups * far,
+            )
+        )
+        s = StreamStylizer(model, None, None, {"old": 1.0}, labeller=labeller, backend=backend)
+        out = []
+        for t in range(12):
+            s.step(m.rotations[t], m.positions[t])
+            out.append(s.labels[0][0].copy())
+        return np.array(out)
+
+    plain = told(0)
+    assert np.allclose(told(1e6), plain)  # every state within a huge distance of a mean
+    assert np.allclose(told(1e-6), np.eye(3)[STYLES.index(model.config.neutral_style)])
+    assert (plain[:, 0] > 0.999).all()  # sure of angry without it
+
+
 def test_root_speed_scales_each_ground_step_by_the_networks_speed_online(model, monkeypatch):
     """``root_speed``: each frame's ground step of the input root is scaled by the network's
     root speed over the input's (smoothed, clamped), height kept; checked against the torch

@@ -9,7 +9,10 @@ performer, skeleton and often a style the labeller never saw:
 - ``confident_wrong``: the share of frames whose style is told with weight >= 0.9 on a style
   that is neither the clip's own (where the model has it) nor neutral;
 - ``right_or_neutral``: the share of frames whose top style is the clip's own or neutral
-  (for styles the model does not have: neutral).
+  (for styles the model does not have: neutral);
+- ``own_confident``: for a clip of one of the model's styles but its neutral one, the share of
+  frames told that style with confidence (what reading other performers' styles still gives,
+  where an unsure or unfamiliar reading leans to neutral).
 
 Clips: xia-sample (another performer; its ``old`` is the model's ``elderly``, its angry,
 childlike, depressed, proud, sexy and strutting are no style of the model's), cmu-sample (all
@@ -91,20 +94,23 @@ def told_styles(
 
 
 def clip_figures(model: GeneratorWeights, clip: LabelledClip, labeller: LabellerWeights | None = None) -> dict:
-    """``read``, ``confident_wrong`` and ``right_or_neutral`` of one clip (module docstring)."""
+    """``read``, ``confident_wrong``, ``right_or_neutral`` and ``own_confident`` of one clip
+    (module docstring)."""
     c = model.config
     told, contents = told_styles(model, clip, labeller)
     own = c.input_styles.index(clip.style) if clip.style in c.input_styles else None
     neutral = c.input_styles.index(c.neutral_style)
     top = told.argmax(-1)
     fine = (top == neutral) | (top == own)
-    sure_wrong = (told.max(-1) >= SURE) & ~fine
+    sure = told.max(-1) >= SURE
+    sure_wrong = sure & ~fine
     return {
         "group": clip.group,
         "style": clip.style if own is not None else f"{clip.style} (not the model's)",
         "read": [c.input_styles[top[-1]], contents[-1]],
         "confident_wrong": round(float(sure_wrong.mean()), 3),
         "right_or_neutral": round(float(fine.mean()), 3),
+        "own_confident": None if own in (None, neutral) else round(float((sure & (top == own)).mean()), 3),
     }
 
 
@@ -118,34 +124,40 @@ def evaluate_labels(
     groups: dict = {}
     for name, r in rows.items():
         g = groups.setdefault(
-            r["group"], {"clips": 0, "confident_wrong": [], "right_or_neutral": [], "wrong_reads": []}
+            r["group"],
+            {"clips": 0, "confident_wrong": [], "right_or_neutral": [], "own_confident": [], "wrong_reads": []},
         )
         g["clips"] += 1
         g["confident_wrong"].append(r["confident_wrong"])
         g["right_or_neutral"].append(r["right_or_neutral"])
+        if r["own_confident"] is not None:
+            g["own_confident"].append(r["own_confident"])
         known = not r["style"].endswith("(not the model's)")
         if r["read"][0] not in (model.config.neutral_style, r["style"] if known else None):
             g["wrong_reads"].append(name)
     for g in groups.values():
-        for key in ("confident_wrong", "right_or_neutral"):
-            g[key] = round(float(np.mean(g[key])), 3)
+        for key in ("confident_wrong", "right_or_neutral", "own_confident"):
+            g[key] = round(float(np.mean(g[key])), 3) if g[key] else None
     return {"clips": rows, "groups": groups}
 
 
 def markdown(report: dict) -> str:
     """Per group, then per clip: the share of frames told a confident wrong style, the share read
-    as the clip's own style or neutral, and the read at the last frame."""
+    as the clip's own style or neutral, the share of a styled clip's frames told its own style
+    with confidence, and the read at the last frame."""
     lines = [
         (
             "| group | clips | frames told a confident wrong style | frames read as its own style or neutral "
+            "| frames of the model's styles (not neutral) told their own with confidence "
             "| clips read as another style at the end |"
         ),
-        "|---|---|---|---|---|",
+        "|---|---|---|---|---|---|",
     ]
     for name, g in report["groups"].items():
+        own = "-" if g["own_confident"] is None else f"{100 * g['own_confident']:.1f} %"
         lines.append(
             f"| {name} | {g['clips']} | {100 * g['confident_wrong']:.1f} % | {100 * g['right_or_neutral']:.1f} % "
-            f"| {len(g['wrong_reads'])} |"
+            f"| {own} | {len(g['wrong_reads'])} |"
         )
     lines += [
         "",

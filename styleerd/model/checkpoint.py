@@ -19,7 +19,7 @@ from styleerd.model.config import GeneratorConfig
 from styleerd.model.fmd import MotionAutoencoder
 from styleerd.model.generator import StyleERD
 from styleerd.model.labeller import OnlineLabeller
-from styleerd.model.stored import GeneratorWeights, load_arrays, loaded, posture_offsets, posture_vectors
+from styleerd.model.stored import Familiarity, GeneratorWeights, load_arrays, loaded, posture_offsets, posture_vectors
 from styleerd.models import DEFAULT_MODEL, FMD, LABELLER, RECOGNISERS
 from styleerd.motion.skeleton import Skeleton
 
@@ -136,6 +136,9 @@ def load_labeller(stem: str | Path | None = None) -> tuple[OnlineLabeller, dict]
     def build(tensors, meta):
         model = OnlineLabeller(**meta["config"])
         model.load_state_dict(unprefixed("labeller", tensors))
+        if any(k.startswith("familiar.") for k in tensors):
+            arrays = {k: v.numpy() for k, v in tensors.items()}
+            model.familiar = Familiarity.from_arrays(arrays, model.hidden, model.n_styles)
         return model.eval()
 
     return _loaded(stem, LABELLER, build)

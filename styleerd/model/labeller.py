@@ -11,6 +11,8 @@ from __future__ import annotations
 import torch
 from torch import nn
 
+from styleerd.model.stored import Familiarity
+
 
 class OnlineLabeller(nn.Module):
     def __init__(self, in_dim: int, n_styles: int, n_contents: int, hidden: int = 64):
@@ -20,6 +22,7 @@ class OnlineLabeller(nn.Module):
         self.gru = nn.GRU(hidden, hidden, batch_first=True)
         self.style = nn.Linear(hidden, n_styles)
         self.content = nn.Linear(hidden, n_contents)
+        self.familiar: Familiarity | None = None  # where its states are like its training streams' (none: everywhere)
 
     def forward(
         self, x: torch.Tensor, h: torch.Tensor | None = None
@@ -27,6 +30,10 @@ class OnlineLabeller(nn.Module):
         """``x [B, T, D]`` -> style logits ``[B, T, nS]``, content logits ``[B, T, nC]``, state."""
         y, h = self.gru(self.inp(x), h)
         return self.style(y), self.content(y), h
+
+    def states(self, x: torch.Tensor) -> torch.Tensor:
+        """``x [B, T, D]`` -> the state after each frame ``[B, T, H]`` of streams starting at ``x``'s first."""
+        return self.gru(self.inp(x))[0]
 
     def config(self) -> dict:
         return {"in_dim": self.in_dim, "n_styles": self.n_styles, "n_contents": self.n_contents, "hidden": self.hidden}

@@ -182,12 +182,52 @@ def load_generator_weights(name: str | Path | None = None) -> GeneratorWeights:
 
 
 @dataclass
+class Familiarity:
+    """Where the labeller's state is like those of the streams it learnt from: the Mahalanobis
+    distance of the state to the nearest style's mean state at the same time since the stream
+    began (its first frames' states are unlike later ones), as a share of the validation streams'
+    distances (``train.labeller.fit_familiarity``). A stream ``frames`` frames in takes group
+    ``searchsorted(edges, frames, "right")``."""
+
+    edges: np.ndarray  # int64 [G - 1]: the frame counts where the next group starts
+    whiten: np.ndarray  # float32 [H, H]: a state's whitened coordinates are ``state @ whiten``
+    means: np.ndarray  # float32 [G, styles, H]: each group's style means, whitened
+    near: np.ndarray  # float32 [G]: a distance up to this is familiar (1)
+    far: np.ndarray  # float32 [G]: one from this on is not (0), linearly between
+
+    NAMES = ("edges", "whiten", "means", "near", "far")
+
+    @classmethod
+    def from_arrays(cls, arrays: dict[str, np.ndarray], hidden: int, n_styles: int) -> Familiarity:
+        """The ``familiar.*`` arrays of a labeller file, checked against its configuration."""
+        f = cls(*(np.asarray(arrays[f"familiar.{k}"]) for k in cls.NAMES))
+        groups = len(f.edges) + 1
+        shapes = {"whiten": (hidden, hidden), "means": (groups, n_styles, hidden), "near": (groups,), "far": (groups,)}
+        for k, shape in shapes.items():
+            if getattr(f, k).shape != shape:
+                raise ValueError(f"familiar.{k} has shape {getattr(f, k).shape}, the configuration says {shape}")
+        if f.edges.ndim != 1 or f.edges.dtype.kind not in "iu" or np.any(np.diff(f.edges) <= 0) or np.any(f.edges < 1):
+            raise ValueError("familiar.edges must be increasing frame counts from 1")
+        if not all(np.isfinite(getattr(f, k)).all() for k in shapes) or np.any(f.near >= f.far) or np.any(f.near < 0):
+            raise ValueError("familiar: whiten and means must be finite, and 0 <= near < far in every group")
+        return cls(
+            f.edges.astype(np.int64),
+            *(np.ascontiguousarray(getattr(f, k), np.float32) for k in ("whiten", "means", "near", "far")),
+        )
+
+    def arrays(self) -> dict[str, np.ndarray]:
+        return {f"familiar.{k}": getattr(self, k) for k in self.NAMES}
+
+
+@dataclass
 class LabellerWeights:
     """The online labeller as inference needs it: its configuration (in_dim, n_styles,
-    n_contents, hidden) and its parameters as float32 arrays."""
+    n_contents, hidden), its parameters as float32 arrays, and where its states are familiar
+    (``None``: everywhere)."""
 
     config: dict
     arrays: dict[str, np.ndarray]
+    familiar: Familiarity | None = None
 
 
 def labeller_weights(labeller) -> LabellerWeights:
@@ -195,7 +235,9 @@ def labeller_weights(labeller) -> LabellerWeights:
     if isinstance(labeller, LabellerWeights):
         return labeller
     return LabellerWeights(
-        labeller.config(), {k: v.detach().float().cpu().numpy() for k, v in labeller.state_dict().items()}
+        labeller.config(),
+        {k: v.detach().float().cpu().numpy() for k, v in labeller.state_dict().items()},
+        labeller.familiar,
     )
 
 
@@ -229,7 +271,10 @@ def load_labeller_weights(name: str | Path | None = None) -> LabellerWeights:
                 f"inp.0.weight has shape {weights['inp.0.weight'].shape}, the configuration says "
                 f"{(config['hidden'], config['in_dim'])}"
             )
-        return LabellerWeights(config, weights)
+        familiar = None
+        if any(k.startswith("familiar.") for k in arrays):
+            familiar = Familiarity.from_arrays(arrays, config["hidden"], config["n_styles"])
+        return LabellerWeights(config, weights, familiar)
 
     return loaded(name, LABELLER, build)[0]
 
@@ -241,22 +286,28 @@ SURE = 0.9  # a style told with at least this probability is kept as it is (``to
 ABSENT = 0.02
 
 
-def toward_neutral(p_style: np.ndarray, neutral: int, unsure: float = 0.5, sure: float = SURE) -> np.ndarray:
+def toward_neutral(
+    p_style: np.ndarray, neutral: int, familiar: np.ndarray | None = None, unsure: float = 0.5, sure: float = SURE
+) -> np.ndarray:
     """Style posteriors ``[..., nS]`` the labeller is unsure of, leaning to the neutral style:
     a top probability at ``unsure`` or below becomes the neutral label, one at ``sure`` or above
-    is kept, linearly between; then a style left under ``ABSENT`` gives its share to the neutral
-    one. Telling the encoder "neutral" when in doubt costs little (the target branch still adds
-    the style); a wrong confident style gets it subtracted. One compiled pass."""
+    is kept, linearly between, and what is kept is scaled by ``familiar`` ``[...]``
+    (``familiarity``: a state unlike the labeller's training streams' is no reading); then a style
+    left under ``ABSENT`` gives its share to the neutral one. Telling the encoder "neutral" when
+    in doubt costs little (the target branch still adds the style); a wrong confident style gets
+    it subtracted. One compiled pass."""
     p = np.ascontiguousarray(p_style)
     out = np.empty_like(p)
-    _toward_neutral(p.reshape(-1, p.shape[-1]), neutral, unsure, sure, ABSENT, out.reshape(-1, p.shape[-1]))
+    rows = p.reshape(-1, p.shape[-1])
+    trust = np.ones(len(rows)) if familiar is None else np.ascontiguousarray(familiar, np.float64).reshape(-1)
+    _toward_neutral(rows, neutral, trust, unsure, sure, ABSENT, out.reshape(-1, p.shape[-1]))
     return out
 
 
 @nb.njit(cache=True, nogil=True)
-def _toward_neutral(p, neutral, unsure, sure, absent, out):
+def _toward_neutral(p, neutral, familiar, unsure, sure, absent, out):
     for n in range(p.shape[0]):
-        keep = min(1.0, max(0.0, (p[n].max() - unsure) / (sure - unsure)))
+        keep = min(1.0, max(0.0, (p[n].max() - unsure) / (sure - unsure))) * familiar[n]
         given = 1.0 - keep
         for s in range(p.shape[1]):
             v = keep * p[n, s]
@@ -264,3 +315,35 @@ def _toward_neutral(p, neutral, unsure, sure, absent, out):
                 given, v = given + v, 0.0
             out[n, s] = v
         out[n, neutral] += given
+
+
+def familiarity(
+    state: np.ndarray, frames: np.ndarray, f: Familiarity, distance: np.ndarray | None = None
+) -> np.ndarray:
+    """``[N]`` in [0, 1]: how like the labeller's training streams' the states ``[N, H]`` of
+    streams ``frames`` ``[N]`` frames in are (``Familiarity``); each state's distance to the
+    nearest mean is also written into ``distance`` where given. One compiled pass."""
+    out = np.empty(len(state))
+    _familiarity(
+        np.ascontiguousarray(state, np.float32),
+        np.asarray(frames, np.int64),
+        *(f.edges, f.whiten, f.means, f.near, f.far),
+        np.empty(len(state)) if distance is None else distance,
+        out,
+    )
+    return out
+
+
+@nb.njit(cache=True, nogil=True)
+def _familiarity(state, frames, edges, whiten, means, near, far, distance, out):
+    z = np.dot(state, whiten)
+    for n in range(len(state)):
+        g = np.searchsorted(edges, frames[n], "right")
+        nearest = np.inf
+        for s in range(means.shape[1]):
+            d = 0.0
+            for k in range(z.shape[1]):
+                d += (z[n, k] - means[g, s, k]) ** 2
+            nearest = min(nearest, d)
+        distance[n] = np.sqrt(nearest)
+        out[n] = min(1.0, max(0.0, (far[g] - distance[n]) / (far[g] - near[g])))

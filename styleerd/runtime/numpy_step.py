@@ -10,7 +10,13 @@ from functools import cache
 
 import numpy as np
 
-from styleerd.model.stored import GeneratorWeights, LabellerWeights, generator_weights, labeller_weights
+from styleerd.model.stored import (
+    GeneratorWeights,
+    LabellerWeights,
+    familiarity,
+    generator_weights,
+    labeller_weights,
+)
 from styleerd.motion import quat
 
 
@@ -249,6 +255,12 @@ class NumpyLabeller:
             (sd["content.weight"].T.copy(), sd["content.bias"]),
         ]
         self.h = np.zeros((n_streams, labeller.config["hidden"]), np.float32)
+        self.familiar = labeller.familiar
+
+    def familiarity(self, state: np.ndarray, frames: np.ndarray) -> np.ndarray | None:
+        """How like its training streams' the states of streams ``frames`` frames in are
+        (``stored.familiarity``; ``None``: a labeller without that measure)."""
+        return None if self.familiar is None else familiarity(state, frames, self.familiar)
 
     def reset(self, streams: np.ndarray | None = None) -> None:
         self.h[slice(None) if streams is None else streams] = 0.0

@@ -30,13 +30,18 @@ from styleerd.data.features import motion_features
 from styleerd.data.windows import window_starts
 from styleerd.model import checkpoint as ckpt
 from styleerd.model.labeller import OnlineLabeller
-from styleerd.model.stored import toward_neutral
+from styleerd.model.stored import Familiarity, familiarity, toward_neutral
 from styleerd.models import LABELLER, MODELS_DIR
 from styleerd.train.batches import TrainingData, outside_clips, windows
 from styleerd.train.config import TrainConfig
 from styleerd.train.trainer import setup
 
 AFTER_FRAMES = (1, 10, 30)
+# the frame counts that start a new group of states in ``fit_familiarity`` (a stream's first states
+# are unlike its later ones), and the percentiles of the validation frames' distances where a state
+# starts to be unfamiliar and where it is wholly so
+FAMILIAR_EDGES = (1, 2, 4, 8, 16)
+FAMILIAR_NEAR, FAMILIAR_FAR = 99.0, 99.9
 
 
 @torch.no_grad()
@@ -50,7 +55,8 @@ def stream_accuracy(
 ) -> dict[int, dict[str, float]]:
     """{n: {"style": acc, "content": acc, "streams": k}}: labels right after n frames of a
     stream that starts at a clip's first frame (clips shorter than n frames not counted).
-    With ``neutral``, unsure style posteriors lean to it first, as the stylizer does."""
+    With ``neutral``, unsure style posteriors and unfamiliar states lean to it first, as the
+    stylizer does."""
     model.eval()
     clips = fs.clips(split)
     longest = max(after)
@@ -59,12 +65,13 @@ def stream_accuracy(
     style_pred, content_pred, length = [], [], []
     for sl in rows:
         n = min(longest, sl.stop - sl.start)
-        s, c, _ = model(data.frames[sl.start : sl.start + n][None])
-        p = torch.softmax(s[0], -1).numpy()
+        y = model.states(data.frames[sl.start : sl.start + n][None])[0]
+        p = torch.softmax(model.style(y), -1).numpy()
         if neutral is not None:
-            p = toward_neutral(p, data.styles.index(neutral))
+            trust = None if model.familiar is None else familiarity(y.numpy(), np.arange(n), model.familiar)
+            p = toward_neutral(p, data.styles.index(neutral), trust)
         style_pred.append(p.argmax(-1))
-        content_pred.append(c[0].argmax(-1).numpy())
+        content_pred.append(model.content(y).argmax(-1).numpy())
         length.append(n)
     true_s = np.array([data.styles.index(s) for s in fs.styles[clips]])
     true_c = np.array([data.contents.index(c) for c in fs.contents[clips]])
@@ -76,6 +83,41 @@ def stream_accuracy(
             "streams": len(keep),
         }
     return out
+
+
+@torch.no_grad()
+def fit_familiarity(
+    model: OnlineLabeller, streams: list[tuple[torch.Tensor, int]], validation: list[torch.Tensor]
+) -> Familiarity:
+    """Where ``model``'s states are like those of the ``streams`` it learnt from (normalised
+    frames ``[T, D]`` from a stream's start, style index): per group of frames since the start
+    (``FAMILIAR_EDGES``), each style's mean state, and one covariance of the states about their
+    means (Mahalanobis distance); a state is familiar up to the ``FAMILIAR_NEAR``-th percentile
+    of the ``validation`` streams' distances in its group and unfamiliar from the
+    ``FAMILIAR_FAR``-th. A labeller taught to read other performers as unsure still reads some of
+    them with confidence as a style they are not; their states are far from its training streams'."""
+    edges = np.array(FAMILIAR_EDGES, np.int64)
+    groups = len(edges) + 1
+    y = [model.states(x[None])[0].double().numpy() for x, _ in streams]
+    Y, S = np.concatenate(y), np.concatenate([np.full(len(v), s) for v, (_, s) in zip(y, streams)])
+    G = np.searchsorted(edges, np.concatenate([np.arange(len(v)) for v in y]), "right")
+    means = np.zeros((groups, model.n_styles, model.hidden))
+    for g, s in set(zip(G.tolist(), S.tolist())):
+        means[g, s] = Y[(G == g) & (S == s)].mean(0)
+    R = Y - means[G, S]
+    whiten = np.linalg.cholesky(np.linalg.inv(R.T @ R / len(R) + 1e-3 * np.eye(model.hidden)))
+    f = Familiarity(edges, whiten.astype(np.float32), (means @ whiten).astype(np.float32), *np.ones((2, groups)))
+    f.far += 1.0  # any near < far: only the distances are read here
+    frames = np.concatenate([np.arange(len(x)) for x in validation])
+    states = np.concatenate([model.states(x[None])[0].numpy() for x in validation])
+    distance = np.empty(len(states))
+    familiarity(states, frames, f, distance)
+    at = np.searchsorted(edges, frames, "right")
+    f.near, f.far = (
+        np.array([np.percentile(distance[at == g], q) for g in range(groups)], np.float32)
+        for q in (FAMILIAR_NEAR, FAMILIAR_FAR)
+    )
+    return f
 
 
 def augmented_clips(
@@ -158,7 +200,8 @@ def train_labeller(
     outside_repeats: int = 5,
     start: OnlineLabeller | None = None,
 ) -> tuple[OnlineLabeller, dict]:
-    """Train; keep the epoch whose validation streams are labelled best after 30 frames.
+    """Train; keep the epoch whose validation streams are labelled best after 30 frames, and
+    measure where its states are familiar (``fit_familiarity``, on the training streams).
     ``copies`` other-performer versions of each training clip join the clips themselves
     (``reference_pose``: a natural pose of the skeleton, for mirroring; default its average), and
     so do the ``outside`` clips (``outside_clips``, each window ``outside_repeats`` times: they are
@@ -175,10 +218,12 @@ def train_labeller(
     ok = (idx[:, -1] < torch.as_tensor(fs.clip_start[ws.clip + 1])).numpy()  # whole stretch inside its clip
     starts, style, content = ws.starts[ok], ws.style[ok], ws.content[ok]
     frames = data.frames
+    streams = [(data.frames[fs.frames(c)], data.styles.index(fs.styles[c])) for c in np.unique(ws.clip)]
     if copies:
         reference = data.stats.reference if reference_pose is None else reference_pose
         more = augmented_clips(fs, data, np.unique(ws.clip), copies, reference, seed, progress)
         frames, starts, style, content = _joined((frames, starts, style, content), more, length, stride)
+        streams += [(more[0][a:b], int(s)) for a, b, s in zip(more[1][:-1], more[1][1:], more[2])]
     if outside is not None:
         frames, starts, style, content = _joined(
             (frames, starts, style, content), outside, length, stride, outside_repeats
@@ -211,6 +256,11 @@ def train_labeller(
     report = {"history": history, "other_performer_copies": copies}
     if outside is not None:
         report["outside"] = {"clips": len(outside[1]) - 1, "unsure_weight": unsure, "repeats": outside_repeats}
+    best.familiar = fit_familiarity(best, streams, [data.frames[fs.frames(c)] for c in fs.clips("val")])
+    report["familiar"] = {
+        "edges": best.familiar.edges.tolist(),
+        **{k: [round(float(v), 3) for v in getattr(best.familiar, k)] for k in ("near", "far")},
+    }
     return best.eval(), report
 
 
@@ -222,7 +272,7 @@ def train_and_save(
     torch.set_num_threads(config.threads)
     s = setup(config, data_dir, progress)
     outside = outside_clips(s.fs, s.data, data_dir, progress) if config.labeller_outside else None
-    start = ckpt.load_labeller(config.labeller_init_from)[0] if config.labeller_init_from else None
+    start, start_meta = ckpt.load_labeller(config.labeller_init_from) if config.labeller_init_from else (None, {})
     model, report = train_labeller(
         s.fs,
         s.data,
@@ -237,6 +287,8 @@ def train_and_save(
     )
     if start is not None:
         report["started_from"] = config.labeller_init_from
+        if not config.labeller_epochs:  # no epoch (familiarity only): the weights' own training record stays
+            report["history"] = start_meta.get("history", [])
     report["test"] = stream_accuracy(model, s.fs, s.data, "test")
     report["test_leaning_neutral"] = stream_accuracy(model, s.fs, s.data, "test", neutral=config.neutral_style)
     meta = {
@@ -247,5 +299,6 @@ def train_and_save(
         "dataset": config.dataset,
         **report,
     }
-    ckpt.save_tensors(out or MODELS_DIR / LABELLER, ckpt.prefixed("labeller", model), meta)
+    familiar = {k: torch.from_numpy(v) for k, v in model.familiar.arrays().items()}
+    ckpt.save_tensors(out or MODELS_DIR / LABELLER, {**ckpt.prefixed("labeller", model), **familiar}, meta)
     return report
