@@ -384,10 +384,12 @@ performers and skeletons that no labeller trains on: xia-sample (its `old` is th
 cmu-sample's held-out subjects (all neutral) and Bandai-Namco-1's kept-back clips (nine of its
 styles are not the model's). A confident wrong style (told with weight 0.9 or more, neither the
 clip's own nor neutral) is subtracted from the input by the network; an unsure one leans to
-neutral. The shipped labeller (`configs/labeller-outside.yaml`) is the one trained on
-Bandai-Namco-2 alone (`models/labellers/labeller-bandai2-scratch`) fine-tuned with other
-performers' clips: Bandai-Namco-1's, its styles the model lacks taught to read as unsure, and
-cmu-sample's other subjects.
+neutral, and so does one where the labeller's state is unlike its training streams' (the model
+file's `familiar.*`, [Where the labeller knows what it sees](model.md#where-the-labeller-knows-what-it-sees)).
+The shipped labeller (`configs/labeller-outside.yaml`) is the one trained on Bandai-Namco-2 alone
+(`models/labellers/labeller-bandai2-scratch`) fine-tuned with other performers' clips:
+Bandai-Namco-1's, its styles the model lacks taught to read as unsure, and cmu-sample's other
+subjects.
 
 """
     text += labels.read_text()

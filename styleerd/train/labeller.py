@@ -10,8 +10,9 @@ performers join them too (``outside_clips``): Bandai-Namco-1's, with its styles 
 names and its styles the model does not have taught to read as unsure (the cross-entropy of
 their posterior to the uniform one, "outlier exposure", Hendrycks et al. 2019), and
 cmu-sample's other subjects as neutral; the clips ``styleerd eval labels`` measures on are kept
-out. Accuracy is measured on streams that start at the first frame of each clip of a split,
-after 1, 10 and 30 frames.
+out. The trained labeller is then told where its states are like its training streams'
+(``fit_familiarity``), so that a stream unlike them is read as unsure. Accuracy is measured on
+streams that start at the first frame of each clip of a split, after 1, 10 and 30 frames.
 """
 
 from __future__ import annotations
