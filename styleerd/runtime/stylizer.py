@@ -540,7 +540,7 @@ class StreamStylizer:
             one_thread = self.backend_name == "numba" and len(x) >= LABELLER_ONE_BLAS_FROM
             with one_blas_thread() if one_thread else nullcontext():
                 p_style, p_content, labeller_state = self.labeller.step(x, rows)
-            familiar = self.labeller.familiarity(labeller_state, self.frames[sel])
+                familiar = self.labeller.familiarity(labeller_state, self.frames[sel])
             p_style = toward_neutral(p_style, self.neutral, familiar)
             style = np.where(self.known_style[sel, None], style, p_style)
             content = np.where(self.known_content[sel, None], content, p_content)
