@@ -53,6 +53,32 @@ def test_the_clips_measured_on_are_never_trained_on_and_the_neutral_walk_reads_n
         assert figures["confident_wrong"] <= 0.05 and figures["right_or_neutral"] >= 0.8, (name, figures)
 
 
+def test_the_transfer_summary_says_how_much_of_the_input_the_labeller_could_not_read(shared_data):
+    """Another performer's `old` walk is mostly unlike the labeller's training streams, a
+    Bandai-Namco-2 test clip is not; given the input's style, the line is not there."""
+    from styleerd.data.datasets import find_clips, load_motion
+    from styleerd.model.stored import load_generator_weights
+    from styleerd.runtime.offline import TransferOptions, transfer_motion
+    from styleerd.train.config import TrainConfig
+    from styleerd.train.trainer import setup
+
+    model = load_generator_weights()
+    s = setup(TrainConfig(), str(shared_data), progress=False)
+    test_clip = s.fs.motion(int(s.fs.clips("test")[0]))
+    xia_old = load_motion(next(c for c in find_clips(shared_data, "xia-sample") if c.name == "old_13_000"))
+
+    def unread(motion, input_style=None) -> list[str]:
+        lines: list[str] = []
+        transfer_motion(motion, model, motion.fps, TransferOptions({"youthful": 1.0}, input_style), report=lines.append)
+        return [line for line in lines if "unlike any the labeller learnt" in line]
+
+    def share(line: str) -> int:
+        return int(line.split(": ")[1].split(" %")[0])
+
+    assert share(unread(xia_old)[0]) >= 60 and share(unread(test_clip)[0]) <= 5
+    assert unread(xia_old, "elderly") == []
+
+
 @pytest.mark.slow
 def test_train_labeller_fine_tunes_with_other_performers_and_records_what_it_did(shared_data, tmp_path):
     """``styleerd train-labeller`` as configs/labeller-outside.yaml runs it, on a few clips: the

@@ -238,6 +238,12 @@ def _inferred_labels(stylizer: StreamStylizer, report: Callable[[str], None] | N
         report(
             f"input labels at the last frame: style {labels[0]}, content {labels[1]} (inferred online where not given)"
         )
+        if stylizer.labeller.familiar is not None and not stylizer.known_style[0] and stylizer.frames[0]:
+            share = stylizer.unread_sum[0] / stylizer.frames[0]
+            report(
+                f"the input's style unlike any the labeller learnt: {100 * share:.0f} % of frames, read as neutral "
+                "there (another performer's motion, mostly; give --input-style if you know it)"
+            )
     return labels
 
 

@@ -263,10 +263,13 @@ class StreamStylizer:
             else None
         )
         self.unfamiliar = np.zeros(n_streams)  # per stream, of its last frame (pose "input")
-        self.unfamiliar_sum, self.frames = (
+        # since the stream's reset: frames, and the sums of each frame's unfamiliar share to the network and to
+        # the labeller (its state unlike its training streams': the input's style read as neutral)
+        self.unfamiliar_sum, self.unread_sum, self.frames = (
+            np.zeros(n_streams),
             np.zeros(n_streams),
             np.zeros(n_streams, np.int64),
-        )  # since the stream's reset
+        )
         self._pool: ThreadPoolExecutor | None = None
         self._sharded_step = (
             threading.Lock()
@@ -348,7 +351,7 @@ class StreamStylizer:
         )
         if self.identity is not None:
             self.identity.reset(None if streams is None else rows)
-        self.unfamiliar[rows] = self.unfamiliar_sum[rows] = self.frames[rows] = 0
+        self.unfamiliar[rows] = self.unfamiliar_sum[rows] = self.unread_sum[rows] = self.frames[rows] = 0
         self.started[rows] = False
         self.root_offset[rows], self.speed_ratio[rows] = 0.0, 1.0
         if self.labeller is not None:
@@ -542,6 +545,8 @@ class StreamStylizer:
                 p_style, p_content, labeller_state = self.labeller.step(x, rows)
                 familiar = self.labeller.familiarity(labeller_state, self.frames[sel])
             p_style = toward_neutral(p_style, self.neutral, familiar)
+            if familiar is not None:
+                self.unread_sum[sel] += np.where(self.known_style[sel], 0.0, 1.0 - familiar)
             style = np.where(self.known_style[sel, None], style, p_style)
             content = np.where(self.known_content[sel, None], content, p_content)
         identity = None
