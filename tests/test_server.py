@@ -222,12 +222,17 @@ def test_json_frames_positions_and_style_change_midway(server, clip):
         assert (
             len(msg["values"]) == values.shape[1] and len(msg["input_positions"]) == len(msg["output_positions"]) == J
         )
-        assert 0.0 <= msg["unfamiliar"] <= 1.0
+        assert 0.0 <= msg["unfamiliar"] <= 1.0 and 0.0 <= msg["unread"] <= 1.0  # the input's style is inferred
         out.append(msg)
     assert targets == [{"exhausted": 0.4, "feminine": 0.4, "normal": 0.2}]
     ws.send(json.dumps({"type": "stats"}))
     stats = json.loads(ws.recv(timeout=20))
     assert stats["type"] == "stats" and stats["frames"] >= 40
+    ws.close()
+    ws, _ = open_stream(url, m, format="json", input_style="normal")  # the input's style given: nothing unread
+    ws.send(json.dumps({"type": "frame", "seq": 0, "values": values[0].tolist()}))
+    msg = json.loads(ws.recv(timeout=20))
+    assert msg["type"] == "frame" and "unread" not in msg and "unfamiliar" in msg
     ws.close()
 
 

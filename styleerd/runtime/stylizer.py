@@ -263,6 +263,7 @@ class StreamStylizer:
             else None
         )
         self.unfamiliar = np.zeros(n_streams)  # per stream, of its last frame (pose "input")
+        self.unread = np.zeros(n_streams)  # per stream, of its last frame: 1 - the labeller's familiarity
         # since the stream's reset: frames, and the sums of each frame's unfamiliar share to the network and to
         # the labeller (its state unlike its training streams': the input's style read as neutral)
         self.unfamiliar_sum, self.unread_sum, self.frames = (
@@ -351,7 +352,8 @@ class StreamStylizer:
         )
         if self.identity is not None:
             self.identity.reset(None if streams is None else rows)
-        self.unfamiliar[rows] = self.unfamiliar_sum[rows] = self.unread_sum[rows] = self.frames[rows] = 0
+        self.unfamiliar[rows] = self.unfamiliar_sum[rows] = self.frames[rows] = 0
+        self.unread[rows] = self.unread_sum[rows] = 0
         self.started[rows] = False
         self.root_offset[rows], self.speed_ratio[rows] = 0.0, 1.0
         if self.labeller is not None:
@@ -546,7 +548,8 @@ class StreamStylizer:
                 familiar = self.labeller.familiarity(labeller_state, self.frames[sel])
             p_style = toward_neutral(p_style, self.neutral, familiar)
             if familiar is not None:
-                self.unread_sum[sel] += np.where(self.known_style[sel], 0.0, 1.0 - familiar)
+                self.unread[sel] = np.where(self.known_style[sel], 0.0, 1.0 - familiar)
+                self.unread_sum[sel] += self.unread[sel]
             style = np.where(self.known_style[sel, None], style, p_style)
             content = np.where(self.known_content[sel, None], content, p_content)
         identity = None

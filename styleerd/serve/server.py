@@ -757,8 +757,12 @@ class StyleServer:
             return values if stream.count > 1 else values[0]
 
         reply = {"type": "frame", "seq": seq, "values": listed(out, 6)}
-        if stream.pool.stylizer.stylizer.pose == "input":  # how far the network's own pose was left for the input's
-            reply["unfamiliar"] = listed(stream.pool.stylizer.stylizer.unfamiliar[stream.rows], 3)
+        stylizer = stream.pool.stylizer.stylizer
+        if stylizer.pose == "input":  # how far the network's own pose was left for the input's
+            reply["unfamiliar"] = listed(stylizer.unfamiliar[stream.rows], 3)
+        labeller = stylizer.labeller
+        if labeller is not None and labeller.familiar is not None and not stylizer.known_style[stream.rows].all():
+            reply["unread"] = listed(stylizer.unread[stream.rows], 3)  # how far the input's style went unread (neutral)
         if stream.positions:
             reply["input_positions"], reply["output_positions"] = listed(pos[0], 4), listed(pos[1], 4)
             if stream.fronts:
