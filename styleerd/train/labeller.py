@@ -106,9 +106,10 @@ def fit_familiarity(
     for g, s in set(zip(G.tolist(), S.tolist())):
         means[g, s] = Y[(G == g) & (S == s)].mean(0)
     R = Y - means[G, S]
-    whiten = np.linalg.cholesky(np.linalg.inv(R.T @ R / len(R) + 1e-3 * np.eye(model.hidden)))
-    f = Familiarity(edges, whiten.astype(np.float32), (means @ whiten).astype(np.float32), *np.ones((2, groups)))
-    f.far += 1.0  # any near < far: only the distances are read here
+    covariance = R.T @ R / len(R) + 1e-3 * np.eye(model.hidden)  # a state unit that never moves stays invertible
+    whiten = np.linalg.cholesky(np.linalg.inv(covariance))
+    # near and far placeholders: only the distances are read here
+    f = Familiarity(edges, *(a.astype(np.float32) for a in (whiten, means @ whiten, np.zeros(groups), np.ones(groups))))
     frames = np.concatenate([np.arange(len(x)) for x in validation])
     states = np.concatenate([model.states(x[None])[0].numpy() for x in validation])
     distance = np.empty(len(states))
