@@ -117,6 +117,16 @@ def test_train_labeller_fine_tunes_with_other_performers_and_records_what_it_did
     assert leaning[30]["style"] > 0.9
 
 
+@pytest.mark.parametrize("bad", [(99.9, 99.0), (99.0,), ("a", 99.0), (0.0, 50.0), (50.0, 101.0)])
+def test_labeller_familiar_must_be_two_rising_percentiles_or_none(bad, tmp_path):
+    from styleerd.errors import StyleERDError
+    from styleerd.train.config import TrainConfig
+    from styleerd.train.labeller import train_and_save
+
+    with pytest.raises(StyleERDError, match="labeller_familiar must be two percentiles"):
+        train_and_save(TrainConfig(labeller_familiar=bad), None, tmp_path / "lab", progress=False)
+
+
 def test_familiarity_is_the_mahalanobis_distance_to_the_nearest_style_mean_of_the_streams_group():
     from scipy.spatial.distance import mahalanobis
 
@@ -187,3 +197,33 @@ def test_a_labeller_file_with_a_broken_familiarity_is_a_clear_error(tmp_path, ch
     with pytest.raises(StyleERDError, match="cannot load model .*lab.safetensors") as e:
         load_labeller_weights(tmp_path / "lab")
     assert problem in str(e.value), e.value
+
+
+@pytest.mark.slow
+def test_the_familiarity_sweep_refits_the_shipped_weights_and_its_shipped_row_is_the_shipped_labeller(
+    shared_data, tmp_path
+):
+    """benchmarks/familiar_sweep.py: no measure, and the shipped percentiles, side by side. The
+    shipped row's Bandai-Namco-2 record is the shipped labeller's own (the same weights, the same
+    fit); without the measure more of Bandai-Namco-1's frames are told a confident wrong style."""
+    import json
+    import subprocess
+    import sys
+
+    from styleerd.model import checkpoint as ckpt
+
+    out = tmp_path / "sweep.json"
+    done = subprocess.run(
+        [sys.executable, "benchmarks/familiar_sweep.py", "--pairs", "99,99.9", "--json", str(out)]
+        + ["--data", str(shared_data)],
+        capture_output=True,
+        text=True,
+        timeout=900,
+        check=False,
+    )
+    assert done.returncode == 0, done.stderr[-3000:]
+    rows = json.loads(out.read_text())
+    assert list(rows) == ["none", "99 / 99.9"] and "| 99 / 99.9 |" in done.stdout
+    assert rows["99 / 99.9"]["test_leaning_neutral"] == ckpt.load_labeller()[1]["test_leaning_neutral"]
+    wrong = {k: r["groups"]["bandai-namco-1 kept back"]["confident_wrong"] for k, r in rows.items()}
+    assert wrong["none"] > wrong["99 / 99.9"] + 0.05, wrong

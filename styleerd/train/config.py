@@ -78,6 +78,9 @@ class TrainConfig:
     labeller_init_from: str = ""  # fine-tune: a saved labeller (a path without suffix) whose weights start the run
     labeller_outside: bool = False  # other performers' clips join the training clips (``train.batches.outside_clips``)
     labeller_unsure: float = 0.5  # weight of the loss that makes a style the model does not have read as unsure
+    # percentiles of the validation streams' distances to the training streams' states from which a reading
+    # leans to neutral and at which it is wholly neutral (``train.labeller.fit_familiarity``); () measures none
+    labeller_familiar: tuple = (99.0, 99.9)
 
     @classmethod
     def from_yaml(cls, path: str | Path, **overrides) -> TrainConfig:

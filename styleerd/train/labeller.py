@@ -29,6 +29,7 @@ from styleerd.data.augment import other_performer
 from styleerd.data.cache import FeatureSet
 from styleerd.data.features import motion_features
 from styleerd.data.windows import window_starts
+from styleerd.errors import StyleERDError
 from styleerd.model import checkpoint as ckpt
 from styleerd.model.labeller import OnlineLabeller
 from styleerd.model.stored import Familiarity, familiarity, toward_neutral
@@ -39,10 +40,8 @@ from styleerd.train.trainer import setup
 
 AFTER_FRAMES = (1, 10, 30)
 # the frame counts that start a new group of states in ``fit_familiarity`` (a stream's first states
-# are unlike its later ones), and the percentiles of the validation frames' distances where a state
-# starts to be unfamiliar and where it is wholly so
+# are unlike its later ones)
 FAMILIAR_EDGES = (1, 2, 4, 8, 16)
-FAMILIAR_NEAR, FAMILIAR_FAR = 99.0, 99.9
 
 
 @torch.no_grad()
@@ -88,15 +87,18 @@ def stream_accuracy(
 
 @torch.no_grad()
 def fit_familiarity(
-    model: OnlineLabeller, streams: list[tuple[torch.Tensor, int]], validation: list[torch.Tensor]
+    model: OnlineLabeller,
+    streams: list[tuple[torch.Tensor, int]],
+    validation: list[torch.Tensor],
+    percentiles: tuple[float, float] = TrainConfig.labeller_familiar,
 ) -> Familiarity:
     """Where ``model``'s states are like those of the ``streams`` it learnt from (normalised
     frames ``[T, D]`` from a stream's start, style index): per group of frames since the start
     (``FAMILIAR_EDGES``), each style's mean state, and one covariance of the states about their
-    means (Mahalanobis distance); a state is familiar up to the ``FAMILIAR_NEAR``-th percentile
-    of the ``validation`` streams' distances in its group and unfamiliar from the
-    ``FAMILIAR_FAR``-th. A labeller taught to read other performers as unsure still reads some of
-    them with confidence as a style they are not; their states are far from its training streams'."""
+    means (Mahalanobis distance); a state is familiar up to the first of the ``percentiles`` of
+    the ``validation`` streams' distances in its group and unfamiliar from the second. A labeller
+    taught to read other performers as unsure still reads some of them with confidence as a style
+    they are not; their states are far from its training streams'."""
     edges = np.array(FAMILIAR_EDGES, np.int64)
     groups = len(edges) + 1
     y = [model.states(x[None])[0].double().numpy() for x, _ in streams]
@@ -116,8 +118,7 @@ def fit_familiarity(
     familiarity(states, frames, f, distance)
     at = np.searchsorted(edges, frames, "right")
     f.near, f.far = (
-        np.array([np.percentile(distance[at == g], q) for g in range(groups)], np.float32)
-        for q in (FAMILIAR_NEAR, FAMILIAR_FAR)
+        np.array([np.percentile(distance[at == g], q) for g in range(groups)], np.float32) for q in percentiles
     )
     return f
 
@@ -201,9 +202,11 @@ def train_labeller(
     unsure: float = 0.5,
     outside_repeats: int = 5,
     start: OnlineLabeller | None = None,
+    familiar: tuple[float, float] | tuple = TrainConfig.labeller_familiar,
 ) -> tuple[OnlineLabeller, dict]:
     """Train; keep the epoch whose validation streams are labelled best after 30 frames, and
-    measure where its states are familiar (``fit_familiarity``, on the training streams).
+    measure where its states are familiar (``fit_familiarity`` at the ``familiar`` percentiles,
+    on the training streams; ``()``: not measured).
     ``copies`` other-performer versions of each training clip join the clips themselves
     (``reference_pose``: a natural pose of the skeleton, for mirroring; default its average), and
     so do the ``outside`` clips (``outside_clips``, each window ``outside_repeats`` times: they are
@@ -258,11 +261,14 @@ def train_labeller(
     report = {"history": history, "other_performer_copies": copies}
     if outside is not None:
         report["outside"] = {"clips": len(outside[1]) - 1, "unsure_weight": unsure, "repeats": outside_repeats}
-    best.familiar = fit_familiarity(best, streams, [data.frames[fs.frames(c)] for c in fs.clips("val")])
-    report["familiar"] = {
-        "edges": best.familiar.edges.tolist(),
-        **{k: [round(float(v), 3) for v in getattr(best.familiar, k)] for k in ("near", "far")},
-    }
+    if familiar:
+        validation = [data.frames[fs.frames(c)] for c in fs.clips("val")]
+        best.familiar = fit_familiarity(best, streams, validation, familiar)
+        report["familiar"] = {
+            "percentiles": list(familiar),
+            "edges": best.familiar.edges.tolist(),
+            **{k: [round(float(v), 3) for v in getattr(best.familiar, k)] for k in ("near", "far")},
+        }
     return best.eval(), report
 
 
@@ -271,6 +277,11 @@ def train_and_save(
 ) -> dict:
     """``styleerd train-labeller``: train on the config's dataset, report stream accuracy on
     the test split, save next to the shipped models (or at ``out``)."""
+    p = config.labeller_familiar
+    if p and not (len(p) == 2 and all(isinstance(v, (int, float)) for v in p) and 0 < p[0] < p[1] <= 100):
+        raise StyleERDError(
+            f"labeller_familiar must be two percentiles, the first below the second, or [] for none; got {list(p)}"
+        )
     torch.set_num_threads(config.threads)
     s = setup(config, data_dir, progress)
     outside = outside_clips(s.fs, s.data, data_dir, progress) if config.labeller_outside else None
@@ -286,6 +297,7 @@ def train_and_save(
         outside=outside,
         unsure=config.labeller_unsure,
         start=start,
+        familiar=config.labeller_familiar,
     )
     if start is not None:
         report["started_from"] = config.labeller_init_from
@@ -301,6 +313,6 @@ def train_and_save(
         "dataset": config.dataset,
         **report,
     }
-    familiar = {k: torch.from_numpy(v) for k, v in model.familiar.arrays().items()}
+    familiar = {} if model.familiar is None else {k: torch.from_numpy(v) for k, v in model.familiar.arrays().items()}
     ckpt.save_tensors(out or MODELS_DIR / LABELLER, {**ckpt.prefixed("labeller", model), **familiar}, meta)
     return report
