@@ -136,9 +136,8 @@ def load_labeller(stem: str | Path | None = None) -> tuple[OnlineLabeller, dict]
     def build(tensors, meta):
         model = OnlineLabeller(**meta["config"])
         model.load_state_dict(unprefixed("labeller", tensors))
-        if any(k.startswith("familiar.") for k in tensors):
-            arrays = {k: v.numpy() for k, v in tensors.items()}
-            model.familiar = Familiarity.from_arrays(arrays, model.hidden, model.n_styles)
+        arrays = {k: v.numpy() for k, v in tensors.items()}
+        model.familiar = Familiarity.from_arrays(arrays, model.hidden, model.n_styles)
         return model.eval()
 
     return _loaded(stem, LABELLER, build)

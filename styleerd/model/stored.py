@@ -198,8 +198,11 @@ class Familiarity:
     NAMES = ("edges", "whiten", "means", "near", "far")
 
     @classmethod
-    def from_arrays(cls, arrays: dict[str, np.ndarray], hidden: int, n_styles: int) -> Familiarity:
-        """The ``familiar.*`` arrays of a labeller file, checked against its configuration."""
+    def from_arrays(cls, arrays: dict[str, np.ndarray], hidden: int, n_styles: int) -> Familiarity | None:
+        """The ``familiar.*`` arrays of a labeller file, checked against its configuration (``None``
+        where the file has none)."""
+        if not any(k.startswith("familiar.") for k in arrays):
+            return None
         f = cls(*(np.asarray(arrays[f"familiar.{k}"]) for k in cls.NAMES))
         groups = len(f.edges) + 1
         shapes = {"whiten": (hidden, hidden), "means": (groups, n_styles, hidden), "near": (groups,), "far": (groups,)}
@@ -271,10 +274,7 @@ def load_labeller_weights(name: str | Path | None = None) -> LabellerWeights:
                 f"inp.0.weight has shape {weights['inp.0.weight'].shape}, the configuration says "
                 f"{(config['hidden'], config['in_dim'])}"
             )
-        familiar = None
-        if any(k.startswith("familiar.") for k in arrays):
-            familiar = Familiarity.from_arrays(arrays, config["hidden"], config["n_styles"])
-        return LabellerWeights(config, weights, familiar)
+        return LabellerWeights(config, weights, Familiarity.from_arrays(arrays, config["hidden"], config["n_styles"]))
 
     return loaded(name, LABELLER, build)[0]
 
