@@ -11,7 +11,10 @@ alone; numpy and ONNX: the network alone) against the float32 matrix-multiply pe
 end to end at batch 1 and 1,000 streams (numba) with the input's style and content inferred by the labeller, as users'
 streams run.
 
-    python benchmarks/bench_engine.py [--before COMMIT] [--rounds 3] [--json docs/engine-bench.json]
+    python benchmarks/bench_engine.py [--before COMMIT|FOLDER] [--rounds 3] [--json docs/engine-bench.json]
+
+``--before`` takes a commit of this repository, or a folder holding another version's tree (``git archive``'s,
+for a machine the repository's history is not on).
 
 Writes the JSON (with the CPU's model) and prints a table.
 """
@@ -103,7 +106,10 @@ def measure(steps: int) -> dict:
             bench.products_alone(model) * flops_per_frame(model) / peak, 4
         )
     out["matmul_peak_gflops"] = round(peak / 1e9, 1)
-    out.update({f"stage_us {k}": v for k, v in stages(steps).items()})
+    try:  # the breakdown reads this version's internals: an older tree's differ, and it has none
+        out.update({f"stage_us {k}": v for k, v in stages(steps).items()})
+    except (AttributeError, ImportError, TypeError, ValueError):
+        pass
     return out
 
 
@@ -208,7 +214,7 @@ def stages(steps: int) -> dict:
 
 
 def worker(tree: Path, steps: int) -> dict:
-    env = dict(os.environ, PYTHONPATH=str(tree))
+    env = dict(os.environ, PYTHONPATH=os.pathsep.join(filter(None, (str(tree), os.environ.get("PYTHONPATH")))))
     code = (
         f"import json, sys; sys.path.insert(0, {str(ROOT / 'benchmarks')!r}); from bench_engine import measure; "
         f"print(json.dumps(measure({steps})))"
@@ -244,6 +250,12 @@ def summary(rounds: dict[str, list[dict]]) -> tuple[dict, dict]:
     return median, best
 
 
+def stage_column(figures: dict) -> list[str]:
+    """A version's stage times and their sum, or dashes where it has no breakdown."""
+    us = [figures.get("stage_us " + k) for k in STAGES]
+    return [f"{u:.1f}" for u in (*us, sum(us))] if None not in us else ["-"] * (len(STAGES) + 1)
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--before", default=BEFORE)
@@ -252,12 +264,14 @@ def main() -> None:
     parser.add_argument("--json", type=Path, default=ROOT / "docs" / "engine-bench.json")
     args = parser.parse_args()
     with tempfile.TemporaryDirectory() as tmp:
-        before = Path(tmp) / "before"
-        subprocess.run(
-            ["git", "-C", str(ROOT), "worktree", "add", "--detach", str(before), args.before],
-            check=True,
-            capture_output=True,
-        )
+        given = Path(args.before).is_dir()
+        before = Path(args.before).resolve() if given else Path(tmp) / "before"
+        if not given:
+            subprocess.run(
+                ["git", "-C", str(ROOT), "worktree", "add", "--detach", str(before), args.before],
+                check=True,
+                capture_output=True,
+            )
         try:
             trees = {f"before ({args.before})": before, "now": ROOT}
             for tree in trees.values():  # compile the numba caches outside the timed rounds
@@ -268,7 +282,8 @@ def main() -> None:
                     rounds[name].append(worker(trees[name], args.steps))
                     print(f"round {r + 1}, {name}: {rounds[name][-1]}", flush=True)
         finally:
-            subprocess.run(["git", "-C", str(ROOT), "worktree", "remove", "--force", str(before)], check=False)
+            if not given:
+                subprocess.run(["git", "-C", str(ROOT), "worktree", "remove", "--force", str(before)], check=False)
     median, best = summary(rounds)
     from styleerd.runtime.system import cpu_model
 
@@ -300,12 +315,9 @@ def main() -> None:
         )
     print(f"matmul peak (GFLOP/s, 2 threads): {b['matmul_peak_gflops']} / {a['matmul_peak_gflops']}")
     print(f"\n| end to end, batch 1, numba: stage (us, median of rounds) | {' | '.join(median)} |\n| --- | --- | --- |")
-    for k in STAGES:
-        print(f"| {k} | {b['stage_us ' + k]:.1f} | {a['stage_us ' + k]:.1f} |")
-    print(
-        f"| sum of the stages | {sum(b['stage_us ' + k] for k in STAGES):.1f} | "
-        f"{sum(a['stage_us ' + k] for k in STAGES):.1f} |\nwrote {out}"
-    )
+    for k, x, y in zip((*STAGES, "sum of the stages"), stage_column(b), stage_column(a)):
+        print(f"| {k} | {x} | {y} |")
+    print(f"wrote {out}")
 
 
 if __name__ == "__main__":

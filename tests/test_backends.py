@@ -238,6 +238,26 @@ def test_shards_of_streams_stepped_at_once_equal_one_step_of_all(model, name):
     assert network_throughput(model, name, n_streams=64, seconds=0.01) > 0
 
 
+def test_the_network_throughput_steps_numba_in_the_callers_thread_as_the_stylizer_does(model, monkeypatch):
+    """A pool's hand-off (50-80 us a call on 2 cores) is not part of a numba step: StreamStylizer
+    calls it in its own thread, and the bench's small-batch figures once counted the hand-off."""
+    import threading
+
+    from styleerd.eval import bench
+
+    callers, make = set(), bench.make_backend
+
+    def spied(*args, **kwargs):
+        backend = make(*args, **kwargs)
+        step = backend.step
+        backend.step = lambda *a: (callers.add(threading.get_ident()), step(*a))[1]
+        return backend
+
+    monkeypatch.setattr(bench, "make_backend", spied)
+    assert bench.network_throughput(model, "numba", n_streams=4, seconds=0.01) > 0
+    assert callers == {threading.get_ident()}
+
+
 @pytest.mark.parametrize("n, threads", [(3, 1), (100, 1), (100, 2)])
 def test_numba_backend_refuses_inputs_that_do_not_fit_its_state(model, n, threads):
     """The compiled step does not check bounds; a call whose rows or widths do not fit is an
