@@ -75,3 +75,24 @@ def test_the_report_names_every_stage_of_a_soup(two_stages):
     stage = f"{meta['training']['wall_minutes']} min ({meta['training']['config']['name']})"
     assert text.count(stage) == 2 and "each fine-tuning from it, their weights averaged" in text
     assert text.startswith(f"{meta['training']['started_from']['training']['wall_minutes']} min")
+
+
+def test_the_wise_sweep_mixes_a_fine_tune_with_its_start():
+    """benchmarks/wise_sweep.py: share 0 is the start's weights, 1 the fine-tune's, between their
+    weighted mean; a model not fine-tuned from the start is refused."""
+    import sys
+    from pathlib import Path
+
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
+    from wise_sweep import ROOT, mixed
+
+    tuned = str(ROOT / "models" / "recipes" / "bandai2-outside")
+    start, tuned_model = ckpt.load_generator()[0].state_dict(), ckpt.load_generator(tuned)[0].state_dict()
+    for share in (0.0, 0.3, 1.0):
+        tensors, meta = mixed("styleerd-bandai2", tuned, share)
+        for k in start:
+            want = (1 - share) * start[k].double() + share * tuned_model[k].double()
+            assert torch.allclose(tensors[f"generator.{k}"].double(), want, atol=1e-6), (share, k)
+        assert "posture" not in meta and meta["training"]["config"]["name"].endswith(f"{share:g} bandai2-outside")
+    with pytest.raises(SystemExit, match="not fine-tuned from"):
+        mixed("styleerd-bandai12", tuned, 0.5)
