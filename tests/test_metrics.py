@@ -9,7 +9,7 @@ import scipy.linalg
 from styleerd.eval.metrics import runtime_report
 from styleerd.model import checkpoint as ckpt
 from styleerd.model.checkpoint import load_generator, load_labeller
-from styleerd.train.validation import frechet_distance
+from styleerd.train.validation import frechet_distance, misread
 
 
 def test_frechet_distance_against_scipy_sqrtm():
@@ -124,3 +124,14 @@ def test_cleanup_removes_skate_and_blending_removes_the_pop(shared_data):
     sw = r["style_switch"]
     assert sw["blended_cm"] < sw["unblended_cm"] and sw["blended_cm"] < sw["normal_p99_cm"]
     assert r["labels"][30]["style"] >= 0.97
+
+
+def test_misread_names_the_contents_a_style_loses_most_often():
+    given = np.array([0, 0, 0, 0, 1, 1, 2])
+    read = np.array([0, 1, 1, 2, 1, 0, 2])
+    assert misread(given, read, ["walk", "turn", "wave"]) == {
+        "walk -> turn": "2 of 4",
+        "walk -> wave": "1 of 4",
+        "turn -> walk": "1 of 2",
+    }
+    assert misread(given, given, ["walk", "turn", "wave"]) == {}

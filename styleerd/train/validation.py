@@ -5,6 +5,8 @@ target style among them (the test split's report, and model selection on realism
 
 from __future__ import annotations
 
+from collections import Counter
+
 import numpy as np
 import torch
 
@@ -175,15 +177,17 @@ def transfer_quality(
             for i in range(0, len(test.starts), batch)
         ]
     )
-    feats, ok_s, ok_c, ok_in, jerk_fake, all_targets = [], [], [], [], [], []
+    feats, ok_s, read_c, ok_in, jerk_fake, all_targets, given_c = [], [], [], [], [], [], []
     for r, t, rot, _, ch in transfers(model, data, test, batch, pose):
         ok_s.append(style_rec(ch).argmax(-1).numpy() == t)
-        ok_c.append(content_rec(ch).argmax(-1).numpy() == test.content[r])
+        read_c.append(content_rec(ch).argmax(-1).numpy())
+        given_c.append(test.content[r])
         ok_in.append(read_in[r] == test.content[r])  # the input itself
         feats.append(fmd_features(fmd, rot, reference))
         jerk_fake.append(_jerk(torch_quat.root_relative_positions(rot, model.offsets, model.parents)))
         all_targets.append(t)
-    targets, ok_s, ok_c, ok_in = (np.concatenate(a) for a in (all_targets, ok_s, ok_c, ok_in))
+    targets, ok_s, read_c, given_c, ok_in = (np.concatenate(a) for a in (all_targets, ok_s, read_c, given_c, ok_in))
+    ok_c = read_c == given_c
     fake = np.concatenate(feats)
     real_all = np.concatenate(
         [
@@ -233,7 +237,19 @@ def transfer_quality(
         # per target, the content recogniser's accuracy on the transfers' inputs: its ceiling there
         "content_ceiling_per_style": {data.styles[k]: round(float(ok_in[targets == k].mean()), 4) for k in styles},
         "sra_per_style": {data.styles[k]: round(float(ok_s[targets == k].mean()), 4) for k in styles},
+        "content_misread_per_style": {
+            data.styles[k]: misread(given_c[targets == k], read_c[targets == k], data.contents) for k in styles
+        },
         "jitter_ratio": round(float(np.concatenate(jerk_fake).mean() / _jerk(real_pos).mean()), 3),
+    }
+
+
+def misread(given: np.ndarray, read: np.ndarray, contents: list[str], top: int = 3) -> dict[str, str]:
+    """The contents most often read as another (by the content recogniser) among transfers into one
+    style, as "given -> read": "k of n transfers of that content" (which content a CRA loses)."""
+    wrong = Counter(zip(given[given != read].tolist(), read[given != read].tolist()))
+    return {
+        f"{contents[a]} -> {contents[b]}": f"{n} of {int((given == a).sum())}" for (a, b), n in wrong.most_common(top)
     }
 
 
