@@ -6,7 +6,9 @@ over its floor. The fine-tunes with other performers' motion (`configs/bandai2-o
 the elderly style's CRA; this asks whether a mix keeps it. Choose on ``--split val``.
 
     python benchmarks/wise_sweep.py [--fine-tune models/recipes/bandai2-outside] [--mix 0 0.25 0.5 0.75 1]
-        [--split val] [--json docs/outside/wise-sweep.json]
+        [--split val] [--json docs/outside/wise-sweep.json] [--keep FOLDER]
+
+``--keep`` keeps each mix (``FOLDER/mix-SHARE``, with its posture) to measure further or ship.
 
 About 25 s a mix on 2 cores; prints one Markdown table.
 """
@@ -73,11 +75,12 @@ def main() -> None:
     ap.add_argument("--split", choices=("val", "test"), default="val")
     ap.add_argument("--data")
     ap.add_argument("--json", type=Path)
+    ap.add_argument("--keep", type=Path, help="keep each mix here (FOLDER/mix-SHARE)")
     args = ap.parse_args()
     rows = {}
     with tempfile.TemporaryDirectory() as tmp:
         for share in args.mix:
-            stem = Path(tmp) / f"mix-{share:g}"
+            stem = (args.keep or Path(tmp)) / f"mix-{share:g}"
             ckpt.save_tensors(stem, *mixed(args.start, args.fine_tune, share))
             rows[f"{share:g}"] = measured(stem, args.data, args.split)
     print(table(rows))

@@ -533,6 +533,12 @@ def test_other_performers_windows_are_rebuilt_in_their_own_style_whatever_conten
     only = outside_windows(s.fs, s.data, config.stride, shared_data, progress=False, neutral=n)
     performers = only.starts < len(only.frames) - len(frames)
     assert (only.style[performers] == n).all() and 0 < performers.sum() < (o.starts < len(o.frames) - len(frames)).sum()
+    # outside_in_place false: other performers' clips alone, the same windows of them
+    others = outside_windows(s.fs, s.data, config.stride, shared_data, progress=False, in_place=False)
+    assert len(others.frames) == len(o.frames) - len(frames) and others.starts.max() + config.window <= len(
+        others.frames
+    )
+    assert np.array_equal(others.starts, o.starts[o.starts < len(others.frames)])
     torch.manual_seed(0)
     G, D = make_generator(config, s), make_critic(config, s)
     opt_g, opt_d = make_optimisers(config, G, D)

@@ -81,19 +81,22 @@ def outside_windows(
     progress: bool = True,
     bound: float = 16.0,
     neutral: int | None = None,
+    in_place: bool = True,
 ) -> OutsideWindows:
     """Every ``data.window``-frame window, each ``stride`` frames, of the ``outside_clips`` whose style
     the model has (one it lacks has no own style to be rebuilt in) and of the ``in_place_clips``, but
     those with a feature beyond ``bound`` standard deviations: none of Bandai-Namco-2's training
     windows reaches 16, and the 1.3 % of other performers' that do (glitches and flailing of
     cmu-sample's) would otherwise make 40 % of the loss. With ``neutral`` (the neutral style's
-    index), other performers' clips in the model's other styles are left out."""
+    index), other performers' clips in the model's other styles are left out; without ``in_place``,
+    the walks in place are."""
     frames, clip_start, style, _ = outside_clips(fs, data, data_dir, progress)
     if neutral is not None:
         style = np.where(style == neutral, style, -1)
-    more, more_start, more_style = in_place_clips(fs, data)
-    frames, clip_start = torch.cat([frames, more]), np.concatenate([clip_start, clip_start[-1] + more_start[1:]])
-    style = np.concatenate([style, more_style])
+    if in_place:
+        more, more_start, more_style = in_place_clips(fs, data)
+        frames, clip_start = torch.cat([frames, more]), np.concatenate([clip_start, clip_start[-1] + more_start[1:]])
+        style = np.concatenate([style, more_style])
     starts = window_starts(clip_start, np.nonzero(style >= 0)[0], data.window, stride)
     every = OutsideWindows(frames, starts, style[np.searchsorted(clip_start, starts, side="right") - 1])
     inside = (every.gather(np.arange(len(starts)), data.window).abs().amax((1, 2)) <= bound).numpy()
