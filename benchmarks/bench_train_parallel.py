@@ -53,7 +53,8 @@ def epoch_seconds(config: dict, processes: int, threads: int, work: Path, data: 
     env = dict(os.environ, OMP_NUM_THREADS=str(threads))
     p = subprocess.run([sys.executable, *cli], capture_output=True, text=True, env=env, check=False)
     if p.returncode != 0:
-        raise SystemExit(f"training failed ({processes} x {threads}):\n{p.stdout[-2000:]}{p.stderr[-2000:]}")
+        err = p.stderr if len(p.stderr) <= 4000 else f"{p.stderr[:2000]}\n...\n{p.stderr[-2000:]}"
+        raise SystemExit(f"training failed ({processes} x {threads}):\n{p.stdout[-2000:]}{err}")
     rows = list(csv.DictReader((out / "metrics.csv").read_text().splitlines()))
     later = len(rows) - 1
     return 60 * (float(rows[-1]["minutes"]) - float(rows[0]["minutes"])) / later, (
