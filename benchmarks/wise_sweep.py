@@ -26,6 +26,7 @@ from styleerd import cli
 from styleerd.atomic import atomic_write_text
 from styleerd.eval.metrics import evaluate_model
 from styleerd.model import checkpoint as ckpt
+from styleerd.train.soup import averaged
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -36,15 +37,15 @@ def mixed(start: str, tuned: str, share: float) -> tuple[dict[str, torch.Tensor]
     (a, _), (b, meta) = ckpt.load_generator(start), ckpt.load_generator(tuned)
     if meta["training"].get("started_from", {}).get("model") != start:
         raise SystemExit(f"{tuned} was not fine-tuned from {start}")
-    sa, sb = a.state_dict(), b.state_dict()
-    tensors = {f"generator.{k}": ((1 - share) * sa[k].double() + share * sb[k].double()).float() for k in sa}
+    tensors = averaged([a.state_dict(), b.state_dict()], [1 - share, share])
     name = f"{1 - share:g} {Path(start).name} + {share:g} {Path(tuned).name}"
     meta = {k: v for k, v in meta.items() if k != "posture"}
     return tensors, {**meta, "training": {**meta["training"], "config": {**meta["training"]["config"], "name": name}}}
 
 
 def measured(stem: Path, data: str | None, split: str) -> dict:
-    cli.main(["posture", str(stem)] + (["--data", data] if data else []))
+    if cli.main(["posture", str(stem)] + (["--data", data] if data else [])):
+        raise SystemExit(f"styleerd posture {stem} failed")
     q = evaluate_model(ckpt.load_generator(stem)[0], data, split, "input")
     of_ceiling = {s: q["cra_per_style"][s] / q["content_ceiling_per_style"][s] for s in q["cra_per_style"]}
     keep = ("sra", "cra", "worst_fmd_over_floor", "worst_cra_of_ceiling")

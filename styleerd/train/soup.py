@@ -14,6 +14,12 @@ from styleerd.errors import StyleERDError
 from styleerd.model import checkpoint as ckpt
 
 
+def averaged(states: list[dict[str, torch.Tensor]], weights: list[float]) -> dict[str, torch.Tensor]:
+    """The generators' state dicts ``states`` averaged with ``weights``, as a model file's tensors
+    (float64 sums: tensors they share come back exact)."""
+    return {f"generator.{k}": sum(w * s[k].double() for w, s in zip(weights, states)).float() for k in states[0]}
+
+
 def soup(stems: list[str], weights: list[float] | None = None) -> tuple[dict[str, torch.Tensor], dict]:
     """The averaged generator's tensors and metadata: ``weights`` (default equal) sum to 1;
     every model must share the first's architecture, skeleton, feature statistics and start."""
@@ -41,10 +47,7 @@ def soup(stems: list[str], weights: list[float] | None = None) -> tuple[dict[str
             raise StyleERDError(
                 f"{stem} was not fine-tuned from {start}, as {stems[0]} was: their weights do not average into a model"
             )
-    states = [model.state_dict() for model, _ in loaded]
-    tensors = {
-        f"generator.{k}": sum(w * s[k].double() for w, s in zip(weights, states)).float() for k in states[0]
-    }  # float64 sums: shared tensors come back exact
+    tensors = averaged([model.state_dict() for model, _ in loaded], weights)
     stages = [
         {"model": str(stem), "weight": w, "training": m["training"]} for stem, w, (_, m) in zip(stems, weights, loaded)
     ]
