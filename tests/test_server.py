@@ -5,6 +5,7 @@ import base64
 import json
 import math
 import os
+import re
 import signal
 import socket
 import struct
@@ -233,6 +234,35 @@ def test_json_frames_positions_and_style_change_midway(server, clip):
     ws.send(json.dumps({"type": "frame", "seq": 0, "values": values[0].tolist()}))
     msg = json.loads(ws.recv(timeout=20))
     assert msg["type"] == "frame" and "unread" not in msg and "unfamiliar" in msg
+    ws.close()
+
+
+def test_binary_replies_carry_unfamiliar_and_unread_when_asked(server, clip):
+    """A hello's ``confidence``: a binary reply ends in ``float32 [K][2]``, each stream's unfamiliar and
+    unread, the numbers a JSON reply to the same frames carries; with positions before them; the
+    input's style given, unread is 0."""
+    url, _ = server
+    m, values = clip
+    J = len(m.skeleton.names)
+    json_ws, _ = open_stream(url, m, format="json")
+    binary_ws, _ = open_stream(url, m, confidence=True, positions=True)
+    plain_ws, _ = open_stream(url, m)
+    for i in range(12):
+        json_ws.send(json.dumps({"type": "frame", "seq": i, "values": values[i].tolist()}))
+        want = json.loads(json_ws.recv(timeout=20))
+        for ws in (binary_ws, plain_ws):
+            ws.send(frame(i, values[i]))
+        got, plain = replies(binary_ws, 1)[1][0], replies(plain_ws, 1)[1][0]
+        assert len(got) == len(plain) + 6 * J + 2  # values, two [J][3] position blocks, then the two figures
+        assert np.allclose(got[: len(plain)], plain, atol=1e-4)
+        assert np.allclose(got[-2:], [want["unfamiliar"], want["unread"]], atol=2e-3), (got[-2:], want)
+    for ws in (json_ws, binary_ws, plain_ws):
+        ws.close()
+    ws, _ = open_stream(url, m, confidence=True, input_style="normal", streams=2)  # two streams, style given
+    ws.send(SEQ.pack(0) + np.stack([values[0], values[5]]).astype("<f4").tobytes())
+    got = replies(ws, 1)[1][0]
+    assert len(got) == 2 * values.shape[1] + 4 and (got[-4:][1::2] == 0.0).all()
+    assert ((got[-4:][::2] >= 0.0) & (got[-4:][::2] <= 1.0)).all()
     ws.close()
 
 
@@ -546,6 +576,9 @@ def test_stream_bvh_writes_the_stylised_stream(server, tmp_path):
         check=False,
     )
     assert r.returncode == 0 and f"received {source.n_frames}, reordered 0" in r.stdout, r.stdout + r.stderr
+    # the server's per-frame measures, summed over the stream: the input's style was given, nothing unread
+    seen = re.search(r"unfamiliar mean (\d\.\d\d) \((\d+) % of frames above 0\.5[^)]*\), unread mean 0\.00", r.stdout)
+    assert seen and 0.0 <= float(seen[1]) <= 1.0 and 0 <= int(seen[2]) <= 100, r.stdout
     out = bvh.read(tmp_path / "out.bvh")
     assert out.n_frames == source.n_frames and out.skeleton.names == source.skeleton.names
     assert np.allclose(out.positions[:, 0], source.positions[:, 0], atol=1e-3)  # root trajectory kept

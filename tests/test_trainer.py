@@ -507,7 +507,7 @@ def test_other_performers_windows_are_rebuilt_in_their_own_style_whatever_conten
 
     from styleerd.data.augment import TRAVELLING
     from styleerd.data.features import FeatureLayout
-    from styleerd.train.batches import in_place_clips, outside_windows
+    from styleerd.train.batches import in_place_clips, outside_contents, outside_windows
     from styleerd.train.trainer import make_critic, make_generator, make_optimisers, setup, train_step
 
     config = TrainConfig(**TINY, use_adv=False, use_per=False, w_rec=0.0, outside_batch=16)
@@ -519,8 +519,9 @@ def test_other_performers_windows_are_rebuilt_in_their_own_style_whatever_conten
     assert o.gather(np.arange(len(o.starts)), config.window).abs().max() <= 16.0  # beyond the training data's range
     assert s.data.gather(s.train.starts).abs().max() <= 16.0
     # and walks of the training split in place: their rotations as they were, the root's ground speed 0
-    frames, starts, style = in_place_clips(s.fs, s.data)
+    frames, starts, style, content = in_place_clips(s.fs, s.data)
     c = next(c for c in s.fs.clips("train") if s.fs.contents[c] in TRAVELLING)
+    assert content[0] == s.data.contents.index(s.fs.contents[c])
     first = frames[starts[0] : starts[1]].numpy()
     L = FeatureLayout(s.fs.skeleton.n_joints)
     mean, std = s.data.stats.mean, s.data.stats.std
@@ -539,6 +540,17 @@ def test_other_performers_windows_are_rebuilt_in_their_own_style_whatever_conten
         others.frames
     )
     assert np.array_equal(others.starts, o.starts[o.starts < len(others.frames)])
+    # each window's content: the in-place walks' own, other performers' where the model has it, else -1
+    placed = o.starts >= len(others.frames)
+    assert set(np.unique(o.content[placed])) <= {s.data.contents.index(k) for k in TRAVELLING if k in s.data.contents}
+    assert (o.content[placed] >= 0).all() and (o.content[~placed] == -1).any() and (o.content[~placed] >= 0).any()
+    # what they are told: a random content, or with outside_known_content their own where known
+    told = outside_contents(o.content[:: len(o.starts) // 200], len(s.data.contents), False, np.random.default_rng(1))
+    assert np.allclose(told.sum(1), 1.0) and (told.max(1) < 1.0).all()
+    known = outside_contents(o.content[:: len(o.starts) // 200], len(s.data.contents), True, np.random.default_rng(1))
+    mine = o.content[:: len(o.starts) // 200] >= 0
+    assert np.array_equal(known[mine].argmax(1), o.content[:: len(o.starts) // 200][mine])
+    assert (known[mine].max(1) == 1.0).all() and np.array_equal(known[~mine], told[~mine])
     torch.manual_seed(0)
     G, D = make_generator(config, s), make_critic(config, s)
     opt_g, opt_d = make_optimisers(config, G, D)

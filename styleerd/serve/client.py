@@ -46,6 +46,8 @@ class StreamResult:
     lost_at: float | None = None  # perf_counter when the first lost connection was noticed
     reconnected_ms: float | None = None  # from then to the first stylised frame on a new connection
     resent: int = 0  # frames sent, never answered on a lost connection, and sent again on the next
+    # with the hello's "confidence": per frame and stream, summed: unfamiliar, unread, and frames unfamiliar > 0.5
+    confidence: np.ndarray = field(default_factory=lambda: np.zeros(3))
 
 
 def hello(
@@ -194,6 +196,11 @@ async def _play_once(
                     result.reconnected_ms = (now - result.lost_at) * 1e3
                 result.reordered += seq != expected
                 expected = seq + 1
+                if hello_msg.get("confidence"):  # the last block: unfamiliar and unread per stream
+                    c = np.frombuffer(message, "<f4", count=2 * count, offset=len(message) - 8 * count).reshape(
+                        count, 2
+                    )
+                    result.confidence += (c[:, 0].sum(), c[:, 1].sum(), (c[:, 0] > 0.5).sum())
                 if kept is not None or reference is not None:
                     out = np.frombuffer(message, "<f4", count=clip.shape[1] * count, offset=SEQ.size)
                     out = out.reshape(count, -1)
@@ -257,6 +264,7 @@ def stream_bvh(
     if motion.n_frames == 0:
         raise StyleERDError(f"{path}: the motion has no frames")
     msg = hello(motion, motion.fps, style, intensity, mix, Path(path).stem, input_style, content)
+    msg["confidence"] = True
     if root_speed:
         msg["root_speed"] = True
     say = functools.partial(print, file=sys.stderr, flush=True)
@@ -273,6 +281,7 @@ def stream_bvh(
         f"{path}: sent {result.sent} frames at {motion.fps:g} fps, received {result.received}, reordered "
         f"{result.reordered}; "
         f"latency p50 {np.percentile(lat, 50):.2f} ms, p99 {np.percentile(lat, 99):.2f} ms"
+        + _confidence_summary(result)
         + (
             f"; reconnected {result.reconnects} time(s), the first stylised frame {result.reconnected_ms:.0f} ms "
             "after the connection was lost"
@@ -280,6 +289,17 @@ def stream_bvh(
             else ""
         )
         + (f"; wrote {output}" if output else "")
+    )
+
+
+def _confidence_summary(result: StreamResult) -> str:
+    """How unlike the model's training the stream was, as the server measured it frame by frame."""
+    if not result.received:
+        return ""
+    unfamiliar, unread, far = result.confidence / result.received
+    return (
+        f"; unfamiliar mean {unfamiliar:.2f} ({100 * far:.0f} % of frames above 0.5: the input's own pose turned "
+        f"by the style), unread mean {unread:.2f}"
     )
 
 

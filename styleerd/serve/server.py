@@ -131,6 +131,7 @@ class Stream:
     token: str = ""
     closing: bool = False  # refused: its frames are no longer stylised
     humanoid: bool = False  # also receive the VRM humanoid pose of input and output (an avatar to drive)
+    confidence: bool = False  # binary: also receive each frame's unfamiliar and unread (JSON replies always carry them)
 
     @property
     def count(self) -> int:
@@ -371,6 +372,7 @@ class StyleServer:
             private=bool(msg.get("private", False)),
             token=self.token_prefix + secrets.token_urlsafe(16),
             humanoid=bool(msg.get("humanoid", False)),
+            confidence=bool(msg.get("confidence", False)),
         )
         pool.streams[stream.id] = stream
         self.streams[stream.id] = stream
@@ -736,6 +738,8 @@ class StyleServer:
                     parts += [p.tobytes() for p in (pos if stream.fronts else pos[:2])]
                 if stream.humanoid:
                     parts += [h.tobytes() for h in pose]
+                if stream.confidence:
+                    parts.append(self._confidence(stream).tobytes())
                 message = b"".join(parts)
             else:
                 message = json.dumps(self._json_reply(stream, seq, out[span], pos, pose))
@@ -760,8 +764,7 @@ class StyleServer:
         stylizer = stream.pool.stylizer.stylizer
         if stylizer.pose == "input":  # how far the network's own pose was left for the input's
             reply["unfamiliar"] = listed(stylizer.unfamiliar[stream.rows], 3)
-        labeller = stylizer.labeller
-        if labeller is not None and labeller.familiar is not None and not stylizer.known_style[stream.rows].all():
+        if _reads_style(stylizer, stream.rows):
             reply["unread"] = listed(stylizer.unread[stream.rows], 3)  # how far the input's style went unread (neutral)
         if stream.positions:
             reply["input_positions"], reply["output_positions"] = listed(pos[0], 4), listed(pos[1], 4)
@@ -770,6 +773,18 @@ class StyleServer:
         if stream.humanoid:
             reply["input_humanoid"], reply["output_humanoid"] = (listed(h, 5) for h in pose)
         return reply
+
+    @staticmethod
+    def _confidence(stream: Stream) -> np.ndarray:
+        """A binary reply's last block, ``float32 [K][2]``: per stream its frame's unfamiliar and
+        unread, each 0 where it is not measured (``pose`` "network"; the input's style given)."""
+        stylizer, rows = stream.pool.stylizer.stylizer, stream.rows
+        out = np.zeros((len(rows), 2), "<f4")
+        if stylizer.pose == "input":
+            out[:, 0] = stylizer.unfamiliar[rows]
+        if _reads_style(stylizer, rows):
+            out[:, 1] = stylizer.unread[rows]
+        return out
 
     def _fail(self, stream: Stream, code: int, message: str) -> None:
         """End a stream from the stepping task: its frames stop here, the client is told."""
@@ -1072,6 +1087,13 @@ def _sequence_number(value) -> int:
     ):
         raise ClientError(INVALID_DATA, f"a frame's 'seq' must be an integer in 0..{0xFFFFFFFF}, got {value!r}")
     return int(value)
+
+
+def _reads_style(stylizer, rows: np.ndarray) -> bool:
+    """Whether the labeller reads some of these streams' input style with a measure of how far it
+    went unread (``StreamStylizer.unread``)."""
+    labeller = stylizer.labeller
+    return labeller is not None and labeller.familiar is not None and not stylizer.known_style[rows].all()
 
 
 def _joint_positions(

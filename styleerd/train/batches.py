@@ -55,22 +55,26 @@ class OutsideWindows:
     frames: torch.Tensor  # [rows, D] normalised features
     starts: np.ndarray  # [N] first row of each window
     style: np.ndarray  # [N] style index
+    content: np.ndarray  # [N] content index, -1 where the model has no such content
 
     def gather(self, rows: np.ndarray, length: int) -> torch.Tensor:
         return self.frames[torch.as_tensor(self.starts[rows][:, None] + np.arange(length))]
 
 
-def in_place_clips(fs: FeatureSet, data: TrainingData, every: int = 4) -> tuple[torch.Tensor, np.ndarray, np.ndarray]:
+def in_place_clips(
+    fs: FeatureSet, data: TrainingData, every: int = 4
+) -> tuple[torch.Tensor, np.ndarray, np.ndarray, np.ndarray]:
     """Every ``every``-th walk, turn and run of the training split with its root's ground path
     removed, as game and three.js libraries ship them: (normalised frames ``[N, D]``, clip starts
-    ``[C + 1]``, style index per clip)."""
-    frames, starts, styles = [], [0], []
+    ``[C + 1]``, style and content index per clip)."""
+    frames, starts, styles, contents = [], [0], [], []
     for c in [c for c in fs.clips("train") if fs.contents[c] in TRAVELLING][::every]:
         motion = in_place(fs.motion(int(c)))
         frames.append(data.stats.normalize(motion_features(motion)[0]).astype(np.float32))
         starts.append(starts[-1] + len(frames[-1]))
         styles.append(data.styles.index(fs.styles[c]))
-    return torch.from_numpy(np.concatenate(frames)), np.array(starts), np.array(styles)
+        contents.append(data.contents.index(fs.contents[c]))
+    return torch.from_numpy(np.concatenate(frames)), np.array(starts), np.array(styles), np.array(contents)
 
 
 def outside_windows(
@@ -90,17 +94,28 @@ def outside_windows(
     cmu-sample's) would otherwise make 40 % of the loss. With ``neutral`` (the neutral style's
     index), other performers' clips in the model's other styles are left out; without ``in_place``,
     the walks in place are."""
-    frames, clip_start, style, _ = outside_clips(fs, data, data_dir, progress)
+    frames, clip_start, style, content = outside_clips(fs, data, data_dir, progress)
     if neutral is not None:
         style = np.where(style == neutral, style, -1)
     if in_place:
-        more, more_start, more_style = in_place_clips(fs, data)
+        more, more_start, more_style, more_content = in_place_clips(fs, data)
         frames, clip_start = torch.cat([frames, more]), np.concatenate([clip_start, clip_start[-1] + more_start[1:]])
-        style = np.concatenate([style, more_style])
+        style, content = np.concatenate([style, more_style]), np.concatenate([content, more_content])
     starts = window_starts(clip_start, np.nonzero(style >= 0)[0], data.window, stride)
-    every = OutsideWindows(frames, starts, style[np.searchsorted(clip_start, starts, side="right") - 1])
+    clip = np.searchsorted(clip_start, starts, side="right") - 1
+    every = OutsideWindows(frames, starts, style[clip], content[clip])
     inside = (every.gather(np.arange(len(starts)), data.window).abs().amax((1, 2)) <= bound).numpy()
-    return OutsideWindows(frames, starts[inside], every.style[inside])
+    return OutsideWindows(frames, starts[inside], every.style[inside], every.content[inside])
+
+
+def outside_contents(content: np.ndarray, n_contents: int, known: bool, rng: np.random.Generator) -> np.ndarray:
+    """The contents ``[N, n_contents]`` outside windows are told: from one-hot to uniform (Dirichlet
+    0.3), or, with ``known``, a window's own (one-hot) where the model has it (``content >= 0``)."""
+    told = rng.dirichlet(np.full(n_contents, 0.3), len(content))
+    if known:
+        mine = content >= 0
+        told[mine] = np.eye(n_contents)[content[mine]]
+    return told
 
 
 def training_data(fs: FeatureSet, window: int) -> TrainingData:

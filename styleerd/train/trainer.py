@@ -37,7 +37,15 @@ from styleerd.model.fmd import MotionAutoencoder
 from styleerd.model.generator import GeneratorConfig, StyleERD
 from styleerd.models import MODELS_DIR, RECOGNISERS
 from styleerd.train import losses
-from styleerd.train.batches import OutsideWindows, TrainingData, WindowSet, outside_windows, training_data, windows
+from styleerd.train.batches import (
+    OutsideWindows,
+    TrainingData,
+    WindowSet,
+    outside_contents,
+    outside_windows,
+    training_data,
+    windows,
+)
 from styleerd.train.classifiers import accuracy, train_classifier
 from styleerd.train.config import TrainConfig
 from styleerd.train.validation import realism_margin, transfer_quality, transfers, validate
@@ -439,9 +447,14 @@ def _train_in_group(config: TrainConfig, out: Path, data_dir: str | None, progre
             rows = np.concatenate([rng.choice(neutral_rows, half), styled])
             target = np.where(s.train.style[rows] == neutral, rng.choice(others, B), neutral)
             outside = None
-            if s.outside is not None:  # contents from one-hot to uniform (Dirichlet 0.3)
+            if s.outside is not None:
                 o_rows = rng.integers(0, len(s.outside.starts), config.outside_batch)
-                outside = (o_rows, rng.dirichlet(np.full(len(s.data.contents), 0.3), len(o_rows)))
+                outside = (
+                    o_rows,
+                    outside_contents(
+                        s.outside.content[o_rows], len(s.data.contents), config.outside_known_content, rng
+                    ),
+                )
             logs = train_step(G, D, opt_g, opt_d, per_classifier, config, s, rows, target, step, outside=outside)
             if G_avg is not None:
                 update_average(G_avg, G, config.ema)
