@@ -554,6 +554,12 @@ def _serve(args: argparse.Namespace) -> None:
         hosts=tuple(args.allow_host),
         model=args.model,
     )
+    if args.warm_only:
+        from styleerd.serve.server import StyleServer
+
+        StyleServer(config).warm_up()
+        print(f"styleerd serve: the {args.backend} engine is compiled and cached")
+        return
     serve_forever(config, args.workers)
 
 
@@ -909,6 +915,11 @@ def _live_commands(command: Callable[[str, str], argparse.ArgumentParser]) -> No
         default=[],
         metavar="NAME",
         help="a host name the server answers to (default: its address, and localhost names on loopback)",
+    )
+    p.add_argument(
+        "--warm-only",
+        action="store_true",
+        help="compile and calibrate the engine into the cache, then exit (a container image's build step)",
     )
     p.set_defaults(func=_serve)
 

@@ -44,3 +44,25 @@ def test_the_dockerfile_passes_hadolint_and_copies_what_exists(tmp_path):
     broken.write_text(DOCKERFILE.read_text().replace("USER 10001", "USER root"))
     bad = run(str(BIN / "hadolint"), str(broken))
     assert bad.returncode != 0 and "DL3002" in bad.stdout  # the last USER should not be root
+
+
+def test_serve_warm_only_fills_the_caches_a_container_image_keeps(tmp_path):
+    """The Dockerfile's ``styleerd serve --warm-only``: into an empty cache, it compiles the engine's
+    kernels (numba's cache), binds no port (1 would need root), and exits. (Its calibration is kept only
+    where the machine was quiet, so this does not look for it.)"""
+    import os
+    import sys
+
+    env = os.environ | {"NUMBA_CACHE_DIR": str(tmp_path / "numba"), "STYLEERD_CACHE": str(tmp_path / "styleerd")}
+    r = subprocess.run(
+        [sys.executable, "-m", "styleerd.cli", "serve", "--warm-only", "--port", "1"],
+        capture_output=True,
+        text=True,
+        env=env,
+        check=False,
+        timeout=900,
+    )
+    assert r.returncode == 0 and "engine is compiled and cached" in r.stdout, r.stdout + r.stderr
+    compiled = {p.name.split(".")[0] for p in (tmp_path / "numba").rglob("*.nbi")}
+    assert {"stylizer", "compiled", "cleanup", "retarget", "features"} <= compiled, sorted(compiled)
+    assert "RUN styleerd serve --warm-only" in DOCKERFILE.read_text()
