@@ -505,7 +505,7 @@ def test_other_performers_windows_are_rebuilt_in_their_own_style_whatever_conten
     them, trained on alone, is rebuilt better and better."""
     import numpy as np
 
-    from styleerd.data.augment import TRAVELLING
+    from styleerd.data.augment import STRAIGHT, TRAVELLING
     from styleerd.data.features import FeatureLayout
     from styleerd.train.batches import in_place_clips, outside_contents, outside_windows
     from styleerd.train.trainer import make_critic, make_generator, make_optimisers, setup, train_step
@@ -544,6 +544,13 @@ def test_other_performers_windows_are_rebuilt_in_their_own_style_whatever_conten
     placed = o.starts >= len(others.frames)
     assert set(np.unique(o.content[placed])) <= {s.data.contents.index(k) for k in TRAVELLING if k in s.data.contents}
     assert (o.content[placed] >= 0).all() and (o.content[~placed] == -1).any() and (o.content[~placed] >= 0).any()
+    # outside_turns_in_place false: straight walks and runs alone in place
+    straight = outside_windows(s.fs, s.data, config.stride, shared_data, progress=False, turns_in_place=False)
+    placed_straight = straight.starts >= len(others.frames)
+    assert placed_straight.sum() > 0 and set(np.unique(straight.content[placed_straight])) <= {
+        s.data.contents.index(k) for k in STRAIGHT
+    }
+    assert np.array_equal(straight.starts[~placed_straight], others.starts)
     # what they are told: a random content, or with outside_known_content their own where known
     told = outside_contents(o.content[:: len(o.starts) // 200], len(s.data.contents), False, np.random.default_rng(1))
     assert np.allclose(told.sum(1), 1.0) and (told.max(1) < 1.0).all()

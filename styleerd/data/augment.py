@@ -28,6 +28,7 @@ MIRRORED_CONTENT = {
 MIRRORED_CONTENT.update({v: k for k, v in MIRRORED_CONTENT.items()})
 # contents whose root travels, which game and three.js animation libraries also ship in place
 TRAVELLING = ("walk", "run", "walk-turn-left", "walk-turn-right")
+STRAIGHT = ("walk", "run")  # the travelling contents that do not turn
 
 
 def with_proportions(motion: Motion, legs: float, arms: float, trunk: float) -> Motion:

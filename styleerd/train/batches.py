@@ -8,7 +8,7 @@ import numpy as np
 import torch
 from tqdm import tqdm
 
-from styleerd.data.augment import TRAVELLING, in_place
+from styleerd.data.augment import STRAIGHT, TRAVELLING, in_place
 from styleerd.data.cache import FeatureSet, prepare
 from styleerd.data.datasets import BANDAI1_AS_BANDAI2, bandai1_kept_back, data_root, unpack
 from styleerd.data.features import FeatureLayout, FeatureStats, motion_features
@@ -62,19 +62,19 @@ class OutsideWindows:
 
 
 def in_place_clips(
-    fs: FeatureSet, data: TrainingData, every: int = 4
+    fs: FeatureSet, data: TrainingData, every: int = 4, contents: tuple[str, ...] = TRAVELLING
 ) -> tuple[torch.Tensor, np.ndarray, np.ndarray, np.ndarray]:
-    """Every ``every``-th walk, turn and run of the training split with its root's ground path
-    removed, as game and three.js libraries ship them: (normalised frames ``[N, D]``, clip starts
-    ``[C + 1]``, style and content index per clip)."""
-    frames, starts, styles, contents = [], [0], [], []
-    for c in [c for c in fs.clips("train") if fs.contents[c] in TRAVELLING][::every]:
+    """Every ``every``-th walk, turn and run (``contents``) of the training split with its root's
+    ground path removed, as game and three.js libraries ship them: (normalised frames ``[N, D]``,
+    clip starts ``[C + 1]``, style and content index per clip)."""
+    frames, starts, styles, told = [], [0], [], []
+    for c in [c for c in fs.clips("train") if fs.contents[c] in contents][::every]:
         motion = in_place(fs.motion(int(c)))
         frames.append(data.stats.normalize(motion_features(motion)[0]).astype(np.float32))
         starts.append(starts[-1] + len(frames[-1]))
         styles.append(data.styles.index(fs.styles[c]))
-        contents.append(data.contents.index(fs.contents[c]))
-    return torch.from_numpy(np.concatenate(frames)), np.array(starts), np.array(styles), np.array(contents)
+        told.append(data.contents.index(fs.contents[c]))
+    return torch.from_numpy(np.concatenate(frames)), np.array(starts), np.array(styles), np.array(told)
 
 
 def outside_windows(
@@ -86,6 +86,7 @@ def outside_windows(
     bound: float = 16.0,
     neutral: int | None = None,
     in_place: bool = True,
+    turns_in_place: bool = True,
 ) -> OutsideWindows:
     """Every ``data.window``-frame window, each ``stride`` frames, of the ``outside_clips`` whose style
     the model has (one it lacks has no own style to be rebuilt in) and of the ``in_place_clips``, but
@@ -93,12 +94,15 @@ def outside_windows(
     windows reaches 16, and the 1.3 % of other performers' that do (glitches and flailing of
     cmu-sample's) would otherwise make 40 % of the loss. With ``neutral`` (the neutral style's
     index), other performers' clips in the model's other styles are left out; without ``in_place``,
-    the walks in place are."""
+    the walks in place are; without ``turns_in_place``, only straight walks and runs are put in place
+    (every second one, about as many windows)."""
     frames, clip_start, style, content = outside_clips(fs, data, data_dir, progress)
     if neutral is not None:
         style = np.where(style == neutral, style, -1)
     if in_place:
-        more, more_start, more_style, more_content = in_place_clips(fs, data)
+        more, more_start, more_style, more_content = (
+            in_place_clips(fs, data) if turns_in_place else in_place_clips(fs, data, 2, STRAIGHT)
+        )
         frames, clip_start = torch.cat([frames, more]), np.concatenate([clip_start, clip_start[-1] + more_start[1:]])
         style, content = np.concatenate([style, more_style]), np.concatenate([content, more_content])
     starts = window_starts(clip_start, np.nonzero(style >= 0)[0], data.window, stride)

@@ -385,7 +385,14 @@ def _train_in_group(config: TrainConfig, out: Path, data_dir: str | None, progre
     if config.outside_batch:
         neutral = s.data.styles.index(config.neutral_style) if config.outside_neutral else None
         s.outside = outside_windows(
-            s.fs, s.data, config.stride, data_dir, progress, neutral=neutral, in_place=config.outside_in_place
+            s.fs,
+            s.data,
+            config.stride,
+            data_dir,
+            progress,
+            neutral=neutral,
+            in_place=config.outside_in_place,
+            turns_in_place=config.outside_turns_in_place,
         )
     torch.manual_seed(config.seed)
     G = make_generator(config, s).to(config.device)
