@@ -293,7 +293,10 @@ the style's change (styled output minus identity output, per joint, in the body'
 over the clip) against the same on the walks. A posture turns the input's joints towards where the
 style moves them relative to the root in the body's heading frame (up is the world's), so on a body
 lying down (the swims) a head moved forward on a walk is out of reach: those clips' cosines are the
-lowest.
+lowest. The change is measured at the input's own joints: on xia-sample's rig (CMU's layout) the
+joints mapped to the model's Neck and both Shoulders sit where its Spine1 (the model's Chest) is
+(`OFFSET 0 0 0`), so they move with the chest alone where the walks' move forward of it, which
+lowers xia's cosines under elderly (its clavicles, pivoting at the spine, are also nearly four times as long as the model's).
 
 ![a dance](actions-dance-short.png)
 
