@@ -296,7 +296,8 @@ lying down (the swims) a head moved forward on a walk is out of reach: those cli
 lowest. The change is measured at the input's own joints: on xia-sample's rig (CMU's layout) the
 joints mapped to the model's Neck and both Shoulders sit where its Spine1 (the model's Chest) is
 (`OFFSET 0 0 0`), so they move with the chest alone where the walks' move forward of it, which
-lowers xia's cosines under elderly (its clavicles, pivoting at the spine, are also nearly four times as long as the model's).
+lowers xia's cosines under elderly (its clavicles, pivoting at the spine, are also nearly four times
+as long as the model's).
 
 ![a dance](actions-dance-short.png)
 
