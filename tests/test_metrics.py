@@ -51,6 +51,9 @@ def test_shipped_fmd_extractor_and_the_quality_figures(shared_data):
     )
     assert all(0.5 < v <= 1 for v in q["content_ceiling_per_style"].values())
     assert 0 < q["spread"]["sra"] < 0.05 and 0 < q["spread"]["cra"] < 0.05 and 0 < q["spread"]["fmd"] < q["fmd"]
+    # each style's CRA over its ceiling, resampled over that style's transfers: wider than the pooled CRA's
+    assert set(q["cra_of_ceiling_spread_per_style"]) == styles
+    assert all(q["spread"]["cra"] < v < 0.1 for v in q["cra_of_ceiling_spread_per_style"].values())
     assert q["realism_margin"] > 0 and q["worst_fmd_over_floor"] == round(
         max(q["fmd_per_style"][k] / q["fmd_floor_per_style"][k] for k in styles), 3
     )
