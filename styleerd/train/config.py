@@ -54,9 +54,7 @@ class TrainConfig:
     w_outside: float = 1.0
     outside_neutral: bool = False  # only other performers' neutral clips (and the walks in place, in every style)
     outside_in_place: bool = True  # with the training split's walks in place (False: other performers' clips alone)
-    outside_turns_in_place: bool = (
-        True  # False: only straight walks and runs in place (a turn in place is no game clip)
-    )
+    outside_turns_in_place: bool = True  # False: straight walks and runs alone in place, no turns
     outside_known_content: bool = False  # a window whose content the model has is told it (one-hot), not a random one
     # optimisation
     init_from: str = ""  # fine-tune: a saved generator (stem or shipped name) whose weights start the run
