@@ -383,7 +383,7 @@ def _eval_quality(args: argparse.Namespace) -> None:
 
 
 def _eval_streamed(args: argparse.Namespace) -> None:
-    from styleerd.eval.metrics import root_speeds, runtime_transfers
+    from styleerd.eval.metrics import played_content_of_ceiling, root_speeds, runtime_transfers
     from styleerd.eval.recipes import neutralisation
     from styleerd.model import checkpoint as ckpt
 
@@ -395,6 +395,7 @@ def _eval_streamed(args: argparse.Namespace) -> None:
         model, ckpt.load_labeller()[0], style_rec, content_rec, args.data, root_speed=args.root_speed, pose=args.pose
     )
     report["summary"] = neutralisation(report, model.config.neutral_style)
+    report["summary"]["cra_of_ceiling"] = played_content_of_ceiling(report, model.config.neutral_style)
     report["root_speed_by_content_and_style"] = root_speeds(
         data_dir=args.data
     )  # the pace of each style in the training clips

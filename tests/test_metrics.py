@@ -95,8 +95,19 @@ def test_streamed_transfers_back_to_neutral_and_into_styles(shared_data, tmp_pat
     assert n["into_styles_mean"]["given"] > 0.9
     for source, targets in r["transfers"].items():  # the misses, counted by what they were read as
         for target, v in targets.items():
+            assert 0.5 < v["content_ceiling"] <= 1.0  # the content recogniser on the inputs themselves
             assert target not in v["missed_read_as"]
             assert sum(v["missed_read_as"].values()) == round((1 - v["given"]["sra"]) * v["windows"])
+    # per target style, the played content over its ceiling: into neutral pooled over the sources' windows
+    played = n["cra_of_ceiling"]
+    assert set(played) == set(c.styles) and all(0.5 < v < 1.2 for v in played.values())
+    back = [v[c.neutral_style] for k, v in r["transfers"].items() if k != c.neutral_style]
+    pooled = sum(b["given"]["cra"] * b["windows"] for b in back) / sum(
+        b["content_ceiling"] * b["windows"] for b in back
+    )
+    assert abs(played[c.neutral_style] - pooled) < 1e-4
+    into = r["transfers"][c.neutral_style]["elderly"]
+    assert abs(played["elderly"] - into["given"]["cra"] / into["content_ceiling"]) < 1e-4
     # the labeller reads each source's style by the clip's end
     pace = r["root_speed_by_content_and_style"]  # elderly performers walk and run slower than normal ones
     assert (

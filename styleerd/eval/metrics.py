@@ -354,7 +354,7 @@ def runtime_transfers(
     neutral = c.neutral_style
     hits: dict[
         tuple[str, str], np.ndarray
-    ] = {}  # (source, target) -> [given s, given c, inferred s, inferred c, windows]
+    ] = {}  # (source, target) -> [given s, given c, inferred s, inferred c, windows, input's windows read right]
     read_as: dict[str, dict[str, int]] = {}
     misread: dict[
         tuple[str, str], dict[str, int]
@@ -388,6 +388,11 @@ def runtime_transfers(
         seen = read_as.setdefault(style, {})
         seen[label] = seen.get(label, 0) + 1
         starts = np.arange(0, motion.n_frames - window + 1, stride)
+        # the ceiling: the content recogniser on the input's own windows, the same ones
+        given = torch.from_numpy(
+            gather_windows(played_channels(model, motion.rotations, motion.positions, fs.params.fps), starts, window)
+        )
+        ok_in = int((content_rec(given).argmax(-1).numpy() == c.contents.index(content)).sum())
         for k in range(2 * n):
             ch = played_channels(model, rot[k], pos[k], fs.params.fps)
             w = torch.from_numpy(gather_windows(ch, starts, window))
@@ -399,15 +404,28 @@ def runtime_transfers(
                 for r in read[read != c.styles.index(target)]:
                     missed[c.styles[r]] = missed.get(c.styles[r], 0) + 1
             ok_c = int((content_rec(w).argmax(-1).numpy() == c.contents.index(content)).sum())
-            h = hits.setdefault((style, target), np.zeros(5, int))
+            h = hits.setdefault((style, target), np.zeros(6, int))
             h[[0, 1] if k < n else [2, 3]] += (ok_s, ok_c)
-            h[4] += len(starts) if k < n else 0
+            h[[4, 5]] += (len(starts), ok_in) if k < n else 0
     out = {}
     for (source, target), h in sorted(hits.items()):
         out.setdefault(source, {})[target] = {
             "given": {"sra": round(h[0] / h[4], 4), "cra": round(h[1] / h[4], 4)},
             "inferred": {"sra": round(h[2] / h[4], 4), "cra": round(h[3] / h[4], 4)},
             "windows": int(h[4]),
+            "content_ceiling": round(h[5] / h[4], 4),  # the content recogniser on the inputs' own windows
             "missed_read_as": dict(sorted(misread.get((source, target), {}).items(), key=lambda kv: -kv[1])),
         }
     return {"transfers": out, "labeller_reads_input_as_at_end": read_as}
+
+
+def played_content_of_ceiling(streamed: dict, neutral: str, how: str = "given") -> dict[str, float]:
+    """Per target style, the CRA of ``runtime_transfers``' played windows over the content
+    recogniser's ceiling on the same inputs (issue 35's bar: 0.95), labels ``how``: into each style
+    from the neutral clips, into ``neutral`` pooled over every other source style."""
+    t = streamed["transfers"]
+    out = {target: v[how]["cra"] / v["content_ceiling"] for target, v in t[neutral].items()}
+    back = [v[neutral] for source, v in t.items() if source != neutral]
+    read = sum(b[how]["cra"] * b["windows"] for b in back)
+    out[neutral] = read / sum(b["content_ceiling"] * b["windows"] for b in back)
+    return {k: round(out[k], 4) for k in sorted(out)}

@@ -232,7 +232,7 @@ def transfer_quality(
             ),
             4,
         )
-        for k in styles
+        for k in (styles if resamples else [])
     }
     return {
         "transfers": len(targets),
