@@ -223,17 +223,23 @@ def transfer_quality(
         else {}
     )
     # a style's CRA over its ceiling, resampled over that style's transfers (how far a 95 % bar is from noise)
-    of_ceiling_spread = {
-        data.styles[k]: round(
-            bootstrap_spread(
-                int((targets == k).sum()),
-                lambda i, c=ok_c[targets == k], n=ok_in[targets == k]: c[i].mean() / max(n[i].mean(), 1e-9),
-                resamples,
-            ),
-            4,
-        )
-        for k in (styles if resamples else [])
-    }
+    of_ceiling_spread = (
+        {
+            "cra_of_ceiling_spread_per_style": {
+                data.styles[k]: round(
+                    bootstrap_spread(
+                        int((targets == k).sum()),
+                        lambda i, c=ok_c[targets == k], n=ok_in[targets == k]: c[i].mean() / max(n[i].mean(), 1e-9),
+                        resamples,
+                    ),
+                    4,
+                )
+                for k in styles
+            }
+        }
+        if resamples
+        else {}
+    )
     return {
         "transfers": len(targets),
         "sra": round(float(ok_s.mean()), 4),
@@ -248,7 +254,7 @@ def transfer_quality(
         "cra_per_style": {data.styles[k]: round(float(ok_c[targets == k].mean()), 4) for k in styles},
         # per target, the content recogniser's accuracy on the transfers' inputs: its ceiling there
         "content_ceiling_per_style": {data.styles[k]: round(float(ok_in[targets == k].mean()), 4) for k in styles},
-        **({"cra_of_ceiling_spread_per_style": of_ceiling_spread} if resamples else {}),
+        **of_ceiling_spread,
         "sra_per_style": {data.styles[k]: round(float(ok_s[targets == k].mean()), 4) for k in styles},
         "content_misread_per_style": {
             data.styles[k]: misread(given_c[targets == k], read_c[targets == k], data.contents) for k in styles
