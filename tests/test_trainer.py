@@ -570,3 +570,51 @@ def test_other_performers_windows_are_rebuilt_in_their_own_style_whatever_conten
         logs = train_step(G, D, opt_g, opt_d, None, config, s, rows, target, step, outside=(batch, content))
         losses.append(logs["outside"])
     assert np.isfinite(losses).all() and np.mean(losses[-5:]) < 0.6 * np.mean(losses[:5]), losses
+
+
+def test_keep_holds_a_fine_tunes_transfers_near_the_model_it_started_from(shared_data, tmp_path):
+    """``w_keep``: the training windows' transfers are pulled towards the frozen start model's, so
+    after the same steps they are nearer to it than without; the run needs a model to start from."""
+    import copy
+
+    import numpy as np
+
+    from styleerd.train.trainer import make_critic, make_generator, make_optimisers, setup, train, train_step
+
+    config = TrainConfig(**TINY, lr_g=1e-3, use_per=False)
+    s = setup(config, shared_data, progress=False)
+    torch.manual_seed(0)
+    start = make_generator(config, s).requires_grad_(False)
+    rng = np.random.default_rng(0)
+    rows, target = rng.choice(len(s.train.starts), 16), rng.integers(0, len(s.data.styles), 16)
+    x = s.data.gather(s.train.starts[rows])
+    style, content = s.data.onehot_style(s.train.style[rows]), s.data.onehot_content(s.train.content[rows])
+    tgt = s.data.onehot_style(target)
+
+    def drift(w_keep: float) -> tuple[float, list[float]]:
+        torch.manual_seed(1)
+        G, D = copy.deepcopy(start).requires_grad_(True), make_critic(config, s)
+        opt_g, opt_d = make_optimisers(config, G, D)
+        kept = TrainConfig.from_dict({**config.to_dict(), "w_keep": w_keep})
+        logs = [
+            train_step(G, D, opt_g, opt_d, None, kept, s, rows, target, step, start=start if w_keep else None)
+            for step in range(12)
+        ]
+        with torch.no_grad():
+            rot, _ = G.forward_targets(x, style, content, tgt)
+            rot_start, _ = start.forward_targets(x, style, content, tgt)
+        return torch_quat.angle(rot, rot_start).mean().item(), [log.get("keep", 0.0) for log in logs]
+
+    free, _ = drift(0.0)
+    held, keep = drift(20.0)
+    assert keep[0] < 1e-4 < 1e-2 < keep[1], keep  # the same weights at the first step, then apart
+    assert held < 0.5 * free, (held, free)
+    with pytest.raises(StyleERDError, match="w_keep .* needs init_from"):
+        train(TrainConfig(**TINY, epochs=1, w_keep=1.0), tmp_path / "k", progress=False)
+    # through the trainer: the loss is logged per epoch, and a resumed run keeps to the model it started from
+    train(TrainConfig(**TINY, epochs=1), tmp_path / "a", progress=False, export=tmp_path / "start")
+    tuning = TrainConfig(**TINY, epochs=1, init_from=str(tmp_path / "start"), w_keep=1.0)
+    train(tuning, tmp_path / "b", progress=False)
+    train(TrainConfig.from_dict({**tuning.to_dict(), "epochs": 2}), tmp_path / "b", progress=False)
+    rows = list(csv.DictReader((tmp_path / "b" / "metrics.csv").read_text().splitlines()))
+    assert len(rows) == 2 and all(0.0 < float(r["loss_keep"]) < 1.0 for r in rows), rows

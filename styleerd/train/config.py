@@ -56,6 +56,10 @@ class TrainConfig:
     outside_in_place: bool = True  # with the training split's walks in place (False: other performers' clips alone)
     outside_turns_in_place: bool = True  # False: straight walks and runs alone in place, no turns
     outside_known_content: bool = False  # a window whose content the model has is told it (one-hot), not a random one
+    # > 0 (a fine-tune, with init_from): the training windows' transfers are also pulled towards the start model's
+    # (learning without forgetting, Li and Hoiem 2016), so that what the run learns elsewhere does not move what the
+    # start model did well; that loss weighs ``w_keep``
+    w_keep: float = 0.0
     # optimisation
     init_from: str = ""  # fine-tune: a saved generator (stem or shipped name) whose weights start the run
     # > 0: validate and export a moving average of the generator's weights, this decay per step; 0 = the weights

@@ -258,10 +258,12 @@ def train_step(
     step: int,
     tick=lambda part: None,
     outside: tuple[np.ndarray, np.ndarray] | None = None,
+    start: StyleERD | None = None,
 ) -> dict[str, float]:
     """One optimisation step of the generator, then of the critic, on the training windows
     ``rows`` sent to the styles ``target``, and with ``outside`` (rows of ``s.outside``, content
-    weights ``[n, C]``) the reconstruction of other performers' windows; returns the losses it
+    weights ``[n, C]``) the reconstruction of other performers' windows, and with ``start`` (the
+    frozen model a fine-tune started from) the transfers kept near its own; returns the losses it
     computed. ``tick(part)`` is called as each part of the step ends (benchmarks/bench_train_step.py
     times them)."""
     B, J, L, dev = len(rows), G.config.n_joints, G.layout, G.mean.device
@@ -302,6 +304,13 @@ def train_step(
         )
         loss_g = loss_g + config.w_cls * loss_cls
         logs["cls"] = loss_cls.item()
+    if start is not None:
+        with torch.no_grad():
+            rot_s, vel_s = start.forward_targets(x, style, content, tgt)
+            ch_s = start.motion_channels(rot_s, vel_s)
+        loss_keep = losses.reconstruction_loss(rot[B:], rot_s, fake, ch_s, L)
+        loss_g = loss_g + config.w_keep * loss_keep
+        logs["keep"] = loss_keep.item()
     tick("generator losses")
     if config.w_cyc and step % config.cyc_every == 0:
         # the transfer taken back to the input's style must give the input again:
@@ -410,6 +419,7 @@ def _train_in_group(config: TrainConfig, out: Path, data_dir: str | None, progre
     resuming = state_stem.with_suffix(".safetensors").is_file()
     if config.init_from and not resuming:  # once a run has a checkpoint, the weights come from it
         _start_from(G, config.init_from)
+    start = _frozen_start(config, G) if config.w_keep else None
     G_avg = copy.deepcopy(G).requires_grad_(False) if config.ema else None  # what is validated and exported
     if resuming:
         tensors, meta = ckpt.load_tensors(state_stem)
@@ -462,7 +472,9 @@ def _train_in_group(config: TrainConfig, out: Path, data_dir: str | None, progre
                         s.outside.content[o_rows], len(s.data.contents), config.outside_known_content, rng
                     ),
                 )
-            logs = train_step(G, D, opt_g, opt_d, per_classifier, config, s, rows, target, step, outside=outside)
+            logs = train_step(
+                G, D, opt_g, opt_d, per_classifier, config, s, rows, target, step, outside=outside, start=start
+            )
             if G_avg is not None:
                 update_average(G_avg, G, config.ema)
             for k, v in logs.items():  # the mean of each loss over the steps that computed it
@@ -541,6 +553,16 @@ def _start_from(G: StyleERD, stem: str) -> None:
     G.load_state_dict(start.state_dict())
     if G.config.pose_change and not start.config.pose_change:
         G.start_at_no_change()
+
+
+def _frozen_start(config: TrainConfig, G: StyleERD) -> StyleERD:
+    """``w_keep``'s reference: the model the fine-tune started from, frozen (loaded again, as a
+    resumed run's ``G`` holds the checkpoint's weights)."""
+    if not config.init_from:
+        raise StyleERDError("w_keep keeps a fine-tune near the model it starts from: it needs init_from")
+    start = copy.deepcopy(G)
+    _start_from(start, config.init_from)
+    return start.requires_grad_(False).eval()
 
 
 def _realism_judges(
