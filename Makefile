@@ -51,7 +51,7 @@ bench: $(STAMP)
 	$(BIN)/python benchmarks/bench_data.py
 	$(BIN)/python benchmarks/bench_train_step.py
 	$(BIN)/python benchmarks/bench_train_parallel.py
-	$(BIN)/styleerd bench
+	$(BIN)/styleerd bench --json docs/bench.json --plot docs/throughput.png
 	$(BIN)/python benchmarks/onnx_profile.py
 	$(BIN)/python benchmarks/bench_serve.py
 

@@ -495,11 +495,14 @@ def _bench(args: argparse.Namespace) -> None:
     from styleerd.model.checkpoint import load_generator
 
     report = run_bench(load_generator(args.model)[0], args.steps, tuple(args.streams or STREAMS))
-    Path(args.json).parent.mkdir(parents=True, exist_ok=True)
-    atomic_write_text(Path(args.json), json.dumps(report, indent=1) + "\n")
-    plot(report, args.plot)
     print(table(report))
-    print(f"wrote {args.json} and {args.plot}")
+    if args.json:
+        Path(args.json).parent.mkdir(parents=True, exist_ok=True)
+        atomic_write_text(Path(args.json), json.dumps(report, indent=1) + "\n")
+        print(f"wrote {args.json}")
+    if args.plot:
+        plot(report, args.plot)
+        print(f"wrote {args.plot}")
 
 
 def _report(args: argparse.Namespace) -> None:
@@ -1098,8 +1101,8 @@ def _evaluate_commands(command: Callable[[str, str], argparse.ArgumentParser]) -
     p.add_argument(
         "--streams", type=_whole(1), nargs="+", help="concurrent streams of the throughput curve (default 1 .. 4096)"
     )
-    p.add_argument("--json", default="docs/bench.json")
-    p.add_argument("--plot", default="docs/throughput.png")
+    p.add_argument("--json", help="also write the figures to this JSON file")
+    p.add_argument("--plot", help="also draw the throughput curve into this picture (.png)")
     p.set_defaults(func=_bench)
 
     p = command("report", "regenerate docs/RESULTS.md: quality, ablations, runtime, online figures, pictures")

@@ -110,3 +110,19 @@ def test_filmstrip_writes_an_animated_gif_of_some_styles(shared_data, tmp_path):
         assert gif.format == "GIF" and gif.n_frames == 60 and gif.size[0] > 2 * gif.size[1]  # 4 s at 15 fps, 3 panels
     wrong = subprocess.run([*cli, "--styles", "sneaky"], capture_output=True, text=True, timeout=600, check=False)
     assert wrong.returncode == 2 and "--styles: the model has no style sneaky" in wrong.stderr
+
+
+def test_bench_prints_its_table_and_writes_files_only_where_asked(tmp_path, monkeypatch, capsys):
+    """``styleerd bench`` run anywhere must not drop docs/ files into the folder it runs in."""
+    from pathlib import Path
+
+    from styleerd.cli import main
+
+    kept = json.loads((Path(__file__).parents[1] / "docs" / "bench.json").read_text())
+    monkeypatch.setattr("styleerd.eval.bench.run_bench", lambda *a, **k: kept)  # the measuring is not what is tested
+    monkeypatch.chdir(tmp_path)
+    assert main(["bench"]) == 0
+    assert "frames/s, 1,000 streams (2 threads)" in capsys.readouterr().out and not list(tmp_path.iterdir())
+    assert main(["bench", "--json", "out/b.json", "--plot", "t.png"]) == 0
+    assert json.loads((tmp_path / "out" / "b.json").read_text()) == kept
+    assert (tmp_path / "t.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
