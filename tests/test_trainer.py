@@ -607,7 +607,7 @@ def test_keep_holds_a_fine_tunes_transfers_near_the_model_it_started_from(shared
 
     free, _ = drift(0.0)
     held, keep = drift(20.0)
-    assert keep[0] < 1e-4 < 1e-2 < keep[1], keep  # the same weights at the first step, then apart
+    assert keep[0] < 1e-4 and keep[1] > 1e-2, keep  # the same weights at the first step, then apart
     assert held < 0.5 * free, (held, free)
     with pytest.raises(StyleERDError, match="w_keep .* needs init_from"):
         train(TrainConfig(**TINY, epochs=1, w_keep=1.0), tmp_path / "k", progress=False)
