@@ -618,3 +618,11 @@ def test_keep_holds_a_fine_tunes_transfers_near_the_model_it_started_from(shared
     train(TrainConfig.from_dict({**tuning.to_dict(), "epochs": 2}), tmp_path / "b", progress=False)
     rows = list(csv.DictReader((tmp_path / "b" / "metrics.csv").read_text().splitlines()))
     assert len(rows) == 2 and all(0.0 < float(r["loss_keep"]) < 1.0 for r in rows), rows
+    # the reference is the start model as saved, even where the run's own decoder starts elsewhere (pose_change)
+    from styleerd.train.trainer import _frozen_start
+
+    saved, _ = ckpt.load_generator(tmp_path / "start")
+    changing = TrainConfig(**TINY, init_from=str(tmp_path / "start"), w_keep=1.0, pose_change=True)
+    reference = _frozen_start(changing, make_generator(changing, s))
+    assert not reference.config.pose_change and not any(p.requires_grad for p in reference.parameters())
+    assert all(torch.equal(v, reference.state_dict()[k]) for k, v in saved.state_dict().items())

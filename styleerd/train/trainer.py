@@ -538,31 +538,37 @@ def _train_in_group(config: TrainConfig, out: Path, data_dir: str | None, progre
     return best or {}
 
 
-def _start_from(G: StyleERD, stem: str) -> None:
-    """Fine-tuning: the generator starts from a saved one of the same architecture and data. A
-    ``pose_change`` run may start from a model without it: the decoder's last layer then says
-    "no change" for every joint (its rotation rows zero, their bias the identity), so the run
-    starts from the input's own pose and the rest of the network as it was."""
+def _saved_start(G: StyleERD, stem: str) -> StyleERD:
+    """The saved generator a fine-tune of ``G`` starts from, as saved; it must have ``G``'s
+    architecture and data, but for one difference: a ``pose_change`` run may start from a model
+    without it (not the other way)."""
     start, _ = ckpt.load_generator(stem)
-    # the one difference allowed: a pose_change run from a model without it (not the other way)
     if {
         **start.config.to_dict(),
         "pose_change": start.config.pose_change or G.config.pose_change,
     } != G.config.to_dict():
         raise StyleERDError(f"init_from {stem}: its generator config differs from this run's")
+    return start
+
+
+def _start_from(G: StyleERD, stem: str) -> None:
+    """Fine-tuning: the generator starts from a saved one (``_saved_start``). A ``pose_change``
+    run from a model without it: the decoder's last layer then says "no change" for every joint
+    (its rotation rows zero, their bias the identity), so the run starts from the input's own pose
+    and the rest of the network as it was."""
+    start = _saved_start(G, stem)
     G.load_state_dict(start.state_dict())
     if G.config.pose_change and not start.config.pose_change:
         G.start_at_no_change()
 
 
 def _frozen_start(config: TrainConfig, G: StyleERD) -> StyleERD:
-    """``w_keep``'s reference: the model the fine-tune started from, frozen (loaded again, as a
-    resumed run's ``G`` holds the checkpoint's weights)."""
+    """``w_keep``'s reference: the model the fine-tune started from, as saved and frozen (a
+    resumed run's ``G`` holds the checkpoint's weights, a ``pose_change`` run's decoder no longer
+    the start's)."""
     if not config.init_from:
         raise StyleERDError("w_keep keeps a fine-tune near the model it starts from: it needs init_from")
-    start = copy.deepcopy(G)
-    _start_from(start, config.init_from)
-    return start.requires_grad_(False).eval()
+    return _saved_start(G, config.init_from).to(config.device).requires_grad_(False).eval()
 
 
 def _realism_judges(
