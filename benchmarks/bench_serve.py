@@ -1,7 +1,7 @@
 """The style server under load, its protocols side by side in one run: the same real-time
 clients (30 fps, loopback) against a fresh server for each row.
 
-    python benchmarks/bench_serve.py [--seconds 20] [--before COMMIT] [--only NAME ...]
+    python benchmarks/bench_serve.py [--seconds 20] [--before COMMIT] [--rounds N] [--only NAME ...]
                                      [-o docs/protocol-bench.json]
 
 Rows: 40 single-stream connections (a light live load) on the numpy step (the server's default
@@ -12,7 +12,9 @@ server's CPU a frame, split into the engine (the stylizer's steps) and the proto
 else), latency p50/p99/max, and frames dropped, reordered or changed (every reply against a local
 run). The load generator shares the machine's cores with the server. ``--before COMMIT`` serves
 each row also with that commit's server (a git worktree), the two in alternating order, the same
-clients. ``styleerd load-test`` runs one row (and the soak test, ``--faulty``); CI runs a reduced
+clients; ``--rounds N`` runs each row N times, the order alternating each time (a worktree's first
+server compiles what numba has not cached for its paths, so compare rounds after the first).
+``styleerd load-test`` runs one row (and the soak test, ``--faulty``); CI runs a reduced
 size (tests/test_server.py, test_crowd.py).
 """
 
@@ -45,6 +47,7 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--seconds", type=float, default=20.0)
     ap.add_argument("--before", help="also serve each row with this commit's server, in alternating order")
+    ap.add_argument("--rounds", type=int, default=1, help="each row this many times, the order alternating")
     ap.add_argument("--only", nargs="*", default=[], help="the rows whose name holds one of these")
     ap.add_argument("-o", "--output", default="docs/protocol-bench.json")
     args = ap.parse_args()
@@ -57,7 +60,8 @@ def main() -> None:
             servers = {f"before ({args.before})": tree, "now": None}
         try:
             rows = []
-            for i, (name, clients, each, labels, server) in enumerate(chosen):
+            runs = [(row, k) for row in chosen for k in range(args.rounds)]
+            for i, ((name, clients, each, labels, server), k) in enumerate(runs):
                 for who in list(servers)[:: 1 if i % 2 == 0 else -1]:
                     summary, figures = run_load_test(
                         clients,
@@ -67,26 +71,36 @@ def main() -> None:
                         server_args=server,
                         server_code=servers[who],
                     )
-                    print(f"## {name}, {who}\n{summary}\n", flush=True)
-                    rows.append({"row": name, "server": who, "server_args": list(server), **figures})
+                    print(f"## {name}, {who}, round {k + 1}\n{summary}\n", flush=True)
+                    rows.append({"row": name, "server": who, "round": k + 1, "server_args": list(server), **figures})
         finally:
             if args.before:
                 subprocess.run(["git", "-C", str(ROOT), "worktree", "remove", "--force", tree], check=False)
     print(
-        "| load | server | server CPU a frame (us) | engine | protocol | latency p50 / p99 / max (ms) | dropped | "
-        "reordered | largest difference from a local run (deg) |"
+        "| load | server | round | server CPU a frame (us) | engine | protocol | latency p50 / p99 / max (ms) | "
+        "dropped | reordered | largest difference from a local run (deg) |"
     )
-    print("| --- | --- | --- | --- | --- | --- | --- | --- | --- |")
+    print("| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |")
     for r in rows:
         print(
-            f"| {r['row']} | {r['server']} | {r['server_cpu_us_per_frame']:.1f} | {r['engine_cpu_us_per_frame']:.1f} | "
-            f"{r['server_cpu_us_per_frame'] - r['engine_cpu_us_per_frame']:.1f} | {r['latency_ms_p50']:.0f} / "
+            f"| {r['row']} | {r['server']} | {r['round']} | {r['server_cpu_us_per_frame']:.1f} | "
+            f"{r['engine_cpu_us_per_frame']:.1f} | {r['server_cpu_us_per_frame'] - r['engine_cpu_us_per_frame']:.1f} | "
+            f"{r['latency_ms_p50']:.0f} / "
             f"{r['latency_ms_p99']:.0f} / {r['latency_ms_max']:.0f} | {r['dropped']} | {r['reordered']} | "
             f"{r['max_error_deg']:.2g} |"
         )
     atomic_write_text(
         args.output,
-        json.dumps({"system": system_report(), "seconds": args.seconds, "before": args.before, "rows": rows}, indent=1),
+        json.dumps(
+            {
+                "system": system_report(),
+                "seconds": args.seconds,
+                "before": args.before,
+                "rounds": args.rounds,
+                "rows": rows,
+            },
+            indent=1,
+        ),
     )
     print(f"wrote {args.output}")
 
