@@ -60,6 +60,7 @@ CMU_ACTIONS = {
     "002_10": "wash self",
 }
 HANDS_FEET = ("Hand_L", "Hand_R", "Foot_L", "Foot_R")
+FRAMES = ("heading", "body")  # the frames a style's change is compared in (``style_change``)
 
 
 @dataclass(frozen=True)
@@ -171,6 +172,20 @@ def _heading(m: Motion, jm: JointMap) -> np.ndarray:
     return quat.inv(heading_rotations(facing_directions(g, left, right)))
 
 
+def _body(m: Motion, jm: JointMap) -> np.ndarray:
+    """Per frame, world -> the body's own frame ``[T, 3, 3]``: up from the hips to the head, left
+    from the right hip and shoulder to the left ones, forward across them. Upright, it is the
+    heading frame; lying (a swimmer), it turns with the body where the heading frame cannot."""
+    g = forward_positions(m.rotations, m.positions, m.skeleton.parents)
+    at = {jm.target.names[t]: g[:, s] for t, s in jm.pairs}
+    up = at["Head"] - at["Hips"]
+    left = at["UpperLeg_L"] - at["UpperLeg_R"] + at["UpperArm_L"] - at["UpperArm_R"]
+    forward = np.cross(left, up)
+    left = np.cross(up, forward)
+    axes = [a / np.maximum(np.linalg.norm(a, axis=-1, keepdims=True), 1e-9) for a in (left, up, forward)]
+    return np.stack(axes, axis=1)  # rows: the body's axes in world coordinates
+
+
 def action_kept(given: Motion, output: Motion, jm: JointMap, scale: float) -> tuple[float, float]:
     """(root-relative joint error in cm of a 170 cm body, correlation of the hands' and feet's
     root-relative velocities) between an input and its output."""
@@ -183,13 +198,17 @@ def action_kept(given: Motion, output: Motion, jm: JointMap, scale: float) -> tu
     return error, corr
 
 
-def style_change(given: Motion, styled: Motion, identity: Motion, jm: JointMap, scale: float) -> dict[str, np.ndarray]:
-    """Per model joint, the clip's mean of (styled - identity output) root-relative position in
-    the body's heading frame (cm of a 170 cm body)."""
+def style_change(
+    given: Motion, styled: Motion, identity: Motion, jm: JointMap, scale: float
+) -> dict[str, dict[str, np.ndarray]]:
+    """Per frame of reference (``heading``: the body's heading, ``body``: the body's own frame,
+    both of the input) and model joint, the clip's mean of (styled - identity output)
+    root-relative position (cm of a 170 cm body)."""
     a, names = _root_relative(styled, jm)
     b, _ = _root_relative(identity, jm)
-    body = quat.mul_vec(_heading(given, jm)[:, None], a - b).mean(0) * scale
-    return dict(zip(names, body))
+    heading = quat.mul_vec(_heading(given, jm)[:, None], a - b).mean(0) * scale
+    body = np.einsum("tij,tkj->tki", _body(given, jm), a - b).mean(0) * scale
+    return {"heading": dict(zip(names, heading)), "body": dict(zip(names, body))}
 
 
 def _compare(change: dict[str, np.ndarray], reference: dict[str, np.ndarray]) -> tuple[float, float]:
@@ -260,11 +279,21 @@ def evaluate_actions(
                         "change": change,
                     }
                 rows[clip.name] = row
-        walk_change = {s: {k: np.mean([c[k] for c in changes[s]], 0) for k in changes[s][0]} for s in styles}
+        walk_change = {
+            s: {f: {k: np.mean([c[f][k] for c in changes[s]], 0) for k in changes[s][0][f]} for f in FRAMES}
+            for s in styles
+        }
         for row in rows.values():
             for s, r in row["styles"].items():
-                cos, ratio = _compare(r.pop("change"), walk_change[s])
-                r.update(cosine=round(cos, 3), size_ratio=round(ratio, 3))
+                change = r.pop("change")
+                cos, ratio = _compare(change["heading"], walk_change[s]["heading"])
+                cos_body, ratio_body = _compare(change["body"], walk_change[s]["body"])
+                r.update(
+                    cosine=round(cos, 3),
+                    size_ratio=round(ratio, 3),
+                    cosine_body=round(cos_body, 3),
+                    size_ratio_body=round(ratio_body, 3),
+                )
         out["poses"][pose] = {"clips": rows, "summary": _summary(rows, styles)}
         if progress:
             progress(f"pose {pose}: {json_summary(out['poses'][pose]['summary'])}")
@@ -287,9 +316,8 @@ def _summary(rows: dict[str, dict], styles: list[str]) -> dict:
             "styles": {},
         }
         for s in styles:
-            v = np.array(
-                [(r["styles"][s]["correlation"], r["styles"][s]["cosine"], r["styles"][s]["size_ratio"]) for r in rs]
-            )
+            keys = ("correlation", "cosine", "size_ratio", "cosine_body")
+            v = np.array([[r["styles"][s][k] for k in keys] for r in rs])
             g["styles"][s] = {
                 "correlation": round(float(v[:, 0].mean()), 3),
                 "correlation_worst": round(float(v[:, 0].min()), 3),
@@ -297,6 +325,8 @@ def _summary(rows: dict[str, dict], styles: list[str]) -> dict:
                 "cosine_worst": round(float(v[:, 1].min()), 3),
                 "size_ratio": round(float(v[:, 2].mean()), 3),
                 "size_ratio_worst": round(float(v[:, 2].min()), 3),
+                "cosine_body": round(float(v[:, 3].mean()), 3),
+                "cosine_body_worst": round(float(v[:, 3].min()), 3),
             }
         out[group] = g
     return out
@@ -474,6 +504,26 @@ def markdown(report: dict) -> str:
                 f"| **{group}: worst** | | {g['identity_error_cm']['worst']:.1f} | "
                 f"{g['identity_correlation']['worst']:.2f} | " + " | ".join(cells) + " |"
             )
+        low = {n: row for n, row in r["clips"].items() if min(x["cosine"] for x in row["styles"].values()) < 0.7}
+        if low:
+            lines += [
+                "",
+                (
+                    "The clips whose change points elsewhere than the walks' (a cosine under 0.7), the same cosine in "
+                    "the body's own frame (up from the hips to the head) instead of its heading:"
+                ),
+                "",
+                "| clip | action | " + " | ".join(styles) + " |",
+                "|---|---|" + "---:|" * len(styles),
+            ]
+            lines += [
+                f"| {n} | {row['action']} | "
+                + " | ".join(
+                    f"{row['styles'][s]['cosine']:.2f} -> {row['styles'][s]['cosine_body']:.2f}" for s in styles
+                )
+                + " |"
+                for n, row in low.items()
+            ]
         lines.append("")
     if report.get("feet"):
         keys = [k for k in next(iter(report["feet"].values())) if k.startswith("pose")]
