@@ -151,8 +151,10 @@ class Host:
             if posture is None
             else from_rotation_vectors(np.einsum("s,sjc->jc", (self.target - self.identity)[0], posture))
         )
-        # where the posture moves each joint (the body's heading frame), summed by weight; None: not measured
+        # where the posture moves each joint (in the frame posture_frame names), summed by weight; None: not measured
         offsets = np.array(s["posture_offsets"]) if s.get("posture_offsets") is not None else None
+        self.body_frame = s.get("posture_frame") == "body"
+        self.hips, self.head = s["roles"].get("hips", 0), s["roles"].get("head", 0)
         self.moved = None if offsets is None else np.einsum("s,sjc->jc", (self.target - self.identity)[0], offsets)
         rows, _, width = s["state_shapes"]["h"]  # [1, N, S H] (LSTM form) or [S, N, H] (plain); N = 1 here
         self.state = {
@@ -192,6 +194,14 @@ class Host:
         self.previous = g
         return ((x - self.mean) / self.std).astype(np.float32)[None], heading
 
+    def body_axes(self, g: np.ndarray) -> np.ndarray:
+        """The body's own axes as rows (left, up, forward) of global joint positions ``g``: up from
+        the hips to the head, left from the right hip and shoulder to the left ones."""
+        up = g[self.head] - g[self.hips]
+        forward = np.cross(g[self.left].sum(0) - g[self.right].sum(0), up)
+        axes = np.stack([np.cross(up, forward), up, forward])
+        return axes / np.maximum(np.linalg.norm(axes, axis=-1, keepdims=True), 1e-9)
+
     def step(self, rot: np.ndarray, pos: np.ndarray, fps: float) -> np.ndarray:
         """One frame's local rotations ``[J, 4]`` and translations ``[J, 3]`` -> stylised rotations."""
         first = np.array([[0.0 if self.previous is not None else 1.0]], np.float32)
@@ -225,7 +235,8 @@ class Host:
         turned /= np.linalg.norm(turned, axis=-1, keepdims=True)
         if self.moved is not None:  # then turned so that the joints go where the posture moves the input's
             g = self.previous
-            turned = reach(turned, pos, g, g + qrot(heading, self.moved), self.parents)
+            axes = self.body_axes(g) if self.body_frame else qrot(heading, np.eye(3))  # rows: left, up, forward
+            turned = reach(turned, pos, g, g + self.moved @ axes, self.parents)
         return slerp(poses["target"], turned, self.unfamiliar)
 
 

@@ -266,10 +266,10 @@ def _posture(args: argparse.Namespace) -> None:
     walks = list(training_walks(model, args.data))
     if not walks:
         raise StyleERDError(f"no neutral walks in the training split of {meta['data']['dataset']}")
-    posture = measure_posture(model, walks)
+    posture = measure_posture(model, walks, args.frame)
     frames = sum(m.n_frames for m, _ in walks)
     tensors = {f"generator.{k}": torch.from_numpy(v) for k, v in model.arrays.items()}
-    save_tensors(out, tensors, with_posture(meta, model, posture, len(walks), frames))
+    save_tensors(out, tensors, with_posture(meta, model, posture, len(walks), frames, args.frame))
     degrees = np.degrees(np.linalg.norm(posture[0], axis=-1))
     moved = np.linalg.norm(posture[1], axis=-1)
     for style, row, far in zip(model.config.styles, degrees, moved):
@@ -1067,6 +1067,12 @@ def _train_commands(command: Callable[[str, str], argparse.ArgumentParser]) -> N
     )
     p.add_argument("model", nargs="?", help=MODEL_HELP)
     p.add_argument("-o", "--output", help="write the model here (no suffix; default: the model file itself)")
+    p.add_argument(
+        "--frame",
+        choices=["heading", "body"],
+        default="body",
+        help="the frame the joint offsets are kept and reached in: the body's heading (up the world's) or its own",
+    )
     p.add_argument("--data", help="data folder (default: $STYLEERD_DATA, else ../shared/data)")
     p.set_defaults(func=_posture)
 

@@ -10,6 +10,7 @@ from styleerd.model.labeller import OnlineLabeller
 from styleerd.motion import quat
 from styleerd.motion.kinematics import forward_kinematics
 from styleerd.motion.motion import Motion
+from styleerd.motion.skeleton import BodyRoles
 from styleerd.runtime.offline import stylise_motion
 from styleerd.runtime.stylizer import POSES, StreamStylizer, target_weights
 
@@ -606,7 +607,7 @@ def test_reach_turns_each_joint_by_the_shortest_arc_towards_its_childrens_target
     from scipy.spatial.transform import Rotation
 
     from styleerd.model import torch_quat
-    from styleerd.motion.kinematics import heading_rotations
+    from styleerd.motion.kinematics import body_axes, heading_axes, heading_rotations
     from styleerd.runtime.stylizer import _children, _reach
 
     m = walking_motion(5)
@@ -621,8 +622,13 @@ def test_reach_turns_each_joint_by_the_shortest_arc_towards_its_childrens_target
         start = quat.normalize(m.rotations[t] + rng.normal(0, 0.2, (J, 4)))  # the input turned by a posture
         offsets = rng.normal(0, 0.15, (J, 3)) * np.linalg.norm(sk.offsets, axis=-1).mean()
         facing = np.array([np.sin(t), 0.0, np.cos(t)])
-        heading = heading_rotations(facing)
-        targets = given + quat.mul_vec(heading, offsets)
+        if t % 2:  # the body's own frame (a posture measured so): the offsets' rotation from its axes, by scipy
+            roles = BodyRoles.of(sk)
+            axes = body_axes(given, 0, sk.names.index("Head"), roles.left, roles.right)
+            targets = given + Rotation.from_matrix(axes.T).apply(offsets)
+        else:
+            axes = heading_axes(facing)
+            targets = given + quat.mul_vec(heading_rotations(facing), offsets)
         G, X, want = [None] * J, np.zeros((J, 3)), [scipy(q) for q in start]
         for j in range(J):
             p = parents[j]
@@ -643,8 +649,7 @@ def test_reach_turns_each_joint_by_the_shortest_arc_towards_its_childrens_target
             got,
             m.positions[t],
             given,
-            facing[0],
-            facing[2],
+            axes,
             offsets,
             parents,
             first,
@@ -666,8 +671,7 @@ def test_reach_turns_each_joint_by_the_shortest_arc_towards_its_childrens_target
             same,
             m.positions[t],
             given,
-            0.0,
-            1.0,
+            axes,
             np.zeros((J, 3)),
             parents,
             first,
@@ -678,7 +682,7 @@ def test_reach_turns_each_joint_by_the_shortest_arc_towards_its_childrens_target
         assert np.degrees(quat.angle_between(same, m.rotations[t])).max() < 1e-6
 
 
-@pytest.mark.parametrize("posture", ["none", "rotations", "rotations and offsets"])
+@pytest.mark.parametrize("posture", ["none", "rotations", "rotations and offsets", "rotations and body offsets"])
 def test_validations_pose_input_is_the_stylizers(model, posture, monkeypatch):
     """``train.validation.towards_the_input`` (torch, whole windows: what ``eval quality --pose
     input`` judges) gives the stylizer's pose "input" output frame by frame from a fresh state,
@@ -695,6 +699,7 @@ def test_validations_pose_input_is_the_stylizers(model, posture, monkeypatch):
     vectors, offsets = (torch.tensor(rng.normal(0, scale, shape), dtype=torch.float32) for scale in (0.4, 5.0))
     monkeypatch.setattr(model, "posture", None if posture == "none" else vectors)
     monkeypatch.setattr(model, "posture_offsets", offsets if "offsets" in posture else None)
+    monkeypatch.setattr(model, "posture_frame", "body" if "body" in posture else "heading")
     eye_s, eye_c = torch.eye(len(STYLES)), torch.eye(len(CONTENTS))
     with torch.no_grad():
         same, _, _ = model(x, eye_s[[1]], eye_c[[0]], eye_s[[1]])

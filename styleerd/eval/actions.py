@@ -524,6 +524,13 @@ def markdown(report: dict) -> str:
                 + " |"
                 for n, row in low.items()
             ]
+            g = r["summary"]["actions"]["styles"]
+            for label, k in (("mean", ""), ("worst", "_worst")):
+                lines.append(
+                    f"| **actions: {label}** | | "
+                    + " | ".join(f"{g[s]['cosine' + k]:.2f} -> {g[s]['cosine_body' + k]:.2f}" for s in styles)
+                    + " |"
+                )
         lines.append("")
     if report.get("feet"):
         keys = [k for k in next(iter(report["feet"].values())) if k.startswith("pose")]

@@ -291,14 +291,15 @@ change to the network's pose averaged over the training split's neutral walks, `
 and feet's root-relative velocities, input against output (1 = the same action). Cosine and size:
 the style's change (styled output minus identity output, per joint, in the body's heading frame,
 averaged over the clip) against the same on the walks. A posture turns the input's joints towards
-where the style moves them relative to the root in the body's heading frame (up is the world's), so
-on a body lying down (the swims) a head moved forward on a walk is out of reach: those clips' cosines
-are the lowest. For the clips under 0.7, a second table gives the cosine in the body's own frame (up
-from the hips to the head, so it turns with a body lying down): the swims' are no higher there
-(elderly -0.27 to 0.32), which says the change is laid in the wrong frame for them, not measured in
-it. Reaching the posture's offsets in the body's own frame (the stylizer's `_reach`, its torch twin
-and the browser engine, with the posture measured again in that frame) is what would turn a swimmer's
-back as a walker's.
+where the style moves them relative to the root along the body's own axes (up from the hips to the
+head), so a swimmer's back bends as a walker's does; in the heading frame (up the world's) that
+change points elsewhere on a body lying down, so the swims' cosines are the lowest of the main
+table. For the clips under 0.7, a second table gives the same cosine in the body's own frame, and
+the held-out actions' mean and worst: there the swims point as the walks (0.75 to 0.95). With the
+posture laid in the heading frame, as it was until then, the swims read 0.23 to 0.86 in the heading
+frame and -0.27 to 0.71 in the body's own; the three ways side by side are in
+[Model](model.md#the-postures-offsets-along-the-bodys-own-axes) (`python
+benchmarks/posture_frames.py`).
 The change is measured at the input's own joints: on xia-sample's rig (CMU's layout) the
 joints mapped to the model's Neck and both Shoulders sit where its Spine1 (the model's Chest) is
 (`OFFSET 0 0 0`), so they move with the chest alone where the walks' move forward of it, which

@@ -19,7 +19,15 @@ from styleerd.model.config import GeneratorConfig
 from styleerd.model.fmd import MotionAutoencoder
 from styleerd.model.generator import StyleERD
 from styleerd.model.labeller import OnlineLabeller
-from styleerd.model.stored import Familiarity, GeneratorWeights, load_arrays, loaded, posture_offsets, posture_vectors
+from styleerd.model.stored import (
+    Familiarity,
+    GeneratorWeights,
+    load_arrays,
+    loaded,
+    posture_frame,
+    posture_offsets,
+    posture_vectors,
+)
 from styleerd.models import DEFAULT_MODEL, FMD, LABELLER, RECOGNISERS
 from styleerd.motion.skeleton import Skeleton
 
@@ -70,6 +78,7 @@ def build_generator(meta: dict) -> StyleERD:
     posture, offsets = posture_vectors(meta, config), posture_offsets(meta, config)
     model.posture = None if posture is None else torch.from_numpy(posture).float()
     model.posture_offsets = None if offsets is None else torch.from_numpy(offsets).float()
+    model.posture_frame = posture_frame(meta)
     return model
 
 
@@ -80,6 +89,7 @@ def torch_generator(weights: GeneratorWeights) -> StyleERD:
     model.posture = None if weights.posture is None else torch.from_numpy(weights.posture).float()
     offsets = weights.posture_offsets
     model.posture_offsets = None if offsets is None else torch.from_numpy(offsets).float()
+    model.posture_frame = weights.posture_frame
     return model.eval()
 
 

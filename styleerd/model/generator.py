@@ -79,6 +79,7 @@ class StyleERD(nn.Module):
         # None: not measured
         self.posture: torch.Tensor | None = None
         self.posture_offsets: torch.Tensor | None = None
+        self.posture_frame = "heading"  # the frame the offsets are in (``model.stored.posture_frame``)
 
     def stats(self) -> FeatureStats:
         """The feature normalisation the model was trained with."""

@@ -98,6 +98,7 @@ class GeneratorWeights:
     meta: dict = field(default_factory=dict)
     posture: np.ndarray | None = None  # [styles, J, 3] rotation vectors (``posture_vectors``), None: not measured
     posture_offsets: np.ndarray | None = None  # [styles, J, 3] joint offsets (``posture_offsets``), None: not measured
+    posture_frame: str = "heading"  # the frame the offsets are in (``posture_frame``)
 
     @property
     def branch_styles(self) -> list[int]:
@@ -115,7 +116,13 @@ def generator_weights(model) -> GeneratorWeights:
     posture = None if model.posture is None else model.posture.double().numpy()
     offsets = None if model.posture_offsets is None else model.posture_offsets.double().numpy()
     return GeneratorWeights(
-        model.config, model.skeleton, model.stats(), arrays, posture=posture, posture_offsets=offsets
+        model.config,
+        model.skeleton,
+        model.stats(),
+        arrays,
+        posture=posture,
+        posture_offsets=offsets,
+        posture_frame=model.posture_frame,
     )
 
 
@@ -137,8 +144,8 @@ def posture_vectors(meta: dict, config: GeneratorConfig) -> np.ndarray | None:
 
 
 def posture_offsets(meta: dict, config: GeneratorConfig) -> np.ndarray | None:
-    """Each target style's posture as where it moves each joint (``runtime.posture``), in the body's
-    heading frame and the skeleton's units, ``[styles, J, 3]`` in the model's style order; None
+    """Each target style's posture as where it moves each joint (``runtime.posture``), in the frame
+    ``posture_frame`` names and the skeleton's units, ``[styles, J, 3]`` in the model's style order; None
     where the model file has none (measured before offsets were)."""
     measured = (meta.get("posture") or {}).get("offsets")
     if measured is None:
@@ -151,6 +158,19 @@ def posture_offsets(meta: dict, config: GeneratorConfig) -> np.ndarray | None:
     if not np.isfinite(offsets).all() or np.abs(offsets).max() > 1e6:
         raise ValueError("posture: offsets must be finite and at most 1e6 in the skeleton's units")
     return offsets
+
+
+POSTURE_FRAMES = ("heading", "body")
+
+
+def posture_frame(meta: dict) -> str:
+    """The frame a model file's posture offsets are in: "heading" (the body's heading, up the
+    world's; files measured before the frame was kept) or "body" (the body's own, up from the
+    hips to the head: ``motion.kinematics.body_axes``)."""
+    frame = (meta.get("posture") or {}).get("frame", "heading")
+    if frame not in POSTURE_FRAMES:
+        raise ValueError(f"posture frame {frame!r}; valid: {', '.join(POSTURE_FRAMES)}")
+    return frame
 
 
 def _generator(arrays: dict[str, np.ndarray], meta: dict) -> GeneratorWeights:
@@ -172,7 +192,14 @@ def _generator(arrays: dict[str, np.ndarray], meta: dict) -> GeneratorWeights:
     if skeleton.n_joints != J:
         raise ValueError(f"the skeleton has {skeleton.n_joints} joints, the configuration says {J}")
     return GeneratorWeights(
-        config, skeleton, stats, weights, meta, posture_vectors(meta, config), posture_offsets(meta, config)
+        config,
+        skeleton,
+        stats,
+        weights,
+        meta,
+        posture_vectors(meta, config),
+        posture_offsets(meta, config),
+        posture_frame(meta),
     )
 
 

@@ -97,6 +97,19 @@ def reach(rotations: torch.Tensor, offsets: torch.Tensor, targets: torch.Tensor,
     return torch.stack(out, -2)
 
 
+def body_axes(
+    positions: torch.Tensor, hips: int, head: int, left: tuple[int, ...], right: tuple[int, ...]
+) -> torch.Tensor:
+    """The body's own axes as rows ``[..., 3, 3]`` (left, up, forward) of joint positions ``[..., J,
+    3]``; ``motion.kinematics.body_axes``' twin."""
+    up = positions[..., head, :] - positions[..., hips, :]
+    across = (positions[..., list(left), :] - positions[..., list(right), :]).sum(-2)
+    forward = torch.linalg.cross(across, up, dim=-1)
+    across = torch.linalg.cross(up, forward, dim=-1)
+    axes = torch.stack([across, up, forward], -2)
+    return axes / axes.norm(dim=-1, keepdim=True).clamp_min(1e-9)
+
+
 def root_relative_positions(rotations: torch.Tensor, offsets: torch.Tensor, parents: list[int]) -> torch.Tensor:
     """Joint positions ``[..., J, 3]`` relative to the root, in the root's parent frame, from
     local rotations ``[..., J, 4]`` and rest offsets ``[J, 3]`` (forward kinematics with the

@@ -87,6 +87,30 @@ def heading_rotations(directions: np.ndarray) -> np.ndarray:
     return quat.from_angle_axis(angle, UP)
 
 
+def heading_axes(directions: np.ndarray) -> np.ndarray:
+    """The heading frame's axes as rows ``[..., 3, 3]`` (left, up, forward, in world coordinates)
+    for ground-plane facing directions ``[..., 3]``: ``heading_rotations``' columns."""
+    fx, fz = directions[..., 0], directions[..., 2]
+    zero, one = np.zeros_like(fx), np.ones_like(fx)
+    return np.stack([np.stack([fz, zero, -fx], -1), np.stack([zero, one, zero], -1), np.stack([fx, zero, fz], -1)], -2)
+
+
+def body_axes(
+    global_positions: np.ndarray, hips: int, head: int, left: tuple[int, ...], right: tuple[int, ...]
+) -> np.ndarray:
+    """The body's own axes as rows ``[..., 3, 3]`` (left, up, forward, in world coordinates): up
+    from the hips to the head, left from the right joints to the left ones (hips and shoulders),
+    forward across them. Upright, the heading frame's axes tilted with the trunk; lying down (a
+    swimmer), they turn with the body where the heading frame keeps the world's up. Degenerate
+    (the head on the hips): zero axes, no NaN."""
+    up = global_positions[..., head, :] - global_positions[..., hips, :]
+    across = (global_positions[..., left, :] - global_positions[..., right, :]).sum(axis=-2)
+    forward = np.cross(across, up)
+    across = np.cross(up, forward)
+    axes = np.stack([across, up, forward], -2)
+    return axes / np.maximum(np.linalg.norm(axes, axis=-1, keepdims=True), 1e-9)
+
+
 def foot_contacts(
     global_positions: np.ndarray, previous_positions: np.ndarray, feet: tuple[int, ...], fps: float, max_speed: float
 ) -> np.ndarray:

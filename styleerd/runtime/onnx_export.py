@@ -32,6 +32,7 @@ from styleerd.data.features import CONTACT_SPEED
 from styleerd.errors import StyleERDError
 from styleerd.model.stored import GeneratorWeights, generator_weights
 from styleerd.motion import quat
+from styleerd.motion.humanoid import body_parts
 from styleerd.motion.skeleton import BodyRoles
 from styleerd.runtime.numpy_step import step_weights
 
@@ -482,7 +483,7 @@ def sidecar(
     """What a host needs around the graph: label orders, the state's rows, the body roles the
     features use, the skeleton and the feature normalisation (docs/ONNX.md)."""
     model = generator_weights(model)
-    c, roles, meta = model.config, BodyRoles.of(model.skeleton), model.meta
+    c, roles, meta, parts = model.config, BodyRoles.of(model.skeleton), model.meta, body_parts(model.skeleton)
     layers = state_layers(model, styles)
     return {
         "graph": graph_name,
@@ -507,16 +508,21 @@ def sidecar(
             "left": list(roles.left),
             "right": list(roles.right),
             "feet": list(roles.feet),
+            "hips": parts["hips"],
+            "head": parts["head"],
             "leg_length": roles.leg_length,
         },
         "contact_speed_leg_lengths": CONTACT_SPEED,
         # per target style (``styles``' order) and joint, the rotation vector (radians) of its posture:
         # what an input the network never learnt is turned by (``runtime.posture``); null: not measured
         "posture": None if model.posture is None else np.round(model.posture, 6).tolist(),
-        # per target style and joint, where its posture moves the joint relative to the root, in the body's
-        # heading frame (the skeleton's units): the input turned by the posture is then turned so its joints
-        # go there (``runtime.stylizer._reach``); null: not measured
+        # per target style and joint, where its posture moves the joint relative to the root, in the frame
+        # posture_frame names (the skeleton's units): the input turned by the posture is then turned so its
+        # joints go there (``runtime.stylizer._reach``); null: not measured
         "posture_offsets": None if model.posture_offsets is None else np.round(model.posture_offsets, 6).tolist(),
+        # "body": along the body's own axes on the input's pose (left: right hip and shoulder to left ones, up:
+        # hips to head, forward: left x up, made orthogonal); "heading": the body's heading, up the world's
+        "posture_frame": model.posture_frame,
         "skeleton": model.skeleton.to_dict(),
         "stats": model.stats().to_dict(),
     }

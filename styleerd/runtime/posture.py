@@ -7,9 +7,12 @@ them points anywhere (on held-out actions, a cosine of 0.2-0.6 with the same cha
 posture is the part of a style that does not depend on the action (a bent back, lowered arms,
 turned-in knees): the input's own pose turned by it keeps the action and shows the style the way it
 shows on walks (measurements: docs/RESULTS.md, "Any action, any performer"). It is kept two ways:
-per joint the mean rotation, and where the style moves the joint relative to the root in the body's
-heading frame (the mean offset), which the stylizer then turns the joints towards
-(``runtime.stylizer._reach``), as the same rotations move a body in another pose elsewhere.
+per joint the mean rotation, and where the style moves the joint relative to the root along the
+body's own axes (up from the hips to the head: the mean offset), which the stylizer then turns the
+joints towards (``runtime.stylizer._reach``), as the same rotations move a body in another pose
+elsewhere. Along the body's axes, not its heading's, a swimmer's back bends as a walker's does
+(docs/RESULTS.md, "Any action, any performer"); model files measured before keep their heading
+frame (``model.stored.posture_frame``).
 
 ``styleerd posture`` measures it once after training and stores it in the model file."""
 
@@ -24,7 +27,8 @@ from styleerd.data.datasets import data_root, find_clips, load_motion
 from styleerd.data.windows import split_takes
 from styleerd.model.stored import GeneratorWeights
 from styleerd.motion import quat
-from styleerd.motion.kinematics import forward_positions, heading_rotations
+from styleerd.motion.humanoid import body_parts
+from styleerd.motion.kinematics import body_axes, forward_positions, heading_axes
 from styleerd.motion.motion import Motion
 from styleerd.runtime.stylizer import StreamStylizer
 
@@ -41,11 +45,15 @@ def training_walks(model: GeneratorWeights, data_dir: str | None = None) -> Iter
             yield motion[: int(round(SECONDS * motion.fps))], c.content
 
 
-def measure_posture(model: GeneratorWeights, walks: list[tuple[Motion, str]]) -> tuple[np.ndarray, np.ndarray]:
+def measure_posture(
+    model: GeneratorWeights, walks: list[tuple[Motion, str]], frame: str = "body"
+) -> tuple[np.ndarray, np.ndarray]:
     """Each style's posture over every frame of ``walks``, as the network gives it: ``[styles, J, 3]``
     the mean rotation vector of inv(identity) * styled per joint (its root's in the world), and
-    ``[styles, J, 3]`` the mean of styled - identity joint positions relative to the root, in the
-    body's heading frame (the skeleton's units)."""
+    ``[styles, J, 3]`` the mean of styled - identity joint positions relative to the root, in
+    ``frame`` (the body's heading, or its own: ``model.stored.posture_frame``) on the input's pose
+    (the skeleton's units)."""
+    parts = body_parts(model.skeleton)
     styles = model.config.styles
     neutral = styles.index(model.config.neutral_style)
     total = np.zeros((len(styles), model.config.n_joints, 3))
@@ -70,22 +78,33 @@ def measure_posture(model: GeneratorWeights, walks: list[tuple[Motion, str]]) ->
             total += quat.to_scaled_angle_axis(quat.mul(quat.inv(same), out))
             g = forward_positions(out, pos, parents)
             g -= g[:, :1]
-            body = quat.inv(heading_rotations(stylizer.facing[:1]))
-            moved += quat.mul_vec(body[:, None], g - g[neutral : neutral + 1])
+            if frame == "body":
+                given = forward_positions(motion.rotations[t], motion.positions[t], parents)
+                axes = body_axes(given, parts["hips"], parts["head"], stylizer.roles.left, stylizer.roles.right)
+            else:
+                axes = heading_axes(stylizer.facing[0])
+            moved += (g - g[neutral : neutral + 1]) @ axes.T  # each offset's coordinates along the axes
         frames += motion.n_frames
     return total / max(frames, 1), moved / max(frames, 1)
 
 
 def with_posture(
-    meta: dict, model: GeneratorWeights, posture: tuple[np.ndarray, np.ndarray], walks: int, frames: int
+    meta: dict,
+    model: GeneratorWeights,
+    posture: tuple[np.ndarray, np.ndarray],
+    walks: int,
+    frames: int,
+    frame: str = "body",
 ) -> dict:
-    """``meta`` (a model file's configuration) with the measured posture (``measure_posture``) in it."""
+    """``meta`` (a model file's configuration) with the measured posture (``measure_posture``, its
+    offsets in ``frame``) in it."""
     vectors, offsets = posture
     neutral = model.config.neutral_style
     return {
         **meta,
         "posture": {
             "measured_on": f"{walks} neutral walks of the training split, {frames} frames (styleerd posture)",
+            "frame": frame,
             "rotation_vectors": {
                 s: np.round(vectors[k], 6).tolist() for k, s in enumerate(model.config.styles) if s != neutral
             },

@@ -49,6 +49,8 @@ from styleerd.model.stored import (
     toward_neutral,
 )
 from styleerd.motion import quat
+from styleerd.motion.humanoid import body_parts
+from styleerd.motion.kinematics import body_axes, heading_axes
 from styleerd.motion.retarget import BODY_PARTS, part_joints
 from styleerd.motion.skeleton import BodyRoles
 from styleerd.runtime.backends import make_backend
@@ -601,10 +603,26 @@ class StreamStylizer:
             _towards_the_input,
             _towards_the_input_on_shards,
             *(given, same, styled, np.ascontiguousarray(weights - own, np.float64), posture, offsets, seen),
-            *(FAMILIAR, UNFAMILIAR, weight, np.ascontiguousarray(positions, np.float64), g, facing),
+            *(
+                FAMILIAR,
+                UNFAMILIAR,
+                weight,
+                np.ascontiguousarray(positions, np.float64),
+                g,
+                self._posture_axes(g, facing),
+            ),
             self.model.skeleton.parents,
         )
         return styled
+
+    def _posture_axes(self, g: np.ndarray, facing: np.ndarray) -> np.ndarray:
+        """Per stream ``[N, 3, 3]``, the axes of the frame the model's posture offsets were measured
+        in, on the input's pose (global positions ``g``, facing directions ``facing``): the body's own
+        (``posture_frame`` "body") or its heading."""
+        if self.model.posture_frame == "body":
+            parts = body_parts(self.skeleton)
+            return body_axes(g, parts["hips"], parts["head"], self.roles.left, self.roles.right)
+        return heading_axes(facing)
 
 
 @nb.njit(cache=True, nogil=True)
@@ -624,17 +642,16 @@ def _children(parents):
 
 
 @nb.njit(cache=True, nogil=True)
-def _reach(rot, translations, given, fx, fz, offsets, parents, first, kids, G, X):
+def _reach(rot, translations, given, axes, offsets, parents, first, kids, G, X):
     """One stream's pose ``rot [J, 4]`` (local rotations, the root's in the world) turned in place so
     that each joint's children go towards the input's joint positions ``given [J, 3]`` (global) moved
-    by ``offsets [J, 3]`` (the body's heading frame, from the facing direction ``fx, fz``): down the
+    by ``offsets [J, 3]`` (in the frame whose axes are the rows of ``axes [3, 3]``: the posture's,
+    ``StreamStylizer._posture_axes``): down the
     chain, each joint but the root turned by the shortest arc from its children's summed bone
     vectors to the vectors to their targets (so a bone's twist about itself is kept; a bone's
     length is, so a target may be out of reach). ``first``, ``kids``: the children
     (``_children``); ``G [J, 4]``, ``X [J, 3]``: scratch."""
     J = rot.shape[0]
-    half = 0.5 * np.arctan2(fx, fz)
-    hw, hy = np.cos(half), np.sin(half)
     for j in range(J):
         p = parents[j]
         if p < 0:
@@ -656,7 +673,10 @@ def _reach(rot, translations, given, fx, fz, offsets, parents, first, kids, G, X
             vx, vy, vz = quat.mul_vec_scalars(
                 G[j, 0], G[j, 1], G[j, 2], G[j, 3], translations[k, 0], translations[k, 1], translations[k, 2]
             )
-            ox, oy, oz = quat.mul_vec_scalars(hw, 0.0, hy, 0.0, offsets[k, 0], offsets[k, 1], offsets[k, 2])
+            a, b, c = offsets[k, 0], offsets[k, 1], offsets[k, 2]
+            ox = a * axes[0, 0] + b * axes[1, 0] + c * axes[2, 0]
+            oy = a * axes[0, 1] + b * axes[1, 1] + c * axes[2, 1]
+            oz = a * axes[0, 2] + b * axes[1, 2] + c * axes[2, 2]
             tx, ty, tz = given[k, 0] + ox - X[j, 0], given[k, 1] + oy - X[j, 1], given[k, 2] + oz - X[j, 2]
             cx, cy, cz, dx, dy, dz = cx + vx, cy + vy, cz + vz, dx + tx, dy + ty, dz + tz  # bones, and to targets
         rw, rx, ry, rz = quat.between_scalars(cx, cy, cz, dx, dy, dz)  # none: no change
@@ -690,7 +710,7 @@ def _towards_the_input(
     weight,
     translations,
     globals_,
-    facing,
+    axes,
     parents,
 ):
     """Per stream (``[N, J, 4]`` each): its unfamiliarity ``weight`` (the identity output ``same``'s
@@ -702,7 +722,7 @@ def _towards_the_input(
     posture, the network's own change inv(same) * styled), then, with posture ``offsets [styles, J,
     3]`` (``[styles, 0, 3]``: none), turned so that the joints go where the input's are moved by the
     offsets weighted alike (``_reach``; ``translations``, ``globals_``: the input's local joint
-    translations and global positions, ``facing``: its facing directions). The posture is put
+    translations and global positions, ``axes [N, 3, 3]``: the frame the offsets are in). The posture is put
     together only for a stream that needs it."""
     N, J = given.shape[0], given.shape[1]
     turn, reach = posture.shape[1] == J, offsets.shape[1] == J
@@ -746,7 +766,7 @@ def _towards_the_input(
         if reach:
             for j in range(J):
                 moved[j, 0], moved[j, 1], moved[j, 2] = _weighted(diff[n], offsets, j)
-            _reach(target, translations[n], globals_[n], facing[n, 0], facing[n, 2], moved, parents, first, kids, G, X)
+            _reach(target, translations[n], globals_[n], axes[n], moved, parents, first, kids, G, X)
         for j in range(J):
             sw, sx, sy, sz = styled[n, j, 0], styled[n, j, 1], styled[n, j, 2], styled[n, j, 3]
             tw, tx, ty, tz = target[j, 0], target[j, 1], target[j, 2], target[j, 3]
@@ -776,7 +796,7 @@ def _towards_the_input_on_shards(
     weight,
     translations,
     globals_,
-    facing,
+    axes,
     parents,
 ):
     """``_towards_the_input`` on ``shards`` slices of the streams, one per thread."""
@@ -796,7 +816,7 @@ def _towards_the_input_on_shards(
             weight[s:e],
             translations[s:e],
             globals_[s:e],
-            facing[s:e],
+            axes[s:e],
             parents,
         )
 

@@ -15,6 +15,8 @@ from styleerd.model.classifiers import WindowClassifier
 from styleerd.model.config import FAMILIAR, RELEASE, UNFAMILIAR
 from styleerd.model.fmd import MotionAutoencoder, fmd_features
 from styleerd.model.generator import StyleERD
+from styleerd.motion.humanoid import body_parts
+from styleerd.motion.skeleton import BodyRoles
 from styleerd.train.batches import TrainingData, WindowSet, window_rotations
 
 # Issue 16's bars for a realistic model, per target style: FMD at most 3 x its floor, CRA at
@@ -119,7 +121,13 @@ def towards_the_input(
         if model.posture_offsets is not None:
             L, J = model.layout, model.config.n_joints
             positions = (x[..., L.positions] * model.std[L.positions] + model.mean[L.positions]).unflatten(-1, (J, 3))
-            moved = torch.einsum("bs,sjc->bjc", target - own, model.posture_offsets)[:, None]
+            moved = torch.einsum("bs,sjc->bjc", target - own, model.posture_offsets)
+            if model.posture_frame == "body":  # the offsets along the body's own axes, in the heading frame
+                parts, roles = body_parts(model.skeleton), BodyRoles.of(model.skeleton)
+                axes = torch_quat.body_axes(positions, parts["hips"], parts["head"], roles.left, roles.right)
+                moved = torch.einsum("bjc,btck->btjk", moved, axes.to(moved.dtype))
+            else:
+                moved = moved[:, None]
             turned = torch_quat.reach(turned, model.offsets, positions + moved, model.parents)
     rot = torch_quat.slerp(rot, turned, weight[..., None].expand(rot.shape[:-1]))
     return rot, vel + weight[..., None] * (x[..., model.layout.velocities] - same_vel)

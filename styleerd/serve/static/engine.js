@@ -45,6 +45,15 @@ function shortestArc(a, b) { // the rotation by the smallest angle taking a's di
 // The pose rot turned so that each joint's children go towards targets (global): down the chain, each joint but
 // the root by the shortest arc from its children's summed bone vectors to the summed vectors to their targets.
 // given: the input's global joint positions (the root's is kept); as examples/onnx_host.py's reach.
+// The frames a posture's offsets are in, as rows (left, up, forward; motion.kinematics' heading_axes, body_axes).
+function headingAxes(heading) { return [[1, 0, 0], [0, 1, 0], [0, 0, 1]].map((v) => qrot(heading, v)); }
+function bodyAxes(g, roles) { // up from the hips to the head, left from the right hip and shoulder to the left ones
+  const up = [0, 1, 2].map((k) => g[roles.head][k] - g[roles.hips][k]);
+  const across = [0, 1, 2].map((k) => g[roles.left[0]][k] + g[roles.left[1]][k] - g[roles.right[0]][k] - g[roles.right[1]][k]);
+  const forward = cross(across, up);
+  return [cross(up, forward), up, forward].map((v) => { const n = Math.max(Math.hypot(...v), 1e-9); return v.map((x) => x / n); });
+}
+
 function reach(rot, pos, given, targets, parents) {
   rot = rot.slice();
   const gRot = rot.slice(), gPos = given.slice();
@@ -108,7 +117,7 @@ export class StyleHost {
       const angle = Math.hypot(...v), scale = angle > 1e-12 ? Math.sin(angle / 2) / angle : 0.5;
       return [Math.cos(angle / 2), ...v.map((x) => x * scale)];
     });
-    // where the posture moves each joint (the body's heading frame), summed by weight; null: none measured
+    // where the posture moves each joint (in the frame side.posture_frame names), summed by weight; null: none measured
     const offsets = this.side.posture_offsets;
     this.moved = offsets && offsets[0].map((joint, j) =>
       [0, 1, 2].map((k) => offsets.reduce((sum, style, s) => sum + (this.target[s] - this.identity[s]) * style[j][k], 0)));
@@ -183,7 +192,8 @@ export class StyleHost {
     const change = (j) => (this.change ? this.change[j] : qmul(inverse(poses.identity[j]), poses.target[j]));
     let turned = given.map((q, j) => normalize(qmul(q, change(j))));
     if (this.moved) { // then turned so that the joints go where the posture moves the input's
-      const g = this.previous, targets = g.map((x, j) => qrot(heading, this.moved[j]).map((v, k) => v + x[k]));
+      const g = this.previous, axes = this.side.posture_frame === "body" ? bodyAxes(g, this.roles) : headingAxes(heading);
+      const targets = g.map((x, j) => [0, 1, 2].map((k) => x[k] + this.moved[j].reduce((sum, o, i) => sum + o * axes[i][k], 0)));
       turned = reach(turned, pos, g, targets, this.parents);
     }
     return given.map((_, j) => slerp(poses.target[j], turned[j], this.unfamiliar));
