@@ -88,14 +88,15 @@ def _labeller_as_generator(tmp: Path) -> str:
     return str(tmp / "lab")
 
 
-def _model_with_posture_offsets(tmp: Path, offsets: dict) -> str:
-    """The shipped model with its posture's joint offsets replaced by ``offsets`` (style -> rows)."""
+def _model_with_posture_offsets(tmp: Path, offsets: dict, frame: object = "body") -> str:
+    """The shipped model with its posture's joint offsets replaced by ``offsets`` (style -> rows),
+    said to be in ``frame``."""
     import json
 
     from styleerd.model.stored import load_arrays
 
     arrays, meta = load_arrays(MODELS_DIR / "styleerd-bandai2")
-    meta["posture"]["offsets"] = offsets
+    meta["posture"]["offsets"], meta["posture"]["frame"] = offsets, frame
     save_file(arrays, str(tmp / "bent.safetensors"), metadata={"styleerd": json.dumps(meta)})
     return str(tmp / "bent")
 
@@ -192,6 +193,10 @@ CASES = {
     "posture offsets of a style the model lacks": (
         lambda t: ["styles", "--model", _model_with_posture_offsets(t, {"zombie": [[0.0] * 3] * 21})],
         "posture offsets of 'zombie', a style the model does not have",
+    ),
+    "posture offsets in a frame there is none of": (
+        lambda t: ["styles", "--model", _model_with_posture_offsets(t, {"elderly": [[0.0] * 3] * 21}, ["body"])],
+        "posture frame ['body']; valid: heading, body",
     ),
     "posture offsets of the wrong shape": (
         lambda t: ["styles", "--model", _model_with_posture_offsets(t, {"elderly": [[0.0, 1.0]]})],
