@@ -608,7 +608,7 @@ def test_reach_turns_each_joint_by_the_shortest_arc_towards_its_childrens_target
 
     from styleerd.model import torch_quat
     from styleerd.motion.kinematics import body_axes, heading_axes, heading_rotations
-    from styleerd.runtime.stylizer import _children, _reach
+    from styleerd.runtime.stylizer import _children, _frame_axes, _reach
 
     m = walking_motion(5)
     sk, parents, J = m.skeleton, m.skeleton.parents, m.skeleton.n_joints
@@ -629,6 +629,10 @@ def test_reach_turns_each_joint_by_the_shortest_arc_towards_its_childrens_target
         else:
             axes = heading_axes(facing)
             targets = given + quat.mul_vec(heading_rotations(facing), offsets)
+        compiled = np.empty((3, 3))  # the kernels' own axes (``_frame_axes``) are the numpy functions'
+        joints = np.array([0, sk.names.index("Head"), *BodyRoles.of(sk).left, *BodyRoles.of(sk).right])
+        _frame_axes(given, facing * 3.0, joints, bool(t % 2), compiled)
+        assert np.abs(compiled - axes).max() < 1e-12
         G, X, want = [None] * J, np.zeros((J, 3)), [scipy(q) for q in start]
         for j in range(J):
             p = parents[j]

@@ -37,7 +37,7 @@ from styleerd.data.outside import CMU_HELD_OUT, CMU_REPORTED_SWIMS, XIA_ACTIONS,
 from styleerd.data.windows import split_takes
 from styleerd.model.stored import GeneratorWeights
 from styleerd.motion import bvh, quat
-from styleerd.motion.kinematics import facing_directions, forward_positions, heading_rotations
+from styleerd.motion.kinematics import body_axes, facing_directions, forward_positions, heading_rotations
 from styleerd.motion.motion import Motion
 from styleerd.motion.procedural import walk
 from styleerd.motion.resample import resample
@@ -173,17 +173,13 @@ def _heading(m: Motion, jm: JointMap) -> np.ndarray:
 
 
 def _body(m: Motion, jm: JointMap) -> np.ndarray:
-    """Per frame, world -> the body's own frame ``[T, 3, 3]``: up from the hips to the head, left
-    from the right hip and shoulder to the left ones, forward across them. Upright, it is the
-    heading frame; lying (a swimmer), it turns with the body where the heading frame cannot."""
+    """Per frame, world -> the body's own frame ``[T, 3, 3]`` (``kinematics.body_axes``: up from the
+    hips to the head). Upright, it is the heading frame; lying (a swimmer), it turns with the body
+    where the heading frame cannot."""
     g = forward_positions(m.rotations, m.positions, m.skeleton.parents)
-    at = {jm.target.names[t]: g[:, s] for t, s in jm.pairs}
-    up = at["Head"] - at["Hips"]
-    left = at["UpperLeg_L"] - at["UpperLeg_R"] + at["UpperArm_L"] - at["UpperArm_R"]
-    forward = np.cross(left, up)
-    left = np.cross(up, forward)
-    axes = [a / np.maximum(np.linalg.norm(a, axis=-1, keepdims=True), 1e-9) for a in (left, up, forward)]
-    return np.stack(axes, axis=1)  # rows: the body's axes in world coordinates
+    at = {jm.target.names[t]: s for t, s in jm.pairs}
+    left, right = (at["UpperLeg_L"], at["UpperArm_L"]), (at["UpperLeg_R"], at["UpperArm_R"])
+    return body_axes(g, at["Hips"], at["Head"], left, right)
 
 
 def action_kept(given: Motion, output: Motion, jm: JointMap, scale: float) -> tuple[float, float]:

@@ -50,7 +50,6 @@ from styleerd.model.stored import (
 )
 from styleerd.motion import quat
 from styleerd.motion.humanoid import body_parts
-from styleerd.motion.kinematics import body_axes, heading_axes
 from styleerd.motion.retarget import BODY_PARTS, part_joints
 from styleerd.motion.skeleton import BodyRoles
 from styleerd.runtime.backends import make_backend
@@ -279,6 +278,8 @@ class StreamStylizer:
         )  # steps from several threads take turns: the barrier needs all of one step's shards running
         self.skeleton = model.skeleton
         self.roles = BodyRoles.of(self.skeleton)
+        parts = body_parts(self.skeleton)  # hips, head, left hip and shoulder, right ones: a posture's body axes
+        self.frame_joints = np.array([parts["hips"], parts["head"], *self.roles.left, *self.roles.right], np.int64)
         self.stats = model.stats()
         self.fps = fps
         self.n = n_streams
@@ -603,26 +604,10 @@ class StreamStylizer:
             _towards_the_input,
             _towards_the_input_on_shards,
             *(given, same, styled, np.ascontiguousarray(weights - own, np.float64), posture, offsets, seen),
-            *(
-                FAMILIAR,
-                UNFAMILIAR,
-                weight,
-                np.ascontiguousarray(positions, np.float64),
-                g,
-                self._posture_axes(g, facing),
-            ),
-            self.model.skeleton.parents,
+            *(FAMILIAR, UNFAMILIAR, weight, np.ascontiguousarray(positions, np.float64), g, facing),
+            *(self.frame_joints, self.model.posture_frame == "body", self.model.skeleton.parents),
         )
         return styled
-
-    def _posture_axes(self, g: np.ndarray, facing: np.ndarray) -> np.ndarray:
-        """Per stream ``[N, 3, 3]``, the axes of the frame the model's posture offsets were measured
-        in, on the input's pose (global positions ``g``, facing directions ``facing``): the body's own
-        (``posture_frame`` "body") or its heading."""
-        if self.model.posture_frame == "body":
-            parts = body_parts(self.skeleton)
-            return body_axes(g, parts["hips"], parts["head"], self.roles.left, self.roles.right)
-        return heading_axes(facing)
 
 
 @nb.njit(cache=True, nogil=True)
@@ -646,7 +631,7 @@ def _reach(rot, translations, given, axes, offsets, parents, first, kids, G, X):
     """One stream's pose ``rot [J, 4]`` (local rotations, the root's in the world) turned in place so
     that each joint's children go towards the input's joint positions ``given [J, 3]`` (global) moved
     by ``offsets [J, 3]`` (in the frame whose axes are the rows of ``axes [3, 3]``: the posture's,
-    ``StreamStylizer._posture_axes``): down the
+    ``_frame_axes``): down the
     chain, each joint but the root turned by the shortest arc from its children's summed bone
     vectors to the vectors to their targets (so a bone's twist about itself is kept; a bone's
     length is, so a target may be out of reach). ``first``, ``kids``: the children
@@ -686,6 +671,34 @@ def _reach(rot, translations, given, axes, offsets, parents, first, kids, G, X):
         )
 
 
+@nb.njit(cache=True, nogil=True)
+def _frame_axes(g, facing, joints, body, axes):
+    """Into ``axes [3, 3]``, as rows (left, up, forward), the frame a posture's offsets are in on one
+    stream's pose (global positions ``g [J, 3]``): where ``body``, the body's own
+    (``motion.kinematics.body_axes`` of ``joints``: hips, head, left hip and shoulder, right ones),
+    else its heading's, from its facing direction (``heading_axes``)."""
+    if body:
+        h, top, l0, l1, r0, r1 = joints[0], joints[1], joints[2], joints[3], joints[4], joints[5]
+        for k in range(3):
+            axes[1, k] = g[top, k] - g[h, k]
+            axes[0, k] = g[l0, k] + g[l1, k] - g[r0, k] - g[r1, k]
+        for row, a, b in ((2, 0, 1), (0, 1, 2)):  # forward = across x up, then left = up x forward
+            x = axes[a, 1] * axes[b, 2] - axes[a, 2] * axes[b, 1]
+            y = axes[a, 2] * axes[b, 0] - axes[a, 0] * axes[b, 2]
+            z = axes[a, 0] * axes[b, 1] - axes[a, 1] * axes[b, 0]
+            axes[row, 0], axes[row, 1], axes[row, 2] = x, y, z
+        for row in range(3):
+            d = 1.0 / max(np.sqrt(axes[row, 0] ** 2 + axes[row, 1] ** 2 + axes[row, 2] ** 2), 1e-9)
+            axes[row, 0], axes[row, 1], axes[row, 2] = axes[row, 0] * d, axes[row, 1] * d, axes[row, 2] * d
+        return
+    fx, fz = facing[0], facing[2]
+    d = np.sqrt(fx * fx + fz * fz)
+    fx, fz = (fx / d, fz / d) if d > 1e-12 else (0.0, 1.0)
+    axes[0, 0], axes[0, 1], axes[0, 2] = fz, 0.0, -fx
+    axes[1, 0], axes[1, 1], axes[1, 2] = 0.0, 1.0, 0.0
+    axes[2, 0], axes[2, 1], axes[2, 2] = fx, 0.0, fz
+
+
 @nb.njit(cache=True, nogil=True, inline="always")
 def _weighted(weights, per_style, j):
     """Joint ``j``'s vector of ``per_style [styles, J, 3]`` summed by ``weights [styles]``."""
@@ -710,23 +723,27 @@ def _towards_the_input(
     weight,
     translations,
     globals_,
-    axes,
+    facing,
+    frame_joints,
+    body,
     parents,
 ):
     """Per stream (``[N, J, 4]`` each): its unfamiliarity ``weight`` (the identity output ``same``'s
-    mean joint angle to the input ``given``, degrees, from ``familiar`` (0) to ``unfamiliar`` (1),
-    at least ``seen``), and ``styled`` slerped by it towards the input turned by the style's change,
-    in place. The change from the input's own style to the target, ``diff [N, styles]`` (weights
-    less the own style's): per joint (local rotations, the roots' in the world) the rotation of the
-    postures' rotation vectors ``posture [styles, J, 3]`` weighted by it (``[styles, 0, 3]``: no
-    posture, the network's own change inv(same) * styled), then, with posture ``offsets [styles, J,
-    3]`` (``[styles, 0, 3]``: none), turned so that the joints go where the input's are moved by the
-    offsets weighted alike (``_reach``; ``translations``, ``globals_``: the input's local joint
-    translations and global positions, ``axes [N, 3, 3]``: the frame the offsets are in). The posture is put
-    together only for a stream that needs it."""
+        mean joint angle to the input ``given``, degrees, from ``familiar`` (0) to ``unfamiliar`` (1),
+        at least ``seen``), and ``styled`` slerped by it towards the input turned by the style's change,
+        in place. The change from the input's own style to the target, ``diff [N, styles]`` (weights
+        less the own style's): per joint (local rotations, the roots' in the world) the rotation of the
+        postures' rotation vectors ``posture [styles, J, 3]`` weighted by it (``[styles, 0, 3]``: no
+        posture, the network's own change inv(same) * styled), then, with posture ``offsets [styles, J,
+        3]`` (``[styles, 0, 3]``: none), turned so that the joints go where the input's are moved by the
+        offsets weighted alike (``_reach``; ``translations``, ``globals_``: the input's local joint
+        translations and global positions; the offsets along the body's own axes where ``body``, from its
+    joints ``frame_joints``, else along its heading's, from its facing directions ``facing``:
+    ``_frame_axes``). The posture is put
+        together only for a stream that needs it."""
     N, J = given.shape[0], given.shape[1]
     turn, reach = posture.shape[1] == J, offsets.shape[1] == J
-    target, moved, G, X = np.empty((J, 4)), np.empty((J, 3)), np.empty((J, 4)), np.empty((J, 3))
+    target, moved, G, X, axes = np.empty((J, 4)), np.empty((J, 3)), np.empty((J, 4)), np.empty((J, 3)), np.empty((3, 3))
     first, kids = _children(parents)
     for n in range(N):
         total = 0.0
@@ -766,7 +783,8 @@ def _towards_the_input(
         if reach:
             for j in range(J):
                 moved[j, 0], moved[j, 1], moved[j, 2] = _weighted(diff[n], offsets, j)
-            _reach(target, translations[n], globals_[n], axes[n], moved, parents, first, kids, G, X)
+            _frame_axes(globals_[n], facing[n], frame_joints, body, axes)
+            _reach(target, translations[n], globals_[n], axes, moved, parents, first, kids, G, X)
         for j in range(J):
             sw, sx, sy, sz = styled[n, j, 0], styled[n, j, 1], styled[n, j, 2], styled[n, j, 3]
             tw, tx, ty, tz = target[j, 0], target[j, 1], target[j, 2], target[j, 3]
@@ -796,7 +814,9 @@ def _towards_the_input_on_shards(
     weight,
     translations,
     globals_,
-    axes,
+    facing,
+    frame_joints,
+    body,
     parents,
 ):
     """``_towards_the_input`` on ``shards`` slices of the streams, one per thread."""
@@ -816,7 +836,9 @@ def _towards_the_input_on_shards(
             weight[s:e],
             translations[s:e],
             globals_[s:e],
-            axes[s:e],
+            facing[s:e],
+            frame_joints,
+            body,
             parents,
         )
 
