@@ -630,10 +630,9 @@ def _children(parents):
 def _reach(rot, translations, given, axes, offsets, parents, first, kids, G, X):
     """One stream's pose ``rot [J, 4]`` (local rotations, the root's in the world) turned in place so
     that each joint's children go towards the input's joint positions ``given [J, 3]`` (global) moved
-    by ``offsets [J, 3]`` (in the frame whose axes are the rows of ``axes [3, 3]``: the posture's,
-    ``_frame_axes``): down the
-    chain, each joint but the root turned by the shortest arc from its children's summed bone
-    vectors to the vectors to their targets (so a bone's twist about itself is kept; a bone's
+    by ``offsets [J, 3]`` (along the rows of ``axes [3, 3]``: the posture's frame, ``_frame_axes``):
+    down the chain, each joint but the root turned by the shortest arc from its children's summed
+    bone vectors to the vectors to their targets (so a bone's twist about itself is kept; a bone's
     length is, so a target may be out of reach). ``first``, ``kids``: the children
     (``_children``); ``G [J, 4]``, ``X [J, 3]``: scratch."""
     J = rot.shape[0]
@@ -729,18 +728,17 @@ def _towards_the_input(
     parents,
 ):
     """Per stream (``[N, J, 4]`` each): its unfamiliarity ``weight`` (the identity output ``same``'s
-        mean joint angle to the input ``given``, degrees, from ``familiar`` (0) to ``unfamiliar`` (1),
-        at least ``seen``), and ``styled`` slerped by it towards the input turned by the style's change,
-        in place. The change from the input's own style to the target, ``diff [N, styles]`` (weights
-        less the own style's): per joint (local rotations, the roots' in the world) the rotation of the
-        postures' rotation vectors ``posture [styles, J, 3]`` weighted by it (``[styles, 0, 3]``: no
-        posture, the network's own change inv(same) * styled), then, with posture ``offsets [styles, J,
-        3]`` (``[styles, 0, 3]``: none), turned so that the joints go where the input's are moved by the
-        offsets weighted alike (``_reach``; ``translations``, ``globals_``: the input's local joint
-        translations and global positions; the offsets along the body's own axes where ``body``, from its
-    joints ``frame_joints``, else along its heading's, from its facing directions ``facing``:
-    ``_frame_axes``). The posture is put
-        together only for a stream that needs it."""
+    mean joint angle to the input ``given``, degrees, from ``familiar`` (0) to ``unfamiliar`` (1),
+    at least ``seen``), and ``styled`` slerped by it towards the input turned by the style's change,
+    in place. The change from the input's own style to the target, ``diff [N, styles]`` (weights
+    less the own style's): per joint (local rotations, the roots' in the world) the rotation of the
+    postures' rotation vectors ``posture [styles, J, 3]`` weighted by it (``[styles, 0, 3]``: no
+    posture, the network's own change inv(same) * styled), then, with posture ``offsets [styles, J,
+    3]`` (``[styles, 0, 3]``: none), turned so that the joints go where the input's are moved by the
+    offsets weighted alike (``_reach``; ``translations``, ``globals_``: the input's local joint
+    translations and global positions). The offsets are along the body's own axes where ``body``
+    (from its joints ``frame_joints``), else along its heading's (from its facing directions
+    ``facing``): ``_frame_axes``. The posture is put together only for a stream that needs it."""
     N, J = given.shape[0], given.shape[1]
     turn, reach = posture.shape[1] == J, offsets.shape[1] == J
     target, moved, G, X, axes = np.empty((J, 4)), np.empty((J, 3)), np.empty((J, 4)), np.empty((J, 3)), np.empty((3, 3))
