@@ -164,22 +164,16 @@ def _root_relative(m: Motion, jm: JointMap) -> tuple[np.ndarray, list[str]]:
     return g[:, source] - g[:, root : root + 1], names
 
 
-def _heading(m: Motion, jm: JointMap) -> np.ndarray:
-    """Per frame, the inverse of the body's heading (from hips and shoulders): world -> body."""
-    g = forward_positions(m.rotations, m.positions, m.skeleton.parents)
-    source = {jm.target.names[t]: s for t, s in jm.pairs}
-    left, right = (source["UpperLeg_L"], source["UpperArm_L"]), (source["UpperLeg_R"], source["UpperArm_R"])
-    return quat.inv(heading_rotations(facing_directions(g, left, right)))
-
-
-def _body(m: Motion, jm: JointMap) -> np.ndarray:
-    """Per frame, world -> the body's own frame ``[T, 3, 3]`` (``kinematics.body_axes``: up from the
-    hips to the head). Upright, it is the heading frame; lying (a swimmer), it turns with the body
-    where the heading frame cannot."""
+def _frames(m: Motion, jm: JointMap) -> tuple[np.ndarray, np.ndarray]:
+    """Per frame of ``m``, world -> the body's heading (``[T, 4]``, from hips and shoulders) and
+    world -> the body's own frame (``[T, 3, 3]``, ``kinematics.body_axes``: up from the hips to the
+    head). Upright the two agree; lying (a swimmer), the second turns with the body where the
+    heading cannot."""
     g = forward_positions(m.rotations, m.positions, m.skeleton.parents)
     at = {jm.target.names[t]: s for t, s in jm.pairs}
     left, right = (at["UpperLeg_L"], at["UpperArm_L"]), (at["UpperLeg_R"], at["UpperArm_R"])
-    return body_axes(g, at["Hips"], at["Head"], left, right)
+    heading = quat.inv(heading_rotations(facing_directions(g, left, right)))
+    return heading, body_axes(g, at["Hips"], at["Head"], left, right)
 
 
 def action_kept(given: Motion, output: Motion, jm: JointMap, scale: float) -> tuple[float, float]:
@@ -202,8 +196,9 @@ def style_change(
     root-relative position (cm of a 170 cm body)."""
     a, names = _root_relative(styled, jm)
     b, _ = _root_relative(identity, jm)
-    heading = quat.mul_vec(_heading(given, jm)[:, None], a - b).mean(0) * scale
-    body = np.einsum("tij,tkj->tki", _body(given, jm), a - b).mean(0) * scale
+    to_heading, to_body = _frames(given, jm)
+    heading = quat.mul_vec(to_heading[:, None], a - b).mean(0) * scale
+    body = np.einsum("tij,tkj->tki", to_body, a - b).mean(0) * scale
     return {"heading": dict(zip(names, heading)), "body": dict(zip(names, body))}
 
 

@@ -27,7 +27,6 @@ from styleerd.data.datasets import data_root, find_clips, load_motion
 from styleerd.data.windows import split_takes
 from styleerd.model.stored import GeneratorWeights
 from styleerd.motion import quat
-from styleerd.motion.humanoid import body_parts
 from styleerd.motion.kinematics import body_axes, forward_positions, heading_axes
 from styleerd.motion.motion import Motion
 from styleerd.runtime.stylizer import StreamStylizer
@@ -53,7 +52,6 @@ def measure_posture(
     ``[styles, J, 3]`` the mean of styled - identity joint positions relative to the root, in
     ``frame`` (the body's heading, or its own: ``model.stored.posture_frame``) on the input's pose
     (the skeleton's units)."""
-    parts = body_parts(model.skeleton)
     styles = model.config.styles
     neutral = styles.index(model.config.neutral_style)
     total = np.zeros((len(styles), model.config.n_joints, 3))
@@ -78,9 +76,10 @@ def measure_posture(
             total += quat.to_scaled_angle_axis(quat.mul(quat.inv(same), out))
             g = forward_positions(out, pos, parents)
             g -= g[:, :1]
-            if frame == "body":
-                given = forward_positions(motion.rotations[t], motion.positions[t], parents)
-                axes = body_axes(given, parts["hips"], parts["head"], stylizer.roles.left, stylizer.roles.right)
+            if frame == "body":  # on the input's global positions, which the stylizer keeps
+                axes = body_axes(
+                    stylizer.previous[0], *stylizer.frame_joints[:2], stylizer.roles.left, stylizer.roles.right
+                )
             else:
                 axes = heading_axes(stylizer.facing[0])
             moved += (g - g[neutral : neutral + 1]) @ axes.T  # each offset's coordinates along the axes
