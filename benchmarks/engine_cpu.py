@@ -4,10 +4,13 @@ parts measured on this machine, each the best of alternating rounds.
 1. The step's matrix products alone (the same sgemm calls and shapes: ``compiled.products``) on one
    thread over 512 streams, by the block of streams each call takes: sgemm's cost per call against
    the cache a small block saves.
-2. The whole network step on the same streams and blocks: the products' share, and the rest (the
-   LSTM cells' activations, the copies between layers).
+2. The whole network step on the same streams and blocks: the products' share, and the rest: the
+   LSTM cells' activations (``compiled._cells``, timed alone on the same streams and layers) and
+   the copies between layers.
 3. Two threads over 1,024 streams: the step's shards in numba's OpenMP region, against the same
-   shards on two Python threads (the compiled step releases the GIL), BLAS held to one thread in both.
+   shards on two Python threads (the compiled step releases the GIL), BLAS held to one thread in
+   both; and the products alone on two Python threads against one (does a thread lose speed when
+   the other core works too?).
 
     python benchmarks/engine_cpu.py [--rounds 3] [--json docs/engine-cpu-<cpu>.json]
 """
@@ -83,7 +86,17 @@ def main() -> None:
     buffer = rng.normal(0, 1, 2 * n * int(calls[:, 1:].max())).astype(np.float32)
     x = inputs(n)
     rows = []
+    layers = c.neutral_layers + c.style_layers
+    H = c.hidden
+    gates, bias = rng.normal(0, 1, (n, 4 * H)).astype(np.float32), np.zeros(4 * H, np.float32)
+    hs, cs = np.zeros((n, layers * H), np.float32), np.zeros((n, layers * H), np.float32)
+
+    def cells() -> None:  # the state laid out as the step's: one row a stream, a layer's columns
+        for i in range(layers):
+            compiled._cells(gates, bias, hs, cs, i * H, H)
+
     with threadpool_limits(1):
+        cells_us = round(best_seconds(cells, args.rounds) * 1e6, 1)
         for b in BLOCKS:
             products = best_seconds(lambda b=b: compiled.products(P, calls, n, buffer, b), args.rounds)
             step = network(n, StepChoice(b, False, 1))
@@ -99,8 +112,10 @@ def main() -> None:
                 }
             )
     report["one_thread_512_streams"] = rows
+    report["cells_alone_512_streams_us"] = cells_us
     print(
-        f"\n{n} streams, 1 thread, by block (us a step; fraction of the 1-thread peak)\n"
+        f"\n{n} streams, 1 thread, by block (us a step; fraction of the 1-thread peak); "
+        f"the cells alone ({layers} layers): {cells_us:.0f} us\n"
         "| block | products alone | network | the rest (cells, copies) |\n| --- | --- | --- | --- |"
     )
     for r in rows:
@@ -112,14 +127,18 @@ def main() -> None:
     n = 1024
     x = inputs(n)
     halves = [slice(0, n // 2), slice(n // 2, n)]
+    buffers = [rng.normal(0, 1, len(buffer)).astype(np.float32) for _ in halves]  # one per thread, as shards
+    alone = {r["block_rows"]: r["products_us"] for r in report["one_thread_512_streams"]}
     rows = []
-    for b in (32, 256, 512):
+    for b in (32, 64, 256, 512):
         in_openmp = network(n, StepChoice(b, False, 2))
         openmp = best_seconds(lambda s=in_openmp: s.step(*x), args.rounds)
         on_pool = network(n, StepChoice(b, False, 1))
         with ThreadPoolExecutor(2) as pool, threadpool_limits(1):
             shard = lambda s, st=on_pool: st.step(*(a[s] for a in x), s)
             pooled = best_seconds(lambda shard=shard: list(pool.map(shard, halves)), args.rounds)
+            half = lambda buf, b=b: compiled.products(P, calls, n // 2, buf, b)
+            both = best_seconds(lambda half=half: list(pool.map(half, buffers)), args.rounds)
         rows.append(
             {
                 "block_rows": b,
@@ -127,17 +146,23 @@ def main() -> None:
                 "openmp_fraction_of_peak": round(n * flops / openmp / peaks[2], 4),
                 "python_threads_us": round(pooled * 1e6, 1),
                 "python_threads_fraction_of_peak": round(n * flops / pooled / peaks[2], 4),
+                "products_two_threads_us": round(both * 1e6, 1),
+                "products_two_threads_fraction_of_peak": round(n * flops / both / peaks[2], 4),
+                "products_two_threads_against_one": round(alone[b] / (both * 1e6), 3),
             }
         )
     report["two_threads_1024_streams"] = rows
     print(
         f"\n{n} streams, 2 threads, network (us a step; fraction of the 2-thread peak)\n"
-        "| block | numba's OpenMP region | two Python threads |\n| --- | --- | --- |"
+        "| block | numba's OpenMP region | two Python threads | the products alone, two Python threads "
+        "(a thread's speed against one thread alone) |\n| --- | --- | --- | --- |"
     )
     for r in rows:
         print(
             f"| {r['block_rows']} | {r['openmp_us']:.0f} ({100 * r['openmp_fraction_of_peak']:.1f} %) | "
-            f"{r['python_threads_us']:.0f} ({100 * r['python_threads_fraction_of_peak']:.1f} %) |"
+            f"{r['python_threads_us']:.0f} ({100 * r['python_threads_fraction_of_peak']:.1f} %) | "
+            f"{r['products_two_threads_us']:.0f} ({100 * r['products_two_threads_fraction_of_peak']:.1f} %; "
+            f"{r['products_two_threads_against_one']:.2f}x) |"
         )
     path = (
         args.json or ROOT / "docs" / f"engine-cpu-{re.sub(r'[^a-z0-9]+', '-', report['cpu'].lower()).strip('-')}.json"

@@ -327,6 +327,27 @@ def test_tanh_fraction_gives_tanh_and_sigmoid_to_float32_precision():
     assert np.abs((q + p) / (2 * q) - 1 / (1 + np.exp(-v.astype(np.float64)))).max() < 5e-7
 
 
+def test_the_compiled_cells_are_an_lstm_layer_on_their_columns_alone():
+    """``compiled._cells`` (what ``engine_cpu.py`` times alone) against an LSTM cell in float64
+    (gates i, f, g, o): the state's columns ``a`` to ``a + H`` updated, every other column kept."""
+    from styleerd.runtime.compiled import _cells
+
+    rng = np.random.default_rng(3)
+    N, H, a = 5, 8, 16
+    g, bias = rng.normal(0, 3, (N, 4 * H)).astype(np.float32), rng.normal(0, 1, 4 * H).astype(np.float32)
+    hs, cs = rng.normal(0, 1, (N, 40)).astype(np.float32), rng.normal(0, 1, (N, 40)).astype(np.float32)
+    h0, c0 = hs.copy(), cs.copy()
+    _cells(g, bias, hs, cs, a, H)
+    sig = lambda v: 1 / (1 + np.exp(-v))
+    v = g.astype(np.float64) + bias
+    i, f, cand, o = sig(v[:, :H]), sig(v[:, H : 2 * H]), np.tanh(v[:, 2 * H : 3 * H]), sig(v[:, 3 * H :])
+    c = f * c0[:, a : a + H] + i * cand
+    np.testing.assert_allclose(cs[:, a : a + H], c, atol=2e-6)
+    np.testing.assert_allclose(hs[:, a : a + H], o * np.tanh(c), atol=2e-6)
+    outside = np.r_[0:a, a + H : 40]
+    assert (hs[:, outside] == h0[:, outside]).all() and (cs[:, outside] == c0[:, outside]).all()
+
+
 def test_onnx_backend_runs_many_streams_on_a_graph_of_one_op_per_layer(model):
     """A call of many streams (from ``UNFUSED_FROM``) runs the one-style LSTM graph with an op
     per layer (faster there), a few streams the one with an op per depth; same outputs."""

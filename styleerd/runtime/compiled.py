@@ -179,23 +179,29 @@ def _stack(P, table, first_entry, layers, x, hs, cs, at, g, loops_up_to):
             _blas(P, e_h[0], e_h[1], e_h[2], -1, hs[:, a : a + H], g, True)
         else:
             _blas(P, e[0], 2 * H, e[2], -1, hs[:, a - H : a + H], g, False)
-        # Row by row through 1-d views: loops over a 2-d array at a column offset do not
-        # vectorise (6x slower). One loop over the cells, 8 wide: in the step, 1.17x the frames/s
-        # of a tanh pass over the row's 4H gates followed by the cell (512 streams, 1 thread).
-        bias = P[e[3] : e[3] + 4 * H]
-        for n in range(N):
-            gn, hn, cn = g[n], hs[n, a : a + H], cs[n, a : a + H]
-            for j in range(H):
-                # sigmoid(v) = (q + p) / 2q and tanh(v) = p / q for (p, q) = tanh_fraction(v / 2)
-                # and (v): c' = sigmoid_f c + sigmoid_i tanh_g and h' = sigmoid_o tanh(c') each
-                # over one division, not five divisions
-                pi, qi = tanh_fraction(np.float32(0.5) * (gn[j] + bias[j]))
-                pf, qf = tanh_fraction(np.float32(0.5) * (gn[H + j] + bias[H + j]))
-                pg, qg = tanh_fraction(gn[2 * H + j] + bias[2 * H + j])
-                po, qo = tanh_fraction(np.float32(0.5) * (gn[3 * H + j] + bias[3 * H + j]))
-                c = ((qf + pf) * cn[j] * qi * qg + (qi + pi) * pg * qf) / (np.float32(2.0) * qf * qi * qg)
-                pc, qc = tanh_fraction(c)
-                cn[j], hn[j] = c, (qo + po) * pc / (np.float32(2.0) * qo * qc)
+        _cells(g, P[e[3] : e[3] + 4 * H], hs, cs, a, H)
+
+
+@nb.njit(cache=True, fastmath=True, error_model="numpy", nogil=True)
+def _cells(g, bias, hs, cs, a, H):
+    """One LSTM layer's cells on its gates ``g [N, 4H]`` (before the bias ``[4H]``): its state,
+    the columns ``a`` to ``a + H`` of ``hs, cs [N, S]``, updated in place. Row by row through 1-d
+    views of the whole rows: loops over a 2-d array at a column offset, or over a row of a 2-d
+    view, do not vectorise (6x and 2x slower). One loop over the cells: in the step, 1.17x the
+    frames/s of a tanh pass over the row's 4H gates followed by the cell (512 streams, 1 thread)."""
+    for n in range(hs.shape[0]):
+        gn, hn, cn = g[n], hs[n, a : a + H], cs[n, a : a + H]
+        for j in range(H):
+            # sigmoid(v) = (q + p) / 2q and tanh(v) = p / q for (p, q) = tanh_fraction(v / 2)
+            # and (v): c' = sigmoid_f c + sigmoid_i tanh_g and h' = sigmoid_o tanh(c') each
+            # over one division, not five divisions
+            pi, qi = tanh_fraction(np.float32(0.5) * (gn[j] + bias[j]))
+            pf, qf = tanh_fraction(np.float32(0.5) * (gn[H + j] + bias[H + j]))
+            pg, qg = tanh_fraction(gn[2 * H + j] + bias[2 * H + j])
+            po, qo = tanh_fraction(np.float32(0.5) * (gn[3 * H + j] + bias[3 * H + j]))
+            c = ((qf + pf) * cn[j] * qi * qg + (qi + pi) * pg * qf) / (np.float32(2.0) * qf * qi * qg)
+            pc, qc = tanh_fraction(c)
+            cn[j], hn[j] = c, (qo + po) * pc / (np.float32(2.0) * qo * qc)
 
 
 @nb.njit(cache=True, fastmath=True, error_model="numpy", nogil=True)
