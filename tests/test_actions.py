@@ -138,12 +138,13 @@ def test_the_styles_change_on_held_out_actions_points_as_on_walks(shared_data, m
 @pytest.mark.slow
 def test_styleerd_posture_measures_the_shipped_posture_again(shared_data, model, tmp_path):
     """``styleerd posture`` on the shipped model writes a model whose weights are the shipped ones bit
-    for bit and whose posture is the shipped one (the measure is deterministic)."""
+    for bit and whose posture is the shipped one: the measure is deterministic, up to another CPU's
+    rounding flipping the last of the six decimals the posture is stored to."""
     from styleerd.cli import main
     from styleerd.model.stored import load_generator_weights
 
     assert main(["posture", "-o", str(tmp_path / "again"), "--data", str(shared_data)]) == 0
     again = load_generator_weights(tmp_path / "again")
     assert all(np.array_equal(again.arrays[k], v) for k, v in model.arrays.items())
-    assert np.abs(again.posture - model.posture).max() <= 1e-6
+    assert np.abs(again.posture - model.posture).max() <= 1.5e-6
     assert np.abs(again.posture_offsets - model.posture_offsets).max() <= 1e-4  # the skeleton's units (cm)
