@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import argparse
 import importlib.util
+import inspect
 import subprocess
 import sys
 import tempfile
@@ -70,15 +71,20 @@ def main() -> None:
     )
     with tempfile.TemporaryDirectory() as folder:
         kernels = {f"before ({args.before})": kernel_of(args.before, Path(folder)), "now": compiled.compiled_step}
-        for kernel in kernels.values():
+        # each version's arguments: later ones also take the streams' rows of the state (none: in place)
+        arguments = {
+            name: step_args + ((compiled.IN_PLACE,) if "state_rows" in inspect.signature(k.py_func).parameters else ())
+            for name, k in kernels.items()
+        }
+        for name, kernel in kernels.items():
             for _ in range(200):  # compiled, warm
-                kernel(*step_args)
+                kernel(*arguments[name])
         times: dict[str, list[float]] = {k: [] for k in kernels}
         for _ in range(args.rounds):
             for name, kernel in kernels.items():
                 t0 = time.perf_counter()
                 for _ in range(args.steps):
-                    kernel(*step_args)
+                    kernel(*arguments[name])
                 times[name].append((time.perf_counter() - t0) / args.steps * 1e6)
     for name, t in times.items():
         print(f"{name}: median {np.median(t):.2f} us, best {min(t):.2f} us a step ({args.rounds} rounds)")

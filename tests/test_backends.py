@@ -210,6 +210,52 @@ def test_a_paired_step_equals_two_backends_stepped_alike(model, name, n, threads
         to_target.step_pair(x, style, content, target, second, rows)
 
 
+@pytest.mark.parametrize("threads", [1, 2])
+def test_numba_steps_streams_by_index_in_their_rows_of_the_state(model, threads):
+    """A server's batch: many streams by index, in no order, over several blocks of the step and a
+    mix of targets (each branch run by some streams only), paired and not. The numba step reads and
+    writes the streams' rows itself (``state_rows``); it equals the numpy backend, which gathers the
+    rows and writes them back, and leaves every other stream's state as it was. Repeated rows and
+    rows outside the state are refused."""
+    from styleerd.runtime.calibration import EngineSettings, StepChoice
+    from styleerd.runtime.compiled import CompiledBackend
+
+    c = model.config
+    nS, nI, n = len(c.styles), len(c.input_styles), 300
+    settings = EngineSettings((1,), (StepChoice(32, False, 1),), (StepChoice(32, False, threads),), "test")
+    fast, single = (CompiledBackend(model, n, threads, settings, paired=p) for p in (True, False))
+    ref, ref_single = make_backend("numpy", model, n, paired=True), make_backend("numpy", model, n)
+    rng = np.random.default_rng(11)
+    for t in range(6):
+        rows = rng.permutation(n)[: 150 + 10 * t]  # not sorted, so not a slice
+        if t == 3:
+            for b in (fast, ref, single, ref_single):
+                b.reset(rows[:7])
+        m = len(rows)
+        x = rng.normal(0, 1, (m, c.feature_dim)).astype(np.float32)
+        style = np.eye(nI, dtype=np.float32)[rng.integers(0, nI, m)]
+        content = rng.dirichlet(np.ones(len(c.contents)), m).astype(np.float32)
+        target = rng.dirichlet(np.full(nS, 0.3), m).astype(np.float32) * (rng.random((m, nS)) < 0.5)
+        second = np.zeros((m, nS), np.float32)
+        second[:, :nI] = style
+        untouched = np.setdiff1d(np.arange(n), rows)
+        kept = fast.hb[untouched].copy(), fast.h[untouched].copy()
+        got = fast.step_pair(x, style, content, target, second, rows)
+        want = ref.step_pair(x, style, content, target, second, rows)
+        for a, b in zip(got, want):
+            assert np.abs(a - b).max() <= 1e-4, t
+        assert (fast.hb[untouched] == kept[0]).all() and (fast.h[untouched] == kept[1]).all()
+        for state in ("h", "c", "hb", "cb", "hb2", "cb2"):
+            assert np.abs(getattr(fast, state) - getattr(ref, state)).max() <= 1e-4, (t, state)
+        assert (fast.first == ref.first).all()
+        got, want = single.step(x, style, content, target, rows), ref_single.step(x, style, content, target, rows)
+        assert np.abs(got[0] - want[0]).max() <= 1e-5 and np.abs(got[1] - want[1]).max() <= 1e-4, t
+    with pytest.raises(ValueError, match="at most once"):
+        fast.step(x[:2], style[:2], content[:2], target[:2], np.array([4, 4]))
+    with pytest.raises(ValueError, match="outside"):
+        fast.step(x[:2], style[:2], content[:2], target[:2], np.array([4, n]))
+
+
 @pytest.mark.parametrize("name", ["numpy", "numba", "onnx"])
 def test_shards_of_streams_stepped_at_once_equal_one_step_of_all(model, name):
     """What StreamStylizer and the bench's network throughput do on two threads: disjoint

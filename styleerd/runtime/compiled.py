@@ -240,21 +240,27 @@ def compiled_step(
     vel,
     block_rows,
     loops_up_to,
+    state_rows,
 ):
     """The whole step in one compiled call, on the packed parameters (``pack``). Writes ``rot
     [N, J, 4]``, ``vel [N, 3J]``; updates ``first`` and the states in place, streams first and
     each stream's row flat: h, c ``[N, L0 * H]``, hb, cb ``[N, K * L1 * H]`` (branch, layer).
+    ``state_rows``: each stream's row of the state, for streams stepped by index (a server's batch);
+    empty: the state's rows are the streams', stepped in place. By index, a block gathers its
+    streams' neutral state and the branches it runs alone, not every row of the state before the
+    step and after it as numpy's indexing did.
     Steps ``block_rows`` streams at a time through the whole network; products of up to
     ``loops_up_to`` rows are compiled loops, of more BLAS calls. BLAS runs on the calling thread
     alone: threads are the caller's choice (``compiled_step_on_shards``), and OpenBLAS's own, left
     spinning after a product, took a core from the next parallel step (a step of 256 streams now
     and then 3.5x slower on 2 cores)."""
-    _refuse_unless_fitting(x, style, content, target, table, sizes, h, c, hb, cb, first, rot, vel)
+    _refuse_unless_fitting(x, style, content, target, table, sizes, h, c, hb, cb, first, rot, vel, state_rows)
     N = x.shape[0]
     blas = min(N, block_rows) > loops_up_to
     callers = _blas_threads_here(1) if blas else 1
     for s in range(0, N, block_rows):
         e = min(N, s + block_rows)
+        lo, hi = (s, e) if len(state_rows) == 0 else (0, h.shape[0])  # by index: the whole state
         _step_block(
             x[s:e],
             style[s:e],
@@ -265,14 +271,15 @@ def compiled_step(
             sizes,
             inits,
             branch_styles,
-            h[s:e],
-            c[s:e],
-            hb[s:e],
-            cb[s:e],
-            first[s:e],
+            h[lo:hi],
+            c[lo:hi],
+            hb[lo:hi],
+            cb[lo:hi],
+            first[lo:hi],
             rot[s:e],
             vel[s:e],
             loops_up_to,
+            state_rows[s:e],
         )
     if blas:
         _blas_threads_here(callers)
@@ -299,15 +306,17 @@ def compiled_step_on_shards(
     vel,
     block_rows,
     loops_up_to,
+    state_rows,
 ):
     """``compiled_step`` on ``shards`` slices of the streams at once, one per thread, each
     holding BLAS to itself (``_blas_threads_here``). Inputs that do not fit are refused before the split (a shard of
     inputs that fit fits too)."""
-    _refuse_unless_fitting(x, style, content, target, table, sizes, h, c, hb, cb, first, rot, vel)
+    _refuse_unless_fitting(x, style, content, target, table, sizes, h, c, hb, cb, first, rot, vel, state_rows)
     N = x.shape[0]
     callers = _blas_threads_here(1)  # the calling thread's, given back after the loop
     for k in nb.prange(shards):
         s, e = N * k // shards, N * (k + 1) // shards
+        lo, hi = (s, e) if len(state_rows) == 0 else (0, h.shape[0])
         _blas_threads_here(1)  # numba's own threads keep it: they run nothing but parallel loops
         _blas_threads_here(1)  # twice: a thread's first setting can be lost to OpenBLAS's own first use of it
         compiled_step(
@@ -320,15 +329,16 @@ def compiled_step_on_shards(
             sizes,
             inits,
             branch_styles,
-            h[s:e],
-            c[s:e],
-            hb[s:e],
-            cb[s:e],
-            first[s:e],
+            h[lo:hi],
+            c[lo:hi],
+            hb[lo:hi],
+            cb[lo:hi],
+            first[lo:hi],
             rot[s:e],
             vel[s:e],
             block_rows,
             loops_up_to,
+            state_rows[s:e],
         )
     _blas_threads_here(callers)
 
@@ -358,17 +368,19 @@ def compiled_pair_step(
     vel2,
     block_rows,
     loops_up_to,
+    state_rows,
 ):
     """``compiled_step`` to ``target``, and to ``second`` with the branch states ``hb2``, ``cb2``
     into ``rot2``, ``vel2``, on one encoder and neutral stack: their state depends on the input
     alone, so two steps alike would compute them twice."""
-    _refuse_unless_fitting(x, style, content, target, table, sizes, h, c, hb, cb, first, rot, vel)
-    _refuse_unless_fitting(x, style, content, second, table, sizes, h, c, hb2, cb2, first, rot2, vel2)
+    _refuse_unless_fitting(x, style, content, target, table, sizes, h, c, hb, cb, first, rot, vel, state_rows)
+    _refuse_unless_fitting(x, style, content, second, table, sizes, h, c, hb2, cb2, first, rot2, vel2, state_rows)
     N = x.shape[0]
     blas = min(N, block_rows) > loops_up_to
     callers = _blas_threads_here(1) if blas else 1
     for s in range(0, N, block_rows):
         e = min(N, s + block_rows)
+        lo, hi = (s, e) if len(state_rows) == 0 else (0, h.shape[0])  # by index: the whole state
         _pair_block(
             x[s:e],
             style[s:e],
@@ -380,18 +392,19 @@ def compiled_pair_step(
             sizes,
             inits,
             branch_styles,
-            h[s:e],
-            c[s:e],
-            hb[s:e],
-            cb[s:e],
-            hb2[s:e],
-            cb2[s:e],
-            first[s:e],
+            h[lo:hi],
+            c[lo:hi],
+            hb[lo:hi],
+            cb[lo:hi],
+            hb2[lo:hi],
+            cb2[lo:hi],
+            first[lo:hi],
             rot[s:e],
             vel[s:e],
             rot2[s:e],
             vel2[s:e],
             loops_up_to,
+            state_rows[s:e],
         )
     if blas:
         _blas_threads_here(callers)
@@ -423,14 +436,16 @@ def compiled_pair_step_on_shards(
     vel2,
     block_rows,
     loops_up_to,
+    state_rows,
 ):
     """``compiled_pair_step`` on ``shards`` slices of the streams at once, as ``compiled_step_on_shards``."""
-    _refuse_unless_fitting(x, style, content, target, table, sizes, h, c, hb, cb, first, rot, vel)
-    _refuse_unless_fitting(x, style, content, second, table, sizes, h, c, hb2, cb2, first, rot2, vel2)
+    _refuse_unless_fitting(x, style, content, target, table, sizes, h, c, hb, cb, first, rot, vel, state_rows)
+    _refuse_unless_fitting(x, style, content, second, table, sizes, h, c, hb2, cb2, first, rot2, vel2, state_rows)
     N = x.shape[0]
     callers = _blas_threads_here(1)
     for k in nb.prange(shards):
         s, e = N * k // shards, N * (k + 1) // shards
+        lo, hi = (s, e) if len(state_rows) == 0 else (0, h.shape[0])
         _blas_threads_here(1)
         _blas_threads_here(1)
         compiled_pair_step(
@@ -444,36 +459,40 @@ def compiled_pair_step_on_shards(
             sizes,
             inits,
             branch_styles,
-            h[s:e],
-            c[s:e],
-            hb[s:e],
-            cb[s:e],
-            hb2[s:e],
-            cb2[s:e],
-            first[s:e],
+            h[lo:hi],
+            c[lo:hi],
+            hb[lo:hi],
+            cb[lo:hi],
+            hb2[lo:hi],
+            cb2[lo:hi],
+            first[lo:hi],
             rot[s:e],
             vel[s:e],
             rot2[s:e],
             vel2[s:e],
             block_rows,
             loops_up_to,
+            state_rows[s:e],
         )
     _blas_threads_here(callers)
 
 
 @nb.njit(cache=True, nogil=True)
-def _refuse_unless_fitting(x, style, content, target, table, sizes, h, c, hb, cb, first, rot, vel):
+def _refuse_unless_fitting(x, style, content, target, table, sizes, h, c, hb, cb, first, rot, vel, state_rows):
     # no bounds are checked in the step: inputs that do not fit would read or write past them
-    N = x.shape[0]
+    N, R = x.shape[0], h.shape[0]
+    for r in state_rows:
+        if not 0 <= r < R:
+            raise ValueError("a stream's row of the state is outside it")
     if not (
         style.shape[0] == N
         and content.shape[0] == N
         and target.shape[0] == N
-        and h.shape[0] == N
-        and c.shape[0] == N
-        and hb.shape[0] == N
-        and cb.shape[0] == N
-        and first.shape[0] == N
+        and (R == N if len(state_rows) == 0 else len(state_rows) == N)
+        and c.shape[0] == R
+        and hb.shape[0] == R
+        and cb.shape[0] == R
+        and first.shape[0] == R
         and rot.shape[0] == N
         and vel.shape[0] == N
         and x.shape[1] + style.shape[1] + content.shape[1] == table[0, 1]
@@ -484,12 +503,31 @@ def _refuse_unless_fitting(x, style, content, target, table, sizes, h, c, hb, cb
 
 @nb.njit(cache=True, fastmath=True, error_model="numpy", nogil=True)
 def _step_block(
-    x, style, content, target, P, table, sizes, inits, branch_styles, h, c, hb, cb, first, rot, vel, loops_up_to
+    x,
+    style,
+    content,
+    target,
+    P,
+    table,
+    sizes,
+    inits,
+    branch_styles,
+    h,
+    c,
+    hb,
+    cb,
+    first,
+    rot,
+    vel,
+    loops_up_to,
+    state_rows,
 ):
-    """``compiled_step`` on one block of rows that fit."""
-    _start_branches(P, inits, first, hb, cb)
-    z, out = _trunk(x, style, content, P, table, sizes, inits, h, c, first, loops_up_to)
-    _head(z, out, target, P, table, sizes, branch_styles, hb, cb, rot, vel, loops_up_to)
+    """``compiled_step`` on one block of rows that fit (``state_rows``: as there)."""
+    hk, ck, fk = _rows_at(h, state_rows), _rows_at(c, state_rows), _flags_at(first, state_rows)
+    _start_branches(P, inits, fk, hb, cb, state_rows)
+    z, out = _trunk(x, style, content, P, table, sizes, inits, hk, ck, fk, loops_up_to)
+    _head(z, out, target, P, table, sizes, branch_styles, hb, cb, rot, vel, loops_up_to, state_rows)
+    _back_at(h, c, first, state_rows, hk, ck, fk)
 
 
 @nb.njit(cache=True, fastmath=True, error_model="numpy", nogil=True)
@@ -516,22 +554,52 @@ def _pair_block(
     rot2,
     vel2,
     loops_up_to,
+    state_rows,
 ):
     """``compiled_pair_step`` on one block of rows that fit: one encoder and neutral stack, two heads."""
-    _start_branches(P, inits, first, hb, cb)
-    _start_branches(P, inits, first, hb2, cb2)
-    z, out = _trunk(x, style, content, P, table, sizes, inits, h, c, first, loops_up_to)
-    _head(z, out.copy(), target, P, table, sizes, branch_styles, hb, cb, rot, vel, loops_up_to)
-    _head(z, out, second, P, table, sizes, branch_styles, hb2, cb2, rot2, vel2, loops_up_to)
+    hk, ck, fk = _rows_at(h, state_rows), _rows_at(c, state_rows), _flags_at(first, state_rows)
+    _start_branches(P, inits, fk, hb, cb, state_rows)
+    _start_branches(P, inits, fk, hb2, cb2, state_rows)
+    z, out = _trunk(x, style, content, P, table, sizes, inits, hk, ck, fk, loops_up_to)
+    _head(z, out.copy(), target, P, table, sizes, branch_styles, hb, cb, rot, vel, loops_up_to, state_rows)
+    _head(z, out, second, P, table, sizes, branch_styles, hb2, cb2, rot2, vel2, loops_up_to, state_rows)
+    _back_at(h, c, first, state_rows, hk, ck, fk)
 
 
 @nb.njit(cache=True, fastmath=True, error_model="numpy", nogil=True, inline="always")
-def _start_branches(P, inits, first, hb, cb):
-    """The style branches' learned initial states for the streams ``first``."""
-    for n in range(hb.shape[0]):
+def _rows_at(a, state_rows):
+    """The rows ``state_rows`` of ``a`` (a copy), or ``a`` itself where none are given."""
+    if len(state_rows) == 0:
+        return a
+    out = np.empty((len(state_rows), a.shape[1]), a.dtype)
+    for r in range(len(state_rows)):
+        _put(out[r], 0, a[state_rows[r]])
+    return out
+
+
+@nb.njit(cache=True, nogil=True, inline="always")
+def _flags_at(first, state_rows):
+    return first if len(state_rows) == 0 else first[state_rows]
+
+
+@nb.njit(cache=True, fastmath=True, error_model="numpy", nogil=True, inline="always")
+def _back_at(h, c, first, state_rows, hk, ck, fk):
+    """The neutral state and first-frame flags of the streams stepped by index written back to their rows."""
+    for r in range(len(state_rows)):
+        _put(h[state_rows[r]], 0, hk[r])
+        _put(c[state_rows[r]], 0, ck[r])
+        first[state_rows[r]] = fk[r]
+
+
+@nb.njit(cache=True, fastmath=True, error_model="numpy", nogil=True, inline="always")
+def _start_branches(P, inits, first, hb, cb, state_rows):
+    """The style branches' learned initial states for the streams ``first`` (their rows of the state:
+    ``state_rows``, or theirs where none are given)."""
+    for n in range(len(first)):
         if first[n]:
+            row = n if len(state_rows) == 0 else state_rows[n]
             for q in range(hb.shape[1]):
-                hb[n, q], cb[n, q] = P[inits[2] + q], P[inits[3] + q]
+                hb[row, q], cb[row, q] = P[inits[2] + q], P[inits[3] + q]
 
 
 @nb.njit(cache=True, fastmath=True, error_model="numpy", nogil=True, inline="always")
@@ -571,9 +639,10 @@ def _trunk(x, style, content, P, table, sizes, inits, h, c, first, loops_up_to):
 
 
 @nb.njit(cache=True, fastmath=True, error_model="numpy", nogil=True, inline="always")
-def _head(z, out, target, P, table, sizes, branch_styles, hb, cb, rot, vel, loops_up_to):
+def _head(z, out, target, P, table, sizes, branch_styles, hb, cb, rot, vel, loops_up_to, state_rows):
     """The style branches ``target`` weights added to the neutral stack's output ``out`` (in place),
-    then the decoder into ``rot``, ``vel``."""
+    then the decoder into ``rot``, ``vel``. A branch's state is gathered from the streams' rows of
+    ``hb``, ``cb`` (``state_rows``, or theirs) unless every stream runs it in its own row."""
     n_enc, L0, L1, n_dec, J = sizes[0], sizes[1], sizes[2], sizes[3], sizes[4]
     N, H, K = z.shape[0], out.shape[1], len(branch_styles)
     g = np.empty((N, 4 * H), np.float32)
@@ -582,19 +651,20 @@ def _head(z, out, target, P, table, sizes, branch_styles, hb, cb, rot, vel, loop
         rows = np.nonzero(target[:, s])[0]
         if len(rows) == 0:
             continue
-        if len(rows) == N:  # every stream: the state in place, no gather
+        if len(rows) == N and len(state_rows) == 0:  # every stream, in its own row: in place, no gather
             _stack(P, table, first_entry, L1, z, hb, cb, at, g, loops_up_to)
             for n in range(N):
                 _axpy(target[n, s], hb[n, at + (L1 - 1) * H : at + L1 * H], out[n])
             continue
         hk, ck = np.empty((len(rows), L1 * H), np.float32), np.empty((len(rows), L1 * H), np.float32)
+        held = rows if len(state_rows) == 0 else state_rows[rows]
         for r in range(len(rows)):
-            _put(hk[r], 0, hb[rows[r], at : at + L1 * H])
-            _put(ck[r], 0, cb[rows[r], at : at + L1 * H])
-        _stack(P, table, first_entry, L1, z[rows], hk, ck, 0, g[: len(rows)], loops_up_to)
+            _put(hk[r], 0, hb[held[r], at : at + L1 * H])
+            _put(ck[r], 0, cb[held[r], at : at + L1 * H])
+        _stack(P, table, first_entry, L1, z if len(rows) == N else z[rows], hk, ck, 0, g[: len(rows)], loops_up_to)
         for r in range(len(rows)):
-            _put(hb[rows[r]], at, hk[r])
-            _put(cb[rows[r]], at, ck[r])
+            _put(hb[held[r]], at, hk[r])
+            _put(cb[held[r]], at, ck[r])
             _axpy(target[rows[r], s], hk[r, (L1 - 1) * H :], out[rows[r]])
     nI = sizes[5]
     y = np.empty((N, H + nI), np.float32)
@@ -697,6 +767,9 @@ def pack(w: StepWeights) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray
     return np.concatenate(parts), np.array(table, np.int64), sizes, inits
 
 
+IN_PLACE = np.empty(0, np.int64)  # no ``state_rows``: the state's rows are the streams'
+
+
 class CompiledBackend(NumpyBackend):
     """The ``numba`` backend: NumpyBackend's state, stepped by the compiled step; a step of
     many streams on up to ``threads`` threads (``data.parallel``), each batch size by the path
@@ -726,8 +799,10 @@ class CompiledBackend(NumpyBackend):
         self.settings = settings
         self._plans: dict[int, tuple[int, int, int]] = {}  # by streams stepped: block rows, loops up to, threads
 
+    rows_in_place = True  # streams stepped by index: the state's rows given to the step (``state_rows``)
+
     def _arithmetic(
-        self, x, style, content, target, second, h, c, hb, cb, hb2, cb2, first
+        self, x, style, content, target, second, h, c, hb, cb, hb2, cb2, first, state_rows=IN_PLACE
     ) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
         N = len(x)
         plan = self._plans.get(N)
@@ -746,7 +821,7 @@ class CompiledBackend(NumpyBackend):
             flat += self._whole[5:] if whole else tuple(_rows(a) for a in (hb2, cb2))
         params = (self.params, self.table, self.sizes, self.inits, self.branch_styles)
         outputs = (rot, vel) if second is None else (rot, vel, rot2, vel2)
-        args = (*head, *params, *flat, first, *outputs, block_rows, loops_up_to)
+        args = (*head, *params, *flat, first, *outputs, block_rows, loops_up_to, state_rows)
         shards = kernel_threads(threads, N, from_streams=1) if threads > 1 else 1
         one, many = (
             (compiled_step, compiled_step_on_shards)

@@ -114,6 +114,8 @@ class NumpyBackend:
     """``paired``: ``step_pair`` runs a second target on the same encoder and neutral stack (their
     state depends on the input alone), with style branches of its own (``hb2``, ``cb2``)."""
 
+    rows_in_place = False  # streams stepped by index: their rows gathered before the step, written back after
+
     def __init__(self, model: GeneratorWeights, n_streams: int, paired: bool = False):
         self.w, self.n = step_weights(model), n_streams
         w, H = self.w, self.w.hidden
@@ -163,12 +165,21 @@ class NumpyBackend:
         )
         sel = slice(None) if rows is None else rows
         whole = (self.h, self.c, self.hb, self.cb, self.hb2, self.cb2, self.first)
+        by_index = not isinstance(sel, slice)
+        if by_index and self.rows_in_place:  # the step reads and writes the streams' rows itself
+            state_rows = np.asarray(sel, np.int64)
+            if len(np.unique(state_rows)) != len(state_rows):
+                raise ValueError("a stream is stepped at most once a step (its rows repeat)")
+            return self._posed(x, *self._arithmetic(x, style, content, target, second, *whole, state_rows))
         state = whole if rows is None else tuple(None if a is None else a[sel] for a in whole)
         rot, vel, rot2 = self._arithmetic(x, style, content, target, second, *state)
-        if not isinstance(sel, slice):  # rows by index gave copies: put them back
+        if by_index:  # rows by index gave copies: put them back
             for a, part in zip(whole, state):
                 if a is not None:
                     a[sel] = part
+        return self._posed(x, rot, vel, rot2)
+
+    def _posed(self, x, rot, vel, rot2) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
         if self.w.given is not None:
             rot, rot2 = posed(self.w, x, rot), None if rot2 is None else posed(self.w, x, rot2)
         return rot, vel, rot2
