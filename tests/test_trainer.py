@@ -192,12 +192,15 @@ def test_recognisers_read_positions_and_velocities_and_report_the_ceiling(shared
 
 def test_both_bandai_sets_as_one_train_style_by_style(shared_data, tmp_path):
     """bandai-namco-1+2: Bandai-1's styles that Bandai-2 has under another name are renamed,
-    its kept-back clips are the test split, and a run with balanced styles trains."""
+    its kept-back clips are the test split, its neutral actions held out of every training window, and a run
+    with balanced styles trains."""
     import numpy as np
 
     from styleerd.data.cache import prepare
     from styleerd.data.datasets import bandai1_kept_back
+    from styleerd.data.outside import BANDAI1_ACTIONS
     from styleerd.model.checkpoint import load_generator
+    from styleerd.train.batches import training_clips, training_data, windows
     from styleerd.train.trainer import train
 
     fs = prepare("bandai-namco-1+2", shared_data, progress=False)
@@ -213,6 +216,14 @@ def test_both_bandai_sets_as_one_train_style_by_style(shared_data, tmp_path):
     assert (fs.splits[one & held] == "test").all() and (fs.splits[one & ~held] == "train").all()
     assert ((fs.styles == "happy") & one & held).sum() == 5 and ((fs.styles == "happy") & one & ~held).sum() == 6
     assert set(fs.splits[~one]) == {"train", "val", "test"}  # Bandai-2 keeps its split by take
+    # Bandai-1's neutral actions (`styleerd eval actions` reports on them) are in no training window
+    actions = one & (fs.styles == "normal") & np.isin(fs.contents, BANDAI1_ACTIONS) & ~held
+    trained = training_clips(fs)
+    assert actions.sum() >= 7 and not set(np.nonzero(actions)[0]) & set(trained.tolist())
+    assert set(trained.tolist()) == set(fs.clips("train").tolist()) - set(np.nonzero(actions)[0])
+    starts = windows(fs, training_data(fs, 24), "train", 20).starts
+    assert not np.isin(np.searchsorted(fs.clip_start, starts, side="right") - 1, np.nonzero(actions)[0]).any()
+    assert "kick" in training_data(fs, 24).contents  # the content stays: the labeller and recognisers name it
     out = tmp_path / "b12"
     train(
         TrainConfig(

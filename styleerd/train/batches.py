@@ -10,7 +10,7 @@ from tqdm import tqdm
 
 from styleerd.data.augment import STRAIGHT, TRAVELLING, in_place
 from styleerd.data.cache import FeatureSet, prepare
-from styleerd.data.datasets import BANDAI1_AS_BANDAI2, bandai1_kept_back, data_root, unpack
+from styleerd.data.datasets import BANDAI1_AS_BANDAI2, COMBINED, bandai1_kept_back, data_root, unpack
 from styleerd.data.features import FeatureLayout, FeatureStats, motion_features
 from styleerd.data.outside import held_out
 from styleerd.data.windows import window_starts
@@ -68,7 +68,7 @@ def in_place_clips(
     ground path removed, as game and three.js libraries ship them: (normalised frames ``[N, D]``,
     clip starts ``[C + 1]``, style and content index per clip)."""
     frames, starts, styles, told = [], [0], [], []
-    for c in [c for c in fs.clips("train") if fs.contents[c] in contents][::every]:
+    for c in [c for c in training_clips(fs) if fs.contents[c] in contents][::every]:
         motion = in_place(fs.motion(int(c)))
         frames.append(data.stats.normalize(motion_features(motion)[0]).astype(np.float32))
         starts.append(starts[-1] + len(frames[-1]))
@@ -128,8 +128,23 @@ def training_data(fs: FeatureSet, window: int) -> TrainingData:
     return TrainingData(frames, sorted(set(fs.styles.tolist())), sorted(set(fs.contents.tolist())), window, stats)
 
 
+def training_clips(fs: FeatureSet) -> np.ndarray:
+    """The training split's clips less the held-out outside actions (``data.outside.held_out``): Bandai-Namco-1's
+    neutral dances, kicks and punches are training clips of ``bandai-namco-1+2`` by its split, and
+    ``styleerd eval actions`` reports on them as motion no model has seen."""
+    parts = COMBINED.get(fs.dataset, (fs.dataset,))
+    return np.array(
+        [
+            c
+            for c in fs.clips("train")
+            if not any(held_out(str(fs.names[c]), p, str(fs.contents[c]), str(fs.styles[c])) for p in parts)
+        ],
+        dtype=np.int64,
+    )
+
+
 def windows(fs: FeatureSet, data: TrainingData, split: str, stride: int, max_clips: int = 0) -> WindowSet:
-    clips = fs.clips(split)
+    clips = training_clips(fs) if split == "train" else fs.clips(split)
     if max_clips:
         clips = clips[np.linspace(0, len(clips) - 1, min(max_clips, len(clips))).astype(int)]
     starts = window_starts(fs.clip_start, clips, data.window, stride)
