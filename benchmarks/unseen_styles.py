@@ -198,7 +198,7 @@ def main() -> None:
     ap.add_argument(
         "--from-start",
         default="styleerd/models/styleerd-bandai12",
-        help="a model trained with the styles from the start (configs/bandai12.yaml), judged beside",
+        help="a model trained with the styles from the start (configs/bandai12-outside.yaml), judged beside",
     )
     ap.add_argument(
         "--filmstrip", default="docs/added-styles.png", help="picture of one walk in added styles ('' for none)"

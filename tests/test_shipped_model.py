@@ -75,7 +75,7 @@ def test_shipped_labeller_labels_test_streams_as_its_record_says(shared_data):
 
 
 def test_the_16_style_model_transfers_into_its_bandai1_styles_with_labels_inferred(tmp_path):
-    """styleerd-bandai12 (configs/bandai12.yaml): its labels are inferred by its own labeller
+    """styleerd-bandai12 (configs/bandai12-outside.yaml): its labels are inferred by its own labeller
     (found by its labels), and it works from the command line like the default model."""
     import subprocess
     import sys

@@ -74,7 +74,12 @@ def test_the_report_names_every_stage_of_a_soup(two_stages):
     text = training_minutes(m["training"])
     stage = f"{meta['training']['wall_minutes']} min ({meta['training']['config']['name']})"
     assert text.count(stage) == 2 and "each fine-tuning from it, their weights averaged" in text
-    assert text.startswith(f"{meta['training']['started_from']['training']['wall_minutes']} min")
+    assert text.startswith(training_minutes(meta["training"]["started_from"]["training"]) + " + ")
+    # a fine-tune of the soup names the soup's stages, then its own
+    tuned = training_minutes(
+        {"config": {"name": "t"}, "wall_minutes": 3.5, "started_from": {"training": m["training"]}}
+    )
+    assert tuned == f"{text}; then 3.5 min (t), fine-tuning from it"
 
 
 def test_the_wise_sweep_mixes_a_fine_tune_with_its_start():

@@ -45,10 +45,14 @@ def slug(name: str) -> str:
 def full_model() -> Path | None:
     """The full model of the paper's table: the shipped model (None), or, when the shipped
     model is a fine-tuning stage beyond the paper (its ``started_from``), the model trained from
-    scratch that the stage started from (a path in the checkout, where it was trained)."""
+    scratch that its stages started from (a path in the checkout, where it was trained)."""
     _, meta = ckpt.load_generator()
     base = meta["training"].get("started_from")
-    return None if base is None else CHECKOUT / base["model"]
+    if base is None:
+        return None
+    while "started_from" in base["training"]:  # a stage fine-tuned from a stage: its first start
+        base = base["training"]["started_from"]
+    return CHECKOUT / base["model"]
 
 
 def shipped_budget() -> tuple[TrainConfig, int]:

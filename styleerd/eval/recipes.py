@@ -7,6 +7,7 @@ trade-off plot."""
 from __future__ import annotations
 
 import itertools
+import json
 from pathlib import Path
 
 import numpy as np
@@ -14,6 +15,7 @@ from tqdm import tqdm
 
 from styleerd.eval.ablations import ABLATIONS, model_stem, trained
 from styleerd.model import checkpoint as ckpt
+from styleerd.models import DEFAULT_MODEL, MODELS_DIR
 from styleerd.train.validation import CRA_BAR, FMD_BAR, style_ratios
 
 RECIPES_DIR = (
@@ -25,7 +27,14 @@ def recipe_models() -> dict[str, Path | None]:
     """Name -> model stem (None: the shipped model): the shipped model, the recipes kept
     under models/recipes/ and the ablations."""
     models: dict[str, Path | None] = {"shipped": None}
-    models.update({p.stem: p.with_suffix("") for p in sorted(RECIPES_DIR.glob("*.safetensors"))})
+    styles = json.loads((MODELS_DIR / f"{DEFAULT_MODEL}.json").read_text())["config"]["styles"]
+    models.update(
+        {
+            p.stem: p.with_suffix("")
+            for p in sorted(RECIPES_DIR.glob("*.safetensors"))
+            if json.loads(p.with_suffix(".json").read_text())["config"]["styles"] == styles
+        }
+    )  # the shipped model's styles: the 16-style models are judged by their own recognisers (`styleerd evaluate`)
     models.update(
         {f"ablation: {name}": model_stem(name) for name in ABLATIONS if name != "full" and trained(name)}
     )  # full: a row of its own (shipped, or a recipe)

@@ -172,17 +172,17 @@ split; every figure is printed by its own command as well (named in each section
 
 def training_minutes(training: dict) -> str:
     """The training time of a model's metadata, each stage when it was fine-tuned from another."""
-    base = training.get("started_from")
-    here = f"{training.get('wall_minutes')} min ({training['config']['name']}"
-    if base is None:
-        return here + ")"
-    start = f"{base['training'].get('wall_minutes')} min ({base['training']['config']['name']})"
     if "soup" in training:  # stages fine-tuned from one start, their weights averaged
+        start = training_minutes(training["started_from"]["training"])
         stages = " and ".join(
             f"{s['training'].get('wall_minutes')} min ({s['training']['config']['name']})" for s in training["soup"]
         )
         return f"{start} + {stages}, each fine-tuning from it, their weights averaged (`styleerd soup`)"
-    return f"{start} + {here}, fine-tuning from it)"
+    here = f"{training.get('wall_minutes')} min ({training['config']['name']})"
+    base = training.get("started_from")
+    if base is None:
+        return here
+    return f"{training_minutes(base['training'])}; then {here}, fine-tuning from it"
 
 
 def online_section(runtime: dict) -> str:
@@ -540,7 +540,8 @@ backends (`tests/test_add_style.py`).
             f"| {k} | {100 * v['sra']:.1f} % | {100 * v['cra']:.1f} % | {v['transfers']} |"
             for k, v in r["per_target"].items()
         )
-        text += f"""## The 16-style model (`styleerd-bandai12`, `configs/bandai12.yaml`)
+        config = r.get("config", "bandai12")
+        text += f"""## The 16-style model (`styleerd-bandai12`, `configs/{config}.yaml`)
 
 Bandai-Namco-1 and -2 as one dataset (`bandai-namco-1+2`: Bandai-1's old, tired and
 masculinity are Bandai-2's elderly, exhausted and masculine; active, feminine and normal are
@@ -556,8 +557,40 @@ reconstruction {r["rec_deg"]:.2f} degrees / {r["rec_cm"]:.2f} cm.
 | --- | --- | --- | --- |
 {per}
 
-"""
+{actions_summary(docs / "actions-bandai12.json", "styleerd-bandai12")}"""
     return text
+
+
+def actions_summary(path: Path, model: str) -> str:
+    """Per target style, the held-out actions' mean against the walks' (``styleerd eval actions --model M
+    --out``'s JSON): correlation, the change's cosine in the heading and the body's frame and its size."""
+    if not path.is_file():
+        return ""
+    r = json.loads(path.read_text())
+    table = "#any-action-any-performer-the-inputs-pose-plus-the-styles-posture-styleerd-eval-actions"
+    text = f"""On the held-out actions of other performers (`styleerd eval actions --model {model} --out
+docs/{path.with_suffix(".md").name}`, the clips of [the table above]({table})): the identity transfer and, per
+style, the actions' mean against the walks' mean (velocity correlation; the style's change: cosine in the
+heading frame / the body's frame, size over the walks').
+"""
+    for pose, p in r["poses"].items():
+        walks, actions = p["summary"]["walks"], p["summary"]["actions"]
+        error, corr = actions["identity_error_cm"], actions["identity_correlation"]
+        text += f"""
+Pose `{pose}`: identity {error["mean"]:.1f} cm (worst {error["worst"]:.1f}), correlation {corr["mean"]:.2f}
+(worst {corr["worst"]:.2f}) on {actions["clips"]} clips; on {walks["clips"]} walks
+{walks["identity_error_cm"]["mean"]:.1f} cm, {walks["identity_correlation"]["mean"]:.2f}.
+
+| style | correlation: actions / walks | cosine: heading / body | size |
+| --- | --- | --- | --- |
+"""
+        for style, a in actions["styles"].items():
+            w = walks["styles"][style]
+            text += (
+                f"| {style} | {a['correlation']:.2f} / {w['correlation']:.2f} | "
+                f"{a['cosine']:.2f} / {a['cosine_body']:.2f} | {a['size_ratio']:.2f} |\n"
+            )
+    return text + "\n"
 
 
 def _critic_comparison(r: dict, other_path: Path) -> str:

@@ -708,6 +708,7 @@ def evaluate(
         "rec_deg": round(result["rec_deg"], 3),
         "rec_cm": round(result["rec_cm"], 3),
         "training_minutes": meta["training"].get("wall_minutes"),
+        "config": meta["training"]["config"]["name"],
         "per_target": {
             s.data.styles[k]: {"sra": round(h[0] / h[2], 4), "cra": round(h[1] / h[2], 4), "transfers": int(h[2])}
             for k, h in sorted(hits.items())
