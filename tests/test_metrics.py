@@ -37,7 +37,7 @@ def test_shipped_fmd_extractor_and_the_quality_figures(shared_data):
     q = evaluate_model(ckpt.load_generator()[0], str(shared_data))
     print(q)
     # the floor compares two halves of the real windows (half the samples each, and FMD grows as
-    # samples shrink), so a model's FMD may be under it: the shipped soup's is 0.88 x
+    # samples shrink), so a model's FMD may be under it: the shipped model's is 0.88 x
     assert 0.5 < q["fmd_over_floor"] < 10 and q["sra"] > 0.9 and 0 < q["cra"] <= 1
     assert q["sra_first_10"] <= q["sra_rest"] and q["jitter_ratio"] > 0
     # per target style: CRA next to the content recogniser on the same inputs; spreads
