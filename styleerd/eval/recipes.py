@@ -15,7 +15,7 @@ from tqdm import tqdm
 
 from styleerd.eval.ablations import ABLATIONS, model_stem, trained
 from styleerd.model import checkpoint as ckpt
-from styleerd.models import DEFAULT_MODEL, MODELS_DIR
+from styleerd.models import shipped_styles
 from styleerd.train.validation import CRA_BAR, FMD_BAR, style_ratios
 
 RECIPES_DIR = (
@@ -27,12 +27,12 @@ def recipe_models() -> dict[str, Path | None]:
     """Name -> model stem (None: the shipped model): the shipped model, the recipes kept
     under models/recipes/ and the ablations."""
     models: dict[str, Path | None] = {"shipped": None}
-    styles = json.loads((MODELS_DIR / f"{DEFAULT_MODEL}.json").read_text())["config"]["styles"]
+    styles = shipped_styles()
     models.update(
         {
             p.stem: p.with_suffix("")
             for p in sorted(RECIPES_DIR.glob("*.safetensors"))
-            if json.loads(p.with_suffix(".json").read_text())["config"]["styles"] == styles
+            if tuple(json.loads(p.with_suffix(".json").read_text())["config"]["styles"]) == styles
         }
     )  # the shipped model's styles: the 16-style models are judged by their own recognisers (`styleerd evaluate`)
     models.update(

@@ -540,8 +540,7 @@ backends (`tests/test_add_style.py`).
             f"| {k} | {100 * v['sra']:.1f} % | {100 * v['cra']:.1f} % | {v['transfers']} |"
             for k, v in r["per_target"].items()
         )
-        config = r.get("config", "bandai12")
-        text += f"""## The 16-style model (`styleerd-bandai12`, `configs/{config}.yaml`)
+        text += f"""## The 16-style model (`styleerd-bandai12`, `configs/{r["config"]}.yaml`)
 
 Bandai-Namco-1 and -2 as one dataset (`bandai-namco-1+2`: Bandai-1's old, tired and
 masculinity are Bandai-2's elderly, exhausted and masculine; active, feminine and normal are
