@@ -435,12 +435,13 @@ def _eval_rotations(args: argparse.Namespace) -> None:
 
 def _eval_actions(args: argparse.Namespace) -> None:
     from styleerd.atomic import atomic_write_text
-    from styleerd.eval.actions import action_filmstrips, evaluate_actions, evaluate_feet, markdown
+    from styleerd.eval.actions import action_filmstrips, evaluate_actions, evaluate_feet, markdown, performer_changes
     from styleerd.model.stored import load_generator_weights
 
     out = check_output(args.out)
     model = load_generator_weights(args.model)
     report = evaluate_actions(model, args.data, progress=print)
+    report["performers"] = performer_changes(model, args.data)
     if not args.no_feet:
         report["feet"] = evaluate_feet(model, args.data)
     atomic_write_text(out.with_suffix(".json"), json.dumps(report, indent=1) + "\n")
@@ -1203,7 +1204,7 @@ def _eval_subcommands(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser(
         "actions",
         help="held-out actions of other performers and skeletons (kicks, dances, swims ...): the action kept, the "
-        "style's change, the feet",
+        "style's change (against the walks' and a real performer's), the feet",
     )
     p.add_argument("--model", help=MODEL_HELP)
     p.add_argument("--out", default="docs/actions.md", help="Markdown tables (a .json beside it)")

@@ -148,3 +148,59 @@ def test_styleerd_posture_measures_the_shipped_posture_again(shared_data, model,
     assert all(np.array_equal(again.arrays[k], v) for k, v in model.arrays.items())
     assert np.abs(again.posture - model.posture).max() <= 1.5e-6
     assert np.abs(again.posture_offsets - model.posture_offsets).max() <= 1e-4  # the skeleton's units (cm)
+
+
+def test_the_stride_is_judged_against_the_input_and_the_styles_own_change():
+    """``stride_against_style`` on a hand-made feet table: elderly shortens the model's own walks to 0.8 of
+    the input's stride, so a clip it shortens to 0.6 of the input's is 0.75 of the style's own change
+    (worse than either bar), and one whose stride it keeps is 1.0 of the input's (met)."""
+
+    def row(source: str, strides: dict[str, float]) -> dict:
+        return {
+            "source": source,
+            "pose input": {s: {"stride_cm": {"input": 70.0, "output": 70.0 * k}} for s, k in strides.items()},
+        }
+
+    feet = {
+        "bandai": row("bandai-namco-2 test", {"normal": 1.0, "elderly": 0.8}),
+        "shuffle": row("procedural", {"normal": 1.0, "elderly": 0.6}),
+        "kept": row("xia-sample", {"normal": 1.0, "elderly": 1.0}),
+    }
+    against = A.stride_against_style(feet)
+    assert against["shuffle"]["pose input"] == ("elderly", 0.6, 0.75)
+    assert against["kept"]["pose input"][1] == 1.0  # every style keeps the input's stride
+    assert against["bandai"]["pose input"][1:] in ((1.0, 1.0), (0.8, 1.0))
+
+
+def test_a_mean_pose_is_read_in_the_bodys_heading(demo_walk):
+    """``_mean_pose``: the same walk turned about the vertical has the same mean pose, and a bent elbow
+    moves only the hand's part of it."""
+    m, jm, scale = demo_walk
+    turned = Motion(m.skeleton, m.rotations.copy(), m.positions, m.fps)
+    turned.rotations[:, 0] = quat.mul(
+        quat.from_angle_axis(np.array([1.2]), np.array([0.0, 1.0, 0.0])), m.rotations[:, 0]
+    )
+    assert np.allclose(A._mean_pose(m, jm, scale), A._mean_pose(turned, jm, scale), atol=1e-6)
+    elbow = m.skeleton.names.index({jm.target.names[t]: m.skeleton.names[s] for t, s in jm.pairs}["LowerArm_L"])
+    rot = m.rotations.copy()
+    rot[:, elbow] = quat.mul(rot[:, elbow], quat.from_angle_axis(np.array([0.5]), np.array([0.0, 0.6, 0.8])))
+    change = A._mean_pose(Motion(m.skeleton, rot, m.positions, m.fps), jm, scale) - A._mean_pose(m, jm, scale)
+    names = [jm.target.names[t] for t, _ in jm.pairs if jm.target.names[t] != "Hips"]
+    moved = {names[k] for k in np.flatnonzero(np.abs(change.reshape(-1, 3)).max(-1) > 1e-9)}
+    assert moved == {"Hand_L"}
+
+
+@pytest.mark.slow
+def test_a_real_performers_change_on_kept_back_takes(shared_data, model):
+    """``performer_changes`` on the shipped model: every style it shares with Bandai-Namco-1 on every kept-back
+    action; the posture path's change points as its change on the walk (cosine >= 0.7 on every action), and
+    cosines are cosines."""
+    report = A.performer_changes(model, str(shared_data))
+    assert report["styles"] == ["active", "elderly", "exhausted", "feminine", "masculine"]
+    assert list(report["actions"]) == ["walk", "walk-back", "dash", "byebye", "guide"]
+    for action, row in report["actions"].items():
+        for s in report["styles"]:
+            r = row[s]
+            assert all(-1.0 <= r[k][0] <= 1.0 and r[k][1] > 0 for k in ("performer", "model_vs_performer"))
+            assert (r["model"] is None) == (action == "walk")
+            assert action == "walk" or r["model"][0] >= 0.7, (action, s, r)

@@ -13,10 +13,15 @@ their own skeletons, and measures per clip:
   root-relative, in the body's heading frame, per joint, averaged over the clip) against the same
   change on Bandai-Namco-2 test walks: cosine of the two and the ratio of their sizes.
 
+Whether a style's change should point as on walks is measured on a real performer
+(``performer_changes``): Bandai-Namco-1's kept-back takes of other actions in each style, the
+performer's own change against their change on the walk, and the model's against the performer's.
+
 The feet (``feet_figures``): on walks and runs of other performers and a generated walk in place
 (the root fixed, as game libraries ship them), how far the output's feet go below the input's
 floor, how fast planted feet slide (cm/s at the clip's own rate, where the input's foot is
-planted), and the stride (the feet's largest horizontal gap, 95th percentile).
+planted), and the stride (the feet's largest horizontal gap, 95th percentile), judged against the input's
+and against the style's own change of it on Bandai-Namco-2 walks (``stride_against_style``).
 
 These clips are kept out of every training run (``held_out``): the figures are on motion the
 model has never seen.
@@ -32,7 +37,15 @@ import numpy as np
 from tqdm import tqdm
 
 from styleerd.data.augment import in_place
-from styleerd.data.datasets import Clip, data_root, find_clips, load_motion, unpack
+from styleerd.data.datasets import (
+    BANDAI1_AS_BANDAI2,
+    BANDAI1_KEPT_BACK,
+    Clip,
+    data_root,
+    find_clips,
+    load_motion,
+    unpack,
+)
 from styleerd.data.outside import CMU_HELD_OUT, CMU_REPORTED_SWIMS, XIA_ACTIONS, held_out
 from styleerd.data.windows import split_takes
 from styleerd.model.stored import GeneratorWeights
@@ -333,6 +346,96 @@ def json_summary(summary: dict) -> str:
     )
 
 
+# ---------------------------------------------------------------- the performer's own change
+
+
+def _mean_pose(m: Motion, jm: JointMap, scale: float) -> np.ndarray:
+    """The clip's mean root-relative position of each mapped joint but the root, in the body's heading
+    frame (cm of a 170 cm body), as one vector ``[3 K]``."""
+    a, names = _root_relative(m, jm)
+    to_heading, _ = _frames(m, jm)
+    mean = quat.mul_vec(to_heading[:, None], a).mean(0) * scale
+    return np.concatenate([mean[k] for k, n in enumerate(names) if n != "Hips"])
+
+
+def _cosine_size(a: np.ndarray, b: np.ndarray) -> tuple[float, float]:
+    """(cosine, size ratio) of ``a`` against ``b``."""
+    na, nb = np.linalg.norm(a), np.linalg.norm(b)
+    return (round(float(a @ b / (na * nb)), 3) if na > 0 and nb > 0 else 0.0), round(float(na / nb), 3) if nb else 0.0
+
+
+def performer_changes(model: GeneratorWeights, data_dir: str | None = None) -> dict:
+    """A style's change as a real performer makes it: Bandai-Namco-1's performer, on the takes every
+    training run keeps back (``bandai1_kept_back``: walk-back, dash, byebye, guide and the second walk,
+    in every style). Per action and each model style Bandai-1 also has (its ``old``, ``tired`` and
+    ``masculinity`` are the model's elderly, exhausted and masculine), cosine and size ratio of:
+
+    - ``performer``: the performer's change (the styled take's mean pose minus the normal take's,
+      ``_mean_pose``) against the same performer's change on the walk (both takes' mean); on the walk's
+      row, the first take's change against the second's: how far two takes of one walk agree;
+    - ``model``: the model's change on the normal take (styled minus identity output, ``style_change``)
+      against its change on the normal walk;
+    - ``model_vs_performer``: the model's change against the performer's on the same action."""
+    clips = find_clips(data_root(data_dir), "bandai-namco-1")
+    names = {BANDAI1_AS_BANDAI2.get(c.style, c.style): c.style for c in clips}
+    neutral = model.config.neutral_style
+    styles = [s for s in model.config.styles if s != neutral and s in names]
+    wanted = {names[s] for s in [neutral, *styles]}
+    takes = {
+        (c.content, c.style, c.name[-3:]): c
+        for c in clips
+        if c.content in ("walk", *BANDAI1_KEPT_BACK) and c.style in wanted
+    }
+    posed: dict[tuple, np.ndarray] = {}
+    for key, c in tqdm(sorted(takes.items()), desc="performer's takes", leave=False):
+        m = load_motion(c)
+        jm = map_skeleton(m.skeleton, model, None, c.name, m.rotations[0])
+        posed[key] = _mean_pose(trimmed(m), jm, _body_scale(m.skeleton, jm))
+    real = lambda action, style, take: posed[(action, names[style], take)] - posed[(action, names[neutral], take)]
+    walk = {s: (real("walk", s, "001") + real("walk", s, "002")) / 2 for s in styles}
+    out: dict = {"styles": styles, "actions": {}}
+    model_walk: dict[str, np.ndarray] = {}
+    for action, take in [("walk", "002")] + [(a, "001") for a in BANDAI1_KEPT_BACK]:
+        c = takes[(action, names[neutral], take)]
+        clip = ActionClip(c.name, action, "bandai-namco-1", trimmed(load_motion(c)), neutral)
+        jm = _map(clip, model)
+        scale = _body_scale(clip.motion.skeleton, jm)
+        identity, styled = _transfers(clip, model, styles, "input")
+        row = {}
+        for s in styles:
+            change = style_change(clip.motion, styled[s], identity, jm, scale)["heading"]
+            mine = np.concatenate([v for k, v in change.items() if k != "Hips"])
+            model_walk.setdefault(s, mine)
+            theirs = real(action, s, take)
+            row[s] = {
+                "performer": _cosine_size(real("walk", s, "001"), real("walk", s, "002"))
+                if action == "walk"
+                else _cosine_size(theirs, walk[s]),
+                "model": None if action == "walk" else _cosine_size(mine, model_walk[s]),
+                "model_vs_performer": _cosine_size(mine, theirs),
+            }
+        out["actions"][action] = row
+    return out
+
+
+def performer_markdown(report: dict) -> str:
+    """``performer_changes`` as a table."""
+    styles = report["styles"]
+    lines = [
+        "| action | " + " | ".join(styles) + " |",
+        "|---|" + "---:|" * len(styles),
+    ]
+    for action, row in report["actions"].items():
+        label = "walk (take 1 against take 2)" if action == "walk" else action
+        cells = []
+        for s in styles:
+            r = row[s]
+            model = f"{r['model'][0]:.2f}" if r["model"] else "-"
+            cells.append(f"{r['performer'][0]:.2f} / {model} / {r['model_vs_performer'][0]:.2f}")
+        lines.append(f"| {label} | " + " | ".join(cells) + " |")
+    return "\n".join(lines)
+
+
 # ---------------------------------------------------------------- feet and pace
 
 
@@ -444,6 +547,26 @@ def evaluate_feet(
     return out
 
 
+def stride_against_style(feet: dict) -> dict[str, dict[str, tuple[str, float, float]]]:
+    """Per clip of ``evaluate_feet``'s table and pose path, the target style whose stride is furthest
+    from both the input's and the style's own change, with its output stride over the input's and that
+    over the same ratio on the table's Bandai-Namco-2 walks (the style's own change). Issue 35's bar:
+    one of the two within 20 % of 1."""
+    reference = [row for row in feet.values() if row["source"].startswith("bandai-namco-2")]
+    ratio = lambda f: f["stride_cm"]["output"] / f["stride_cm"]["input"]
+    out: dict[str, dict[str, tuple[str, float, float]]] = {}
+    for name, row in feet.items():
+        out[name] = {}
+        for key in (k for k in row if k.startswith("pose")):
+            kept = {}
+            for s, f in row[key].items():
+                r = ratio(f)
+                kept[s] = (r, r / np.mean([ratio(b[key][s]) for b in reference]))
+            worst = max(kept, key=lambda s: min(abs(kept[s][0] - 1.0), abs(kept[s][1] - 1.0)))
+            out[name][key] = (worst, round(float(kept[worst][0]), 3), round(float(kept[worst][1]), 3))
+    return out
+
+
 # ---------------------------------------------------------------- report
 
 
@@ -523,6 +646,21 @@ def markdown(report: dict) -> str:
                     + " |"
                 )
         lines.append("")
+    if report.get("performers"):
+        lines += [
+            "### The style's change as a performer makes it",
+            "",
+            (
+                "Bandai-Namco-1's performer in each style, on the takes every training run keeps back (the styles the "
+                "model shares with it; pose `input`), cosines of the style's change (mean root-relative pose, heading "
+                "frame): the performer's on the action against the performer's on the walk / the model's on the "
+                "normal take against the model's on the normal walk / the model's against the performer's on the "
+                "action. On the walk, the first: the performer's change on one take against the other's."
+            ),
+            "",
+            performer_markdown(report["performers"]),
+            "",
+        ]
     if report.get("feet"):
         keys = [k for k in next(iter(report["feet"].values())) if k.startswith("pose")]
         lines += [
@@ -530,13 +668,16 @@ def markdown(report: dict) -> str:
             "",
             (
                 "Worst over the target styles: cm below the input's floor; planted feet's slide (cm/s, input's in "
-                "brackets); "
-                "stride (cm, input's in brackets), smallest over the styles; what the labeller reads."
+                "brackets); stride (cm, input's in brackets), smallest over the styles, then the style furthest from "
+                "both the input's stride and its own change: output over input stride / that over the same on the "
+                "Bandai-Namco-2 walks above (1 = the style changes it as on the model's data; the bar: one of the two "
+                "within 0.8 to 1.2); what the labeller reads."
             ),
             "",
             "| clip | labeller reads | " + " | ".join(keys) + " |",
             "|---|---|" + "---|" * len(keys),
         ]
+        against = stride_against_style(report["feet"])
         for name, row in report["feet"].items():
             cells = []
             for k in keys:
@@ -546,11 +687,10 @@ def markdown(report: dict) -> str:
                 slide_in = next(iter(row[k].values()))["slide_cm_s"]["input"]
                 stride = min(x["stride_cm"]["output"] for x in f)
                 stride_in = next(iter(row[k].values()))["stride_cm"]["input"]
-                cells.append(
-                    f"{below:.1f} cm; slide {max(slides):.1f} ({slide_in}); stride {stride:.0f} ({stride_in:.0f})"
-                    if slides
-                    else f"{below:.1f} cm; stride {stride:.0f} ({stride_in:.0f})"
-                )
+                style, of_input, of_own = against[name][k]
+                slide = f"slide {max(slides):.1f} ({slide_in}); " if slides else ""
+                kept = f"{style} {of_input:.2f} / {of_own:.2f}"
+                cells.append(f"{below:.1f} cm; {slide}stride {stride:.0f} ({stride_in:.0f}), {kept}")
             reads = "/".join(row["labeller_reads"]) if row["labeller_reads"] else "(given)"
             lines.append(f"| {name} | {reads} | " + " | ".join(cells) + " |")
         lines.append("")
