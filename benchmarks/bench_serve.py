@@ -7,7 +7,9 @@ clients (30 fps, loopback) against a fresh server for each row.
 Rows: 40 single-stream connections (a light live load) on the numpy step (the server's default
 until now) and on the numba step (the default); 200 single-stream connections (numpy on asyncio's
 event loop and on uvloop, then numba); the same 200 streams on 2 connections of 100 (a hello's
-``streams``); 1,000 streams on 10 connections (labels given: no labeller). Each row prints the
+``streams``); 1,000 streams on 10 connections (labels given: no labeller); the last two again on
+the network's own pose (the clients' ``"pose": "network"``: one pass, no blend towards the input),
+beside 200 single-stream connections with labels given on the default pose. Each row prints the
 server's CPU a frame, split into the engine (the stylizer's steps) and the protocol (everything
 else), latency p50/p99/max, and frames dropped, reordered or changed (every reply against a local
 run). The load generator shares the machine's cores with the server. ``--before COMMIT`` serves
@@ -32,14 +34,18 @@ from styleerd.serve.loadtest import run_load_test
 
 ROOT = Path(__file__).resolve().parents[1]
 
-ROWS = [  # (name, connections, streams each, labels given, server options)
-    ("40 x 1 stream, numpy (the default until now)", 40, 1, False, ("--backend", "numpy")),
-    ("40 x 1 stream, numba (the default)", 40, 1, False, ("--backend", "numba")),
-    ("200 x 1 stream, numpy, asyncio loop", 200, 1, False, ("--loop", "asyncio", "--backend", "numpy")),
-    ("200 x 1 stream, numpy, uvloop", 200, 1, False, ("--loop", "uvloop", "--backend", "numpy")),
-    ("200 x 1 stream, numba, uvloop", 200, 1, False, ("--loop", "uvloop", "--backend", "numba")),
-    ("2 x 100 streams, numba, uvloop", 2, 100, False, ("--loop", "uvloop", "--backend", "numba")),
-    ("10 x 100 streams, numba, labels given", 10, 100, True, ("--loop", "uvloop", "--backend", "numba")),
+ROWS = [  # (name, connections, streams each, labels given, server options, the clients' pose path)
+    ("40 x 1 stream, numpy (the default until now)", 40, 1, False, ("--backend", "numpy"), "input"),
+    ("40 x 1 stream, numba (the default)", 40, 1, False, ("--backend", "numba"), "input"),
+    ("200 x 1 stream, numpy, asyncio loop", 200, 1, False, ("--loop", "asyncio", "--backend", "numpy"), "input"),
+    ("200 x 1 stream, numpy, uvloop", 200, 1, False, ("--loop", "uvloop", "--backend", "numpy"), "input"),
+    ("200 x 1 stream, numba, uvloop", 200, 1, False, ("--loop", "uvloop", "--backend", "numba"), "input"),
+    ("2 x 100 streams, numba, uvloop", 2, 100, False, ("--loop", "uvloop", "--backend", "numba"), "input"),
+    ("10 x 100 streams, numba, labels given", 10, 100, True, ("--loop", "uvloop", "--backend", "numba"), "input"),
+    # the paper's pose path (one pass, no blend towards the input): the engine as the issue measured it
+    ("200 x 1 stream, numba, labels given", 200, 1, True, ("--loop", "uvloop"), "input"),
+    ("200 x 1 stream, numba, labels given, pose network", 200, 1, True, ("--loop", "uvloop"), "network"),
+    ("10 x 100 streams, numba, labels given, pose network", 10, 100, True, ("--loop", "uvloop"), "network"),
 ]
 
 
@@ -61,7 +67,7 @@ def main() -> None:
         try:
             rows = []
             runs = [(row, k) for row in chosen for k in range(args.rounds)]
-            for i, ((name, clients, each, labels, server), k) in enumerate(runs):
+            for i, ((name, clients, each, labels, server, pose), k) in enumerate(runs):
                 for who in list(servers)[:: 1 if i % 2 == 0 else -1]:
                     summary, figures = run_load_test(
                         clients,
@@ -70,9 +76,19 @@ def main() -> None:
                         labels=labels,
                         server_args=server,
                         server_code=servers[who],
+                        pose=pose,
                     )
                     print(f"## {name}, {who}, round {k + 1}\n{summary}\n", flush=True)
-                    rows.append({"row": name, "server": who, "round": k + 1, "server_args": list(server), **figures})
+                    rows.append(
+                        {
+                            "row": name,
+                            "server": who,
+                            "round": k + 1,
+                            "server_args": list(server),
+                            "pose": pose,
+                            **figures,
+                        }
+                    )
         finally:
             if args.before:
                 subprocess.run(["git", "-C", str(ROOT), "worktree", "remove", "--force", tree], check=False)

@@ -599,7 +599,14 @@ def _load_test(args: argparse.Namespace) -> None:
     server = ("--workers", str(args.workers), "--backend", args.backend, "--threads", str(args.threads))
     server += ("--loop", args.loop)
     summary, _ = run_load_test(
-        args.clients, args.seconds, args.output, args.faulty, args.streams_per_client, args.labels, server
+        args.clients,
+        args.seconds,
+        args.output,
+        args.faulty,
+        args.streams_per_client,
+        args.labels,
+        server,
+        pose=args.pose,
     )
     print(summary)
 
@@ -993,6 +1000,7 @@ def _live_commands(command: Callable[[str, str], argparse.ArgumentParser]) -> No
         action="store_true",
         help="the hellos give the clip's input style and content (a neutral walk): no labeller runs on the server",
     )
+    p.add_argument("--pose", choices=POSES, default="input", help="the pose path the clients ask for: " + POSE_HELP)
     p.add_argument(
         "--faulty",
         type=_whole(0),

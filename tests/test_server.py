@@ -691,3 +691,20 @@ def test_the_load_tests_server_cpu_counts_every_worker():
     finally:
         parent.kill()
         parent.wait()
+
+
+def test_the_load_test_asks_for_the_pose_path_it_compares_with(tmp_path):
+    """``run_load_test(pose="network")``: the clients' hellos ask for the network's own pose and every reply
+    matches a local run on that path, which differs from the default path's by far more than the wire's
+    rounding (so a server that ignored the hello's pose would be caught)."""
+    from styleerd.serve.loadtest import expected_output
+
+    motion = walk(10.0, fps=30.0)
+    network, own = (expected_output(motion, 60, labels=True, pose=p) for p in ("network", "input"))
+    assert np.abs(network - own).max() > 1.0
+    report, _ = run_load_test(
+        clients=3, seconds=4.0, output=str(tmp_path / "f.json"), streams_per_client=2, labels=True, pose="network"
+    )
+    f = json.loads((tmp_path / "f.json").read_text())
+    assert "pose network" in report and f["dropped"] == 0 and not f["errors"], report
+    assert f["frames_received"] == 3 * 2 * 120 and f["max_error_deg"] < 1e-2, report

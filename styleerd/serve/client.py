@@ -398,9 +398,10 @@ async def load_test(
     reference: np.ndarray | None = None,
     streams_per_client: int = 1,
     labels: bool = False,
+    pose: str = "input",
 ) -> dict:
     """``clients`` concurrent real-time connections of ``seconds`` each (``streams_per_client``
-    streams each, one message per frame of them all), and ``faulty`` clients
+    streams each, one message per frame of them all, on the pose path ``pose``), and ``faulty`` clients
     misbehaving in turn (``FAULTS``) meanwhile; latency percentiles, dropped and reordered
     frames, the largest difference from ``reference`` (the expected output of the looped
     clip), the server's CPU use over the run, and what happened to each faulty episode."""
@@ -426,6 +427,7 @@ async def load_test(
             {
                 **hello(motion, fps, style, 1.0, None, f"load-{i}", *(LABELS if labels else (None, None))),
                 "streams": streams_per_client,
+                "pose": pose,
             },
             seconds,
             reference=reference,

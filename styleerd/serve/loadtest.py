@@ -138,7 +138,13 @@ def _rss_mb(pid: int) -> float:
 
 
 def expected_output(
-    motion: Motion, frames: int, fps: float = 30.0, style: str = "elderly", streams: int = 1, labels: bool = False
+    motion: Motion,
+    frames: int,
+    fps: float = 30.0,
+    style: str = "elderly",
+    streams: int = 1,
+    labels: bool = False,
+    pose: str = "input",
 ) -> np.ndarray:
     """What a well-behaved client of the load test should get back: its looped clip stylised
     locally, from float32 values as they go over the wire: ``[frames, C]``, or for a connection
@@ -149,7 +155,7 @@ def expected_output(
     values = bvh.channel_values(motion).astype("<f4").astype(np.float64)
     model = load_generator_weights()
     known = LABELS if labels else (None, None)
-    local = ChannelStylizer(model, motion.skeleton, {style: 1.0}, *known, fps=fps, n_streams=streams)
+    local = ChannelStylizer(model, motion.skeleton, {style: 1.0}, *known, fps=fps, n_streams=streams, pose=pose)
     phases = PHASE * np.arange(streams)
     out = np.stack(
         [
@@ -169,14 +175,18 @@ def run_load_test(
     labels: bool = False,
     server_args: tuple[str, ...] = (),
     server_code: str | None = None,
+    pose: str = "input",
 ) -> tuple[str, dict]:
     """The load test (and, with ``faulty``, the soak test): every well-behaved client's replies
     are compared with a local run of the same clip. ``labels``: the hellos give the clip's
-    input style and content (a neutral walk), so the server runs no labeller. ``server_args``:
+    input style and content (a neutral walk), so the server runs no labeller; ``pose``: the pose path they
+    ask for (``"network"``: one pass, no blend towards the input). ``server_args``:
     ``styleerd serve``'s options (``--workers 2``, ``--backend numba``...); ``server_code``: a checkout
     of another commit to serve with (``start_server``). -> (a summary, the figures)."""
     motion = walk(10.0, fps=30.0)
-    reference = expected_output(motion, int(round(seconds * 30.0)), streams=streams_per_client, labels=labels)
+    reference = expected_output(
+        motion, int(round(seconds * 30.0)), streams=streams_per_client, labels=labels, pose=pose
+    )
     port = free_port()
     room = clients * streams_per_client + faulty + 8
     server = start_server(port, "--max-streams", str(max(256, room)), *server_args, code=server_code)
@@ -202,6 +212,7 @@ def run_load_test(
                 reference=reference,
                 streams_per_client=streams_per_client,
                 labels=labels,
+                pose=pose,
             )
         )
         cpu_after = tree_cpu_seconds(server.pid)
@@ -226,7 +237,8 @@ def run_load_test(
     lines = [
         (
             f"{clients} clients{each} x {seconds:g} s at {figures['fps']:g} fps on loopback ({workers} server "
-            f"worker(s){', ' + ' '.join(server_args) if server_args else ''}{', labels given' if labels else ''})"
+            f"worker(s){', ' + ' '.join(server_args) if server_args else ''}{', labels given' if labels else ''}, "
+            f"pose {pose})"
         ),
         (
             f"frames sent {figures['frames_sent']}, received {figures['frames_received']}, dropped "
