@@ -265,3 +265,20 @@ def test_eval_ablations_only_remeasures_the_named_rows_and_keeps_the_others(tmp_
     assert "Ordering by FMD here (models at the full budget): rec only < full < rec + adv." in out.read_text()
     with pytest.raises(StyleERDError, match="unknown ablations \\['rec'\\]"):
         real_table(None, ["rec"])
+
+
+def test_labels_that_would_overlap_are_left_out_the_first_kept():
+    """``_label_where_free``: of three labels on one point only the first is written; labels on points far
+    apart are all written; one that would leave the axes is not."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from styleerd.eval.recipes import _label_where_free
+
+    fig, ax = plt.subplots()
+    ax.set(xlim=(0, 10), ylim=(0, 10))
+    _label_where_free(ax, [("first", 5, 5), ("second", 5, 5), ("third", 5.01, 5.01), ("far", 1, 1), ("high", 1, 9.99)])
+    assert [t.get_text() for t in ax.texts] == ["first", "far"]
+    plt.close(fig)

@@ -6,7 +6,6 @@ trade-off plot."""
 
 from __future__ import annotations
 
-import itertools
 import json
 from pathlib import Path
 
@@ -101,58 +100,87 @@ def recipe_table(data_dir: str | None = None, names: list[str] | None = None) ->
     return rows
 
 
+def _label_where_free(ax, labels: list[tuple[str, float, float]], fontsize: float = 8) -> None:
+    """Each ``(text, x, y)`` written beside its point (to its left in the right third of the axes), in
+    the order given, unless it would overlap a label already written or leave the axes: the first
+    ones are the ones that matter."""
+    fig = ax.figure
+    fig.canvas.draw()
+    renderer, taken, inside = fig.canvas.get_renderer(), [], ax.get_window_extent()
+    for text, x, y in labels:
+        right = ax.transData.transform((x, y))[0] > inside.x0 + 0.65 * inside.width  # written to the point's left
+        t = ax.annotate(
+            text,
+            (x, y),
+            textcoords="offset points",
+            xytext=(-5 if right else 5, 4),
+            ha="right" if right else "left",
+            fontsize=fontsize,
+        )
+        box = t.get_window_extent(renderer).expanded(1.05, 1.15)
+        if any(box.overlaps(other) for other in taken) or not inside.contains(box.x0, box.y0) or box.y1 > inside.y1:
+            t.remove()
+        else:
+            taken.append(box)
+
+
 def tradeoff_plot(rows: dict, path: Path) -> None:
-    """Left: every recipe's pooled FMD / floor against CRA / ceiling. Right: the same per
-    target style for the recipes kept under models/recipes and the shipped model; the issue's
-    limits dashed."""
+    """Left: every recipe's pooled FMD / floor against CRA / ceiling. Right: the same per target
+    style, the shipped model's styles named and the other recipes' styles grey, named where they
+    miss a limit. The issue's limits dashed. Labels that would overlap are left out (the table
+    has every figure), the shipped model's and those outside the limits first."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    fig, (a, b) = plt.subplots(1, 2, figsize=(13, 5.5))
-    for name, r in rows.items():
-        q = r["quality"]
-        x, y = q["fmd_over_floor"], q["cra"] / q["content_ceiling"]
-        a.errorbar(
-            x,
-            y,
-            xerr=q["spread"]["fmd"] / q["fmd_floor"],
-            yerr=q["spread"]["cra"] / q["content_ceiling"],
-            fmt="o",
-            capsize=3,
-        )
-        a.annotate(name, (x, y), textcoords="offset points", xytext=(5, 4), fontsize=8)
-    a.set(
-        xlabel="FMD / floor (lower is more real)",
-        ylabel="CRA / ceiling (content kept)",
-        title="Recipes (bars: bootstrap spread)",
-    )
-    markers = itertools.cycle("osD^v<>pPX*h")  # as many recipes as there are
-    for name, r in rows.items():
-        if name.startswith("ablation"):
-            continue
-        ps = r["per_style"]
-        m = next(markers)
-        b.scatter(
-            [v["fmd_over_floor"] for v in ps.values()], [v["cra_of_ceiling"] for v in ps.values()], marker=m, label=name
-        )
-        for style, v in ps.items():
-            b.annotate(
-                style, (v["fmd_over_floor"], v["cra_of_ceiling"]), textcoords="offset points", xytext=(4, 3), fontsize=7
-            )
+    fig, (a, b) = plt.subplots(1, 2, figsize=(14, 6))
     for ax in (a, b):
         ax.axvline(FMD_BAR, ls="--", c="grey")
         ax.axhline(CRA_BAR, ls="--", c="grey")
         ax.set_xscale("log")
         ax.grid(alpha=0.3)
+    outside = lambda x, y: x > FMD_BAR or y < CRA_BAR
+    points = []
+    for name, r in rows.items():
+        q = r["quality"]
+        x, y = q["fmd_over_floor"], q["cra"] / q["content_ceiling"]
+        shipped = name == "shipped"
+        a.errorbar(
+            x,
+            y,
+            xerr=q["spread"]["fmd"] / q["fmd_floor"],
+            yerr=q["spread"]["cra"] / q["content_ceiling"],
+            fmt="*" if shipped else "o",
+            ms=14 if shipped else 5,
+            c="crimson" if shipped else ("grey" if name.startswith("ablation") else "tab:blue"),
+            capsize=3,
+            zorder=3 if shipped else 2,
+        )
+        points.append((0 if shipped else 1 if outside(x, y) else 2, name, x, y))
+    a.set(
+        xlabel="FMD / floor (lower is more real)",
+        ylabel="CRA / ceiling (content kept)",
+        title="Recipes (bars: bootstrap spread; grey: ablations; star: shipped)",
+    )
+    styled = []
+    for name, r in rows.items():
+        if name.startswith("ablation"):
+            continue
+        shipped = name == "shipped"
+        for style, v in r["per_style"].items():
+            x, y = v["fmd_over_floor"], v["cra_of_ceiling"]
+            b.scatter(x, y, marker="*" if shipped else "o", s=140 if shipped else 14, c="crimson" if shipped else "0.6")
+            if shipped or outside(x, y):
+                styled.append((0 if shipped else 1, style if shipped else f"{name}: {style}", x, y))
     b.set(
         xlabel="FMD / floor per target style",
         ylabel="CRA / ceiling per target style",
-        title="Per target style (limits dashed)",
+        title="Per target style (stars: shipped; named grey: outside a limit)",
     )
-    b.legend(fontsize=8)
     fig.tight_layout()
+    _label_where_free(a, [(n, x, y) for _, n, x, y in sorted(points, key=lambda p: p[0])])
+    _label_where_free(b, [(n, x, y) for _, n, x, y in sorted(styled, key=lambda p: p[0])], fontsize=7)
     fig.savefig(path, dpi=110)
     plt.close(fig)
 
