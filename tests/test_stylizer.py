@@ -686,6 +686,47 @@ def test_reach_turns_each_joint_by_the_shortest_arc_towards_its_childrens_target
         assert np.degrees(quat.angle_between(same, m.rotations[t])).max() < 1e-6
 
 
+def test_streams_blended_together_get_what_each_gets_alone():
+    """``_towards_the_input`` on a batch whose streams share a change of style in runs (A, A, B, A, B, B:
+    the posture is put together once a run) and go part or all the way to the input (the whole way
+    takes the target without the arc's sines), one not at all (the network knows its pose), gives each
+    stream exactly what it gets alone."""
+    from styleerd.model.config import FAMILIAR, UNFAMILIAR
+    from styleerd.runtime.stylizer import _towards_the_input
+
+    m = walking_motion(6)
+    sk, J = m.skeleton, m.skeleton.n_joints
+    rng = np.random.default_rng(7)
+    N, S = 6, 3
+    given = m.rotations[:N].copy()
+    same = quat.normalize(given + rng.normal(0, 0.05, given.shape))
+    styled = quat.normalize(given + rng.normal(0, 0.3, given.shape))
+    runs = np.array([[1.0, -1.0, 0.0], [0.0, 0.5, -1.0]])
+    diff = np.ascontiguousarray(runs[[0, 0, 1, 0, 1, 1]])
+    posture, offsets = rng.normal(0, 0.3, (S, J, 3)), rng.normal(0, 3.0, (S, J, 3))
+    seen = np.array([0.3, 1.0, 0.0, 1.0, 0.6, 1.0])  # at least this far: part way, all the way, or (2) as near
+    translations = np.ascontiguousarray(m.positions[:N])
+    globals_ = np.stack([forward_kinematics(m.rotations[t], m.positions[t], sk.parents)[1] for t in range(N)])
+    facing = np.tile([0.0, 0.0, 1.0], (N, 1))
+    roles = BodyRoles.of(sk)
+    joints = np.array([0, sk.names.index("Head"), *roles.left, *roles.right])
+
+    def blend(rows):
+        out, weight = styled[rows].copy(), np.zeros(len(rows))
+        _towards_the_input(
+            *(given[rows], same[rows], out, np.ascontiguousarray(diff[rows]), posture, offsets, seen[rows]),
+            *(FAMILIAR, UNFAMILIAR, weight, translations[rows], globals_[rows], facing[rows], joints, True, sk.parents),
+        )
+        return out, weight
+
+    together, weight = blend(np.arange(N))
+    assert weight[2] == 0.0 and 0.0 < weight[0] < 1.0 and 0.0 < weight[4] < 1.0 and weight[[1, 3, 5]].min() == 1.0
+    for n in range(N):
+        alone, w = blend(np.array([n]))
+        assert np.array_equal(together[n], alone[0]) and w[0] == weight[n], n
+    assert np.degrees(quat.angle_between(together, styled)).max() > 5.0  # the blend did something
+
+
 @pytest.mark.parametrize("posture", ["none", "rotations", "rotations and offsets", "rotations and body offsets"])
 def test_validations_pose_input_is_the_stylizers(model, posture, monkeypatch):
     """``train.validation.towards_the_input`` (torch, whole windows: what ``eval quality --pose

@@ -708,6 +708,15 @@ def _weighted(weights, per_style, j):
     return x, y, z
 
 
+@nb.njit(cache=True, nogil=True, inline="always")
+def _same_row(rows, a, b):
+    """Whether rows ``a`` and ``b`` of ``rows [N, K]`` are equal."""
+    for k in range(rows.shape[1]):
+        if rows[a, k] != rows[b, k]:
+            return False
+    return True
+
+
 @nb.njit(cache=True, nogil=True)
 def _towards_the_input(
     given,
@@ -738,11 +747,14 @@ def _towards_the_input(
     offsets weighted alike (``_reach``; ``translations``, ``globals_``: the input's local joint
     translations and global positions). The offsets are along the body's own axes where ``body``
     (from its joints ``frame_joints``), else along its heading's (from its facing directions
-    ``facing``): ``_frame_axes``. The posture is put together only for a stream that needs it."""
+    ``facing``): ``_frame_axes``. The posture is put together only for a stream that needs it, and
+    once for a run of streams with the same change of style (a crowd's)."""
     N, J = given.shape[0], given.shape[1]
     turn, reach = posture.shape[1] == J, offsets.shape[1] == J
     target, moved, G, X, axes = np.empty((J, 4)), np.empty((J, 3)), np.empty((J, 4)), np.empty((J, 3)), np.empty((3, 3))
+    change = np.empty((J, 4))
     first, kids = _children(parents)
+    last = -1  # the stream whose change of style ``change`` and ``moved`` hold: the next may share it
     for n in range(N):
         total = 0.0
         for j in range(J):
@@ -756,12 +768,19 @@ def _towards_the_input(
         weight[n] = u = max(u, seen[n])
         if u <= 0.0:
             continue
+        if last < 0 or not _same_row(diff, n, last):
+            for j in range(J):
+                if turn:  # the weighted rotation vector, as a quaternion
+                    x, y, z = _weighted(diff[n], posture, j)
+                    angle = np.sqrt(x * x + y * y + z * z)
+                    f = np.sin(0.5 * angle) / max(angle, 1e-12)
+                    change[j, 0], change[j, 1], change[j, 2], change[j, 3] = np.cos(0.5 * angle), x * f, y * f, z * f
+                if reach:
+                    moved[j, 0], moved[j, 1], moved[j, 2] = _weighted(diff[n], offsets, j)
+            last = n
         for j in range(J):
-            if turn:  # the weighted rotation vector, as a quaternion
-                x, y, z = _weighted(diff[n], posture, j)
-                angle = np.sqrt(x * x + y * y + z * z)
-                f = np.sin(0.5 * angle) / max(angle, 1e-12)
-                cw, cx, cy, cz = np.cos(0.5 * angle), x * f, y * f, z * f
+            if turn:
+                cw, cx, cy, cz = change[j, 0], change[j, 1], change[j, 2], change[j, 3]
             else:
                 cw, cx, cy, cz = quat.mul_scalars(
                     same[n, j, 0],
@@ -779,8 +798,6 @@ def _towards_the_input(
                 gw * d, gx * d, gy * d, gz * d, cw, cx, cy, cz
             )
         if reach:
-            for j in range(J):
-                moved[j, 0], moved[j, 1], moved[j, 2] = _weighted(diff[n], offsets, j)
             _frame_axes(globals_[n], facing[n], frame_joints, body, axes)
             _reach(target, translations[n], globals_[n], axes, moved, parents, first, kids, G, X)
         for j in range(J):
@@ -789,9 +806,12 @@ def _towards_the_input(
             dot = sw * tw + sx * tx + sy * ty + sz * tz
             if dot < 0.0:  # the shorter arc
                 tw, tx, ty, tz, dot = -tw, -tx, -ty, -tz, -dot
-            theta = np.arccos(min(1.0, dot))
-            s = np.sin(theta)
-            a, b = (1.0 - u, u) if s < 1e-6 else (np.sin((1.0 - u) * theta) / s, np.sin(u * theta) / s)
+            if u >= 1.0:  # all the way: the target itself, as the arc gives it, without its sines
+                a, b = 0.0, 1.0
+            else:
+                theta = np.arccos(min(1.0, dot))
+                s = np.sin(theta)
+                a, b = (1.0 - u, u) if s < 1e-6 else (np.sin((1.0 - u) * theta) / s, np.sin(u * theta) / s)
             w, x, y, z = a * sw + b * tw, a * sx + b * tx, a * sy + b * ty, a * sz + b * tz
             d = 1.0 / max(np.sqrt(w * w + x * x + y * y + z * z), 1e-12)
             styled[n, j, 0], styled[n, j, 1], styled[n, j, 2], styled[n, j, 3] = w * d, x * d, y * d, z * d
