@@ -215,12 +215,16 @@ def style_change(
     return {"heading": dict(zip(names, heading)), "body": dict(zip(names, body))}
 
 
+def _cosine_size(a: np.ndarray, b: np.ndarray) -> tuple[float, float]:
+    """(cosine, size ratio) of vector ``a`` against ``b``."""
+    na, nb = np.linalg.norm(a), np.linalg.norm(b)
+    return (float(a @ b / (na * nb)) if na > 0 and nb > 0 else 0.0), float(na / nb) if nb > 0 else 0.0
+
+
 def _compare(change: dict[str, np.ndarray], reference: dict[str, np.ndarray]) -> tuple[float, float]:
     """(cosine, size ratio) of a clip's style change against the walks', over their common joints."""
     common = [k for k in reference if k in change and k != "Hips"]
-    a, b = np.concatenate([change[k] for k in common]), np.concatenate([reference[k] for k in common])
-    na, nb = np.linalg.norm(a), np.linalg.norm(b)
-    return (float(a @ b / (na * nb)) if na > 0 and nb > 0 else 0.0), float(na / nb) if nb > 0 else 0.0
+    return _cosine_size(np.concatenate([change[k] for k in common]), np.concatenate([reference[k] for k in common]))
 
 
 def _transfers(
@@ -358,12 +362,6 @@ def _mean_pose(m: Motion, jm: JointMap, scale: float) -> np.ndarray:
     return np.concatenate([mean[k] for k, n in enumerate(names) if n != "Hips"])
 
 
-def _cosine_size(a: np.ndarray, b: np.ndarray) -> tuple[float, float]:
-    """(cosine, size ratio) of ``a`` against ``b``."""
-    na, nb = np.linalg.norm(a), np.linalg.norm(b)
-    return (round(float(a @ b / (na * nb)), 3) if na > 0 and nb > 0 else 0.0), round(float(na / nb), 3) if nb else 0.0
-
-
 def performer_changes(model: GeneratorWeights, data_dir: str | None = None) -> dict:
     """A style's change as a real performer makes it: Bandai-Namco-1's performer, on the takes every
     training run keeps back (``bandai1_kept_back``: walk-back, dash, byebye, guide and the second walk,
@@ -394,7 +392,8 @@ def performer_changes(model: GeneratorWeights, data_dir: str | None = None) -> d
     real = lambda action, style, take: posed[(action, names[style], take)] - posed[(action, names[neutral], take)]
     walk = {s: (real("walk", s, "001") + real("walk", s, "002")) / 2 for s in styles}
     out: dict = {"styles": styles, "actions": {}}
-    model_walk: dict[str, np.ndarray] = {}
+    model_walk: dict[str, np.ndarray] = {}  # the model's change on the walk, the first action below
+    against = lambda a, b: tuple(round(v, 3) for v in _cosine_size(a, b))
     for action, take in [("walk", "002")] + [(a, "001") for a in BANDAI1_KEPT_BACK]:
         c = takes[(action, names[neutral], take)]
         clip = ActionClip(c.name, action, "bandai-namco-1", trimmed(load_motion(c)), neutral)
@@ -408,11 +407,11 @@ def performer_changes(model: GeneratorWeights, data_dir: str | None = None) -> d
             model_walk.setdefault(s, mine)
             theirs = real(action, s, take)
             row[s] = {
-                "performer": _cosine_size(real("walk", s, "001"), real("walk", s, "002"))
+                "performer": against(real("walk", s, "001"), real("walk", s, "002"))
                 if action == "walk"
-                else _cosine_size(theirs, walk[s]),
-                "model": None if action == "walk" else _cosine_size(mine, model_walk[s]),
-                "model_vs_performer": _cosine_size(mine, theirs),
+                else against(theirs, walk[s]),
+                "model": None if action == "walk" else against(mine, model_walk[s]),
+                "model_vs_performer": against(mine, theirs),
             }
         out["actions"][action] = row
     return out
