@@ -204,3 +204,31 @@ def test_a_real_performers_change_on_kept_back_takes(shared_data, model):
             assert all(-1.0 <= r[k][0] <= 1.0 and r[k][1] > 0 for k in ("performer", "model_vs_performer"))
             assert (r["model"] is None) == (action == "walk")
             assert action == "walk" or r["model"][0] >= 0.7, (action, s, r)
+
+
+def test_the_feet_line_names_the_worst_clip_and_style():
+    """``actions_feet``: the furthest below the floor and the slide furthest above the input's own, each
+    with its clip and style; walks and rows measured before the feet were are left out."""
+
+    def row(group: str, styles: dict) -> dict:
+        return {"group": group, "styles": styles}
+
+    clips = {
+        "kick": row(
+            "actions",
+            {
+                "elderly": {"below_floor_cm": 0.4, "slide_cm_s": {"input": 1.0, "output": 1.5}},
+                "active": {"below_floor_cm": 0.0, "slide_cm_s": {"input": 1.0, "output": None}},
+            },
+        ),
+        "swim": row("actions", {"active": {"below_floor_cm": 0.1, "slide_cm_s": {"input": 5.0, "output": 9.0}}}),
+        "walk": row("walks", {"active": {"below_floor_cm": 9.0, "slide_cm_s": {"input": 0.0, "output": 50.0}}}),
+    }
+    line = A.actions_feet(clips)
+    assert line.startswith(
+        "Feet on the 2 held-out actions, every style: at most 0.40 cm (kick, elderly) below the input's floor"
+    )
+    assert "at most 4.0 cm/s more than the input's own (swim, active: 9.0 against 5.0)" in line
+    assert A.actions_feet({"old": row("actions", {"active": {"correlation": 1.0}})}) == ""
+    level = {"kick": row("actions", {"active": {"below_floor_cm": 0.0, "slide_cm_s": {"input": 1.0, "output": 1.0}}})}
+    assert "every style: nothing below the input's floor" in A.actions_feet(level)

@@ -282,9 +282,12 @@ def evaluate_actions(
                     change = style_change(clip.motion, m, identity, jm, scale)
                     if group == "walks":
                         changes[s].append(change)
+                    feet = feet_figures(clip.motion, m, jm, scale)
                     row["styles"][s] = {
                         "correlation": round(action_kept(clip.motion, m, jm, scale)[1], 3),
                         "change": change,
+                        "below_floor_cm": feet["below_floor_cm"],
+                        "slide_cm_s": feet["slide_cm_s"],
                     }
                 rows[clip.name] = row
         walk_change = {
@@ -338,6 +341,32 @@ def _summary(rows: dict[str, dict], styles: list[str]) -> dict:
             }
         out[group] = g
     return out
+
+
+def actions_feet(clips: dict[str, dict]) -> str:
+    """One line on the feet over every held-out action clip and style of one pose path: the furthest
+    below the input's floor and the fastest planted foot's slide, each with its clip and style (rows
+    measured before the feet were: none)."""
+    cells = [
+        (name, s, r["below_floor_cm"], r["slide_cm_s"])
+        for name, row in clips.items()
+        if row["group"] == "actions"
+        for s, r in row["styles"].items()
+        if "below_floor_cm" in r
+    ]
+    if not cells:
+        return ""
+    below = max(cells, key=lambda c: c[2])
+    slid = [c for c in cells if c[3]["output"] is not None]
+    slide = max(slid, key=lambda c: c[3]["output"] - c[3]["input"]) if slid else None
+    where = f"at most {below[2]:.2f} cm ({below[0]}, {below[1]})" if below[2] > 0 else "nothing"
+    text = f"Feet on the {len({c[0] for c in cells})} held-out actions, every style: {where} below the input's floor"
+    if slide:
+        text += (
+            f"; planted feet slide at most {slide[3]['output'] - slide[3]['input']:.1f} cm/s more than the input's own "
+            f"({slide[0]}, {slide[1]}: {slide[3]['output']:.1f} against {slide[3]['input']:.1f})"
+        )
+    return text + "."
 
 
 def json_summary(summary: dict) -> str:
@@ -644,6 +673,9 @@ def markdown(report: dict) -> str:
                     + " | ".join(f"{g[s]['cosine' + k]:.2f} -> {g[s]['cosine_body' + k]:.2f}" for s in styles)
                     + " |"
                 )
+        feet = actions_feet(r["clips"])
+        if feet:
+            lines += ["", feet]
         lines.append("")
     if report.get("performers"):
         lines += [
