@@ -11,31 +11,13 @@ never learnt). The outputs of the two kernels are compared too.
 from __future__ import annotations
 
 import argparse
-import importlib.util
 import json
-import subprocess
-import sys
 import tempfile
 import time
 from pathlib import Path
 
 import numpy as np
-
-ROOT = Path(__file__).resolve().parents[1]
-
-
-def kernel_of(commit: str, folder: Path):
-    """``_towards_the_input`` of ``runtime/stylizer.py`` as it was at ``commit`` (compiled on first call)."""
-    source = subprocess.run(
-        ["git", "show", f"{commit}:styleerd/runtime/stylizer.py"], cwd=ROOT, capture_output=True, text=True, check=True
-    ).stdout
-    path = folder / "stylizer_before.py"
-    path.write_text(source)
-    spec = importlib.util.spec_from_file_location("stylizer_before", path)
-    module = importlib.util.module_from_spec(spec)
-    sys.modules["stylizer_before"] = module
-    spec.loader.exec_module(module)
-    return module._towards_the_input
+from step_kernel_ab import module_at  # this folder's: run as python benchmarks/blend_kernel_ab.py
 
 
 def captured_arguments(streams: int) -> list:
@@ -85,7 +67,10 @@ def main() -> None:
     all_the_way[6][:] = 1.0  # seen: every stream as unfamiliar as can be
     report: dict = {"streams": args.streams, "before": args.before, "cases": {}}
     with tempfile.TemporaryDirectory() as tmp:
-        kernels = {"before": kernel_of(args.before, Path(tmp)), "now": _towards_the_input}
+        kernels = {
+            "before": module_at(args.before, "styleerd/runtime/stylizer.py", Path(tmp))._towards_the_input,
+            "now": _towards_the_input,
+        }
         for case, base in (("part way (the walk's own)", captured), ("all the way", all_the_way)):
             outs = {}
             for name, kernel in kernels.items():

@@ -22,18 +22,20 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 
 
-def kernel_of(commit: str, folder: Path):
-    """``compiled_step`` of ``runtime/compiled.py`` as it was at ``commit`` (compiled on import)."""
+def module_at(commit: str, path: str, folder: Path):
+    """The module ``path`` (a file of the repository) as it was at ``commit``, imported from ``folder``
+    (numba compiles its kernels on import or first call)."""
     source = subprocess.run(
-        ["git", "show", f"{commit}:styleerd/runtime/compiled.py"], cwd=ROOT, capture_output=True, text=True, check=True
+        ["git", "show", f"{commit}:{path}"], cwd=ROOT, capture_output=True, text=True, check=True
     ).stdout
-    path = folder / "compiled_before.py"
-    path.write_text(source)
-    spec = importlib.util.spec_from_file_location("compiled_before", path)
+    name = Path(path).stem + "_before"
+    file = folder / f"{name}.py"
+    file.write_text(source)
+    spec = importlib.util.spec_from_file_location(name, file)
     module = importlib.util.module_from_spec(spec)
-    sys.modules["compiled_before"] = module
+    sys.modules[name] = module
     spec.loader.exec_module(module)
-    return module.compiled_step
+    return module
 
 
 def main() -> None:
@@ -70,7 +72,12 @@ def main() -> None:
         2**31,  # compiled loops for any number of rows: batch 1's path
     )
     with tempfile.TemporaryDirectory() as folder:
-        kernels = {f"before ({args.before})": kernel_of(args.before, Path(folder)), "now": compiled.compiled_step}
+        kernels = {
+            f"before ({args.before})": module_at(
+                args.before, "styleerd/runtime/compiled.py", Path(folder)
+            ).compiled_step,
+            "now": compiled.compiled_step,
+        }
         # each version's arguments: later ones also take the streams' rows of the state (none: in place)
         arguments = {
             name: step_args + ((compiled.IN_PLACE,) if "state_rows" in inspect.signature(k.py_func).parameters else ())
