@@ -413,19 +413,21 @@ def performer_changes(model: GeneratorWeights, data_dir: str | None = None) -> d
         for c in clips
         if c.content in ("walk", *BANDAI1_KEPT_BACK) and c.style in wanted
     }
+    motions = {
+        key: trimmed(load_motion(c)) for key, c in tqdm(sorted(takes.items()), desc="performer's takes", leave=False)
+    }
     posed: dict[tuple, np.ndarray] = {}
-    for key, c in tqdm(sorted(takes.items()), desc="performer's takes", leave=False):
-        m = load_motion(c)
-        jm = map_skeleton(m.skeleton, model, None, c.name, m.rotations[0])
-        posed[key] = _mean_pose(trimmed(m), jm, _body_scale(m.skeleton, jm))
+    for key, m in motions.items():
+        jm = map_skeleton(m.skeleton, model, None, takes[key].name, m.rotations[0])
+        posed[key] = _mean_pose(m, jm, _body_scale(m.skeleton, jm))
     real = lambda action, style, take: posed[(action, names[style], take)] - posed[(action, names[neutral], take)]
     walk = {s: (real("walk", s, "001") + real("walk", s, "002")) / 2 for s in styles}
     out: dict = {"styles": styles, "actions": {}}
     model_walk: dict[str, np.ndarray] = {}  # the model's change on the walk, the first action below
     against = lambda a, b: tuple(round(v, 3) for v in _cosine_size(a, b))
     for action, take in [("walk", "002")] + [(a, "001") for a in BANDAI1_KEPT_BACK]:
-        c = takes[(action, names[neutral], take)]
-        clip = ActionClip(c.name, action, "bandai-namco-1", trimmed(load_motion(c)), neutral)
+        key = (action, names[neutral], take)
+        clip = ActionClip(takes[key].name, action, "bandai-namco-1", motions[key], neutral)
         jm = _map(clip, model)
         scale = _body_scale(clip.motion.skeleton, jm)
         identity, styled = _transfers(clip, model, styles, "input")
