@@ -42,8 +42,8 @@ ROWS = [  # (name, connections, streams each, labels given, server options, the 
     ("200 x 1 stream, numba, uvloop", 200, 1, False, ("--loop", "uvloop", "--backend", "numba"), "input"),
     ("2 x 100 streams, numba, uvloop", 2, 100, False, ("--loop", "uvloop", "--backend", "numba"), "input"),
     ("10 x 100 streams, numba, labels given", 10, 100, True, ("--loop", "uvloop", "--backend", "numba"), "input"),
-    # the paper's pose path (one pass, no blend towards the input): the engine as the issue measured it
     ("200 x 1 stream, numba, labels given", 200, 1, True, ("--loop", "uvloop"), "input"),
+    # the paper's pose path (one pass, no blend towards the input), beside the two rows above
     ("200 x 1 stream, numba, labels given, pose network", 200, 1, True, ("--loop", "uvloop"), "network"),
     ("10 x 100 streams, numba, labels given, pose network", 10, 100, True, ("--loop", "uvloop"), "network"),
 ]

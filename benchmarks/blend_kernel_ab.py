@@ -20,6 +20,11 @@ import numpy as np
 from step_kernel_ab import module_at  # this folder's: run as python benchmarks/blend_kernel_ab.py
 
 
+def fresh(args: list) -> list:
+    """A kernel's arguments with its arrays copied: the kernel writes into some of them."""
+    return [x.copy() if isinstance(x, np.ndarray) else x for x in args]
+
+
 def captured_arguments(streams: int) -> list:
     """The arguments of the blend in a step of ``streams`` streams of the model's walk into elderly."""
     from styleerd.eval.bench import _model_walk
@@ -34,10 +39,7 @@ def captured_arguments(streams: int) -> list:
     for t in range(60):
         st.step(rot[t], pos[t])
     kernel, seen = stylizer._towards_the_input, []
-    stylizer._towards_the_input = lambda *a: (
-        seen.append([x.copy() if isinstance(x, np.ndarray) else x for x in a]),
-        kernel(*a),
-    )
+    stylizer._towards_the_input = lambda *a: (seen.append(fresh(a)), kernel(*a))
     try:
         st.step(rot[60], pos[60])
     finally:
@@ -46,9 +48,9 @@ def captured_arguments(streams: int) -> list:
 
 
 def timed(kernel, args: list) -> float:
-    fresh = [x.copy() if isinstance(x, np.ndarray) else x for x in args]
+    copied = fresh(args)
     t0 = time.perf_counter()
-    kernel(*fresh)
+    kernel(*copied)
     return (time.perf_counter() - t0) * 1e6
 
 
@@ -63,7 +65,7 @@ def main() -> None:
     from styleerd.runtime.stylizer import _towards_the_input
 
     captured = captured_arguments(args.streams)
-    all_the_way = [x.copy() if isinstance(x, np.ndarray) else x for x in captured]
+    all_the_way = fresh(captured)
     all_the_way[6][:] = 1.0  # seen: every stream as unfamiliar as can be
     report: dict = {"streams": args.streams, "before": args.before, "cases": {}}
     with tempfile.TemporaryDirectory() as tmp:
@@ -74,7 +76,7 @@ def main() -> None:
         for case, base in (("part way (the walk's own)", captured), ("all the way", all_the_way)):
             outs = {}
             for name, kernel in kernels.items():
-                out = [x.copy() if isinstance(x, np.ndarray) else x for x in base]
+                out = fresh(base)
                 kernel(*out)  # compiled, and its output kept
                 outs[name] = out
             times: dict[str, list[float]] = {name: [] for name in kernels}
