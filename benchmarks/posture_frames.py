@@ -27,7 +27,6 @@ from pathlib import Path
 
 import numpy as np
 
-import styleerd.runtime.stylizer as stylizer_module
 from styleerd.eval import actions
 from styleerd.model.stored import GeneratorWeights, load_generator_weights
 from styleerd.runtime.posture import measure_posture, training_walks
@@ -41,16 +40,12 @@ def posture_alone_on_walks(model: GeneratorWeights, walks: int) -> dict[str, flo
     there): how much of a style's change on walks a posture holds."""
     styles = [s for s in model.config.styles if s != model.config.neutral_style]
     clips = actions.bandai2_test_walks(None, walks)
-    familiar = stylizer_module.FAMILIAR, stylizer_module.UNFAMILIAR
+    unfamiliar = dataclasses.replace(model, familiar=(-2.0, -1.0))  # every frame
 
     def changes(clip, alone: bool) -> dict:
-        stylizer_module.FAMILIAR, stylizer_module.UNFAMILIAR = (-2.0, -1.0) if alone else familiar
-        try:
-            jm = actions._map(clip, model)
-            scale = actions._body_scale(clip.motion.skeleton, jm)
-            identity, styled = actions._transfers(clip, model, styles, "input")
-        finally:
-            stylizer_module.FAMILIAR, stylizer_module.UNFAMILIAR = familiar
+        jm = actions._map(clip, model)
+        scale = actions._body_scale(clip.motion.skeleton, jm)
+        identity, styled = actions._transfers(clip, unfamiliar if alone else model, styles, "input")
         return {s: actions.style_change(clip.motion, m, identity, jm, scale)["heading"] for s, m in styled.items()}
 
     network, alone = [changes(c, False) for c in clips], [changes(c, True) for c in clips]

@@ -51,7 +51,8 @@ def qrot(q: np.ndarray, v: np.ndarray) -> np.ndarray:
     return v + w * t + np.cross(u, t)
 
 
-FAMILIAR, UNFAMILIAR, RELEASE = 10.0, 16.0, 0.1  # degrees, degrees, a frame: styleerd.model.config's
+FAMILIAR, UNFAMILIAR, RELEASE = 10.0, 16.0, 0.1  # degrees, degrees, a frame: styleerd.model.config's (the
+# first two where the export has no familiar_degrees)
 
 
 def from_rotation_vectors(v: np.ndarray) -> np.ndarray:
@@ -154,6 +155,7 @@ class Host:
         # where the posture moves each joint (in the frame posture_frame names), summed by weight; None: not measured
         offsets = np.array(s["posture_offsets"]) if s.get("posture_offsets") is not None else None
         self.body_frame = s.get("posture_frame") == "body"
+        self.familiar_degrees = s.get("familiar_degrees", (FAMILIAR, UNFAMILIAR))
         self.hips, self.head = s["roles"].get("hips", 0), s["roles"].get("head", 0)
         self.moved = None if offsets is None else np.einsum("s,sjc->jc", (self.target - self.identity)[0], offsets)
         rows, _, width = s["state_shapes"]["h"]  # [1, N, S H] (LSTM form) or [S, N, H] (plain); N = 1 here
@@ -228,7 +230,8 @@ class Host:
         given = rot / np.linalg.norm(rot, axis=-1, keepdims=True)
         d = qmul(qinv(poses["identity"]), given)
         degrees = np.degrees(2 * np.arctan2(np.linalg.norm(d[:, 1:], axis=-1), np.abs(d[:, 0]))).mean()
-        now = float(np.clip((degrees - FAMILIAR) / (UNFAMILIAR - FAMILIAR), 0.0, 1.0))
+        lo, hi = self.familiar_degrees
+        now = float(np.clip((degrees - lo) / (hi - lo), 0.0, 1.0))
         self.unfamiliar = now if first[0, 0] else max(now, self.unfamiliar - RELEASE)
         change = qmul(qinv(poses["identity"]), poses["target"]) if self.change is None else self.change
         turned = qmul(given, change)

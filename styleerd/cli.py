@@ -284,6 +284,26 @@ def _posture(args: argparse.Namespace) -> None:
     print(f"posture of {len(walks)} walks ({frames} frames); wrote {out}.safetensors")
 
 
+def _familiar(args: argparse.Namespace) -> None:
+    import torch
+
+    from styleerd.eval.actions import familiar_range_for
+    from styleerd.model.checkpoint import save_tensors
+    from styleerd.model.stored import load_generator_weights, model_stem
+
+    model = load_generator_weights(args.model)
+    out = Path(args.output).with_suffix("") if args.output else model_stem(args.model)
+    check_output(out.with_suffix(".safetensors"))
+    measured = familiar_range_for(model, args.data)
+    takes = lambda figures: ", ".join(f"{name} {e:.1f} cm / {c:.2f}" for name, (e, c) in figures.items())
+    print(f"the input's own pose: {takes(measured['input'])}")
+    for row in measured["tried"]:
+        print("{:g}-{:g} deg: ".format(*row["degrees"]) + takes(row["takes"]))
+    tensors = {f"generator.{k}": torch.from_numpy(v) for k, v in model.arrays.items()}
+    save_tensors(out, tensors, {**model.meta, "familiar": measured})
+    print("familiar range {:g}-{:g} deg; wrote {}.safetensors".format(*measured["degrees"], out))
+
+
 def _add_style(args: argparse.Namespace) -> None:
     from styleerd.train.add_style import AddStyleConfig, add_style
 
@@ -1084,6 +1104,16 @@ def _train_commands(command: Callable[[str, str], argparse.ArgumentParser]) -> N
     )
     p.add_argument("--data", help="data folder (default: $STYLEERD_DATA, else ../shared/data)")
     p.set_defaults(func=_posture)
+
+    p = command(
+        "familiar",
+        "measure how far the identity pass may be from the input (mean joint angle) before the input's own pose "
+        "takes over (pose input), on actions no training run sees, and store it in the model",
+    )
+    p.add_argument("model", nargs="?", help=MODEL_HELP)
+    p.add_argument("-o", "--output", help="write the model here (no suffix; default: the model file itself)")
+    p.add_argument("--data", help="data folder (default: $STYLEERD_DATA, else ../shared/data)")
+    p.set_defaults(func=_familiar)
 
     for name, (text, default, _) in HELPER_MODELS.items():
         p = command(name, text)

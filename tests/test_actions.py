@@ -150,6 +150,42 @@ def test_styleerd_posture_measures_the_shipped_posture_again(shared_data, model,
     assert np.abs(again.posture_offsets - model.posture_offsets).max() <= 1e-4  # the skeleton's units (cm)
 
 
+@pytest.mark.slow
+def test_styleerd_familiar_measures_each_shipped_models_range_again(shared_data, model, tmp_path):
+    """``styleerd familiar`` on each shipped model writes its stored range again, weights bit for bit.
+    The default model keeps Bandai-Namco-1's kept-back normal takes as the input does at the
+    config's range (10-16 deg); the 16-style model does not there (its identity pass loses a guide's
+    hands at 0.85 while passing as familiar) and gets a lower one, where it keeps them."""
+    from styleerd.cli import main
+
+    for name in ("styleerd-bandai2", "styleerd-bandai12"):
+        shipped = load_generator_weights(name)
+        assert main(["familiar", name, "-o", str(tmp_path / name), "--data", str(shared_data)]) == 0
+        again = load_generator_weights(tmp_path / name)
+        assert all(np.array_equal(again.arrays[k], v) for k, v in shipped.arrays.items())
+        assert again.familiar == shipped.familiar, name
+        measured = again.meta["familiar"]
+        given, last = measured["input"], measured["tried"][-1]["takes"]
+        assert all(c >= given[k][1] - A.AS_THE_INPUT[1] for k, (_, c) in last.items()), (name, measured)
+    assert model.familiar == (10.0, 16.0)
+    first = measured["tried"][0]
+    assert first["degrees"] == [10.0, 16.0] and min(c for _, c in first["takes"].values()) < 0.9
+    assert again.familiar[0] < 10.0
+
+
+def test_a_models_familiar_range_is_checked_where_it_is_read():
+    """``familiar_range``: the config's where a model file has none, a measured one as stored, and a
+    range that cannot be one refused."""
+    from styleerd.model.config import FAMILIAR, UNFAMILIAR
+    from styleerd.model.stored import familiar_range
+
+    assert familiar_range({}) == (FAMILIAR, UNFAMILIAR) == familiar_range({"familiar": None})
+    assert familiar_range({"familiar": {"degrees": [7, 13]}}) == (7.0, 13.0)
+    for bad in ([13, 7], [-1, 5], [5, 181], [5], ["a", 5], [float("nan"), 5]):
+        with pytest.raises((ValueError, TypeError)):
+            familiar_range({"familiar": {"degrees": bad}})
+
+
 def test_the_stride_is_judged_against_the_input_and_the_styles_own_change():
     """``stride_against_style`` on a hand-made feet table: elderly shortens the model's own walks to 0.8 of
     the input's stride, so a clip it shortens to 0.6 of the input's is 0.75 of the style's own change

@@ -3,6 +3,7 @@ styleerd made unimportable) gives styleerd's own stylizer's output from the expo
 
 from __future__ import annotations
 
+import dataclasses
 import subprocess
 import sys
 from pathlib import Path
@@ -26,9 +27,12 @@ WITHOUT_STYLEERD = (
 )
 
 
-@pytest.mark.parametrize("form", ["lstm", "plain"])
-def test_reference_host_loop_equals_the_stylizer(tmp_path, form):
+@pytest.mark.parametrize("form, familiar", [("lstm", None), ("plain", (9.0, 15.0))])
+def test_reference_host_loop_equals_the_stylizer(tmp_path, form, familiar):
+    """Also with a model's own familiar range (``styleerd familiar``), which the host reads from the export."""
     model = load_generator_weights()
+    if familiar:
+        model = dataclasses.replace(model, familiar=familiar)
     export(model, tmp_path / "stylizer.onnx", form)
     source = walk(seconds=3.0, fps=30.0)
     on_model = to_target(source, map_skeleton(source.skeleton, model, first_pose=source.rotations[0]))
@@ -66,8 +70,8 @@ def test_reference_host_loop_equals_the_stylizer(tmp_path, form):
 
 
 def test_the_hosts_blend_with_the_stylizers_thresholds():
-    """The two standalone hosts (no styleerd import) carry the unfamiliarity thresholds as numbers:
-    they are the stylizer's."""
+    """The two standalone hosts (no styleerd import) carry the stylizer's default unfamiliarity
+    thresholds as numbers, for an export without a model's own (``familiar_degrees``)."""
     import re
 
     from styleerd.model.config import FAMILIAR, RELEASE, UNFAMILIAR

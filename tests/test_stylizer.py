@@ -89,8 +89,7 @@ def test_stream_equals_the_generator_forward_on_whole_clip_features(model, backe
         same = generator(eye_s[1])
         angles = np.degrees((scipy(same).inv() * scipy(m.rotations)).magnitude()).reshape(30, -1).mean(-1)
         low, high = np.percentile(angles, [30, 70])
-        monkeypatch.setattr(stylizer, "FAMILIAR", low)
-        monkeypatch.setattr(stylizer, "UNFAMILIAR", high)
+        monkeypatch.setattr(model, "familiar", (low, high))
         weight = np.clip((angles - low) / (high - low), 0, 1)
         for t in range(1, 30):
             weight[t] = max(weight[t], weight[t - 1] - stylizer.RELEASE)
@@ -412,19 +411,15 @@ def test_root_speed_scales_each_ground_step_by_the_networks_speed_online(model, 
     given = f[:, root : root + 3]
     leg = StreamStylizer(model, "normal", "walk", {"old": 1.0}).roles.leg_length
     # this random network's identity output is far from the input: thresholds inside its range, so the
-    # pose "input" run is familiar on some frames and not on others
-    from styleerd.runtime import stylizer
-
+    # pose "input" run is familiar on some frames and not on others (a stylizer reads them when made)
+    monkeypatch.setattr(model, "familiar", (0.0, 1e9))  # u = the mean angle / 1e9: read it back as the angle
     probe = StreamStylizer(model, "normal", "walk", {"old": 1.0}, pose="input")
-    monkeypatch.setattr(stylizer, "FAMILIAR", 0.0)
-    monkeypatch.setattr(stylizer, "UNFAMILIAR", 1e9)  # u = the mean angle / 1e9: read it back as the angle
     angles = []
     for t in range(60):
         probe.step(m.rotations[t], m.positions[t])
         angles.append(probe.unfamiliar[0] * 1e9)
     low, high = np.percentile(angles, [30, 70])
-    monkeypatch.setattr(stylizer, "FAMILIAR", low)
-    monkeypatch.setattr(stylizer, "UNFAMILIAR", high)
+    monkeypatch.setattr(model, "familiar", (low, high))
     for pose in ("network", "input"):
         on, off = (
             StreamStylizer(model, "normal", "walk", {"old": 1.0}, root_speed=True, pose=pose),
@@ -733,7 +728,6 @@ def test_validations_pose_input_is_the_stylizers(model, posture, monkeypatch):
     input`` judges) gives the stylizer's pose "input" output frame by frame from a fresh state,
     with the unfamiliarity thresholds inside this random network's range."""
     from styleerd.model import torch_quat
-    from styleerd.runtime import stylizer
     from styleerd.train import validation
 
     m = walking_motion(30)
@@ -750,9 +744,7 @@ def test_validations_pose_input_is_the_stylizers(model, posture, monkeypatch):
         same, _, _ = model(x, eye_s[[1]], eye_c[[0]], eye_s[[1]])
         angles = torch.rad2deg(torch_quat.angle(same, model.raw_rotations(x))).mean(-1).numpy()
     low, high = np.percentile(angles, [30, 70])
-    for module in (stylizer, validation):
-        monkeypatch.setattr(module, "FAMILIAR", low)
-        monkeypatch.setattr(module, "UNFAMILIAR", high)
+    monkeypatch.setattr(model, "familiar", (low, high))
     with torch.no_grad():
         rot, vel, _ = model(x, eye_s[[1]], eye_c[[0]], eye_s[[2]])
         rot, _ = validation.towards_the_input(model, x, eye_s[[1]], eye_c[[0]], eye_s[[2]], rot, vel)

@@ -29,6 +29,7 @@ model has never seen.
 
 from __future__ import annotations
 
+import dataclasses
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
@@ -41,6 +42,7 @@ from styleerd.data.datasets import (
     BANDAI1_AS_BANDAI2,
     BANDAI1_KEPT_BACK,
     Clip,
+    bandai1_kept_back,
     data_root,
     find_clips,
     load_motion,
@@ -48,6 +50,7 @@ from styleerd.data.datasets import (
 )
 from styleerd.data.outside import CMU_HELD_OUT, CMU_REPORTED_SWIMS, XIA_ACTIONS, held_out
 from styleerd.data.windows import split_takes
+from styleerd.model.config import FAMILIAR, UNFAMILIAR
 from styleerd.model.stored import GeneratorWeights
 from styleerd.motion import bvh, quat
 from styleerd.motion.kinematics import body_axes, facing_directions, forward_positions, heading_rotations
@@ -199,6 +202,56 @@ def action_kept(given: Motion, output: Motion, jm: JointMap, scale: float) -> tu
     va, vb = np.diff(a[:, ends], axis=0).ravel(), np.diff(b[:, ends], axis=0).ravel()
     corr = float(np.corrcoef(va, vb)[0, 1]) if va.std() > 0 and vb.std() > 0 else 0.0
     return error, corr
+
+
+# ``familiar_range_for``: at most this much more error (cm) and less correlation than the input's own pose
+AS_THE_INPUT = (0.5, 0.02)
+FAMILIAR_STEP = 1.0  # degrees: how far ``familiar_range_for`` lowers a model's range a try
+
+
+def familiar_range_for(model: GeneratorWeights, data_dir: str | None = None) -> dict:
+    """A model's familiar range (``model.stored.familiar_range``): from ``model.config``'s FAMILIAR and
+    UNFAMILIAR, both lowered by ``FAMILIAR_STEP`` until the identity transfer keeps each of
+    Bandai-Namco-1's kept-back normal takes (``bandai1_kept_back``: actions and a take no training run
+    sees, and none of the clips ``evaluate_actions`` reports) as well as the input's own pose does
+    (every frame unfamiliar), within ``AS_THE_INPUT``. A model that rebuilds those actions' poses
+    closely enough to pass as familiar, yet loses their hands' and feet' motion, gets a lower range; one
+    that keeps them keeps the default. Returns the range, the input's own figures and, per range tried,
+    each take's (error, correlation)."""
+    clips = [
+        c
+        for c in find_clips(data_root(data_dir), "bandai-namco-1")
+        if c.style == model.config.neutral_style and bandai1_kept_back(c.name, c.content)
+    ]
+    takes = [ActionClip(c.name, c.content, "bandai-namco-1", trimmed(load_motion(c)), c.style) for c in clips]
+
+    def identity(lo: float, hi: float) -> dict[str, tuple[float, float]]:
+        ranged = dataclasses.replace(model, familiar=(lo, hi))
+        kept = {}
+        for clip in tqdm(takes, desc=f"familiar {lo:g}-{hi:g} deg", leave=False):
+            jm = _map(clip, model)
+            output = _transfers(clip, ranged, [], "input")[0]
+            kept[clip.name] = action_kept(clip.motion, output, jm, _body_scale(clip.motion.skeleton, jm))
+        return kept
+
+    given = identity(-2.0, -1.0)  # every frame unfamiliar: the input's own pose
+    lo, hi = FAMILIAR, UNFAMILIAR
+    tried = []
+    while True:
+        kept = identity(lo, hi)
+        tried.append({"degrees": [lo, hi], "takes": {k: [round(e, 3), round(c, 3)] for k, (e, c) in kept.items()}})
+        if lo <= FAMILIAR_STEP or all(
+            e <= given[k][0] + AS_THE_INPUT[0] and c >= given[k][1] - AS_THE_INPUT[1] for k, (e, c) in kept.items()
+        ):
+            break
+        lo, hi = lo - FAMILIAR_STEP, hi - FAMILIAR_STEP
+    return {
+        "degrees": [lo, hi],
+        "measured_on": f"the identity transfer of Bandai-Namco-1's {len(takes)} kept-back normal takes "
+        "(styleerd familiar)",
+        "input": {k: [round(e, 3), round(c, 3)] for k, (e, c) in given.items()},
+        "tried": tried,
+    }
 
 
 def style_change(

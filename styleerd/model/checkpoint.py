@@ -22,6 +22,7 @@ from styleerd.model.labeller import OnlineLabeller
 from styleerd.model.stored import (
     Familiarity,
     GeneratorWeights,
+    familiar_range,
     load_arrays,
     loaded,
     posture_frame,
@@ -79,6 +80,7 @@ def build_generator(meta: dict) -> StyleERD:
     model.posture = None if posture is None else torch.from_numpy(posture).float()
     model.posture_offsets = None if offsets is None else torch.from_numpy(offsets).float()
     model.posture_frame = posture_frame(meta)
+    model.familiar = familiar_range(meta)
     return model
 
 
@@ -90,6 +92,7 @@ def torch_generator(weights: GeneratorWeights) -> StyleERD:
     offsets = weights.posture_offsets
     model.posture_offsets = None if offsets is None else torch.from_numpy(offsets).float()
     model.posture_frame = weights.posture_frame
+    model.familiar = weights.familiar
     return model.eval()
 
 

@@ -9,8 +9,9 @@ from styleerd.data.features import FeatureLayout
 # How unfamiliar an input is (``runtime.stylizer``, pose "input"), from the identity pass's mean joint
 # angle to the input (degrees): up to FAMILIAR the network's pose (99 % of Bandai-Namco-2 test
 # frames), from UNFAMILIAR on the input's pose plus the style's posture (above every such frame;
-# held-out actions of other performers are at 15-50, docs/actions.md). It rises at once and falls by
-# RELEASE a frame, so nothing pops.
+# held-out actions of other performers are at 15-50, docs/actions.md). These are a model's range
+# until ``styleerd familiar`` measures its own (``model.stored.familiar_range``). It rises at once and
+# falls by RELEASE a frame, so nothing pops.
 FAMILIAR, UNFAMILIAR, RELEASE = 10.0, 16.0, 0.1
 
 

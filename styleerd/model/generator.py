@@ -22,7 +22,7 @@ from torch import nn
 
 from styleerd.data.features import FeatureLayout, FeatureStats
 from styleerd.model import torch_quat
-from styleerd.model.config import GeneratorConfig
+from styleerd.model.config import FAMILIAR, UNFAMILIAR, GeneratorConfig
 from styleerd.motion.skeleton import Skeleton
 
 
@@ -80,6 +80,7 @@ class StyleERD(nn.Module):
         self.posture: torch.Tensor | None = None
         self.posture_offsets: torch.Tensor | None = None
         self.posture_frame = "heading"  # the frame the offsets are in (``model.stored.posture_frame``)
+        self.familiar = (FAMILIAR, UNFAMILIAR)  # degrees (``model.stored.familiar_range``)
 
     def stats(self) -> FeatureStats:
         """The feature normalisation the model was trained with."""

@@ -23,7 +23,7 @@ from safetensors import SafetensorError, safe_open
 
 from styleerd.data.features import FeatureStats
 from styleerd.errors import StyleERDError
-from styleerd.model.config import GeneratorConfig
+from styleerd.model.config import FAMILIAR, UNFAMILIAR, GeneratorConfig
 from styleerd.models import DEFAULT_MODEL, LABELLER, MODELS_DIR
 from styleerd.motion.skeleton import Skeleton
 
@@ -99,6 +99,7 @@ class GeneratorWeights:
     posture: np.ndarray | None = None  # [styles, J, 3] rotation vectors (``posture_vectors``), None: not measured
     posture_offsets: np.ndarray | None = None  # [styles, J, 3] joint offsets (``posture_offsets``), None: not measured
     posture_frame: str = "heading"  # the frame the offsets are in (``posture_frame``)
+    familiar: tuple[float, float] = (FAMILIAR, UNFAMILIAR)  # degrees (``familiar_range``)
 
     @property
     def branch_styles(self) -> list[int]:
@@ -123,6 +124,7 @@ def generator_weights(model) -> GeneratorWeights:
         posture=posture,
         posture_offsets=offsets,
         posture_frame=model.posture_frame,
+        familiar=model.familiar,
     )
 
 
@@ -173,6 +175,19 @@ def posture_frame(meta: dict) -> str:
     return frame
 
 
+def familiar_range(meta: dict) -> tuple[float, float]:
+    """The identity pass's mean joint angle to the input (degrees) up to which a model's own pose is
+    kept, and from which the input's pose plus the posture is (``runtime.stylizer``): as ``styleerd
+    familiar`` measured it for the model, else ``model.config``'s FAMILIAR and UNFAMILIAR."""
+    measured = (meta.get("familiar") or {}).get("degrees")
+    if measured is None:
+        return FAMILIAR, UNFAMILIAR
+    lo, hi = (float(v) for v in measured)  # two numbers, or the model is refused
+    if not 0.0 <= lo < hi <= 180.0:
+        raise ValueError(f"familiar degrees {measured}: give two angles, 0 <= the first < the second <= 180")
+    return lo, hi
+
+
 def _generator(arrays: dict[str, np.ndarray], meta: dict) -> GeneratorWeights:
     config = GeneratorConfig.from_dict(meta["config"])
     skeleton, stats = Skeleton.from_dict(meta["skeleton"]), FeatureStats.from_dict(meta["stats"])
@@ -200,6 +215,7 @@ def _generator(arrays: dict[str, np.ndarray], meta: dict) -> GeneratorWeights:
         posture_vectors(meta, config),
         posture_offsets(meta, config),
         posture_frame(meta),
+        familiar_range(meta),
     )
 
 

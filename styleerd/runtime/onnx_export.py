@@ -523,6 +523,9 @@ def sidecar(
         # "body": along the body's own axes on the input's pose (left: right hip and shoulder to left ones, up:
         # hips to head, forward: left x up, made orthogonal); "heading": the body's heading, up the world's
         "posture_frame": model.posture_frame,
+        # the identity pass's mean joint angle to the input (degrees) up to which the network's pose is kept,
+        # and from which the input's pose turned by the posture is (``model.stored.familiar_range``)
+        "familiar_degrees": list(model.familiar),
         "skeleton": model.skeleton.to_dict(),
         "stats": model.stats().to_dict(),
     }

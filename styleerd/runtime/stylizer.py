@@ -38,7 +38,7 @@ import numpy as np
 from styleerd.data.features import FeatureLayout, stream_features
 from styleerd.data.parallel import on_kernel_threads
 from styleerd.errors import StyleERDError
-from styleerd.model.config import FAMILIAR, RELEASE, UNFAMILIAR
+from styleerd.model.config import RELEASE
 from styleerd.model.stored import (
     GeneratorWeights,
     LabellerWeights,
@@ -604,7 +604,7 @@ class StreamStylizer:
             _towards_the_input,
             _towards_the_input_on_shards,
             *(given, same, styled, np.ascontiguousarray(weights - own, np.float64), posture, offsets, seen),
-            *(FAMILIAR, UNFAMILIAR, weight, np.ascontiguousarray(positions, np.float64), g, facing),
+            *(*self.model.familiar, weight, np.ascontiguousarray(positions, np.float64), g, facing),
             *(self.frame_joints, self.model.posture_frame == "body", self.model.skeleton.parents),
         )
         return styled

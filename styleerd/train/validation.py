@@ -12,7 +12,7 @@ import torch
 
 from styleerd.model import torch_quat
 from styleerd.model.classifiers import WindowClassifier
-from styleerd.model.config import FAMILIAR, RELEASE, UNFAMILIAR
+from styleerd.model.config import RELEASE
 from styleerd.model.fmd import MotionAutoencoder, fmd_features
 from styleerd.model.generator import StyleERD
 from styleerd.motion.humanoid import body_parts
@@ -105,7 +105,8 @@ def towards_the_input(
     heading frame, as the features have them."""
     same_rot, same_vel, _ = model(x, style, content, style)
     given = model.raw_rotations(x)
-    now = ((torch.rad2deg(torch_quat.angle(same_rot, given)).mean(-1) - FAMILIAR) / (UNFAMILIAR - FAMILIAR)).clamp(
+    familiar, unfamiliar = model.familiar
+    now = ((torch.rad2deg(torch_quat.angle(same_rot, given)).mean(-1) - familiar) / (unfamiliar - familiar)).clamp(
         0.0, 1.0
     )  # [B, T]
     weight = now.clone()

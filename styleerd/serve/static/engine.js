@@ -25,7 +25,7 @@ function qrot(q, v) { // v + w t + u x t, t = 2 u x v
 }
 const normalize = (q) => { const n = Math.hypot(...q) || 1; return q.map((x) => x / n); };
 const inverse = (q) => [q[0], -q[1], -q[2], -q[3]];
-const [FAMILIAR, UNFAMILIAR, RELEASE] = [10.0, 16.0, 0.1]; // degrees, degrees, a frame: styleerd.model.config's
+const [FAMILIAR, UNFAMILIAR, RELEASE] = [10.0, 16.0, 0.1]; // degrees, degrees, a frame: styleerd.model.config's (the first two where the export has no familiar_degrees)
 function slerp(a, b, t) { // from a (t = 0) to b (t = 1) along the shorter arc
   let d = a.reduce((s, x, k) => s + x * b[k], 0);
   if (d < 0) { b = b.map((x) => -x); d = -d; }
@@ -187,7 +187,8 @@ export class StyleHost {
       const d = qmul(inverse(poses.identity[j]), q);
       return sum + (360 / Math.PI) * Math.atan2(Math.hypot(d[1], d[2], d[3]), Math.abs(d[0]));
     }, 0) / J;
-    const now = Math.min(1, Math.max(0, (degrees - FAMILIAR) / (UNFAMILIAR - FAMILIAR)));
+    const [familiar, unfamiliar] = this.side.familiar_degrees || [FAMILIAR, UNFAMILIAR];
+    const now = Math.min(1, Math.max(0, (degrees - familiar) / (unfamiliar - familiar)));
     this.unfamiliar = first ? now : Math.max(now, this.unfamiliar - RELEASE);
     const change = (j) => (this.change ? this.change[j] : qmul(inverse(poses.identity[j]), poses.target[j]));
     let turned = given.map((q, j) => normalize(qmul(q, change(j))));
