@@ -717,6 +717,7 @@ GROUPS = {
         "add-style",
         "soup",
         "posture",
+        "familiar",
         "train-labeller",
         "train-recognisers",
         "train-fmd",

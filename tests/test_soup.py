@@ -42,6 +42,8 @@ def test_soup_is_the_weighted_average_of_the_weights(two_stages, tmp_path):
     assert torch.isfinite(rot).all()
     _, equal = soup([str(a), str(b)])
     assert [s["weight"] for s in equal["training"]["soup"]] == [0.5, 0.5]
+    # the shipped model's measured familiar range is its own, not the average's: the soup has the default
+    assert "familiar" in meta and "familiar" not in m and averaged.familiar == (10.0, 16.0)
 
 
 def test_soup_refuses_what_does_not_average_into_a_model(two_stages, tmp_path):

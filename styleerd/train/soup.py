@@ -62,7 +62,8 @@ def soup(stems: list[str], weights: list[float] | None = None) -> tuple[dict[str
         "epochs_trained": meta["training"].get("epochs_trained"),
         "started_from": meta["training"]["started_from"],
     }
-    return tensors, {**meta, "training": training}
+    # a familiar range was measured on one model's identity pass, not the average's: ``styleerd familiar`` again
+    return tensors, {**{k: v for k, v in meta.items() if k != "familiar"}, "training": training}
 
 
 def save_soup(stems: list[str], out: Path, weights: list[float] | None = None) -> dict:
