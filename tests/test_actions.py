@@ -181,9 +181,11 @@ def test_a_models_familiar_range_is_checked_where_it_is_read():
 
     assert familiar_range({}) == (FAMILIAR, UNFAMILIAR) == familiar_range({"familiar": None})
     assert familiar_range({"familiar": {"degrees": [7, 13]}}) == (7.0, 13.0)
-    for bad in ([13, 7], [-1, 5], [5, 181], [5], ["a", 5], [float("nan"), 5]):
-        with pytest.raises((ValueError, TypeError)):
+    for bad in ([13, 7], [-1, 5], [5, 181], [5], ["a", 5], [float("nan"), 5], "12", [[1], 2], None):
+        with pytest.raises(ValueError, match="give two angles"):
             familiar_range({"familiar": {"degrees": bad}})
+    with pytest.raises(ValueError, match="give two angles"):
+        familiar_range({"familiar": [7, 13]})  # the range belongs under degrees
 
 
 def test_the_stride_is_judged_against_the_input_and_the_styles_own_change():

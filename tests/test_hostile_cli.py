@@ -101,6 +101,18 @@ def _model_with_posture_offsets(tmp: Path, offsets: dict, frame: object = "body"
     return str(tmp / "bent")
 
 
+def _model_with_familiar(tmp: Path, familiar: object) -> str:
+    """The shipped model with its measured familiar range replaced by ``familiar``."""
+    import json
+
+    from styleerd.model.stored import load_arrays
+
+    arrays, meta = load_arrays(MODELS_DIR / "styleerd-bandai2")
+    meta["familiar"] = familiar
+    save_file(arrays, str(tmp / "odd.safetensors"), metadata={"styleerd": json.dumps(meta)})
+    return str(tmp / "odd")
+
+
 def _transfer(make_input, *extra: str, output: str = "out.bvh"):
     def argv(tmp: Path) -> list[str]:
         source = make_input(tmp)
@@ -193,6 +205,22 @@ CASES = {
     "posture offsets of a style the model lacks": (
         lambda t: ["styles", "--model", _model_with_posture_offsets(t, {"zombie": [[0.0] * 3] * 21})],
         "posture offsets of 'zombie', a style the model does not have",
+    ),
+    "familiar range upside down": (
+        lambda t: ["styles", "--model", _model_with_familiar(t, {"degrees": [16, 10]})],
+        "familiar degrees [16, 10]: give two angles, 0 <= the first < the second <= 180",
+    ),
+    "familiar range not a number": (
+        lambda t: ["styles", "--model", _model_with_familiar(t, {"degrees": ["NaN", 5]})],
+        "familiar degrees ['NaN', 5]: give two angles",
+    ),
+    "familiar range of three angles": (
+        lambda t: ["styles", "--model", _model_with_familiar(t, {"degrees": [1, 2, 3]})],
+        "familiar degrees [1, 2, 3]: give two angles",
+    ),
+    "familiar range a string": (
+        lambda t: ["styles", "--model", _model_with_familiar(t, "10-16")],
+        "familiar degrees 10-16: give two angles",
     ),
     "posture offsets in a frame there is none of": (
         lambda t: ["styles", "--model", _model_with_posture_offsets(t, {"elderly": [[0.0] * 3] * 21}, ["body"])],

@@ -179,12 +179,19 @@ def familiar_range(meta: dict) -> tuple[float, float]:
     """The identity pass's mean joint angle to the input (degrees) up to which a model's own pose is
     kept, and from which the input's pose plus the posture is (``runtime.stylizer``): as ``styleerd
     familiar`` measured it for the model, else ``model.config``'s FAMILIAR and UNFAMILIAR."""
-    measured = (meta.get("familiar") or {}).get("degrees")
-    if measured is None:
+    familiar = meta.get("familiar")
+    if familiar is None:
         return FAMILIAR, UNFAMILIAR
-    lo, hi = (float(v) for v in measured)  # two numbers, or the model is refused
-    if not 0.0 <= lo < hi <= 180.0:
-        raise ValueError(f"familiar degrees {measured}: give two angles, 0 <= the first < the second <= 180")
+    degrees = familiar.get("degrees") if isinstance(familiar, dict) else familiar
+    problem = f"familiar degrees {str(degrees)[:80]}: give two angles, 0 <= the first < the second <= 180"
+    if not isinstance(familiar, dict) or not isinstance(degrees, list) or len(degrees) != 2:
+        raise ValueError(problem)
+    try:
+        lo, hi = float(degrees[0]), float(degrees[1])
+    except (TypeError, ValueError):
+        raise ValueError(problem) from None
+    if not 0.0 <= lo < hi <= 180.0:  # NaN fails too
+        raise ValueError(problem)
     return lo, hi
 
 
