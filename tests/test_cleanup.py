@@ -142,6 +142,30 @@ def test_no_foot_goes_below_the_inputs_floor():
     assert (g_out >= floor - 1e-6).all(), (floor - g_out).max()
 
 
+def test_a_toe_under_the_floor_on_a_standing_leg_is_pitched_up_not_lifted_by_the_knee():
+    """A still, standing pose whose output points each foot's toes down into the floor (the ankle
+    where the input's is, the leg nearly straight): the toe goes back to the floor by the foot's
+    pitch alone, so the knee stays where it was. Lifting the ankle for the toe bent the knee forward
+    about 10 cm on a held-out standing punch, the shin tilting the toe down again as it rose."""
+    m = walking_motion(40)
+    sk = m.skeleton
+    still = Motion(sk, np.repeat(m.rotations[:1], 30, 0), np.repeat(m.positions[:1], 30, 0), m.fps)
+    rot = still.rotations.copy()
+    for side in "LR":
+        foot = sk.index(f"Foot_{side}")
+        rot[:, foot] = quat.mul(rot[:, foot], quat.from_angle_axis(np.array([0.5]), np.array([1.0, 0.0, 0.0])))
+    pitched = Motion(sk, rot, still.positions, still.fps)
+    cleaned = clean_feet(pitched, still)
+    _, g_in = forward_kinematics(still.rotations, still.positions, sk.parents)
+    _, g_raw = forward_kinematics(pitched.rotations, pitched.positions, sk.parents)
+    _, g_out = forward_kinematics(cleaned.rotations, cleaned.positions, sk.parents)
+    for side in "LR":
+        knee, ankle, toe = (sk.index(f"{n}_{side}") for n in ("LowerLeg", "Foot", "Toes"))
+        assert (g_raw[:, toe, 1] < g_in[:, toe, 1] - 1.0).all()  # the raw toe is in the ground
+        assert np.allclose(g_out[:, toe, 1], g_in[:, toe, 1], atol=1e-6)  # on the floor again
+        assert np.abs(g_out[:, [knee, ankle]] - g_raw[:, [knee, ankle]]).max() < 1e-6  # the leg untouched
+
+
 def test_feet_of_a_walk_in_place_move_with_the_inputs_treadmill():
     """A walk in place (root fixed, as game libraries ship walks): its planted feet move back under a
     still body. An output whose legs drift (a network's small pose changes) skates against them; after

@@ -16,8 +16,9 @@ down, at most ``max_drop`` leg lengths, by the translation of the first joint ab
 has one: the root, or the hips under a still reference node) until the leg reaches; it rises back at
 ``rise_speed`` leg lengths a second once the feet no longer need it, so the body never pops.
 The floor: no output ankle, and no toe (the ankle's first child), goes lower than the input's own
-ankle and toe have been so far (their running minimum); a foot that would is lifted by the same IK,
-and a toe still under it (it turns with the shin) is raised by pitching the foot up about the ankle.
+ankle and toe have been so far (their running minimum); an ankle that would is lifted by the same IK,
+and a toe that would is raised by pitching the foot up about the ankle (lifting the ankle for a toe
+bent a nearly straight leg's knee far forward, the shin tilting the toe down again as it rose).
 Frame t uses frames <= t only. Works on any skeleton with named legs (BodyRoles).
 """
 
@@ -239,22 +240,18 @@ def _foot_lock_kernel(
                 ankle = legs[side, 2]
                 target[:] = g_pos[ankle] + weight[side] * (anchor[r, side] - g_pos[ankle])
                 _leg_to(out[i], parents, legs[side], g_pos, g_rot, target, left, hip_g, knee_g)
-        for _ in range(2):  # then above the floor: a second pass corrects the toe, which turns with the shin
-            forward_pose(out[i], positions[i], parents, g_rot, g_pos)
-            lifted = False
-            for side in range(2):
-                ankle, toe = legs[side, 2], toes[side]
-                lift = max(
-                    0.0, floor[r, side, 0] - g_pos[ankle, 1], floor[r, side, 1] - g_pos[toe, 1] if toe >= 0 else 0.0
-                )
-                if lift > 1e-9:
-                    target[:] = g_pos[ankle]
-                    target[1] += lift
-                    _leg_to(out[i], parents, legs[side], g_pos, g_rot, target, left, hip_g, knee_g)
-                    lifted = True
-            if not lifted:  # nothing moved: a second pass would find the same
-                break
         forward_pose(out[i], positions[i], parents, g_rot, g_pos)
+        lifted = False
+        for side in range(2):  # then each ankle above its floor (a toe below its own is pitched up below)
+            ankle = legs[side, 2]
+            lift = floor[r, side, 0] - g_pos[ankle, 1]
+            if lift > 1e-9:
+                target[:] = g_pos[ankle]
+                target[1] += lift
+                _leg_to(out[i], parents, legs[side], g_pos, g_rot, target, left, hip_g, knee_g)
+                lifted = True
+        if lifted:
+            forward_pose(out[i], positions[i], parents, g_rot, g_pos)
         for side in range(2):  # a toe still below its floor: the foot pitched up about the ankle, to the floor
             ankle, toe = legs[side, 2], toes[side]
             if toe >= 0 and floor[r, side, 1] - g_pos[toe, 1] > 1e-9:
