@@ -251,25 +251,46 @@ def _soup(args: argparse.Namespace) -> None:
     print(f"{meta['training']['kept']}; wrote {out}.safetensors")
 
 
-def _posture(args: argparse.Namespace) -> None:
-    import numpy as np
+def _measured_into_model(command, name: str, text: str, func) -> argparse.ArgumentParser:
+    """A command that measures something of a model and stores it in the model file's configuration."""
+    p = command(name, text)
+    p.add_argument("model", nargs="?", help=MODEL_HELP)
+    p.add_argument("-o", "--output", help="write the model here (no suffix; default: the model file itself)")
+    p.add_argument("--data", help="data folder (default: $STYLEERD_DATA, else ../shared/data)")
+    p.set_defaults(func=func)
+    return p
+
+
+def _model_to_measure(args: argparse.Namespace):
+    """The model a measuring command reads, and where it writes it (``--output``, else the file itself)."""
+    from styleerd.model.stored import load_generator_weights, model_stem
+
+    out = Path(args.output).with_suffix("") if args.output else model_stem(args.model)
+    check_output(out.with_suffix(".safetensors"))
+    return load_generator_weights(args.model), out
+
+
+def _save_measured(model, out: Path, meta: dict) -> None:
+    """The model's weights, unchanged, with ``meta`` as its configuration."""
     import torch
 
     from styleerd.model.checkpoint import save_tensors
-    from styleerd.model.stored import load_generator_weights, model_stem
+
+    save_tensors(out, {f"generator.{k}": torch.from_numpy(v) for k, v in model.arrays.items()}, meta)
+
+
+def _posture(args: argparse.Namespace) -> None:
+    import numpy as np
+
     from styleerd.runtime.posture import measure_posture, training_walks, with_posture
 
-    model = load_generator_weights(args.model)
-    meta = model.meta
-    out = Path(args.output).with_suffix("") if args.output else model_stem(args.model)
-    check_output(out.with_suffix(".safetensors"))
+    model, out = _model_to_measure(args)
     walks = list(training_walks(model, args.data))
     if not walks:
-        raise StyleERDError(f"no neutral walks in the training split of {meta['data']['dataset']}")
+        raise StyleERDError(f"no neutral walks in the training split of {model.meta['data']['dataset']}")
     posture = measure_posture(model, walks, args.frame)
     frames = sum(m.n_frames for m, _ in walks)
-    tensors = {f"generator.{k}": torch.from_numpy(v) for k, v in model.arrays.items()}
-    save_tensors(out, tensors, with_posture(meta, model, posture, len(walks), frames, args.frame))
+    _save_measured(model, out, with_posture(model.meta, model, posture, len(walks), frames, args.frame))
     degrees = np.degrees(np.linalg.norm(posture[0], axis=-1))
     moved = np.linalg.norm(posture[1], axis=-1)
     for style, row, far in zip(model.config.styles, degrees, moved):
@@ -285,22 +306,15 @@ def _posture(args: argparse.Namespace) -> None:
 
 
 def _familiar(args: argparse.Namespace) -> None:
-    import torch
-
     from styleerd.eval.actions import familiar_range_for
-    from styleerd.model.checkpoint import save_tensors
-    from styleerd.model.stored import load_generator_weights, model_stem
 
-    model = load_generator_weights(args.model)
-    out = Path(args.output).with_suffix("") if args.output else model_stem(args.model)
-    check_output(out.with_suffix(".safetensors"))
+    model, out = _model_to_measure(args)
     measured = familiar_range_for(model, args.data)
+    _save_measured(model, out, {**model.meta, "familiar": measured})
     takes = lambda figures: ", ".join(f"{name} {e:.1f} cm / {c:.2f}" for name, (e, c) in figures.items())
     print(f"the input's own pose: {takes(measured['input'])}")
     for row in measured["tried"]:
         print("{:g}-{:g} deg: ".format(*row["degrees"]) + takes(row["takes"]))
-    tensors = {f"generator.{k}": torch.from_numpy(v) for k, v in model.arrays.items()}
-    save_tensors(out, tensors, {**model.meta, "familiar": measured})
     print("familiar range {:g}-{:g} deg; wrote {}.safetensors".format(*measured["degrees"], out))
 
 
@@ -1090,31 +1104,26 @@ def _train_commands(command: Callable[[str, str], argparse.ArgumentParser]) -> N
     p.add_argument("--weights", nargs="+", type=float, help="one per model, summing to 1 (default: equal)")
     p.set_defaults(func=_soup)
 
-    p = command(
+    p = _measured_into_model(
+        command,
         "posture",
         "measure each style's posture (its change to the pose, averaged over the training split's neutral walks) and "
         "store it in the model: what an action the network never learnt is turned by",
+        _posture,
     )
-    p.add_argument("model", nargs="?", help=MODEL_HELP)
-    p.add_argument("-o", "--output", help="write the model here (no suffix; default: the model file itself)")
     p.add_argument(
         "--frame",
         choices=["heading", "body"],
         default="body",
         help="the frame the joint offsets are kept and reached in: the body's heading (up the world's) or its own",
     )
-    p.add_argument("--data", help="data folder (default: $STYLEERD_DATA, else ../shared/data)")
-    p.set_defaults(func=_posture)
-
-    p = command(
+    _measured_into_model(
+        command,
         "familiar",
         "measure how far the identity pass may be from the input (mean joint angle) before the input's own pose "
         "takes over (pose input), on actions no training run sees, and store it in the model",
+        _familiar,
     )
-    p.add_argument("model", nargs="?", help=MODEL_HELP)
-    p.add_argument("-o", "--output", help="write the model here (no suffix; default: the model file itself)")
-    p.add_argument("--data", help="data folder (default: $STYLEERD_DATA, else ../shared/data)")
-    p.set_defaults(func=_familiar)
 
     for name, (text, default, _) in HELPER_MODELS.items():
         p = command(name, text)
