@@ -372,6 +372,11 @@ def _model_styles(name: str | None) -> None:
         f"skeleton: {model.skeleton.n_joints} joints, trained at {meta['data']['fps']:g} fps on "
         f"{meta['data']['dataset']}"
     )
+    lo, hi = model.familiar
+    print(
+        f"familiar: the network's pose while its identity pass is within {lo:g} deg of the input, the input's "
+        f"from {hi:g} deg ({'measured by styleerd familiar' if 'familiar' in meta else 'not measured: the default'})"
+    )
     print(f"licence:  {meta.get('licence', LICENCE)}")
 
 

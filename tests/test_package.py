@@ -235,6 +235,9 @@ def test_models_are_found_by_path_by_name_in_styleerd_models_and_shipped(tmp_pat
     )  # the default first
     for generator in MODELS_DIR.glob("styleerd-*.safetensors"):  # then every other shipped model
         assert f"model:    {generator}" in shipped.stdout
+    # each with the range its identity pass keeps the network's pose in (``styleerd familiar``)
+    assert "within 10 deg of the input, the input's from 16 deg (measured" in shipped.stdout
+    assert "within 7 deg of the input, the input's from 13 deg (measured" in shipped.stdout
     missing = subprocess.run(
         [sys.executable, "-m", "styleerd.cli", "styles", "--model", "nope"],
         capture_output=True,
