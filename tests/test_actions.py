@@ -1,11 +1,14 @@
 """Any action, any performer (``styleerd.eval.actions``): the measures against hand-made cases,
 and the held-out clips through ``transfer`` as users run it."""
 
+import dataclasses
+
 import numpy as np
 import pytest
 
 from styleerd.data.augment import in_place
 from styleerd.data.outside import held_out
+from styleerd.errors import StyleERDError
 from styleerd.eval import actions as A
 from styleerd.model.stored import load_generator_weights
 from styleerd.motion import quat
@@ -171,6 +174,10 @@ def test_styleerd_familiar_measures_each_shipped_models_range_again(shared_data,
     first = measured["tried"][0]
     assert first["degrees"] == [10.0, 16.0] and min(c for _, c in first["takes"].values()) < 0.9
     assert again.familiar[0] < 10.0
+    # a model whose neutral style Bandai-Namco-1 does not have: said, not measured on nothing
+    odd = dataclasses.replace(shipped, config=dataclasses.replace(shipped.config, neutral_style="youthful"))
+    with pytest.raises(StyleERDError, match="no kept-back takes of the model's neutral style 'youthful'"):
+        A.familiar_range_for(odd, str(shared_data))
 
 
 def test_a_models_familiar_range_is_checked_where_it_is_read():

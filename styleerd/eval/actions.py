@@ -50,6 +50,7 @@ from styleerd.data.datasets import (
 )
 from styleerd.data.outside import CMU_HELD_OUT, CMU_REPORTED_SWIMS, XIA_ACTIONS, held_out
 from styleerd.data.windows import split_takes
+from styleerd.errors import StyleERDError
 from styleerd.model.config import FAMILIAR, UNFAMILIAR
 from styleerd.model.stored import GeneratorWeights
 from styleerd.motion import bvh, quat
@@ -218,11 +219,14 @@ def familiar_range_for(model: GeneratorWeights, data_dir: str | None = None) -> 
     closely enough to pass as familiar, yet loses their hands' and feet' motion, gets a lower range; one
     that keeps them keeps the default. Returns the range, the input's own figures and, per range tried,
     each take's (error, correlation)."""
+    neutral = model.config.neutral_style
     clips = [
         c
         for c in find_clips(data_root(data_dir), "bandai-namco-1")
-        if c.style == model.config.neutral_style and bandai1_kept_back(c.name, c.content)
+        if c.style == neutral and bandai1_kept_back(c.name, c.content)
     ]
+    if not clips:
+        raise StyleERDError(f"Bandai-Namco-1 has no kept-back takes of the model's neutral style {neutral!r}")
     takes = [ActionClip(c.name, c.content, "bandai-namco-1", trimmed(load_motion(c)), c.style) for c in clips]
 
     def identity(lo: float, hi: float) -> dict[str, tuple[float, float]]:
