@@ -1,10 +1,13 @@
 """Online foot cleanup: where the input's foot is planted, pin the output's foot.
 
 Contacts come from the input: a foot is planted while the input's ankle moves slower than
-``contact_speed`` leg lengths per second (the same causal rule as the features), or while the
-input's body (between the hips) stands still and its foot is flat on its floor (ankle and toe within ``floor_band``
+``contact_speed`` leg lengths per second (the features' causal rule), or while the input's body
+(between the hips) stands still and its foot is flat on its floor (ankle and toe within ``floor_band``
 leg lengths of the lowest they have been): a walk in place, as game libraries ship them, whose
-planted feet move back under a still body as on a treadmill. When a contact begins, the output
+planted feet move back under a still body as on a treadmill. Either only where the leg can bear
+weight: its ankle at least ``leg_down`` leg lengths below its hip (a bow), or ``squat_down`` under an
+upright body (hips to head within 60 degrees of the world's up: a squat). A kicker's foot slowing in
+the air, or a swimmer's, is no contact. When a contact begins, the output
 ankle's ground position at that frame, at the input ankle's height, becomes the anchor (a style
 that bends the legs would otherwise plant feet in or above the input's floor); while the contact
 lasts, two-bone IK (hip, knee) holds the output ankle on the anchor moved as the input's ankle has
@@ -48,14 +51,19 @@ class FootLock:
         max_drop: float = 0.06,
         fall_speed: float = 0.5,
         rise_speed: float = 0.1,
+        leg_down: float = 0.5,
+        squat_down: float = 0.2,
+        upright: float = 0.5,
     ):
         """``legs``: [[hip, knee, ankle] of the left leg, the same of the right] (default: found
         by joint names and topology, as retargeting finds them)."""
         self.skeleton, self.fps = skeleton, fps
+        parts = body_parts(skeleton)
         if legs is None:
-            parts = body_parts(skeleton)
             legs = [[parts[f"{side}_{p}"] for p in ("hip", "knee", "foot")] for side in ("left", "right")]
         self.legs = np.array(legs)
+        self.head = parts.get("head", -1)  # none found: every body counts as upright
+        self.upright = upright  # the cosine of the body's up (hips to head) with the world's, at least
         self.across = (self.legs[0, 0], self.legs[1, 0])
         parents = skeleton.parents
         self.toes = np.array(
@@ -69,6 +77,7 @@ class FootLock:
         )  # each leg's length, hip to ankle, straight
         leg = self.reach[0]
         self.max_speed, self.floor_band = contact_speed * leg, floor_band * leg
+        self.leg_down, self.squat_down = leg_down * leg, squat_down * leg
         above = [int(parents[self.legs[0, 0]])]  # the joint both thighs hang from, and those above it
         while above[-1] > 0:
             above.append(int(parents[above[-1]]))
@@ -123,6 +132,10 @@ class FootLock:
             self.across[1],
             float(self.fps),
             float(self.max_speed),
+            float(self.leg_down),
+            float(self.squat_down),
+            int(self.head),
+            float(self.upright),
             float(self.floor_band),
             int(self.release_frames),
             bool(self.enabled),
@@ -157,6 +170,10 @@ def _foot_lock_kernel(
     across_r,
     fps,
     max_speed,
+    leg_down,
+    squat_down,
+    head,
+    upright,
     floor_band,
     release,
     enabled,
@@ -188,17 +205,21 @@ def _foot_lock_kernel(
             else True
         )
         previous_body[r] = body
+        up = g_pos[head] - body if head >= 0 else np.array([0.0, 1.0, 0.0])
+        standing = up[1] >= upright * np.sqrt(np.sum(up**2))  # not lying (a swimmer), bent over or upside down
         for side in range(2):
             ankle = g_pos[legs[side, 2]].copy()
             before = previous[r, side].copy() if started[r] else ankle
             still = np.sqrt(np.sum((ankle - before) ** 2)) * fps < max_speed
+            below = g_pos[legs[side, 0], 1] - ankle[1]  # how far the ankle is under its hip
+            bears = below >= leg_down or (standing and below >= squat_down)  # a foot that can bear weight
             moved[side] = (ankle - before) * (0.0 if still else 1.0)
             previous[r, side] = ankle
             toe_y = g_pos[toes[side], 1] if toes[side] >= 0 else ankle[1]
             floor[r, side, 0] = min(floor[r, side, 0], ankle[1]) if started[r] else ankle[1]
             floor[r, side, 1] = min(floor[r, side, 1], toe_y) if started[r] else toe_y
             flat = ankle[1] - floor[r, side, 0] < floor_band and toe_y - floor[r, side, 1] < floor_band
-            now[side] = still or (body_still and flat)
+            now[side] = bears and (still or (body_still and flat))
         started[r] = True
         forward_pose(out[i], positions[i], parents, g_rot, g_pos)
         for side in range(2):
