@@ -169,8 +169,8 @@ def test_a_toe_under_the_floor_on_a_standing_leg_is_pitched_up_not_lifted_by_the
 def test_a_foot_is_planted_only_where_its_leg_can_bear_weight():
     """Still poses, each held 10 frames: which feet the lock plants. Standing, bowing (the body
     horizontal, the legs down) and squatting (upright, a foot 0.43 leg lengths under its hip): both.
-    A kick's raised foot, still at its top, and a swimmer lying in the water: none of theirs. On the
-    held-out swims, pinning such feet had cut active's velocity correlation from 0.95 to 0.71."""
+    A kick's raised foot, still at its top, and a swimmer lying in the water: none of theirs. Freeing
+    such feet took a held-out swim's velocity correlation into active from 0.71 to 0.88."""
     from styleerd.motion.retarget import body_parts
 
     m = walk(1.0, fps=30.0)
