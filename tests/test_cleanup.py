@@ -145,8 +145,8 @@ def test_no_foot_goes_below_the_inputs_floor():
 def test_a_toe_under_the_floor_on_a_standing_leg_is_pitched_up_not_lifted_by_the_knee():
     """A still, standing pose whose output points each foot's toes down into the floor (the ankle
     where the input's is, the leg nearly straight): the toe goes back to the floor by the foot's
-    pitch alone, so the knee stays where it was. Lifting the ankle for the toe bent the knee forward
-    about 10 cm on a held-out standing punch, the shin tilting the toe down again as it rose."""
+    pitch alone, so the knee stays where it was. Lifting the ankle for the toe bent the knee far
+    forward on a held-out standing punch, the shin tilting the toe down again as it rose."""
     m = walking_motion(40)
     sk = m.skeleton
     still = Motion(sk, np.repeat(m.rotations[:1], 30, 0), np.repeat(m.positions[:1], 30, 0), m.fps)
