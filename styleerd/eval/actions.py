@@ -228,14 +228,15 @@ def familiar_range_for(model: GeneratorWeights, data_dir: str | None = None) -> 
     if not clips:
         raise StyleERDError(f"Bandai-Namco-1 has no kept-back takes of the model's neutral style {neutral!r}")
     takes = [ActionClip(c.name, c.content, "bandai-namco-1", trimmed(load_motion(c)), c.style) for c in clips]
+    maps = {clip.name: _map(clip, model) for clip in takes}  # the same for every range tried
+    scales = {clip.name: _body_scale(clip.motion.skeleton, maps[clip.name]) for clip in takes}
 
     def identity(lo: float, hi: float) -> dict[str, tuple[float, float]]:
         ranged = dataclasses.replace(model, familiar=(lo, hi))
         kept = {}
         for clip in tqdm(takes, desc=f"familiar {lo:g}-{hi:g} deg", leave=False):
-            jm = _map(clip, model)
             output = _transfers(clip, ranged, [], "input")[0]
-            kept[clip.name] = action_kept(clip.motion, output, jm, _body_scale(clip.motion.skeleton, jm))
+            kept[clip.name] = action_kept(clip.motion, output, maps[clip.name], scales[clip.name])
         return kept
 
     given = identity(-2.0, -1.0)  # every frame unfamiliar: the input's own pose

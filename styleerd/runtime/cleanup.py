@@ -62,7 +62,7 @@ class FootLock:
         if legs is None:
             legs = [[parts[f"{side}_{p}"] for p in ("hip", "knee", "foot")] for side in ("left", "right")]
         self.legs = np.array(legs)
-        self.head = parts.get("head", -1)  # none found: every body counts as upright
+        self.head = parts.get("head", -1)  # -1: none found
         self.upright = upright  # the cosine of the body's up (hips to head) with the world's, at least
         self.across = (self.legs[0, 0], self.legs[1, 0])
         parents = skeleton.parents
@@ -205,8 +205,10 @@ def _foot_lock_kernel(
             else True
         )
         previous_body[r] = body
-        up = g_pos[head] - body if head >= 0 else np.array([0.0, 1.0, 0.0])
-        standing = up[1] >= upright * np.sqrt(np.sum(up**2))  # not lying (a swimmer), bent over or upside down
+        standing = True  # not lying (a swimmer), bent over or upside down; a body without a head: upright
+        if head >= 0:  # scalars: no array made per stream
+            ux, uy, uz = g_pos[head, 0] - body[0], g_pos[head, 1] - body[1], g_pos[head, 2] - body[2]
+            standing = uy >= upright * np.sqrt(ux * ux + uy * uy + uz * uz)
         for side in range(2):
             ankle = g_pos[legs[side, 2]].copy()
             before = previous[r, side].copy() if started[r] else ankle
