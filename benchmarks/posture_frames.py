@@ -44,9 +44,8 @@ def posture_alone_on_walks(model: GeneratorWeights, walks: int) -> dict[str, flo
 
     def changes(clip, alone: bool) -> dict:
         jm = actions._map(clip, model)
-        scale = actions._body_scale(clip.motion.skeleton, jm)
         identity, styled = actions._transfers(clip, unfamiliar if alone else model, styles, "input")
-        return {s: actions.style_change(clip.motion, m, identity, jm, scale)["heading"] for s, m in styled.items()}
+        return {s: actions.style_change(clip.motion, m, identity, jm)["heading"] for s, m in styled.items()}
 
     network, alone = [changes(c, False) for c in clips], [changes(c, True) for c in clips]
     mean = lambda cs, s: {k: np.mean([c[s][k] for c in cs], 0) for k in cs[0][s]}

@@ -10,8 +10,9 @@ their own skeletons, and measures per clip:
   170 cm body) and the correlation of the hands' and feet's root-relative velocities between
   input and output (1 = the same action);
 - into each style: that correlation, and the style's change (output minus the identity output,
-  root-relative, in the body's heading frame, per joint, averaged over the clip) against the same
-  change on Bandai-Namco-2 test walks: cosine of the two and the ratio of their sizes.
+  root-relative, in the body's heading frame, per joint of the model's skeleton, averaged over the
+  clip) against the same change on Bandai-Namco-2 test walks: cosine of the two and the ratio of
+  their sizes.
 
 Whether a style's change should point as on walks is measured on a real performer
 (``performer_changes``): Bandai-Namco-1's kept-back takes of other actions in each style, the
@@ -58,7 +59,7 @@ from styleerd.motion.kinematics import body_axes, facing_directions, forward_pos
 from styleerd.motion.motion import Motion
 from styleerd.motion.procedural import walk
 from styleerd.motion.resample import resample
-from styleerd.motion.retarget import JointMap
+from styleerd.motion.retarget import JointMap, to_target
 from styleerd.runtime.offline import TransferOptions, map_skeleton, transfer_motion
 
 BODY_CM = 170.0
@@ -259,15 +260,24 @@ def familiar_range_for(model: GeneratorWeights, data_dir: str | None = None) -> 
     }
 
 
-def style_change(
-    given: Motion, styled: Motion, identity: Motion, jm: JointMap, scale: float
-) -> dict[str, dict[str, np.ndarray]]:
+def _model_points(jm: JointMap) -> JointMap:
+    """The model's skeleton mapped onto itself, joint for joint, over the joints ``jm`` maps."""
+    model = jm.target
+    return JointMap(model, model, tuple((t, t) for t, _ in jm.pairs), jm.target_tpose, jm.target_tpose, 1.0)
+
+
+def style_change(given: Motion, styled: Motion, identity: Motion, jm: JointMap) -> dict[str, dict[str, np.ndarray]]:
     """Per frame of reference (``heading``: the body's heading, ``body``: the body's own frame,
     both of the input) and model joint, the clip's mean of (styled - identity output)
-    root-relative position (cm of a 170 cm body)."""
-    a, names = _root_relative(styled, jm)
-    b, _ = _root_relative(identity, jm)
-    to_heading, to_body = _frames(given, jm)
+    root-relative position (cm of a 170 cm body), on the model's skeleton (the motions retargeted
+    onto it): a joint is the same point of the body on every rig, where on a CMU/ASF rig the neck
+    and the shoulders start at the chest's joint."""
+    own = _model_points(jm)
+    scale = _body_scale(jm.target, own)
+    given, styled, identity = (to_target(m, jm) for m in (given, styled, identity))
+    a, names = _root_relative(styled, own)
+    b, _ = _root_relative(identity, own)
+    to_heading, to_body = _frames(given, own)
     heading = quat.mul_vec(to_heading[:, None], a - b).mean(0) * scale
     body = np.einsum("tij,tkj->tki", to_body, a - b).mean(0) * scale
     return {"heading": dict(zip(names, heading)), "body": dict(zip(names, body))}
@@ -337,7 +347,7 @@ def evaluate_actions(
                     "styles": {},
                 }
                 for s, m in styled.items():
-                    change = style_change(clip.motion, m, identity, jm, scale)
+                    change = style_change(clip.motion, m, identity, jm)
                     if group == "walks":
                         changes[s].append(change)
                     feet = feet_figures(clip.motion, m, jm, scale)
@@ -440,12 +450,15 @@ def json_summary(summary: dict) -> str:
 # ---------------------------------------------------------------- the performer's own change
 
 
-def _mean_pose(m: Motion, jm: JointMap, scale: float) -> np.ndarray:
+def _mean_pose(m: Motion, jm: JointMap) -> np.ndarray:
     """The clip's mean root-relative position of each mapped joint but the root, in the body's heading
-    frame (cm of a 170 cm body), as one vector ``[3 K]``."""
-    a, names = _root_relative(m, jm)
-    to_heading, _ = _frames(m, jm)
-    mean = quat.mul_vec(to_heading[:, None], a).mean(0) * scale
+    frame (cm of a 170 cm body), on the model's skeleton as ``style_change`` measures, as one vector
+    ``[3 K]``."""
+    own = _model_points(jm)
+    m = to_target(m, jm)
+    a, names = _root_relative(m, own)
+    to_heading, _ = _frames(m, own)
+    mean = quat.mul_vec(to_heading[:, None], a).mean(0) * _body_scale(jm.target, own)
     return np.concatenate([mean[k] for k, n in enumerate(names) if n != "Hips"])
 
 
@@ -477,7 +490,7 @@ def performer_changes(model: GeneratorWeights, data_dir: str | None = None) -> d
     posed: dict[tuple, np.ndarray] = {}
     for key, m in motions.items():
         jm = map_skeleton(m.skeleton, model, None, takes[key].name, m.rotations[0])
-        posed[key] = _mean_pose(m, jm, _body_scale(m.skeleton, jm))
+        posed[key] = _mean_pose(m, jm)
     real = lambda action, style, take: posed[(action, names[style], take)] - posed[(action, names[neutral], take)]
     walk = {s: (real("walk", s, "001") + real("walk", s, "002")) / 2 for s in styles}
     out: dict = {"styles": styles, "actions": {}}
@@ -487,11 +500,10 @@ def performer_changes(model: GeneratorWeights, data_dir: str | None = None) -> d
         key = (action, names[neutral], take)
         clip = ActionClip(takes[key].name, action, "bandai-namco-1", motions[key], neutral)
         jm = _map(clip, model)
-        scale = _body_scale(clip.motion.skeleton, jm)
         identity, styled = _transfers(clip, model, styles, "input")
         row = {}
         for s in styles:
-            change = style_change(clip.motion, styled[s], identity, jm, scale)["heading"]
+            change = style_change(clip.motion, styled[s], identity, jm)["heading"]
             mine = np.concatenate([v for k, v in change.items() if k != "Hips"])
             model_walk.setdefault(s, mine)
             theirs = real(action, s, take)
