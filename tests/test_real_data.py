@@ -92,8 +92,12 @@ def test_prepare_builds_a_cache_that_is_current_split_and_windowed(shared_data, 
     monkeypatch.setattr(cache_mod, "CODE_VERSION", cache_mod.CODE_VERSION + 1)
     rebuilt = prepare("xia-sample", shared_data, cache=tmp_path, progress=False, workers=1)
     assert rebuilt.path != fs.path and rebuilt.path.is_file()
+    assert not fs.path.exists()  # the cache it replaces is removed: nothing loads it again
+    foreign = tmp_path / "features-xia-sample-not-ours.npz"
+    foreign.write_bytes(b"not a cache")
     other = prepare("xia-sample", shared_data, FeatureParams(fps=60.0), cache=tmp_path, progress=False, workers=1)
-    assert other.path not in (fs.path, rebuilt.path) and len(other.features) > len(fs.features)
+    assert other.path != rebuilt.path and len(other.features) > len(rebuilt.features)
+    assert rebuilt.path.is_file() and foreign.is_file()  # other parameters' cache, and a file not ours, are kept
 
 
 def test_bandai2_split_and_windows(shared_data):

@@ -2,7 +2,8 @@
 
 The cache file's name carries a key made of ``CODE_VERSION``, the feature parameters and a
 fingerprint of the source files (name, size, modification time); change any of them and
-the next ``prepare`` rebuilds it. Clips are processed in parallel on every core.
+the next ``prepare`` rebuilds it, and removes the caches it replaces (the same dataset and
+parameters under an older key). Clips are processed in parallel on every core.
 """
 
 from __future__ import annotations
@@ -204,7 +205,24 @@ def prepare(
     fs = build(root, dataset, params, cache, workers, progress)
     save(fs, path, {"version": CODE_VERSION, "key": key, "data": str(root)})
     fs.path = path
+    _drop_stale(cache, fs)
     return fs
+
+
+def _drop_stale(cache: Path, fs: FeatureSet) -> None:
+    """Remove the caches of ``fs``'s dataset and feature parameters under another key: built from
+    older source files or code, no ``prepare`` loads them again, and each holds up to a few hundred
+    MB (a data folder copied anew changes every file's time, and with it the key)."""
+    for old in cache.glob(f"features-{fs.dataset}-*.npz"):
+        if old == fs.path:
+            continue
+        try:
+            with np.load(old, allow_pickle=False) as z:
+                meta = json.loads(str(z["meta"]))
+            if meta.get("dataset") == fs.dataset and meta.get("params") == asdict(fs.params):
+                old.unlink()
+        except (OSError, ValueError, KeyError):
+            continue  # unreadable or foreign: not ours to remove
 
 
 def summary(fs: FeatureSet) -> str:
