@@ -7,8 +7,11 @@ cues, or one whose pace still says "elderly", is read here as it plays out.
 ``styleerd eval clip-styles``: trains it on Bandai-Namco-2's training takes (once; kept in
 ``models/clip-recogniser-bandai2``), reads the test takes themselves (its ceiling), then every
 styled test take streamed back to neutral and every neutral one into each style, as ``transfer``
-runs them (labels inferred online, with and without ``--root-speed``): per pair, how many takes
-are read as the target and how many still as the source."""
+runs them (labels inferred online; as given, with ``--root-speed``, and with ``--no-cleanup``): per
+pair, how many takes are read as the target and how many still as the source, and for the neutral
+takes into each style, how many of each content are read as the target with and without the foot
+cleanup (which holds the output's feet to the input's contacts, so a style's own footwork where the
+input stands still is held too)."""
 
 from __future__ import annotations
 
@@ -28,6 +31,11 @@ from styleerd.model.stored import GeneratorWeights
 from styleerd.runtime.offline import TransferOptions, transfer_motion
 
 STEM = Path("models/clip-recogniser-bandai2")
+PASSES = {  # how each transfer is run (labels inferred online)
+    "input path": lambda target: TransferOptions({target: 1.0}),
+    "root speed": lambda target: TransferOptions({target: 1.0}, root_speed=True),
+    "no cleanup": lambda target: TransferOptions({target: 1.0}, cleanup=False),
+}
 CROP, STEPS, BATCH = 120, 1500, 64  # frames a training crop (4 s), Adam steps, crops a step
 
 
@@ -120,20 +128,25 @@ def evaluate_clip_styles(model: GeneratorWeights, data_dir: str | None = None, r
         reads.setdefault(style, []).append(read_style(recogniser, fs.features[sl], J, styles))
         motion = fs.motion(clip)
         for target in [t for t in styles if t != neutral] if style == neutral else [neutral]:
-            jobs.append((style, target, motion))
+            jobs.append((style, target, str(fs.contents[clip]), motion))
     out["ceiling"] = {s: {"takes": len(r), "read_as_own": sum(x == s for x in r)} for s, r in reads.items()}
-    for root_speed in (False, True):
-        key = "root speed" if root_speed else "input path"
+    out["by_content"] = {}
+    for key, options in PASSES.items():
         counts: dict[str, dict] = {}
-        for source, target, motion in tqdm(jobs, desc=f"transfers ({key})", leave=False):
-            options = TransferOptions({target: 1.0}, None, None, root_speed=root_speed)
-            styled = transfer_motion(motion, model, fs.params.fps, options, where=f"{source} take")
+        contents: dict[str, dict] = {}
+        for source, target, content, motion in tqdm(jobs, desc=f"transfers ({key})", leave=False):
+            styled = transfer_motion(motion, model, fs.params.fps, options(target), where=f"{source} take")
             read = read_style(recogniser, motion_features(styled)[0], J, styles)
             c = counts.setdefault(f"{source} -> {target}", {"takes": 0, "read_as_target": 0, "still_source": 0})
             c["takes"] += 1
             c["read_as_target"] += read == target
             c["still_source"] += read == source
+            if source == neutral:
+                k = contents.setdefault(target, {}).setdefault(content, {"takes": 0, "read_as_target": 0})
+                k["takes"] += 1
+                k["read_as_target"] += read == target
         out["transfers"][key] = counts
+        out["by_content"][key] = contents
     return out
 
 
@@ -144,17 +157,32 @@ def markdown(report: dict) -> str:
         "",
         (
             "| transfer (labels inferred) | takes | read as the target | still read as the source | with "
-            "--root-speed: target | with --root-speed: still source |"
+            "--root-speed: target | with --root-speed: still source | with --no-cleanup: target | with "
+            "--no-cleanup: still source |"
         ),
-        "| --- | ---: | ---: | ---: | ---: | ---: |",
+        "| --- | ---: | ---: | ---: | ---: | ---: | ---: | ---: |",
     ]
-    plain, fast = report["transfers"]["input path"], report["transfers"]["root speed"]
-    for pair, c in plain.items():
-        f = fast[pair]
-        lines.append(
-            f"| {pair} | {c['takes']} | {c['read_as_target']} | {c['still_source']} | {f['read_as_target']} | "
-            f"{f['still_source']} |"
-        )
+    passes = [report["transfers"][k] for k in PASSES]
+    for pair, c in passes[0].items():
+        cells = " | ".join(f"{p[pair]['read_as_target']} | {p[pair]['still_source']}" for p in passes)
+        lines.append(f"| {pair} | {c['takes']} | {cells} |")
+    with_feet, without = report["by_content"]["input path"], report["by_content"]["no cleanup"]
+    targets = list(with_feet)
+    lines += [
+        "",
+        (
+            "The neutral takes into each style, per content: takes read as the target, with the foot cleanup / "
+            "without it (of the takes in brackets)."
+        ),
+        "",
+        "| content | " + " | ".join(targets) + " |",
+        "| --- |" + " ---: |" * len(targets),
+    ]
+    for content in sorted(with_feet[targets[0]]):
+        cells = [
+            f"{with_feet[t][content]['read_as_target']} / {without[t][content]['read_as_target']}" for t in targets
+        ]
+        lines.append(f"| {content} ({with_feet[targets[0]][content]['takes']}) | " + " | ".join(cells) + " |")
     return "\n".join(lines)
 
 
