@@ -17,7 +17,11 @@ ankle over ``release_frames`` frames, so nothing pops. Where a planted foot's ta
 leg's reach (a style that bends the body, a heel rising far behind it), the pelvis drops (straight
 down, at most ``max_drop`` leg lengths, by the translation of the first joint above the legs that
 has one: the root, or the hips under a still reference node) until the leg reaches; it rises back at
-``rise_speed`` leg lengths a second once the feet no longer need it, so the body never pops.
+``rise_speed`` leg lengths a second once the feet no longer need it, so the body never pops. Where
+the output's own legs hold its planted feet above their anchors (a style that bends the knees: an
+elderly stance, an active performer's bounce on the spot), the pelvis drops too, until the lower of
+them stands on its anchor (``keep_bend``): the legs keep the style's bend, where IK alone would
+straighten them to the input's hip height and take the style off.
 The floor: no output ankle, and no toe (the ankle's first child), goes lower than the input's own
 ankle and toe have been so far (their running minimum); an ankle that would is lifted by the same IK,
 and a toe that would is raised by pitching the foot up about the ankle (lifting the ankle for a toe
@@ -54,6 +58,7 @@ class FootLock:
         leg_down: float = 0.5,
         squat_down: float = 0.2,
         upright: float = 0.5,
+        keep_bend: bool = True,
     ):
         """``legs``: [[hip, knee, ankle] of the left leg, the same of the right] (default: found
         by joint names and topology, as retargeting finds them)."""
@@ -64,6 +69,7 @@ class FootLock:
         self.legs = np.array(legs)
         self.head = parts.get("head", -1)  # -1: none found
         self.upright = upright  # the cosine of the body's up (hips to head) with the world's, at least
+        self.keep_bend = keep_bend  # the pelvis also drops to the output's own planted legs (below)
         self.across = (self.legs[0, 0], self.legs[1, 0])
         parents = skeleton.parents
         self.toes = np.array(
@@ -139,6 +145,7 @@ class FootLock:
             float(self.floor_band),
             int(self.release_frames),
             bool(self.enabled),
+            bool(self.keep_bend),
             self.previous,
             self.previous_body,
             self.anchor,
@@ -177,6 +184,7 @@ def _foot_lock_kernel(
     floor_band,
     release,
     enabled,
+    keep_bend,
     previous,
     previous_body,
     anchor,
@@ -236,6 +244,13 @@ def _foot_lock_kernel(
         if not enabled:
             continue
         need = 0.0  # the pelvis drop that lets each planted leg reach its target, nearly straight
+        if keep_bend:  # and that puts the lower planted foot of the output's own legs on its anchor, their bend kept
+            sink = np.inf
+            for side in range(2):
+                if weight[side] >= 1.0:
+                    sink = min(sink, g_pos[legs[side, 2], 1] - anchor[r, side, 1])
+            if sink < np.inf:
+                need = max(need, sink)
         for side in range(2):
             if weight[side] > 0.0:
                 ankle, hip = legs[side, 2], legs[side, 0]
