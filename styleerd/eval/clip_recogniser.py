@@ -7,11 +7,11 @@ cues, or one whose pace still says "elderly", is read here as it plays out.
 ``styleerd eval clip-styles``: trains it on Bandai-Namco-2's training takes (once; kept in
 ``models/clip-recogniser-bandai2``), reads the test takes themselves (its ceiling), then every
 styled test take streamed back to neutral and every neutral one into each style, as ``transfer``
-runs them (labels inferred online; as given, with ``--root-speed``, and with ``--no-cleanup``): per
+runs them (labels inferred online; plain, with ``--root-speed``, and with ``--no-cleanup``): per
 pair, how many takes are read as the target and how many still as the source, and for the neutral
 takes into each style, how many of each content are read as the target with and without the foot
-cleanup (which holds the output's feet to the input's contacts, so a style's own footwork where the
-input stands still is held too)."""
+cleanup (which holds the output's planted feet where the input's are: what it does to a style is
+seen here)."""
 
 from __future__ import annotations
 
