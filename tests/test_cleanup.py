@@ -352,4 +352,18 @@ def test_a_style_that_bends_the_planted_legs_keeps_the_bend_and_lowers_the_pelvi
         assert (knee_angle(g_straight, side)[5:] - bend_raw[5:]).min() > 10.0  # straightened
     drop = g_in[:, 0, 1] - g_kept[:, 0, 1]
     assert np.abs(drop[5:] - lift).max() < 1e-3
+    # the input stands on its right leg (the left raised: a kick); the output swings that planted foot up
+    # by more than the most drop: a step of its own, not a bend, so the pelvis stays and IK holds the foot
+    kick = stand.rotations.copy()
+    kick[:, parts["left_hip"]] = quat.mul(kick[:, parts["left_hip"]], about_x(1.5))
+    swing = kick.copy()
+    swing[:, parts["right_hip"]] = quat.mul(swing[:, parts["right_hip"]], about_x(0.6))
+    swing[:, parts["right_knee"]] = quat.mul(swing[:, parts["right_knee"]], about_x(-1.2))
+    lock = FootLock(sk, 1, m.fps)
+    for t in range(20):
+        _, p = lock.step(swing[t : t + 1], stand.positions[t : t + 1], kick[t : t + 1], stand.positions[t : t + 1])
+    g_swing = forward_kinematics(swing[:1], stand.positions[:1], sk.parents)[1][0]
+    assert lock.planted[0].tolist() == [False, True]
+    assert g_swing[parts["right_foot"], 1] - g_in[0, parts["right_foot"], 1] > lock.max_drop
+    assert lock.drop[0] < 0.05 * lift and p[0, 0, 1] > stand.positions[0, 0, 1] - 0.05 * lift
     assert np.abs(g_in[:, 0, 1] - g_straight[:, 0, 1]).max() < 0.05 * lift  # only the straight leg's margin of reach

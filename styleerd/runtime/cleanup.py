@@ -21,7 +21,8 @@ has one: the root, or the hips under a still reference node) until the leg reach
 the output's own legs hold its planted feet above their anchors (a style that bends the knees: an
 elderly stance, an active performer's bounce on the spot), the pelvis drops too, until the lower of
 them stands on its anchor (``keep_bend``): the legs keep the style's bend, where IK alone would
-straighten them to the input's hip height and take the style off.
+straighten them to the input's hip height and take the style off. A planted foot the output holds
+higher than the most drop is one it swings (its own step), and IK alone brings it down.
 The floor: no output ankle, and no toe (the ankle's first child), goes lower than the input's own
 ankle and toe have been so far (their running minimum); an ankle that would is lifted by the same IK,
 and a toe that would is raised by pitching the foot up about the ankle (lifting the ankle for a toe
@@ -247,8 +248,9 @@ def _foot_lock_kernel(
         if keep_bend:  # and that puts the lower planted foot of the output's own legs on its anchor, their bend kept
             sink = np.inf
             for side in range(2):
-                if weight[side] >= 1.0:
-                    sink = min(sink, g_pos[legs[side, 2], 1] - anchor[r, side, 1])
+                above = g_pos[legs[side, 2], 1] - anchor[r, side, 1]
+                if weight[side] >= 1.0 and above <= max_drop:  # higher: a foot the output swings, not bends over
+                    sink = min(sink, above)
             if sink < np.inf:
                 need = max(need, sink)
         for side in range(2):
