@@ -6,7 +6,7 @@ import subprocess
 import sys
 
 import numpy as np
-from test_transfer import lowered_by_the_cleanup_at_most
+from test_transfer import moved_by_the_cleanup_at_most
 
 from styleerd.motion import bvh
 from styleerd.motion.procedural import walk
@@ -29,7 +29,7 @@ def test_demo_without_data_writes_every_style_and_a_page(tmp_path):
         m = bvh.read(path)
         assert m.skeleton == source.skeleton and m.n_frames == source.n_frames and m.fps == source.fps
         assert (m.positions[:, 0, [0, 2]] == source.positions[:, 0, [0, 2]]).all()  # the input's ground path
-        assert lowered_by_the_cleanup_at_most(m.positions[:, 0, 1], source.positions[:, 0, 1], source.skeleton)
+        assert moved_by_the_cleanup_at_most(m.positions[:, 0, 1], source.positions[:, 0, 1], source.skeleton)
         assert not np.allclose(m.rotations, source.rotations, atol=1e-3)
     page = (tmp_path / "index.html").read_text()
     data = json.loads(re.search(r"const DATA = (.*?);\n", page).group(1))

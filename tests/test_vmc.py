@@ -19,6 +19,7 @@ from styleerd.motion.kinematics import forward_kinematics
 from styleerd.motion.motion import Motion
 from styleerd.motion.procedural import walk
 from styleerd.runtime.channels import ChannelStylizer
+from styleerd.runtime.cleanup import FootLock
 from styleerd.serve.vmc import (
     BONE,
     ROOT,
@@ -129,7 +130,9 @@ def test_bridge_stylises_every_frame_keeps_positions_and_passes_other_messages(m
     assert len(got) == m.n_frames and others.count("/VMC/Ext/OK") == m.n_frames
     assert set(got[0]) == set(names) and len(humanoid_skeleton({n: np.zeros(3) for n in names}).names) == len(names)
     hips = np.stack([f["Hips"][0] for f in got])
-    assert np.allclose(hips, unity_position(m.positions[:, 0] / 100.0), atol=1e-5)  # root trajectory kept
+    given = unity_position(m.positions[:, 0] / 100.0)
+    assert np.allclose(hips[:, [0, 2]], given[:, [0, 2]], atol=1e-5)  # the root's path kept; its height but for
+    assert np.abs(hips[:, 1] - given[:, 1]).max() <= FootLock(m.skeleton).max_drop / 100.0 + 1e-5  # the feet's pelvis
     q = np.stack([np.stack([f[n][1] for n in names]) for f in got])
     assert np.isfinite(q).all() and np.allclose(np.linalg.norm(q, axis=-1), 1.0, atol=1e-4)
     change = np.degrees(quat.angle_between(unity_rotation(q), m.rotations))  # styled, not copied

@@ -385,8 +385,8 @@ streamed through `transfer` (the default pose, labels inferred online) as one cl
 `--root-speed` and with `--no-cleanup`, and the neutral takes into each style per content with the
 foot cleanup and without it: the cleanup holds the output's planted feet where the input's are, and
 where it straightened a style's bent legs on the spot (an active performer's bounce while raising a
-hand) the style was gone (`docs/model.md`, "The foot cleanup keeps a style's bent legs"). Counts of
-takes.
+hand) the style was gone (`docs/model.md`, "The foot cleanup keeps the output's own legs"). Counts
+of takes.
 
 """ + clips.read_text()
     return text

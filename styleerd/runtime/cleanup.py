@@ -20,9 +20,11 @@ has one: the root, or the hips under a still reference node) until the leg reach
 ``rise_speed`` leg lengths a second once the feet no longer need it, so the body never pops. Where
 the output's own legs hold its planted feet above their anchors (a style that bends the knees: an
 elderly stance, an active performer's bounce on the spot), the pelvis drops too, until the lower of
-them stands on its anchor (``keep_bend``): the legs keep the style's bend, where IK alone would
-straighten them to the input's hip height and take the style off. A planted foot the output holds
-higher than the most drop is one it swings (its own step), and IK alone brings it down.
+them stands on its anchor; where they reach below them (a bouncing input taken to a calm style), it
+rises as far, within as much and as long as the legs reach (``keep_bend``). The legs keep the
+output's bend, where IK alone would bend or straighten them to the input's hip height and carry the
+input's style over. A planted foot the output holds higher than the most drop is one it swings (its
+own step), and IK alone brings it down.
 The floor: no output ankle, and no toe (the ankle's first child), goes lower than the input's own
 ankle and toe have been so far (their running minimum); an ankle that would is lifted by the same IK,
 and a toe that would is raised by pitching the foot up about the ankle (lifting the ankle for a toe
@@ -70,7 +72,7 @@ class FootLock:
         self.legs = np.array(legs)
         self.head = parts.get("head", -1)  # -1: none found
         self.upright = upright  # the cosine of the body's up (hips to head) with the world's, at least
-        self.keep_bend = keep_bend  # the pelvis also drops to the output's own planted legs (below)
+        self.keep_bend = keep_bend  # the pelvis also drops or rises to the output's own planted legs (above)
         self.across = (self.legs[0, 0], self.legs[1, 0])
         parents = skeleton.parents
         self.toes = np.array(
@@ -252,7 +254,7 @@ def _foot_lock_kernel(
                 if weight[side] >= 1.0 and above <= max_drop:  # higher: a foot the output swings, not bends over
                     sink = min(sink, above)
             if sink < np.inf:
-                need = max(need, sink)
+                need = sink  # below zero: the output's legs stand lower than the input's, and the pelvis rises
         for side in range(2):
             if weight[side] > 0.0:
                 ankle, hip = legs[side, 2], legs[side, 0]
@@ -262,8 +264,8 @@ def _foot_lock_kernel(
                 above = g_pos[hip, 1] - target[1]
                 over = above - np.sqrt(length * length - ground2) if ground2 < length * length else above
                 need = max(need, over)
-        drop[r] = max(min(need, max_drop, drop[r] + fall), drop[r] - rise, 0.0)
-        if drop[r] > 0.0:  # straight down in the world, in the lowered joint's parent's frame
+        drop[r] = max(min(need, max_drop, drop[r] + fall), drop[r] - rise, -max_drop if keep_bend else 0.0)
+        if drop[r] != 0.0:  # straight down in the world, in the lowered joint's parent's frame
             p = parents[lowered]
             dx, dy, dz = (
                 (0.0, -drop[r], 0.0)
