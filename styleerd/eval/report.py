@@ -295,7 +295,7 @@ where the style moves them relative to the root along the body's own axes (up fr
 head), so a swimmer's back bends as a walker's does; in the heading frame (up the world's) that
 change points elsewhere on a body lying down, so the swims' cosines are the lowest of the main
 table. For the clips under 0.7, a second table gives the same cosine in the body's own frame, and
-the held-out actions' mean and worst: there the swims point as the walks (0.82 to 0.98). With the
+the held-out actions' mean and worst: there the swims point as the walks (0.81 to 0.98). With the
 posture laid in the heading frame, as it was until then, the swims read 0.23 to 0.86 in the heading
 frame and -0.27 to 0.71 in the body's own; the three ways side by side are in
 [Model](model.md#the-postures-offsets-along-the-bodys-own-axes) (`python
