@@ -102,7 +102,7 @@ class FootLock:
         self.planted = np.zeros((n_streams, 2), dtype=bool)
         self.started = np.zeros(n_streams, dtype=bool)
         self.floor = np.zeros((n_streams, 2, 2))  # per side, the lowest the input's ankle and toe have been
-        self.drop = np.zeros(n_streams)  # how far the pelvis is lowered now
+        self.drop = np.zeros(n_streams)  # how far the pelvis is lowered now (below zero: raised)
 
     def reset(self, streams=None) -> None:
         """Forget the past of some (default all) streams."""
@@ -119,8 +119,8 @@ class FootLock:
         rows=None,
     ) -> tuple[np.ndarray, np.ndarray]:
         """Output frame ``rotations [N, J, 4]`` (local) with ``positions [N, J, 3]``, and the
-        input frame it came from -> cleaned local rotations and positions (the root lowered where
-        a leg needs it); of every stream, or of the streams ``rows`` only."""
+        input frame it came from -> cleaned local rotations and positions (the root lowered or raised
+        where the legs need it); of every stream, or of the streams ``rows`` only."""
         f64 = lambda a: np.ascontiguousarray(a, dtype=np.float64)
         out, out_pos = f64(rotations).copy(), f64(positions).copy()
         state = np.arange(self.n)[slice(None) if rows is None else np.asarray(rows, dtype=int)]
@@ -201,7 +201,7 @@ def _foot_lock_kernel(
     """Per stream (row ``state[i]`` of the state arrays): contacts from the input's ankles and hips,
     anchors (carried by the input ankle's moves while planted) and release weights, the input's
     floor, the pelvis's drop, then IK of each leg with a weight and a lift (``out``: local
-    rotations, and ``positions``: local positions whose root is lowered, cleaned in place)."""
+    rotations, and ``positions``: local positions whose root is lowered or raised, cleaned in place)."""
     J = out.shape[1]
     g_rot, g_pos = np.empty((J, 4)), np.empty((J, 3))
     hip_g, knee_g, target, left = np.empty(4), np.empty(4), np.empty(3), np.empty(3)
@@ -265,7 +265,7 @@ def _foot_lock_kernel(
                 over = above - np.sqrt(length * length - ground2) if ground2 < length * length else above
                 need = max(need, over)
         drop[r] = max(min(need, max_drop, drop[r] + fall), drop[r] - rise, -max_drop if keep_bend else 0.0)
-        if drop[r] != 0.0:  # straight down in the world, in the lowered joint's parent's frame
+        if drop[r] != 0.0:  # straight down (or up) in the world, in the lowered joint's parent's frame
             p = parents[lowered]
             dx, dy, dz = (
                 (0.0, -drop[r], 0.0)
