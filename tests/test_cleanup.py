@@ -307,7 +307,9 @@ def test_the_output_legs_bend_is_kept_the_pelvis_dropping_or_rising_to_it():
     round (the input crouched, the output's legs straight: a bouncing input taken to a calm style),
     the pelvis rises and the legs stay straight, where IK alone bent them to the input's crouch.
     Keeping the bend took a second judge's reading of neutral takes into active from 19 to 37 of 44,
-    and rising, of active takes back to neutral from 44 to 49 of 56 (``styleerd eval clip-styles``)."""
+    and rising, of active takes back to neutral from 44 to 49 of 56 (``styleerd eval clip-styles``).
+    The pelvis is where the legs need it from the first frame (easing there from the input's height
+    sank a near-still take's body 4 cm in its first 0.1 s, and its feet's speeds with it)."""
     from styleerd.motion.retarget import body_parts
 
     m = walk(1.0, fps=30.0)
@@ -346,7 +348,7 @@ def test_the_output_legs_bend_is_kept_the_pelvis_dropping_or_rising_to_it():
         g_kept, lock = cleaned(output, given)
         g_ik, _ = cleaned(output, given, keep_bend=False)
         assert 1.0 < lift < lock.max_drop  # within the most drop
-        settled = slice(int(lift / lock.rise) + 2, None)  # the pelvis rises slower than it drops
+        settled = slice(None)  # from the first frame: a stream starts with the pelvis where its legs need it
         for side in ("left", "right"):
             foot = parts[f"{side}_foot"]
             for g in (g_kept, g_ik):  # on the floor either way

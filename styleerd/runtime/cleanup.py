@@ -17,7 +17,8 @@ ankle over ``release_frames`` frames, so nothing pops. Where a planted foot's ta
 leg's reach (a style that bends the body, a heel rising far behind it), the pelvis drops (straight
 down, at most ``max_drop`` leg lengths, by the translation of the first joint above the legs that
 has one: the root, or the hips under a still reference node) until the leg reaches; it rises back at
-``rise_speed`` leg lengths a second once the feet no longer need it, so the body never pops. Where
+``rise_speed`` leg lengths a second once the feet no longer need it, so the body never pops (on a
+stream's first frame it starts where the legs need it). Where
 the output's own legs hold its planted feet above their anchors (a style that bends the knees: an
 elderly stance, an active performer's bounce on the spot), the pelvis drops too, until the lower of
 them stands on its anchor; where they reach below them (a bouncing input taken to a calm style), it
@@ -29,6 +30,9 @@ The floor: no output ankle, and no toe (the ankle's first child), goes lower tha
 ankle and toe have been so far (their running minimum); an ankle that would is lifted by the same IK,
 and a toe that would is raised by pitching the foot up about the ankle (lifting the ankle for a toe
 bent a nearly straight leg's knee far forward, the shin tilting the toe down again as it rose).
+Where the input's body (between the hips) moves farther in one frame than ``cut_speed`` leg lengths
+a second allow (a cut: a rest pose before the take, a respawn), the stream starts afresh there, as
+at its first frame: no foot is held where the body was before the jump.
 Frame t uses frames <= t only. Works on any skeleton with named legs (BodyRoles).
 """
 
@@ -62,6 +66,7 @@ class FootLock:
         squat_down: float = 0.2,
         upright: float = 0.5,
         keep_bend: bool = True,
+        cut_speed: float = 25.0,
     ):
         """``legs``: [[hip, knee, ankle] of the left leg, the same of the right] (default: found
         by joint names and topology, as retargeting finds them)."""
@@ -85,7 +90,7 @@ class FootLock:
             [np.linalg.norm(P[k] - P[h]) + np.linalg.norm(P[a] - P[k]) for h, k, a in self.legs]
         )  # each leg's length, hip to ankle, straight
         leg = self.reach[0]
-        self.max_speed, self.floor_band = contact_speed * leg, floor_band * leg
+        self.max_speed, self.floor_band, self.cut_speed = contact_speed * leg, floor_band * leg, cut_speed * leg
         self.leg_down, self.squat_down = leg_down * leg, squat_down * leg
         above = [int(parents[self.legs[0, 0]])]  # the joint both thighs hang from, and those above it
         while above[-1] > 0:
@@ -141,6 +146,7 @@ class FootLock:
             self.across[1],
             float(self.fps),
             float(self.max_speed),
+            float(self.cut_speed),
             float(self.leg_down),
             float(self.squat_down),
             int(self.head),
@@ -180,6 +186,7 @@ def _foot_lock_kernel(
     across_r,
     fps,
     max_speed,
+    cut_speed,
     leg_down,
     squat_down,
     head,
@@ -210,6 +217,9 @@ def _foot_lock_kernel(
         r = state[i]
         forward_pose(in_rot[i], in_pos[i], parents, g_rot, g_pos)
         body = 0.5 * (g_pos[legs[0, 0]] + g_pos[legs[1, 0]])  # between the hips: a root may be a still reference node
+        if started[r] and np.sqrt(np.sum((body - previous_body[r]) ** 2)) * fps > cut_speed:  # a cut: start afresh
+            started[r], planted[r, 0], planted[r, 1], drop[r] = False, False, False, 0.0
+            since_release[r, 0], since_release[r, 1] = release, release
         body_still = (
             np.sqrt((body[0] - previous_body[r, 0]) ** 2 + (body[2] - previous_body[r, 2]) ** 2) * fps < max_speed
             if started[r]
@@ -233,7 +243,7 @@ def _foot_lock_kernel(
             floor[r, side, 1] = min(floor[r, side, 1], toe_y) if started[r] else toe_y
             flat = ankle[1] - floor[r, side, 0] < floor_band and toe_y - floor[r, side, 1] < floor_band
             now[side] = bears and (still or (body_still and flat))
-        started[r] = True
+        fresh, started[r] = not started[r], True  # a first frame (or a cut's) has no drop to ease from
         forward_pose(out[i], positions[i], parents, g_rot, g_pos)
         for side in range(2):
             if now[side] and not planted[r, side]:  # a contact begins: held here, at the input's height
@@ -264,7 +274,8 @@ def _foot_lock_kernel(
                 above = g_pos[hip, 1] - target[1]
                 over = above - np.sqrt(length * length - ground2) if ground2 < length * length else above
                 need = max(need, over)
-        drop[r] = max(min(need, max_drop, drop[r] + fall), drop[r] - rise, -max_drop if keep_bend else 0.0)
+        low, high = (-np.inf, np.inf) if fresh else (drop[r] - rise, drop[r] + fall)
+        drop[r] = max(min(need, max_drop, high), low, -max_drop if keep_bend else 0.0)
         if drop[r] != 0.0:  # straight down (or up) in the world, in the lowered joint's parent's frame
             p = parents[lowered]
             dx, dy, dz = (

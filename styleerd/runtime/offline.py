@@ -465,9 +465,12 @@ def _stylised_rows(
 ) -> Iterator[np.ndarray]:
     """Output channel values, chunk by chunk, of the source frames streamed in: retarget each
     frame, resample to the model's rate (slerp between the two source frames around each
-    model frame), stylise, resample back (slerp between the two stylised frames around each
-    source frame), retarget back, clean the feet. Only the few frames that interpolation
-    still needs are kept. Equal to doing the same to the whole motion at once (tested)."""
+    model frame), stylise, take each source frame's own pose turned by the style's change
+    (per joint, the stylised rotation against the model frame's input) slerped between the two
+    model frames around it, retarget back, clean the feet. Resampling the change rather than
+    the stylised poses keeps what the input has between model frames (a 120 fps take's detail,
+    a cut from a rest pose into the motion). Only the few frames that interpolation still needs
+    are kept. Equal to doing the same to the whole motion at once (tested)."""
     T, fs = header.n_frames, header.fps
     same = bool(np.isclose(fps, fs, rtol=1e-5, atol=0.0))  # as motion.resample decides
     step_in, step_out = fs / fps, fps / fs
@@ -509,21 +512,17 @@ def _stylised_rows(
             while j < J and (model_input(j)[0] + (0 if same or T == 1 else 1)) <= i:
                 rot, pos = mix(src, *model_input(j))
                 styled, styled_pos = stylizer.step(rot[None], pos[None])
-                out[j] = (
-                    styled[0],
-                    pos,
-                    styled_pos[0, 0] - pos[0],
-                )  # and the root's move by its stylised speed (model units)
+                change = styled[0] if same else quat.mul(quat.inv(rot), styled[0])
+                out[j] = (change, styled_pos[0, 0] - pos[0])  # and the root's move by its stylised speed (model units)
                 j += 1
             while k < T and (model_output(k)[0] + (0 if same or J == 1 else 1)) < j and k <= i:
                 i0, w = model_output(k)
-                rot, pos = mix(out, i0, w)
-                frame = src[k][2]
+                change, root_move = mix(out, i0, w)
+                rot, pos, frame = src[k]
+                rot = change if same else quat.mul(rot, change)
                 back = to_source(Motion(jm.target, rot[None], pos[None], fs), jm, frame)
                 if stylizer.root_speed:
-                    back.positions[0, 0] += (
-                        out[i0][2] if w == 0.0 else (1 - w) * out[i0][2] + w * out[i0 + 1][2]
-                    ) / jm.scale
+                    back.positions[0, 0] += root_move / jm.scale
                 if lock is not None:
                     back.rotations, back.positions = lock.step(
                         back.rotations, back.positions, frame.rotations, frame.positions
