@@ -490,6 +490,16 @@ def _eval_actions(args: argparse.Namespace) -> None:
         print(f"wrote {path}")
 
 
+def _eval_corpus(args: argparse.Namespace) -> None:
+    from styleerd.eval.corpus import evaluate_corpus, markdown, write
+    from styleerd.model.stored import load_generator_weights
+
+    out = check_output(args.out)
+    report = evaluate_corpus(load_generator_weights(args.model), args.data, progress=print)
+    write(report, out)
+    print(markdown(report))
+
+
 def _eval_clip_styles(args: argparse.Namespace) -> None:
     from styleerd.eval.clip_recogniser import evaluate_clip_styles, markdown, write
     from styleerd.model.stored import load_generator_weights
@@ -1264,6 +1274,15 @@ def _eval_subcommands(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--no-feet", action="store_true", help="only the action table")
     p.add_argument("--data", help="data folder")
     p.set_defaults(func=_eval_actions)
+    p = sub.add_parser(
+        "corpus",
+        help="every take of cmu-sample, Bandai-Namco-1 and xia-sample, whole, identity and into each style: the "
+        "worst take of each figure (action kept, feet)",
+    )
+    p.add_argument("--model", help=MODEL_HELP)
+    p.add_argument("--out", default="docs/corpus.md", help="Markdown tables (a .json beside it)")
+    p.add_argument("--data", help="data folder")
+    p.set_defaults(func=_eval_corpus)
     p = sub.add_parser(
         "clip-styles",
         help="a second judge of another design (a GRU on whole clips' joint positions and root velocity): test takes "

@@ -205,7 +205,8 @@ def test_the_familiarity_sweep_refits_the_shipped_weights_and_its_shipped_row_is
 ):
     """benchmarks/familiar_sweep.py: no measure, and the shipped percentiles, side by side. The
     shipped row's Bandai-Namco-2 record is the shipped labeller's own (the same weights, the same
-    fit); without the measure more of Bandai-Namco-1's frames are told a confident wrong style."""
+    fit); without the measure Bandai-Namco-1's frames are told a confident wrong style at least twice
+    as often."""
     import json
     import subprocess
     import sys
@@ -226,4 +227,4 @@ def test_the_familiarity_sweep_refits_the_shipped_weights_and_its_shipped_row_is
     assert list(rows) == ["none", "99 / 99.9"] and "| 99 / 99.9 |" in done.stdout
     assert rows["99 / 99.9"]["test_leaning_neutral"] == ckpt.load_labeller()[1]["test_leaning_neutral"]
     wrong = {k: r["groups"]["bandai-namco-1 kept back"]["confident_wrong"] for k, r in rows.items()}
-    assert wrong["none"] > wrong["99 / 99.9"] + 0.05, wrong
+    assert wrong["none"] > 2 * wrong["99 / 99.9"], wrong

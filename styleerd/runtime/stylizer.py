@@ -38,7 +38,7 @@ import numpy as np
 from styleerd.data.features import FeatureLayout, stream_features
 from styleerd.data.parallel import on_kernel_threads
 from styleerd.errors import StyleERDError
-from styleerd.model.config import RELEASE
+from styleerd.model.config import HOLD, RELEASE, RISE
 from styleerd.model.stored import (
     GeneratorWeights,
     LabellerWeights,
@@ -65,6 +65,7 @@ MAX_FEATURE = 1e6
 LABELLER_ONE_BLAS_FROM = 64  # at 32 streams the limit costs more than it saves
 NUMPY_SHARD_FROM = 600
 SHARD_FROM = {"numpy": NUMPY_SHARD_FROM, "onnx": 128, "onnx-plain": 128}
+STYLE_SECONDS = 0.5  # how long an inferred input style takes to follow the labeller's readings (1 - 1/e of the way)
 POSES = ("input", "network")  # what a stylised pose is built on (module docstring)
 # backends whose steps run on threads of their own (torch's pool, numba's parallel loops), never on the stylizer's pool
 OWN_THREADS = ("torch", "numba")
@@ -264,6 +265,7 @@ class StreamStylizer:
             else None
         )
         self.unfamiliar = np.zeros(n_streams)  # per stream, of its last frame (pose "input")
+        self.unfamiliar_held = np.zeros(n_streams, np.int64)  # frames left before it may fall (``_unfamiliar_bounds``)
         self.unread = np.zeros(n_streams)  # per stream, of its last frame: 1 - the labeller's familiarity
         # since the stream's reset: frames, and the sums of each frame's unfamiliar share to the network and to
         # the labeller (its state unlike its training streams': the input's style read as neutral)
@@ -355,7 +357,7 @@ class StreamStylizer:
         )
         if self.identity is not None:
             self.identity.reset(None if streams is None else rows)
-        self.unfamiliar[rows] = self.unfamiliar_sum[rows] = self.frames[rows] = 0
+        self.unfamiliar[rows] = self.unfamiliar_sum[rows] = self.frames[rows] = self.unfamiliar_held[rows] = 0
         self.unread[rows] = self.unread_sum[rows] = 0
         self.started[rows] = False
         self.root_offset[rows], self.speed_ratio[rows] = 0.0, 1.0
@@ -550,6 +552,11 @@ class StreamStylizer:
                 p_style, p_content, labeller_state = self.labeller.step(x, rows)
                 familiar = self.labeller.familiarity(labeller_state, self.frames[sel])
             p_style = toward_neutral(p_style, self.neutral, familiar)
+            # one frame's reading can swing (a wave read as active every few frames) and the style's change would
+            # swing with it: the style used follows the readings over STYLE_SECONDS instead
+            last = self.labels[0][sel]
+            ease = 1.0 - math.exp(-1.0 / (STYLE_SECONDS * self.fps))
+            p_style = np.where((self.frames[sel] > 0)[:, None], last + ease * (p_style - last), p_style)
             if familiar is not None:
                 self.unread[sel] = np.where(self.known_style[sel], 0.0, 1.0 - familiar)
                 self.unread_sum[sel] += self.unread[sel]
@@ -565,9 +572,9 @@ class StreamStylizer:
         self._on_heading(rot, traj, out)
         if identity is not None:
             same = self._on_heading(same, traj, np.empty_like(out))
-            seen = np.where(self.started[sel], self.unfamiliar[sel] - RELEASE, 0.0)
+            bounds = self._unfamiliar_bounds(sel)
             weight = np.empty(len(out))
-            blend = (np.ascontiguousarray(rotations), same, seen, weight, identity, positions, g, facing)
+            blend = (np.ascontiguousarray(rotations), same, bounds, weight, identity, positions, g, facing)
             # a body part with a target of its own: the whole body taken towards that target, the part's joints kept
             parts = [
                 (self.joint_pass == p, self._blend_towards_the_input(out.copy(), w, *blend))
@@ -576,7 +583,7 @@ class StreamStylizer:
             self._blend_towards_the_input(out, weights[sel], *blend)
             for joints, turned in parts:
                 out[:, joints] = turned[:, joints]
-            self.unfamiliar[sel] = weight
+            self._hold_unfamiliar(sel, weight)
             self.unfamiliar_sum[sel] += weight
         if len(self.input_joints):  # parts that keep the input's own motion
             out[:, self.input_joints] = quat.normalize(rotations[:, self.input_joints])
@@ -588,8 +595,26 @@ class StreamStylizer:
         self.frames[sel] += 1
         return out, positions
 
+    def _unfamiliar_bounds(self, sel) -> np.ndarray:
+        """``[N, 2]``: the least and the most each stream's unfamiliarity may be this frame: on a first frame,
+        anything; then at most RISE more than the last frame's, and as much as it, less RELEASE once HOLD frames
+        have passed since the input was last found more unfamiliar (so a motion at the edge of what the network
+        knows does not flicker between its pose and the input's)."""
+        last, started = self.unfamiliar[sel], self.started[sel]
+        least = np.where(started, last - np.where(self.unfamiliar_held[sel] > 0, 0.0, RELEASE), 0.0)
+        return np.stack([least, np.where(started, last + RISE, 1.0)], -1)
+
+    def _hold_unfamiliar(self, sel, weight: np.ndarray) -> None:
+        """This frame's unfamiliarity ``weight`` kept, and HOLD frames set again where the input was found at
+        least as unfamiliar as its last frame showed (more, while held; within ``_unfamiliar_bounds`` the
+        weight says which), else one fewer."""
+        last, held = self.unfamiliar[sel], self.unfamiliar_held[sel]
+        rose = np.where(held > 0, weight > last, weight >= last) & (weight > 0.0)
+        self.unfamiliar_held[sel] = np.where(rose, HOLD, np.maximum(held - 1, 0))
+        self.unfamiliar[sel] = weight
+
     def _blend_towards_the_input(
-        self, styled, weights, given, same, seen, weight, own, positions, g, facing
+        self, styled, weights, given, same, bounds, weight, own, positions, g, facing
     ) -> np.ndarray:
         """``styled`` (the network's output into ``weights``) taken, in place, towards the input turned
         by the change from its own style ``own`` to ``weights`` as far as the input is unfamiliar
@@ -603,7 +628,7 @@ class StreamStylizer:
             len(styled),
             _towards_the_input,
             _towards_the_input_on_shards,
-            *(given, same, styled, np.ascontiguousarray(weights - own, np.float64), posture, offsets, seen),
+            *(given, same, styled, np.ascontiguousarray(weights - own, np.float64), posture, offsets, bounds),
             *(*self.model.familiar, weight, np.ascontiguousarray(positions, np.float64), g, facing),
             *(self.frame_joints, self.model.posture_frame == "body", self.model.skeleton.parents),
         )
@@ -725,7 +750,7 @@ def _towards_the_input(
     diff,
     posture,
     offsets,
-    seen,
+    bounds,
     familiar,
     unfamiliar,
     weight,
@@ -765,7 +790,7 @@ def _towards_the_input(
             )
             total += 2.0 * np.arctan2(np.sqrt(x * x + y * y + z * z), abs(w))
         u = min(1.0, max(0.0, (np.degrees(total / J) - familiar) / (unfamiliar - familiar)))
-        weight[n] = u = max(u, seen[n])
+        weight[n] = u = min(max(u, bounds[n, 0]), bounds[n, 1])
         if u <= 0.0:
             continue
         if last < 0 or not _same_row(diff, n, last):
@@ -826,7 +851,7 @@ def _towards_the_input_on_shards(
     diff,
     posture,
     offsets,
-    seen,
+    bounds,
     familiar,
     unfamiliar,
     weight,
@@ -848,7 +873,7 @@ def _towards_the_input_on_shards(
             diff[s:e],
             posture,
             offsets,
-            seen[s:e],
+            bounds[s:e],
             familiar,
             unfamiliar,
             weight[s:e],
