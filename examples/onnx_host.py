@@ -52,7 +52,7 @@ def qrot(q: np.ndarray, v: np.ndarray) -> np.ndarray:
 
 
 FAMILIAR, UNFAMILIAR = 10.0, 16.0  # degrees: styleerd.model.config's, where the export has no familiar_degrees
-RISE, RELEASE, HOLD = 0.25, 0.1, 15  # a frame, a frame, frames: the same, where it has no unfamiliar_rise_release_hold
+RISE, RELEASE = 0.25, 0.1  # a frame: the same, where it has no unfamiliar_rise_release
 
 
 def from_rotation_vectors(v: np.ndarray) -> np.ndarray:
@@ -156,7 +156,7 @@ class Host:
         offsets = np.array(s["posture_offsets"]) if s.get("posture_offsets") is not None else None
         self.body_frame = s.get("posture_frame") == "body"
         self.familiar_degrees = s.get("familiar_degrees", (FAMILIAR, UNFAMILIAR))
-        self.rise, self.release, self.hold = s.get("unfamiliar_rise_release_hold", (RISE, RELEASE, HOLD))
+        self.rise, self.release = s.get("unfamiliar_rise_release", (RISE, RELEASE))
         self.hips, self.head = s["roles"].get("hips", 0), s["roles"].get("head", 0)
         self.moved = None if offsets is None else np.einsum("s,sjc->jc", (self.target - self.identity)[0], offsets)
         rows, _, width = s["state_shapes"]["h"]  # [1, N, S H] (LSTM form) or [S, N, H] (plain); N = 1 here
@@ -166,7 +166,6 @@ class Host:
         }
         self.previous: np.ndarray | None = None  # global joint positions of the last frame
         self.unfamiliar = 0.0  # 0: the network's pose, 1: the input's pose turned by the style's change
-        self.held = 0  # frames before it may fall
         self.facing = np.array([0.0, 0.0, 1.0])
 
     def features(self, rot: np.ndarray, pos: np.ndarray, fps: float) -> tuple[np.ndarray, np.ndarray]:
@@ -234,12 +233,8 @@ class Host:
         degrees = np.degrees(2 * np.arctan2(np.linalg.norm(d[:, 1:], axis=-1), np.abs(d[:, 0]))).mean()
         lo, hi = self.familiar_degrees
         now = float(np.clip((degrees - lo) / (hi - lo), 0.0, 1.0))
-        # up by at most rise a frame; down by release a frame once hold frames have passed since the input was last
-        # found as unfamiliar as shown (more, while held)
-        last, held = (0.0, 0) if first[0, 0] else (self.unfamiliar, self.held)
-        self.unfamiliar = now if first[0, 0] else min(max(now, last if held else last - self.release), last + self.rise)
-        rose = (now > last if held else now >= last) and self.unfamiliar > 0
-        self.held = self.hold if rose else max(held - 1, 0)
+        last = self.unfamiliar  # down by at most release and up by at most rise a frame
+        self.unfamiliar = now if first[0, 0] else min(max(now, last - self.release), last + self.rise)
         change = qmul(qinv(poses["identity"]), poses["target"]) if self.change is None else self.change
         turned = qmul(given, change)
         turned /= np.linalg.norm(turned, axis=-1, keepdims=True)

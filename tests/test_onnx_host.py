@@ -63,7 +63,7 @@ def test_reference_host_loop_equals_the_stylizer(tmp_path, form, familiar):
     stylizer = StreamStylizer(model, "normal", "walk", {"elderly": 1.0}, fps=on_model.fps, backend="onnx")
     ours = run_stream(stylizer, on_model).rotations
     # the generated walk is partly unfamiliar: the network's pose, the input turned by the posture, and blends
-    assert model.posture is not None and 0.2 < stylizer.unfamiliar_sum[0] / stylizer.frames[0] < 0.95
+    assert model.posture is not None and 0.2 < stylizer.unfamiliar_sum[0] / stylizer.frames[0] < 0.8
     assert host.shape == ours.shape
     assert np.degrees(quat.angle_between(host, ours)).max() < 1e-2
     assert np.degrees(quat.angle_between(host, on_model.rotations)).max() > 5.0  # stylised, not the input
@@ -71,16 +71,16 @@ def test_reference_host_loop_equals_the_stylizer(tmp_path, form, familiar):
 
 def test_the_hosts_blend_with_the_stylizers_thresholds():
     """The two standalone hosts (no styleerd import) carry the stylizer's default unfamiliarity
-    thresholds and their weight's rise, release and hold as numbers, for an export without a model's
-    own (``familiar_degrees``, ``unfamiliar_rise_release_hold``)."""
+    thresholds and how far their weight may move a frame as numbers, for an export without a model's
+    own (``familiar_degrees``, ``unfamiliar_rise_release``)."""
     import re
 
-    from styleerd.model.config import FAMILIAR, HOLD, RELEASE, RISE, UNFAMILIAR
+    from styleerd.model.config import FAMILIAR, RELEASE, RISE, UNFAMILIAR
 
     root = Path(__file__).resolve().parents[1]
     for path in (HOST, root / "styleerd/serve/static/engine.js"):
         text = path.read_text()
         found = re.search(r"FAMILIAR, UNFAMILIAR\]? = \[?([\d.]+), ([\d.]+)", text)
         assert found and tuple(map(float, found.groups())) == (FAMILIAR, UNFAMILIAR), path
-        found = re.search(r"RISE, RELEASE, HOLD\]? = \[?([\d.]+), ([\d.]+), ([\d.]+)", text)
-        assert found and tuple(map(float, found.groups())) == (RISE, RELEASE, HOLD), path
+        found = re.search(r"RISE, RELEASE\]? = \[?([\d.]+), ([\d.]+)", text)
+        assert found and tuple(map(float, found.groups())) == (RISE, RELEASE), path

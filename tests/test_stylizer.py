@@ -48,46 +48,33 @@ def test_offline_equals_streaming_and_keeps_the_root_trajectory(model):
 
 def unfamiliar_weights(now: np.ndarray) -> np.ndarray:
     """The blend's weights over frames from each frame's unfamiliarity ``now``, as the rule says: the
-    first frame's at once; then up by at most RISE a frame, and down by RELEASE a frame only once HOLD
-    frames have passed since the input was last found at least as unfamiliar as shown (more, while
-    held), down to ``now``."""
-    from styleerd.model.config import HOLD, RELEASE, RISE
+    first frame's at once, then ``now`` but down by at most RELEASE and up by at most RISE a frame."""
+    from styleerd.model.config import RELEASE, RISE
 
-    weight, held = now.copy(), 0
-    for t, u in enumerate(now):
-        if t == 0:
-            held = HOLD if u > 0 else 0
-            continue
-        last = weight[t - 1]
-        weight[t] = min(max(u, last if held else last - RELEASE), last + RISE)
-        held = HOLD if (u > last if held else u >= last) and weight[t] > 0 else max(held - 1, 0)
+    weight = now.copy()
+    for t in range(1, len(now)):
+        weight[t] = min(max(now[t], weight[t - 1] - RELEASE), weight[t - 1] + RISE)
     return weight
 
 
-def test_unfamiliarity_rises_by_at_most_rise_and_holds_before_it_falls(model):
+def test_unfamiliarity_moves_by_at_most_rise_or_release_a_frame(model):
     """A stream whose unfamiliarity swings every few frames (a wave at the edge of what the network
-    knows) is held near its peaks, not slerped back and forth between the network's pose and the
-    input's: the weights follow ``unfamiliar_weights`` frame by frame, and they move less than the
-    swings do."""
+    knows): the stylizer's weights are ``unfamiliar_weights`` frame by frame (the measured
+    unfamiliarity replaced by the swings), each frame's move within RISE up and RELEASE down, where
+    it rose at once before."""
     from styleerd.model.config import RELEASE, RISE
 
-    now = np.clip(0.8 + 0.3 * np.sin(np.arange(80) * 1.1), 0.0, 1.0)
-    now[40:] = 0.0  # the motion becomes familiar: held, then released
+    now = np.clip(0.6 + 0.5 * np.sin(np.arange(60) * 1.1), 0.0, 1.0)
     weight = unfamiliar_weights(now)
-    assert np.abs(np.diff(weight)).max() <= RISE + 1e-12
-    assert np.abs(np.diff(weight)).sum() < 0.3 * np.abs(np.diff(now)).sum()
-    after = np.diff(weight[39:])  # familiar from frame 40: held a while, then falling by RELEASE a frame to 0
-    assert after[0] == 0.0 and weight[-1] == 0.0
-    falls = np.flatnonzero(after < -1e-12)
-    assert np.isin(np.round(after, 12), [0.0, -RELEASE]).all() and (np.diff(falls) == 1).all()
+    assert np.diff(weight).max() == pytest.approx(RISE) and np.diff(weight).min() == pytest.approx(-RELEASE)
+    assert np.diff(now).max() > 2 * RISE
     s = StreamStylizer(model, "normal", "walk", {"old": 1.0}, n_streams=1, pose="input")
     shown = []
-    for u in now:  # the stylizer's own bookkeeping, the measured unfamiliarity replaced by ``u`` (the kernel's clamp)
+    for u in now:  # the stylizer's bookkeeping, with the kernel's clamp of the measured unfamiliarity
         least, most = s._unfamiliar_bounds(slice(None))[0]
-        weight_t = np.array([min(max(u, least), most)])
-        s._hold_unfamiliar(slice(None), weight_t)
+        s.unfamiliar[0] = min(max(u, least), most)
         s.started[0] = True
-        shown.append(weight_t[0])
+        shown.append(s.unfamiliar[0])
     np.testing.assert_allclose(shown, weight, atol=1e-12)
 
 
@@ -439,12 +426,14 @@ def test_an_inferred_style_follows_the_labellers_readings_over_style_seconds(mod
     """A labeller whose reading swings between two styles every frame (as the shipped one's did on
     Bandai-Namco-1's musical wave, read as active every few frames, and the style's change swung the
     hands at up to 270 cm/s with it): the style the stylizer uses is the readings' running mean over
-    STYLE_SECONDS (the first frame's at once), a frame's change of it small."""
-    from styleerd.runtime.stylizer import STYLE_SECONDS
+    STYLE_SECONDS once the stream's first STYLE_SETTLED seconds are read (those taken as they come), a
+    frame's change of it small."""
+    from styleerd.runtime.stylizer import STYLE_SECONDS, STYLE_SETTLED
 
     labeller = OnlineLabeller(model.config.feature_dim, len(STYLES), len(CONTENTS), hidden=8).eval()
     s = StreamStylizer(model, None, "walk", {"old": 1.0}, labeller=labeller)
-    readings = np.eye(len(STYLES), dtype=np.float32)[[t % 2 for t in range(30)]]  # angry, normal, angry ...
+    T, settled = 60, int(STYLE_SETTLED * 30.0)
+    readings = np.eye(len(STYLES), dtype=np.float32)[[t % 2 for t in range(T)]]  # angry, normal, angry ...
     step, frame = s.labeller.step, [0]
 
     def swinging(x, rows):
@@ -452,16 +441,16 @@ def test_an_inferred_style_follows_the_labellers_readings_over_style_seconds(mod
         return readings[frame[0]][None], content, state
 
     s.labeller.step = swinging
-    m, used = walking_motion(30), []
-    for t in range(30):
+    m, used = walking_motion(T), []
+    for t in range(T):
         frame[0] = t
         s.step(m.rotations[t], m.positions[t])
         used.append(s.labels[0][0].copy())
-    ease, expected = 1.0 - np.exp(-1.0 / (STYLE_SECONDS * 30.0)), [readings[0]]
-    for r in readings[1:]:
+    ease, expected = 1.0 - np.exp(-1.0 / (STYLE_SECONDS * 30.0)), list(readings[: settled + 1])
+    for r in readings[settled + 1 :]:
         expected.append(expected[-1] + ease * (r - expected[-1]))
     np.testing.assert_allclose(used, expected, atol=1e-6)
-    assert np.abs(np.diff(used, axis=0))[1:].max() < 0.1  # the readings swing by 1 a frame
+    assert np.abs(np.diff(used, axis=0))[settled + 1 :].max() < 0.1  # the readings swing by 1 a frame
 
 
 def test_root_speed_scales_each_ground_step_by_the_networks_speed_online(model, monkeypatch):
@@ -489,7 +478,7 @@ def test_root_speed_scales_each_ground_step_by_the_networks_speed_online(model, 
     for t in range(60):
         probe.step(m.rotations[t], m.positions[t])
         angles.append(probe.unfamiliar[0] * 1e9)
-    low, high = np.percentile(angles, [60, 95])
+    low, high = np.percentile(angles, [30, 70])
     monkeypatch.setattr(model, "familiar", (low, high))
     for pose in ("network", "input"):
         on, off = (

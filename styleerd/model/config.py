@@ -10,10 +10,9 @@ from styleerd.data.features import FeatureLayout
 # angle to the input (degrees): up to FAMILIAR the network's pose (99 % of Bandai-Namco-2 test
 # frames), from UNFAMILIAR on the input's pose plus the style's posture (above every such frame;
 # held-out actions of other performers are at 15-50, docs/actions.md). These are a model's range
-# until ``styleerd familiar`` measures its own (``model.stored.familiar_range``). It rises by at most RISE a
-# frame, and falls by RELEASE a frame once HOLD frames have passed since the input was last found more
-# unfamiliar, so nothing pops and a motion at the edge of the network's does not flicker between the two.
-FAMILIAR, UNFAMILIAR, RISE, RELEASE, HOLD = 10.0, 16.0, 0.25, 0.1, 15
+# until ``styleerd familiar`` measures its own (``model.stored.familiar_range``). It rises by at most RISE
+# and falls by at most RELEASE a frame, so nothing pops.
+FAMILIAR, UNFAMILIAR, RISE, RELEASE = 10.0, 16.0, 0.25, 0.1
 
 
 @dataclass

@@ -30,7 +30,7 @@ from onnx import TensorProto, helper, numpy_helper
 from styleerd.atomic import atomic_write, atomic_write_text
 from styleerd.data.features import CONTACT_SPEED
 from styleerd.errors import StyleERDError
-from styleerd.model.config import HOLD, RELEASE, RISE
+from styleerd.model.config import RELEASE, RISE
 from styleerd.model.stored import GeneratorWeights, generator_weights
 from styleerd.motion import quat
 from styleerd.motion.humanoid import body_parts
@@ -527,9 +527,8 @@ def sidecar(
         # the identity pass's mean joint angle to the input (degrees) up to which the network's pose is kept,
         # and from which the input's pose turned by the posture is (``model.stored.familiar_range``)
         "familiar_degrees": list(model.familiar),
-        # how that blend's weight moves from frame to frame: up by at most the first, down by the second once the
-        # third's frames have passed since the input was last found as unfamiliar as shown (``model.config``)
-        "unfamiliar_rise_release_hold": [RISE, RELEASE, HOLD],
+        # how far that blend's weight may move a frame: up, and down (``model.config``)
+        "unfamiliar_rise_release": [RISE, RELEASE],
         "skeleton": model.skeleton.to_dict(),
         "stats": model.stats().to_dict(),
     }

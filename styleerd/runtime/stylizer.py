@@ -38,7 +38,7 @@ import numpy as np
 from styleerd.data.features import FeatureLayout, stream_features
 from styleerd.data.parallel import on_kernel_threads
 from styleerd.errors import StyleERDError
-from styleerd.model.config import HOLD, RELEASE, RISE
+from styleerd.model.config import RELEASE, RISE
 from styleerd.model.stored import (
     GeneratorWeights,
     LabellerWeights,
@@ -65,7 +65,9 @@ MAX_FEATURE = 1e6
 LABELLER_ONE_BLAS_FROM = 64  # at 32 streams the limit costs more than it saves
 NUMPY_SHARD_FROM = 600
 SHARD_FROM = {"numpy": NUMPY_SHARD_FROM, "onnx": 128, "onnx-plain": 128}
-STYLE_SECONDS = 0.5  # how long an inferred input style takes to follow the labeller's readings (1 - 1/e of the way)
+# how long an inferred input style takes to follow the labeller's readings (1 - 1/e of the way), once it has read the
+# stream's first STYLE_SETTLED seconds (taken as they come: smoothing them delays the first reading of a style)
+STYLE_SECONDS, STYLE_SETTLED = 0.5, 1.0
 POSES = ("input", "network")  # what a stylised pose is built on (module docstring)
 # backends whose steps run on threads of their own (torch's pool, numba's parallel loops), never on the stylizer's pool
 OWN_THREADS = ("torch", "numba")
@@ -265,7 +267,6 @@ class StreamStylizer:
             else None
         )
         self.unfamiliar = np.zeros(n_streams)  # per stream, of its last frame (pose "input")
-        self.unfamiliar_held = np.zeros(n_streams, np.int64)  # frames left before it may fall (``_unfamiliar_bounds``)
         self.unread = np.zeros(n_streams)  # per stream, of its last frame: 1 - the labeller's familiarity
         # since the stream's reset: frames, and the sums of each frame's unfamiliar share to the network and to
         # the labeller (its state unlike its training streams': the input's style read as neutral)
@@ -357,7 +358,7 @@ class StreamStylizer:
         )
         if self.identity is not None:
             self.identity.reset(None if streams is None else rows)
-        self.unfamiliar[rows] = self.unfamiliar_sum[rows] = self.frames[rows] = self.unfamiliar_held[rows] = 0
+        self.unfamiliar[rows] = self.unfamiliar_sum[rows] = self.frames[rows] = 0
         self.unread[rows] = self.unread_sum[rows] = 0
         self.started[rows] = False
         self.root_offset[rows], self.speed_ratio[rows] = 0.0, 1.0
@@ -553,10 +554,11 @@ class StreamStylizer:
                 familiar = self.labeller.familiarity(labeller_state, self.frames[sel])
             p_style = toward_neutral(p_style, self.neutral, familiar)
             # one frame's reading can swing (a wave read as active every few frames) and the style's change would
-            # swing with it: the style used follows the readings over STYLE_SECONDS instead
+            # swing with it: once the labeller has settled, the style used follows its readings over STYLE_SECONDS
             last = self.labels[0][sel]
             ease = 1.0 - math.exp(-1.0 / (STYLE_SECONDS * self.fps))
-            p_style = np.where((self.frames[sel] > 0)[:, None], last + ease * (p_style - last), p_style)
+            settled = (self.frames[sel] > STYLE_SETTLED * self.fps)[:, None]
+            p_style = np.where(settled, last + ease * (p_style - last), p_style)
             if familiar is not None:
                 self.unread[sel] = np.where(self.known_style[sel], 0.0, 1.0 - familiar)
                 self.unread_sum[sel] += self.unread[sel]
@@ -583,7 +585,7 @@ class StreamStylizer:
             self._blend_towards_the_input(out, weights[sel], *blend)
             for joints, turned in parts:
                 out[:, joints] = turned[:, joints]
-            self._hold_unfamiliar(sel, weight)
+            self.unfamiliar[sel] = weight
             self.unfamiliar_sum[sel] += weight
         if len(self.input_joints):  # parts that keep the input's own motion
             out[:, self.input_joints] = quat.normalize(rotations[:, self.input_joints])
@@ -597,21 +599,10 @@ class StreamStylizer:
 
     def _unfamiliar_bounds(self, sel) -> np.ndarray:
         """``[N, 2]``: the least and the most each stream's unfamiliarity may be this frame: on a first frame,
-        anything; then at most RISE more than the last frame's, and as much as it, less RELEASE once HOLD frames
-        have passed since the input was last found more unfamiliar (so a motion at the edge of what the network
-        knows does not flicker between its pose and the input's)."""
+        anything; then down by at most RELEASE and up by at most RISE from the last frame's, so neither the
+        network's pose nor the input's pops in."""
         last, started = self.unfamiliar[sel], self.started[sel]
-        least = np.where(started, last - np.where(self.unfamiliar_held[sel] > 0, 0.0, RELEASE), 0.0)
-        return np.stack([least, np.where(started, last + RISE, 1.0)], -1)
-
-    def _hold_unfamiliar(self, sel, weight: np.ndarray) -> None:
-        """This frame's unfamiliarity ``weight`` kept, and HOLD frames set again where the input was found at
-        least as unfamiliar as its last frame showed (more, while held; within ``_unfamiliar_bounds`` the
-        weight says which), else one fewer."""
-        last, held = self.unfamiliar[sel], self.unfamiliar_held[sel]
-        rose = np.where(held > 0, weight > last, weight >= last) & (weight > 0.0)
-        self.unfamiliar_held[sel] = np.where(rose, HOLD, np.maximum(held - 1, 0))
-        self.unfamiliar[sel] = weight
+        return np.stack([np.where(started, last - RELEASE, 0.0), np.where(started, last + RISE, 1.0)], -1)
 
     def _blend_towards_the_input(
         self, styled, weights, given, same, bounds, weight, own, positions, g, facing

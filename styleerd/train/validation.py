@@ -12,7 +12,7 @@ import torch
 
 from styleerd.model import torch_quat
 from styleerd.model.classifiers import WindowClassifier
-from styleerd.model.config import HOLD, RELEASE, RISE
+from styleerd.model.config import RELEASE, RISE
 from styleerd.model.fmd import MotionAutoencoder, fmd_features
 from styleerd.model.generator import StyleERD
 from styleerd.motion.humanoid import body_parts
@@ -109,13 +109,10 @@ def towards_the_input(
     now = ((torch.rad2deg(torch_quat.angle(same_rot, given)).mean(-1) - familiar) / (unfamiliar - familiar)).clamp(
         0.0, 1.0
     )  # [B, T]
-    weight = now.clone()  # rising by at most RISE a frame, falling by RELEASE once HOLD frames have passed (config)
-    held = torch.where(now[:, 0] > 0, HOLD, 0)
-    for frame in range(1, now.shape[1]):
-        last, u = weight[:, frame - 1], now[:, frame]
-        weight[:, frame] = torch.minimum(torch.maximum(u, torch.where(held > 0, last, last - RELEASE)), last + RISE)
-        rose = torch.where(held > 0, u > last, u >= last) & (weight[:, frame] > 0)
-        held = torch.where(rose, HOLD, (held - 1).clamp(min=0))
+    weight = now.clone()
+    for frame in range(1, now.shape[1]):  # down by at most RELEASE and up by at most RISE a frame
+        last = weight[:, frame - 1]
+        weight[:, frame] = torch.minimum(torch.maximum(now[:, frame], last - RELEASE), last + RISE)
     if model.posture is None:
         turned = torch_quat.add_change(given, same_rot, rot)
     else:

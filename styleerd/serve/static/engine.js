@@ -26,7 +26,7 @@ function qrot(q, v) { // v + w t + u x t, t = 2 u x v
 const normalize = (q) => { const n = Math.hypot(...q) || 1; return q.map((x) => x / n); };
 const inverse = (q) => [q[0], -q[1], -q[2], -q[3]];
 const [FAMILIAR, UNFAMILIAR] = [10.0, 16.0]; // degrees: styleerd.model.config's, where the export has no familiar_degrees
-const [RISE, RELEASE, HOLD] = [0.25, 0.1, 15]; // a frame, a frame, frames: the same, where it has no unfamiliar_rise_release_hold
+const [RISE, RELEASE] = [0.25, 0.1]; // a frame: the same, where it has no unfamiliar_rise_release
 function slerp(a, b, t) { // from a (t = 0) to b (t = 1) along the shorter arc
   let d = a.reduce((s, x, k) => s + x * b[k], 0);
   if (d < 0) { b = b.map((x) => -x); d = -d; }
@@ -128,7 +128,6 @@ export class StyleHost {
     const zeros = () => ({ h: new Float32Array(this.S * this.H), c: new Float32Array(this.S * this.H) });
     this.state = { target: zeros(), identity: zeros() };
     this.unfamiliar = 0; // 0: the network's pose, 1: the input's pose turned by the style's change
-    this.held = 0; // frames before it may fall
     this.previous = null;
     this.facing = [0, 0, 1];
   }
@@ -191,12 +190,9 @@ export class StyleHost {
     }, 0) / J;
     const [familiar, unfamiliar] = this.side.familiar_degrees || [FAMILIAR, UNFAMILIAR];
     const now = Math.min(1, Math.max(0, (degrees - familiar) / (unfamiliar - familiar)));
-    // up by at most RISE a frame; down by RELEASE a frame once HOLD frames have passed since the input was last
-    // found as unfamiliar as shown (more, while held)
-    const [rise, release, hold] = this.side.unfamiliar_rise_release_hold || [RISE, RELEASE, HOLD];
-    const [last, held] = first ? [0, 0] : [this.unfamiliar, this.held];
-    this.unfamiliar = first ? now : Math.min(Math.max(now, held ? last : last - release), last + rise);
-    this.held = (held ? now > last : now >= last) && this.unfamiliar > 0 ? hold : Math.max(held - 1, 0);
+    const [rise, release] = this.side.unfamiliar_rise_release || [RISE, RELEASE];
+    const last = this.unfamiliar; // down by at most release and up by at most rise a frame
+    this.unfamiliar = first ? now : Math.min(Math.max(now, last - release), last + rise);
     const change = (j) => (this.change ? this.change[j] : qmul(inverse(poses.identity[j]), poses.target[j]));
     let turned = given.map((q, j) => normalize(qmul(q, change(j))));
     if (this.moved) { // then turned so that the joints go where the posture moves the input's
