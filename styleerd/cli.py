@@ -491,12 +491,14 @@ def _eval_actions(args: argparse.Namespace) -> None:
 
 
 def _eval_corpus(args: argparse.Namespace) -> None:
-    from styleerd.eval.corpus import evaluate_corpus, markdown, write
+    from styleerd.atomic import atomic_write_text
+    from styleerd.eval.corpus import evaluate_corpus, markdown
     from styleerd.model.stored import load_generator_weights
 
     out = check_output(args.out)
     report = evaluate_corpus(load_generator_weights(args.model), args.data, progress=print)
-    write(report, out)
+    atomic_write_text(out.with_suffix(".json"), json.dumps(report, indent=1) + "\n")
+    atomic_write_text(out.with_suffix(".md"), markdown(report))
     print(markdown(report))
 
 

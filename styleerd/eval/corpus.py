@@ -17,13 +17,10 @@ action table (``eval actions``) says whether the style shows; this says whether 
 
 from __future__ import annotations
 
-import json
 from collections.abc import Callable
-from pathlib import Path
 
 from tqdm import tqdm
 
-from styleerd.atomic import atomic_write_text
 from styleerd.data.datasets import BANDAI1_AS_BANDAI2, data_root, find_clips, load_motion, unpack
 from styleerd.eval.actions import ActionClip, _body_scale, _map, action_kept, feet_figures
 from styleerd.model.stored import GeneratorWeights
@@ -155,9 +152,3 @@ def markdown(report: dict) -> str:
                 f"{cell(w['below_floor_cm'], '.2f')} | {cell(w['slide_over_input_cm_s'], '.1f')} |"
             )
     return "\n".join(lines) + "\n"
-
-
-def write(report: dict, out: Path) -> None:
-    """``out`` (Markdown) and the JSON beside it."""
-    atomic_write_text(out.with_suffix(".json"), json.dumps(report, indent=1) + "\n")
-    atomic_write_text(out, markdown(report))
