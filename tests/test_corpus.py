@@ -17,8 +17,8 @@ def test_every_cmu_sample_take_comes_back(shared_data, model):
     a frame of rest pose 2 m from the take): the identity transfer keeps the action (velocity
     correlation >= 0.9, error <= 1 cm) and so does elderly (>= 0.75), no foot under the floor.
     Before the transfer resampled the style's change rather than the poses, and the foot cleanup
-    started afresh at a cut, subject 7's walks came back at 0.22-0.37, their feet held back at the rest
-    pose for three frames."""
+    started afresh at a cut, subject 7's walks came back at a correlation as low as 0.21, their feet
+    held back where the rest pose stood."""
     takes = every_take(model, str(shared_data), ("cmu-sample",))
     assert len(takes) == 62
     bad = []

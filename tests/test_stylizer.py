@@ -425,7 +425,7 @@ def test_a_labeller_state_unlike_its_training_streams_tells_the_neutral_style(mo
 def test_an_inferred_style_follows_the_labellers_readings_over_style_seconds(model):
     """A labeller whose reading swings between two styles every frame (as the shipped one's did on
     Bandai-Namco-1's musical wave, read as active every few frames, and the style's change swung the
-    hands at up to 270 cm/s with it): the style the stylizer uses is the readings' running mean over
+    hands with it): the style the stylizer uses is the readings' running mean over
     STYLE_SECONDS once the stream's first STYLE_SETTLED seconds are read (those taken as they come), a
     frame's change of it small."""
     from styleerd.runtime.stylizer import STYLE_SECONDS, STYLE_SETTLED
