@@ -754,7 +754,7 @@ def _towards_the_input(
 ):
     """Per stream (``[N, J, 4]`` each): its unfamiliarity ``weight`` (the identity output ``same``'s
     mean joint angle to the input ``given``, degrees, from ``familiar`` (0) to ``unfamiliar`` (1),
-    at least ``seen``), and ``styled`` slerped by it towards the input turned by the style's change,
+    within ``bounds [N, 2]``: least, most), and ``styled`` slerped by it towards the input turned by the style's change,
     in place. The change from the input's own style to the target, ``diff [N, styles]`` (weights
     less the own style's): per joint (local rotations, the roots' in the world) the rotation of the
     postures' rotation vectors ``posture [styles, J, 3]`` weighted by it (``[styles, 0, 3]``: no
