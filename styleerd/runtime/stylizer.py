@@ -285,6 +285,8 @@ class StreamStylizer:
         self.frame_joints = np.array([parts["hips"], parts["head"], *self.roles.left, *self.roles.right], np.int64)
         self.stats = model.stats()
         self.fps = fps
+        # an inferred style's running mean: its weight for each new reading, and the frames read as they come first
+        self.style_ease, self.style_settled = 1.0 - math.exp(-1.0 / (STYLE_SECONDS * fps)), STYLE_SETTLED * fps
         self.n = n_streams
         self.blend_frames = max(1, blend_frames)
         c = model.config
@@ -555,10 +557,8 @@ class StreamStylizer:
             p_style = toward_neutral(p_style, self.neutral, familiar)
             # one frame's reading can swing (a wave read as active every few frames) and the style's change would
             # swing with it: once the labeller has settled, the style used follows its readings over STYLE_SECONDS
-            last = self.labels[0][sel]
-            ease = 1.0 - math.exp(-1.0 / (STYLE_SECONDS * self.fps))
-            settled = (self.frames[sel] > STYLE_SETTLED * self.fps)[:, None]
-            p_style = np.where(settled, last + ease * (p_style - last), p_style)
+            last, settled = self.labels[0][sel], (self.frames[sel] > self.style_settled)[:, None]
+            p_style = np.where(settled, last + self.style_ease * (p_style - last), p_style)
             if familiar is not None:
                 self.unread[sel] = np.where(self.known_style[sel], 0.0, 1.0 - familiar)
                 self.unread_sum[sel] += self.unread[sel]
