@@ -267,11 +267,7 @@ class Host:
         if self.moved is not None:  # then turned so that the joints go where the posture moves the input's
             g = self.previous
             axes = self.body_axes(g) if self.body_frame else qrot(heading, np.eye(3))  # rows: left, up, forward
-            moved = self.moved @ axes
-            for hand in (m for m in self.arms if m >= 0):  # a hand raised no higher than the head, or itself
-                below = (g[self.head] - g[hand]) @ axes[1]
-                moved[hand] -= max(0.0, moved[hand] @ axes[1] - max(below, 0.0)) * axes[1]
-            turned = reach(turned, pos, g, g + moved, self.parents, self.arms)
+            turned = reach(turned, pos, g, g + self.moved @ axes, self.parents, self.arms)
         return slerp(poses["target"], turned, self.unfamiliar)
 
 

@@ -776,48 +776,6 @@ def test_reach_turns_each_joint_by_the_shortest_arc_towards_its_childrens_target
     assert 0 < reached < 10  # hands in reach, which land on their targets, and out of it
 
 
-def test_a_hand_the_posture_raises_ends_no_higher_than_the_head_or_itself():
-    """``_hands_below_the_head`` (compiled) and its torch twin: a hand's target rises no higher than the
-    head joint, or than the hand where it is already higher; a hand moved down or kept below the
-    head, and every other joint, keep their offsets."""
-    from scipy.spatial.transform import Rotation
-
-    from styleerd.model import torch_quat
-    from styleerd.model.stored import load_generator_weights
-    from styleerd.runtime.stylizer import _hands_below_the_head
-
-    sk = load_generator_weights().skeleton
-    arms, head = arm_ends(sk), sk.names.index("Head")
-    hands = [int(m) for m in arms if m >= 0]
-    rng = np.random.default_rng(11)
-    kinds = set()
-    for t in range(40):
-        rot = quat.from_scaled_angle_axis(rng.normal(0, 0.8, (sk.n_joints, 3)))
-        _, given = forward_kinematics(rot, sk.offsets, sk.parents)
-        axes = Rotation.random(random_state=t).as_matrix().T  # rows: left, up, forward
-        offsets = rng.normal(0, 15.0, (sk.n_joints, 3))
-        out = np.empty_like(offsets)
-        _hands_below_the_head(offsets, given, axes, head, arms, out)
-        others = [j for j in range(sk.n_joints) if j not in hands]
-        assert np.array_equal(out[others], offsets[others]) and np.array_equal(
-            out[hands][:, [0, 2]], offsets[hands][:, [0, 2]]
-        )
-        for m in hands:
-            before, after = ((given[m] + o @ axes - given[head]) @ axes[1] for o in (offsets[m], out[m]))
-            ceiling = max((given[m] - given[head]) @ axes[1], 0.0)  # the targets' heights above the head, and its
-            if offsets[m, 1] <= 0 or before <= ceiling:
-                kinds.add("kept")
-                assert out[m, 1] == offsets[m, 1]
-            else:
-                kinds.add("cut")
-                assert abs(after - ceiling) < 1e-9
-        twin = torch_quat.hands_below_the_head(
-            torch.from_numpy(offsets @ axes), torch.from_numpy(given), torch.from_numpy(axes[1]), head, arms.tolist()
-        ).numpy()
-        assert np.abs(twin - out @ axes).max() < 1e-9
-    assert kinds == {"kept", "cut"}
-
-
 def test_streams_blended_together_get_what_each_gets_alone():
     """``_towards_the_input`` on a batch whose streams share a change of style in runs (A, A, B, A, B, B:
     the posture is put together once a run) and go part or all the way to the input (the whole way
@@ -871,28 +829,15 @@ def test_streams_blended_together_get_what_each_gets_alone():
     assert np.degrees(quat.angle_between(together, styled)).max() > 5.0  # the blend did something
 
 
-@pytest.mark.parametrize("rig", ["biped", "arms with hands"])
 @pytest.mark.parametrize("posture", ["none", "rotations", "rotations and offsets", "rotations and body offsets"])
-def test_validations_pose_input_is_the_stylizers(model, posture, rig, monkeypatch):
+def test_validations_pose_input_is_the_stylizers(model, posture, monkeypatch):
     """``train.validation.towards_the_input`` (torch, whole windows: what ``eval quality --pose
     input`` judges) gives the stylizer's pose "input" output frame by frame from a fresh state,
-    with the unfamiliarity thresholds inside this random network's range; on the test biped, and on
-    the shipped model's skeleton, whose arms end in hands (``_reach``'s arms, a hand's rise cut at
-    the head)."""
+    with the unfamiliarity thresholds inside this random network's range."""
     from styleerd.model import torch_quat
-    from styleerd.model.stored import load_generator_weights
     from styleerd.train import validation
 
-    sk = None if rig == "biped" else load_generator_weights().skeleton
-    m = walking_motion(30, skeleton=sk)
-    if sk is not None:
-        f, _ = motion_features(walking_motion(100, skeleton=sk))
-        torch.manual_seed(0)
-        config = GeneratorConfig(sk.n_joints, STYLES, CONTENTS, neutral_layers=2, style_layers=2)
-        model = StyleERD(config, sk, FeatureStats.fit(f, sk.n_joints))
-        for p in model.parameters():
-            p.data += 0.05 * torch.randn_like(p)
-        model.eval()
+    m = walking_motion(30)
     f, traj = motion_features(m)
     x = torch.as_tensor(model.stats().normalize(f), dtype=torch.float32)[None]
     rng = np.random.default_rng(7)
@@ -915,8 +860,4 @@ def test_validations_pose_input_is_the_stylizers(model, posture, rig, monkeypatc
     s = StreamStylizer(model, "normal", "walk", {"old": 1.0}, pose="input")
     got = np.stack([s.step(m.rotations[t], m.positions[t])[0][0] for t in range(30)])
     assert 0.1 < s.unfamiliar_sum[0] / 30 < 0.9  # the frames span the blend
-    off = np.degrees(quat.angle_between(got, want)).max(0)  # float32 networks, composed in float32 and 64
-    ends = arm_ends(m.skeleton)  # the upper arms and the elbows
-    arms = [j for j, e in enumerate(ends) if e >= 0] + [int(m.skeleton.parents[e]) for e in ends if e >= 0]
-    # an arm near full reach turns fast with its hand target's distance, here from float32 features' positions
-    assert np.delete(off, arms).max() < 0.01 and off.max() < 0.1, off.round(4)
+    assert np.degrees(quat.angle_between(got, want)).max() < 0.01  # float32 networks, composed in float32 and 64

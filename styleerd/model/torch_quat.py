@@ -96,21 +96,6 @@ def limb_middle(
     return s + n * x + pole * r
 
 
-def hands_below_the_head(
-    moved: torch.Tensor, positions: torch.Tensor, up: torch.Tensor, head: int, arms: list[int]
-) -> torch.Tensor:
-    """``moved [..., J, 3]`` (where a posture moves each joint of the input's pose ``positions [..., J,
-    3]``) with each hand's (``arms``: an upper arm's hand, else -1) rise along ``up [..., 3]`` cut so
-    that it ends no higher than the ``head`` joint, or than the hand itself where that is higher;
-    ``runtime.stylizer._hands_below_the_head``'s twin."""
-    out = list(moved.unbind(-2))
-    for m in (m for m in arms if m >= 0):
-        rise = (moved[..., m, :] * up).sum(-1, keepdim=True)
-        below = ((positions[..., head, :] - positions[..., m, :]) * up).sum(-1, keepdim=True)
-        out[m] = moved[..., m, :] - (rise - below.clamp_min(0.0)).clamp_min(0.0) * up
-    return torch.stack(out, -2)
-
-
 def reach(
     rotations: torch.Tensor, offsets: torch.Tensor, targets: torch.Tensor, parents: list[int], arms: list[int]
 ) -> torch.Tensor:

@@ -742,23 +742,6 @@ def _reach(rot, translations, given, axes, offsets, parents, first, kids, arms, 
 
 
 @nb.njit(cache=True, nogil=True)
-def _hands_below_the_head(offsets, given, axes, head, arms, out):
-    """Into ``out``, ``offsets [J, 3]`` (along ``axes``' rows: left, up, forward) with each hand's
-    (``arms``) rise cut so that, from the input's pose ``given [J, 3]``, it ends no higher than the
-    ``head`` joint, or than the hand itself where that is higher: a posture measured on walks raises
-    hands that hang at the sides, and raised as far, a guard at the chin goes over the head (a cheer,
-    not a punch)."""
-    out[:] = offsets
-    for j in range(len(arms)):
-        m = arms[j]
-        if m >= 0:
-            below = 0.0  # how far the hand is below the head
-            for k in range(3):
-                below += (given[head, k] - given[m, k]) * axes[1, k]
-            out[m, 1] -= max(0.0, out[m, 1] - max(below, 0.0))
-
-
-@nb.njit(cache=True, nogil=True)
 def _frame_axes(g, facing, joints, body, axes):
     """Into ``axes [3, 3]``, as rows (left, up, forward), the frame a posture's offsets are in on one
     stream's pose (global positions ``g [J, 3]``): where ``body``, the body's own
@@ -833,16 +816,14 @@ def _towards_the_input(
     postures' rotation vectors ``posture [styles, J, 3]`` weighted by it (``[styles, 0, 3]``: no
     posture, the network's own change inv(same) * styled), then, with posture ``offsets [styles, J,
     3]`` (``[styles, 0, 3]``: none), turned so that the joints go where the input's are moved by the
-    offsets weighted alike, a hand's rise cut at the head (``_hands_below_the_head``, ``_reach``;
-    ``translations``, ``globals_``: the input's local joint translations and global positions;
-    ``arms``: ``motion.humanoid.arm_ends``). The offsets are along the body's own axes where ``body``
+    offsets weighted alike (``_reach``; ``translations``, ``globals_``: the input's local joint
+    translations and global positions; ``arms``: ``arm_ends``). The offsets are along the body's own axes where ``body``
     (from its joints ``frame_joints``), else along its heading's (from its facing directions
     ``facing``): ``_frame_axes``. The posture is put together only for a stream that needs it, and
     once for a run of streams with the same change of style (a crowd's)."""
     N, J = given.shape[0], given.shape[1]
     turn, reach = posture.shape[1] == J, offsets.shape[1] == J
     target, moved, G, X, axes = np.empty((J, 4)), np.empty((J, 3)), np.empty((J, 4)), np.empty((J, 3)), np.empty((3, 3))
-    capped = np.empty((J, 3))
     change = np.empty((J, 4))
     first, kids = _children(parents)
     last = -1  # the stream whose change of style ``change`` and ``moved`` hold: the next may share it
@@ -890,8 +871,7 @@ def _towards_the_input(
             )
         if reach:
             _frame_axes(globals_[n], facing[n], frame_joints, body, axes)
-            _hands_below_the_head(moved, globals_[n], axes, frame_joints[1], arms, capped)
-            _reach(target, translations[n], globals_[n], axes, capped, parents, first, kids, arms, G, X)
+            _reach(target, translations[n], globals_[n], axes, moved, parents, first, kids, arms, G, X)
         for j in range(J):
             sw, sx, sy, sz = styled[n, j, 0], styled[n, j, 1], styled[n, j, 2], styled[n, j, 3]
             tw, tx, ty, tz = target[j, 0], target[j, 1], target[j, 2], target[j, 3]

@@ -124,15 +124,15 @@ def towards_the_input(
             L, J = model.layout, model.config.n_joints
             positions = (x[..., L.positions] * model.std[L.positions] + model.mean[L.positions]).unflatten(-1, (J, 3))
             moved = torch.einsum("bs,sjc->bjc", target - own, model.posture_offsets)
-            parts, arms = body_parts(model.skeleton), arm_ends(model.skeleton).tolist()
             if model.posture_frame == "body":  # the offsets along the body's own axes, in the heading frame
-                roles = BodyRoles.of(model.skeleton)
+                parts, roles = body_parts(model.skeleton), BodyRoles.of(model.skeleton)
                 axes = torch_quat.body_axes(positions, parts["hips"], parts["head"], roles.left, roles.right)
-                moved, up = torch.einsum("bjc,btck->btjk", moved, axes.to(moved.dtype)), axes[..., 1, :]
+                moved = torch.einsum("bjc,btck->btjk", moved, axes.to(moved.dtype))
             else:
-                moved, up = moved[:, None].expand_as(positions), positions.new_tensor([0.0, 1.0, 0.0])
-            moved = torch_quat.hands_below_the_head(moved, positions, up.to(moved.dtype), parts["head"], arms)
-            turned = torch_quat.reach(turned, model.offsets, positions + moved, model.parents, arms)
+                moved = moved[:, None]
+            turned = torch_quat.reach(
+                turned, model.offsets, positions + moved, model.parents, arm_ends(model.skeleton).tolist()
+            )
     rot = torch_quat.slerp(rot, turned, weight[..., None].expand(rot.shape[:-1]))
     return rot, vel + weight[..., None] * (x[..., model.layout.velocities] - same_vel)
 

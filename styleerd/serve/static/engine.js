@@ -221,15 +221,8 @@ export class StyleHost {
     let turned = given.map((q, j) => normalize(qmul(q, change(j))));
     if (this.moved) { // then turned so that the joints go where the posture moves the input's
       const g = this.previous, axes = this.side.posture_frame === "body" ? bodyAxes(g, this.roles) : headingAxes(heading);
-      const arms = this.roles.arms || this.parents.map(() => -1), dot = (u, v) => u[0] * v[0] + u[1] * v[1] + u[2] * v[2];
-      const moved = this.moved.map((o) => [0, 1, 2].map((k) => o.reduce((sum, x, i) => sum + x * axes[i][k], 0)));
-      for (const hand of arms.filter((m) => m >= 0)) { // a hand raised no higher than the head, or itself
-        const below = dot(g[this.roles.head].map((x, k) => x - g[hand][k]), axes[1]);
-        const cut = Math.max(0, dot(moved[hand], axes[1]) - Math.max(below, 0));
-        moved[hand] = moved[hand].map((x, k) => x - cut * axes[1][k]);
-      }
-      const targets = g.map((x, j) => x.map((v, k) => v + moved[j][k]));
-      turned = reach(turned, pos, g, targets, this.parents, arms);
+      const targets = g.map((x, j) => [0, 1, 2].map((k) => x[k] + this.moved[j].reduce((sum, o, i) => sum + o * axes[i][k], 0)));
+      turned = reach(turned, pos, g, targets, this.parents, this.roles.arms || this.parents.map(() => -1));
     }
     return given.map((_, j) => slerp(poses.target[j], turned[j], this.unfamiliar));
   }
