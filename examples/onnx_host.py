@@ -91,31 +91,10 @@ def shortest_arc(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     return q / np.linalg.norm(q)
 
 
-def elbow(s: np.ndarray, e: np.ndarray, a: float, b: float, t: np.ndarray, p: np.ndarray) -> np.ndarray:
-    """Where an arm's elbow goes (shoulder at ``s``, elbow now at ``e``, upper arm ``a`` and forearm ``b``
-    long) for the hand to reach ``t``, or as near as the arm allows: of the points that do, the one
-    nearest the elbow's own target ``p`` (``e`` where ``p`` is on the line from ``s`` to ``t``)."""
-    n = t - s
-    d = np.linalg.norm(n)
-    if d < 1e-9:
-        return p
-    n, d = n / d, max(min(max(d, abs(a - b)), a + b), 1e-9)
-    x = (a * a - b * b + d * d) / (2 * d)  # along the line, then out towards the elbow's target
-    r = np.sqrt(max(a * a - x * x, 0.0))
-    for q in (p - s, e - s):
-        q = q - (q @ n) * n
-        if np.linalg.norm(q) > 1e-6 * a:
-            return s + n * x + q / np.linalg.norm(q) * r
-    return s + n * x
-
-
-def reach(
-    rot: np.ndarray, pos: np.ndarray, given: np.ndarray, targets: np.ndarray, parents: list[int], arms: list[int]
-) -> np.ndarray:
+def reach(rot: np.ndarray, pos: np.ndarray, given: np.ndarray, targets: np.ndarray, parents: list[int]) -> np.ndarray:
     """The pose ``rot [J, 4]`` turned so that each joint's children go towards ``targets [J, 3]``
     (global): down the chain, each joint but the root by the shortest arc from its children's
-    summed bone vectors to the summed vectors to their targets (no bone turns about itself); an
-    upper arm (``arms``: its hand, else -1) towards where its elbow lets the hand reach its target.
+    summed bone vectors to the summed vectors to their targets (no bone turns about itself).
     ``given``: the input's global joint positions (the root's is kept)."""
     rot, g_rot, g_pos = rot.copy(), rot.copy(), given.copy()
     for j, p in enumerate(parents):
@@ -127,10 +106,6 @@ def reach(
         if kids:
             now = sum(qrot(g_rot[j], pos[k]) for k in kids)
             wanted = sum(targets[k] - g_pos[j] for k in kids)
-            if arms[j] >= 0:  # the one child is the elbow
-                (k,), hand = kids, arms[j]
-                a, b = np.linalg.norm(pos[k]), np.linalg.norm(pos[hand])
-                wanted = elbow(g_pos[j], g_pos[j] + now, a, b, targets[hand], targets[k]) - g_pos[j]
             g_rot[j] = qmul(shortest_arc(now, wanted), g_rot[j])
             rot[j] = qmul(qinv(g_rot[p]), g_rot[j])
     return rot
@@ -183,7 +158,6 @@ class Host:
         self.familiar_degrees = s.get("familiar_degrees", (FAMILIAR, UNFAMILIAR))
         self.rise, self.release = s.get("unfamiliar_rise_release", (RISE, RELEASE))
         self.hips, self.head = s["roles"].get("hips", 0), s["roles"].get("head", 0)
-        self.arms = s["roles"].get("arms", [-1] * len(self.parents))  # an upper arm's hand, else -1
         self.moved = None if offsets is None else np.einsum("s,sjc->jc", (self.target - self.identity)[0], offsets)
         rows, _, width = s["state_shapes"]["h"]  # [1, N, S H] (LSTM form) or [S, N, H] (plain); N = 1 here
         self.state = {
@@ -267,7 +241,7 @@ class Host:
         if self.moved is not None:  # then turned so that the joints go where the posture moves the input's
             g = self.previous
             axes = self.body_axes(g) if self.body_frame else qrot(heading, np.eye(3))  # rows: left, up, forward
-            turned = reach(turned, pos, g, g + self.moved @ axes, self.parents, self.arms)
+            turned = reach(turned, pos, g, g + self.moved @ axes, self.parents)
         return slerp(poses["target"], turned, self.unfamiliar)
 
 

@@ -75,36 +75,11 @@ def between(a: torch.Tensor, b: torch.Tensor, eps: float = 1e-12) -> torch.Tenso
     return torch.where(w > eps, normalize(q, eps), q.new_tensor([1.0, 0.0, 0.0, 0.0]))
 
 
-def limb_middle(
-    s: torch.Tensor, e: torch.Tensor, a: torch.Tensor, b: torch.Tensor, t: torch.Tensor, p: torch.Tensor
-) -> torch.Tensor:
-    """Where a two-bone limb's middle joint goes ``[..., 3]`` (from its root ``s``, bones ``a`` and ``b``
-    long, its middle now at ``e``) for its end to reach ``t`` or as near as the bones allow: on the
-    circle of such points, the one nearest the middle joint's own target ``p`` (``e`` where ``p`` is on
-    the line from ``s`` to ``t``); ``runtime.stylizer._limb_middle``'s twin."""
-    n = t - s
-    d = n.norm(dim=-1, keepdim=True)
-    n = n / d.clamp_min(1e-9)
-    d = torch.minimum(torch.maximum(d, (a - b).abs()), a + b).clamp_min(1e-9)
-    x = (a * a - b * b + d * d) / (2.0 * d)
-    r = (a * a - x * x).clamp_min(0.0).sqrt()
-    side = lambda q: q - (q * n).sum(-1, keepdim=True) * n
-    pole, now = side(p - s), side(e - s)
-    pole = torch.where(pole.norm(dim=-1, keepdim=True) > 1e-6 * a, pole, now)
-    q = pole.norm(dim=-1, keepdim=True)
-    pole = torch.where(q > 1e-6 * a, pole / q.clamp_min(1e-30), torch.zeros_like(pole))
-    return s + n * x + pole * r
-
-
-def reach(
-    rotations: torch.Tensor, offsets: torch.Tensor, targets: torch.Tensor, parents: list[int], arms: list[int]
-) -> torch.Tensor:
+def reach(rotations: torch.Tensor, offsets: torch.Tensor, targets: torch.Tensor, parents: list[int]) -> torch.Tensor:
     """``rotations [..., J, 4]`` (local) turned so that each joint's children go towards
     ``targets [..., J, 3]`` (relative to the root, in the root's parent frame): down the chain, each
     joint but the root by the shortest arc from its children's summed bone vectors (``offsets
-    [J, 3]``) to the summed vectors to their targets, an upper arm (``arms [J]``: its hand, else -1)
-    towards where its elbow lets the hand reach its target (``limb_middle``);
-    ``runtime.stylizer._reach``'s twin."""
+    [J, 3]``) to the summed vectors to their targets; ``runtime.stylizer._reach``'s twin."""
     out = list(rotations.unbind(-2))
     G, X = list(out), [torch.zeros_like(targets[..., 0, :])] * len(parents)
     for j, p in enumerate(parents):
@@ -115,14 +90,9 @@ def reach(
         kids = [k for k in range(j + 1, len(parents)) if parents[k] == j]
         if not kids:
             continue
-        bones = [mul_vec(G[j], offsets[k].expand_as(X[j])) for k in kids]
-        if arms[j] >= 0:
-            (k,), m = kids, arms[j]
-            a, b = bones[0].norm(dim=-1, keepdim=True), offsets[m].norm().expand_as(bones[0][..., :1])
-            wanted = limb_middle(X[j], X[j] + bones[0], a, b, targets[..., m, :], targets[..., k, :]) - X[j]
-        else:
-            wanted = sum(targets[..., k, :] - X[j] for k in kids)
-        G[j] = mul(between(sum(bones), wanted), G[j])
+        now = sum(mul_vec(G[j], offsets[k].expand_as(X[j])) for k in kids)
+        wanted = sum(targets[..., k, :] - X[j] for k in kids)
+        G[j] = mul(between(now, wanted), G[j])
         out[j] = mul(inv(G[p]), G[j])
     return torch.stack(out, -2)
 

@@ -350,18 +350,6 @@ def body_parts(skeleton: Skeleton, pose: np.ndarray | None = None) -> dict[str, 
     return _parts_and_problem(skeleton, pose)[0]
 
 
-def arm_ends(skeleton: Skeleton) -> np.ndarray:
-    """``[J]``: for each upper arm (the shoulder joint, whose only child is the elbow) the hand at the
-    end of its arm, else -1 (``runtime.stylizer._reach``). The legs are left to the per-joint reach: the foot
-    cleanup (``runtime.cleanup``) puts the planted feet where the input's are."""
-    parts, ends = body_parts(skeleton), np.full(skeleton.n_joints, -1, np.int64)
-    for side in ("left", "right"):
-        root, middle, end = (parts.get(f"{side}_{x}") for x in ("shoulder", "elbow", "hand"))
-        if None not in (root, middle, end) and skeleton.children(root) == [middle] and skeleton.parents[end] == middle:
-            ends[root] = end
-    return ends
-
-
 def not_humanoid(skeleton: Skeleton, pose: np.ndarray | None = None) -> str | None:
     """Why the joint tree cannot be read as a humanoid's ("not a humanoid: ..." where its legs
     and spine are not a human's; what it lacks otherwise), or None if it can."""

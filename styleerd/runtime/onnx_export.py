@@ -33,7 +33,7 @@ from styleerd.errors import StyleERDError
 from styleerd.model.config import RELEASE, RISE
 from styleerd.model.stored import GeneratorWeights, generator_weights
 from styleerd.motion import quat
-from styleerd.motion.humanoid import arm_ends, body_parts
+from styleerd.motion.humanoid import body_parts
 from styleerd.motion.skeleton import BodyRoles
 from styleerd.runtime.numpy_step import step_weights
 
@@ -512,8 +512,6 @@ def sidecar(
             "hips": parts["hips"],
             "head": parts["head"],
             "leg_length": roles.leg_length,
-            # per joint: an upper arm's hand, else -1; an upper arm aims its elbow so the hand reaches (``_reach``)
-            "arms": arm_ends(model.skeleton).tolist(),
         },
         "contact_speed_leg_lengths": CONTACT_SPEED,
         # per target style (``styles``' order) and joint, the rotation vector (radians) of its posture:

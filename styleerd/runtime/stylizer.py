@@ -49,7 +49,7 @@ from styleerd.model.stored import (
     toward_neutral,
 )
 from styleerd.motion import quat
-from styleerd.motion.humanoid import arm_ends, body_parts
+from styleerd.motion.humanoid import body_parts
 from styleerd.motion.retarget import BODY_PARTS, part_joints
 from styleerd.motion.skeleton import BodyRoles
 from styleerd.runtime.backends import make_backend
@@ -283,7 +283,6 @@ class StreamStylizer:
         self.roles = BodyRoles.of(self.skeleton)
         parts = body_parts(self.skeleton)  # hips, head, left hip and shoulder, right ones: a posture's body axes
         self.frame_joints = np.array([parts["hips"], parts["head"], *self.roles.left, *self.roles.right], np.int64)
-        self.arms = arm_ends(self.skeleton)
         self.stats = model.stats()
         self.fps = fps
         # an inferred style's running mean: its weight for each new reading, and the frames read as they come first
@@ -622,7 +621,7 @@ class StreamStylizer:
             _towards_the_input_on_shards,
             *(given, same, styled, np.ascontiguousarray(weights - own, np.float64), posture, offsets, bounds),
             *(*self.model.familiar, weight, np.ascontiguousarray(positions, np.float64), g, facing),
-            *(self.frame_joints, self.model.posture_frame == "body", self.model.skeleton.parents, self.arms),
+            *(self.frame_joints, self.model.posture_frame == "body", self.model.skeleton.parents),
         )
         return styled
 
@@ -643,52 +642,15 @@ def _children(parents):
     return first, kids
 
 
-@nb.njit(cache=True, nogil=True, inline="always")
-def _moved(given, offsets, axes, k):
-    """Joint ``k``'s target: its input position ``given [J, 3]`` moved by its offset along ``axes``' rows."""
-    a, b, c = offsets[k, 0], offsets[k, 1], offsets[k, 2]
-    return (
-        given[k, 0] + a * axes[0, 0] + b * axes[1, 0] + c * axes[2, 0],
-        given[k, 1] + a * axes[0, 1] + b * axes[1, 1] + c * axes[2, 1],
-        given[k, 2] + a * axes[0, 2] + b * axes[1, 2] + c * axes[2, 2],
-    )
-
-
 @nb.njit(cache=True, nogil=True)
-def _limb_middle(sx, sy, sz, ex, ey, ez, a, b, tx, ty, tz, px, py, pz):
-    """Where a two-bone limb's middle joint goes (from its root at s, the bones ``a`` long to the middle
-    and ``b`` from it) for its end to reach t, or as near as the bones allow: on the circle of such
-    points, the one nearest the middle joint's own target p (if p lies on the line from s to t, the
-    nearest to where the middle joint e is now)."""
-    nx, ny, nz = tx - sx, ty - sy, tz - sz
-    d = np.sqrt(nx * nx + ny * ny + nz * nz)
-    if d < 1e-9:
-        return px, py, pz
-    nx, ny, nz = nx / d, ny / d, nz / d
-    d = max(min(max(d, abs(a - b)), a + b), 1e-9)
-    x = (a * a - b * b + d * d) / (2.0 * d)
-    r = np.sqrt(max(a * a - x * x, 0.0))
-    for qx, qy, qz in ((px - sx, py - sy, pz - sz), (ex - sx, ey - sy, ez - sz)):
-        along = qx * nx + qy * ny + qz * nz
-        qx, qy, qz = qx - along * nx, qy - along * ny, qz - along * nz
-        q = np.sqrt(qx * qx + qy * qy + qz * qz)
-        if q > 1e-6 * a:
-            return sx + nx * x + qx / q * r, sy + ny * x + qy / q * r, sz + nz * x + qz / q * r
-    return sx + nx * x, sy + ny * x, sz + nz * x
-
-
-@nb.njit(cache=True, nogil=True)
-def _reach(rot, translations, given, axes, offsets, parents, first, kids, arms, G, X):
+def _reach(rot, translations, given, axes, offsets, parents, first, kids, G, X):
     """One stream's pose ``rot [J, 4]`` (local rotations, the root's in the world) turned in place so
     that each joint's children go towards the input's joint positions ``given [J, 3]`` (global) moved
     by ``offsets [J, 3]`` (along the rows of ``axes [3, 3]``: the posture's frame, ``_frame_axes``):
     down the chain, each joint but the root turned by the shortest arc from its children's summed
     bone vectors to the vectors to their targets (so a bone's twist about itself is kept; a bone's
-    length is, so a target may be out of reach). An upper arm (``arms [J]``: its hand, else -1:
-    ``motion.humanoid.arm_ends``) aims its elbow where the hand reaches its own target
-    (``_limb_middle``): turning the forearm alone, a bent arm's hand (a punch's guard) falls short of
-    where the posture moves it. ``first``, ``kids``: the children (``_children``); ``G [J, 4]``,
-    ``X [J, 3]``: scratch."""
+    length is, so a target may be out of reach). ``first``, ``kids``: the children
+    (``_children``); ``G [J, 4]``, ``X [J, 3]``: scratch."""
     J = rot.shape[0]
     for j in range(J):
         p = parents[j]
@@ -711,29 +673,12 @@ def _reach(rot, translations, given, axes, offsets, parents, first, kids, arms, 
             vx, vy, vz = quat.mul_vec_scalars(
                 G[j, 0], G[j, 1], G[j, 2], G[j, 3], translations[k, 0], translations[k, 1], translations[k, 2]
             )
-            tx, ty, tz = _moved(given, offsets, axes, k)
-            if arms[j] >= 0:  # the upper arm's only child: the elbow
-                m = arms[j]
-                ex, ey, ez = _moved(given, offsets, axes, m)
-                b = np.sqrt(translations[m, 0] ** 2 + translations[m, 1] ** 2 + translations[m, 2] ** 2)
-                tx, ty, tz = _limb_middle(
-                    X[j, 0],
-                    X[j, 1],
-                    X[j, 2],
-                    X[j, 0] + vx,
-                    X[j, 1] + vy,
-                    X[j, 2] + vz,
-                    np.sqrt(vx * vx + vy * vy + vz * vz),
-                    b,
-                    ex,
-                    ey,
-                    ez,
-                    tx,
-                    ty,
-                    tz,
-                )
-            cx, cy, cz = cx + vx, cy + vy, cz + vz  # bones, and to targets
-            dx, dy, dz = dx + tx - X[j, 0], dy + ty - X[j, 1], dz + tz - X[j, 2]
+            a, b, c = offsets[k, 0], offsets[k, 1], offsets[k, 2]
+            ox = a * axes[0, 0] + b * axes[1, 0] + c * axes[2, 0]
+            oy = a * axes[0, 1] + b * axes[1, 1] + c * axes[2, 1]
+            oz = a * axes[0, 2] + b * axes[1, 2] + c * axes[2, 2]
+            tx, ty, tz = given[k, 0] + ox - X[j, 0], given[k, 1] + oy - X[j, 1], given[k, 2] + oz - X[j, 2]
+            cx, cy, cz, dx, dy, dz = cx + vx, cy + vy, cz + vz, dx + tx, dy + ty, dz + tz  # bones, and to targets
         rw, rx, ry, rz = quat.between_scalars(cx, cy, cz, dx, dy, dz)  # none: no change
         G[j, 0], G[j, 1], G[j, 2], G[j, 3] = quat.mul_scalars(rw, rx, ry, rz, G[j, 0], G[j, 1], G[j, 2], G[j, 3])
         rot[j, 0], rot[j, 1], rot[j, 2], rot[j, 3] = quat.mul_scalars(
@@ -806,7 +751,6 @@ def _towards_the_input(
     frame_joints,
     body,
     parents,
-    arms,
 ):
     """Per stream (``[N, J, 4]`` each): its unfamiliarity ``weight`` (the identity output ``same``'s
     mean joint angle to the input ``given``, degrees, from ``familiar`` (0) to ``unfamiliar`` (1),
@@ -817,7 +761,7 @@ def _towards_the_input(
     posture, the network's own change inv(same) * styled), then, with posture ``offsets [styles, J,
     3]`` (``[styles, 0, 3]``: none), turned so that the joints go where the input's are moved by the
     offsets weighted alike (``_reach``; ``translations``, ``globals_``: the input's local joint
-    translations and global positions; ``arms``: ``arm_ends``). The offsets are along the body's own axes where ``body``
+    translations and global positions). The offsets are along the body's own axes where ``body``
     (from its joints ``frame_joints``), else along its heading's (from its facing directions
     ``facing``): ``_frame_axes``. The posture is put together only for a stream that needs it, and
     once for a run of streams with the same change of style (a crowd's)."""
@@ -871,7 +815,7 @@ def _towards_the_input(
             )
         if reach:
             _frame_axes(globals_[n], facing[n], frame_joints, body, axes)
-            _reach(target, translations[n], globals_[n], axes, moved, parents, first, kids, arms, G, X)
+            _reach(target, translations[n], globals_[n], axes, moved, parents, first, kids, G, X)
         for j in range(J):
             sw, sx, sy, sz = styled[n, j, 0], styled[n, j, 1], styled[n, j, 2], styled[n, j, 3]
             tw, tx, ty, tz = target[j, 0], target[j, 1], target[j, 2], target[j, 3]
@@ -908,7 +852,6 @@ def _towards_the_input_on_shards(
     frame_joints,
     body,
     parents,
-    arms,
 ):
     """``_towards_the_input`` on ``shards`` slices of the streams, one per thread."""
     N = given.shape[0]
@@ -931,7 +874,6 @@ def _towards_the_input_on_shards(
             frame_joints,
             body,
             parents,
-            arms,
         )
 
 

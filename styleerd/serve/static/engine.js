@@ -43,6 +43,9 @@ function shortestArc(a, b) { // the rotation by the smallest angle taking a's di
   if (w < 1e-9) return normalize([0, ...cross(a, Math.abs(a[0]) < 0.9 ? [1, 0, 0] : [0, 1, 0])]); // opposite: a half turn
   return normalize([w, ...cross(a, b)]);
 }
+// The pose rot turned so that each joint's children go towards targets (global): down the chain, each joint but
+// the root by the shortest arc from its children's summed bone vectors to the summed vectors to their targets.
+// given: the input's global joint positions (the root's is kept); as examples/onnx_host.py's reach.
 // The frames a posture's offsets are in, as rows (left, up, forward; motion.kinematics' heading_axes, body_axes).
 function headingAxes(heading) { return [[1, 0, 0], [0, 1, 0], [0, 0, 1]].map((v) => qrot(heading, v)); }
 function bodyAxes(g, roles) { // up from the hips to the head, left from the right hip and shoulder to the left ones
@@ -52,47 +55,20 @@ function bodyAxes(g, roles) { // up from the hips to the head, left from the rig
   return [cross(up, forward), up, forward].map((v) => { const n = Math.max(Math.hypot(...v), 1e-9); return v.map((x) => x / n); });
 }
 
-// Where an arm's elbow goes (shoulder s, elbow now e, bones a and b long) for the hand to reach t, or as near as
-// the arm allows: of the points that do, the one nearest the elbow's own target p (e where p is on the line s-t).
-function elbow(s, e, a, b, t, p) {
-  const sub = (u, v) => u.map((x, i) => x - v[i]);
-  let n = sub(t, s), d = Math.hypot(...n);
-  if (d < 1e-9) return p;
-  n = n.map((x) => x / d);
-  d = Math.max(Math.min(Math.max(d, Math.abs(a - b)), a + b), 1e-9);
-  const x = (a * a - b * b + d * d) / (2 * d), r = Math.sqrt(Math.max(a * a - x * x, 0));
-  for (const q0 of [sub(p, s), sub(e, s)]) {
-    const along = q0[0] * n[0] + q0[1] * n[1] + q0[2] * n[2];
-    const q = q0.map((v, i) => v - along * n[i]), len = Math.hypot(...q);
-    if (len > 1e-6 * a) return s.map((v, i) => v + n[i] * x + (q[i] / len) * r);
-  }
-  return s.map((v, i) => v + n[i] * x);
-}
-
-// The pose rot turned so that each joint's children go towards targets (global): down the chain, each joint but
-// the root by the shortest arc from its children's summed bone vectors to the summed vectors to their targets, an
-// upper arm (arms: its hand, else -1) towards its elbow(). given: the input's global joint positions (the root's is
-// kept); as examples/onnx_host.py's reach.
-function reach(rot, pos, given, targets, parents, arms) {
+function reach(rot, pos, given, targets, parents) {
   rot = rot.slice();
   const gRot = rot.slice(), gPos = given.slice();
   parents.forEach((p, j) => {
     if (p < 0) return;
     gRot[j] = qmul(gRot[p], rot[j]);
     gPos[j] = qrot(gRot[p], pos[j]).map((x, k) => x + gPos[p][k]);
-    const now = [0, 0, 0];
-    let wanted = [0, 0, 0];
+    const now = [0, 0, 0], wanted = [0, 0, 0];
     let kids = 0;
     for (let k = j + 1; k < parents.length; k++) {
       if (parents[k] !== j) continue;
       kids++;
       const v = qrot(gRot[j], pos[k]);
       for (let i = 0; i < 3; i++) { now[i] += v[i]; wanted[i] += targets[k][i] - gPos[j][i]; }
-      if (arms[j] >= 0) { // an upper arm: its one child is the elbow, aimed so the hand reaches its target
-        const hand = arms[j], s = gPos[j];
-        const to = elbow(s, s.map((x, i) => x + v[i]), Math.hypot(...pos[k]), Math.hypot(...pos[hand]), targets[hand], targets[k]);
-        wanted = to.map((x, i) => x - s[i]);
-      }
     }
     if (!kids) return;
     gRot[j] = qmul(shortestArc(now, wanted), gRot[j]);
@@ -222,7 +198,7 @@ export class StyleHost {
     if (this.moved) { // then turned so that the joints go where the posture moves the input's
       const g = this.previous, axes = this.side.posture_frame === "body" ? bodyAxes(g, this.roles) : headingAxes(heading);
       const targets = g.map((x, j) => [0, 1, 2].map((k) => x[k] + this.moved[j].reduce((sum, o, i) => sum + o * axes[i][k], 0)));
-      turned = reach(turned, pos, g, targets, this.parents, this.roles.arms || this.parents.map(() => -1));
+      turned = reach(turned, pos, g, targets, this.parents);
     }
     return given.map((_, j) => slerp(poses.target[j], turned[j], this.unfamiliar));
   }
