@@ -91,7 +91,10 @@ def test_foot_lock_pins_planted_feet_releases_smoothly_and_is_causal():
     raw_a, clean_a = ankle(out), ankle(cleaned)
     assert np.linalg.norm(np.diff(raw_a[11:25], axis=0), axis=-1).mean() > 0.1  # the raw foot skates
     assert np.abs(clean_a[11:25] - clean_a[11]).max() < 1e-6  # the cleaned one stays put
-    assert np.abs(clean_a[11, [0, 2]] - raw_a[11, [0, 2]]).max() < 1e-9  # anchored where the contact began ...
+    # anchored where the foot was as the input's stopped (frame 10): the contact is known a frame later, when
+    # the input's ankle has not moved since, and the output's foot does not move in that frame either ...
+    assert np.abs(clean_a[11, [0, 2]] - clean_a[10, [0, 2]]).max() < 1e-9
+    assert np.abs(clean_a[10, [0, 2]] - raw_a[10, [0, 2]]).max() < 1e-9 and np.abs(raw_a[11] - raw_a[10]).max() > 0.1
     assert abs(clean_a[11, 1] - ankle(inp)[11, 1]) < 1e-9  # ... at the input's height
     assert np.abs(clean_a[30:] - raw_a[30:]).max() < 1e-9  # released
     steps = np.linalg.norm(np.diff(clean_a[20:32], axis=0), axis=-1)
@@ -232,14 +235,15 @@ def test_feet_of_a_walk_in_place_move_with_the_inputs_treadmill():
 
 def test_pelvis_drops_where_a_planted_foot_is_out_of_reach_and_rises_back_smoothly():
     """The input stands still on frames 10..24; the output's root (a style's pace) walks on, 1 cm
-    a frame for 10 frames, so the planted foot falls behind, out of the leg's reach. The pelvis drops until the leg
+    a frame for 9 frames, so the planted foot (held where it was on frame 10) falls behind, out of the
+    leg's reach. The pelvis drops until the leg
     reaches: the ankle stays on its anchor (without the drop it is dragged along), no frame moves the
     root down faster than the fall speed nor up faster than the rise speed, never more than the most
     drop, and after the contact the root comes back to the output's own height."""
     inp, out = sliding_output(60)
     sk = out.skeleton
     out = Motion(sk, out.rotations, out.positions.copy(), out.fps)  # the input's positions were shared
-    out.positions[10:, 0, 2] += 1.0 * np.minimum(np.arange(50), 10)
+    out.positions[10:, 0, 2] += 1.0 * np.minimum(np.arange(50), 9)
     lock = FootLock(sk, 1, out.fps)
     cleaned = clean_feet(out, inp)
     a = np.stack([ankle(cleaned, f) for f in ("Foot_L", "Foot_R")], 1)

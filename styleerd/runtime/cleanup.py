@@ -2,30 +2,32 @@
 
 Contacts come from the input: a foot is planted while the input's ankle moves slower than
 ``contact_speed`` leg lengths per second (the features' causal rule), or while the input's body
-(between the hips) stands still and its foot is flat on its floor (ankle and toe within ``floor_band``
-leg lengths of the lowest they have been): a walk in place, as game libraries ship them, whose
-planted feet move back under a still body as on a treadmill. Either only where the leg can bear
-weight: its ankle at least ``leg_down`` leg lengths below its hip (a bow), or ``squat_down`` under an
-upright body (hips to head within 60 degrees of the world's up: a squat). A kicker's foot slowing in
-the air, or a swimmer's, is no contact. When a contact begins, the output
-ankle's ground position at that frame, at the input ankle's height, becomes the anchor (a style
-that bends the legs would otherwise plant feet in or above the input's floor); while the contact
-lasts, two-bone IK (hip, knee) holds the output ankle on the anchor moved as the input's ankle has
-moved since (on frames it moved faster than a still foot: pinned where the input's foot is still,
-carried back where it walks in place); when it ends, the target slides from there back to the raw
-ankle over ``release_frames`` frames, so nothing pops. Where a planted foot's target is out of its
-leg's reach (a style that bends the body, a heel rising far behind it), the pelvis drops (straight
-down, at most ``max_drop`` leg lengths, by the translation of the first joint above the legs that
-has one: the root, or the hips under a still reference node) until the leg reaches; it rises back at
-``rise_speed`` leg lengths a second once the feet no longer need it, so the body never pops (on a
-stream's first frame it starts where the legs need it). Where
-the output's own legs hold its planted feet above their anchors (a style that bends the knees: an
-elderly stance, an active performer's bounce on the spot), the pelvis drops too, until the lower of
-them stands on its anchor; where they reach below them (a bouncing input taken to a calm style), it
-rises as far, within as much and as long as the legs reach (``keep_bend``). The legs keep the
-output's bend, where IK alone would bend or straighten them to the input's hip height and carry the
-input's style over. A planted foot the output holds higher than the most drop is one it swings (its
-own step), and IK alone brings it down.
+(between the hips) stands still and its foot is flat on its floor (ankle and toe within
+``floor_band`` leg lengths of the lowest they have been): a walk in place, as game libraries ship
+them, whose planted feet move back under a still body as on a treadmill. Either only where the leg
+can bear weight: its ankle at least ``leg_down`` leg lengths below its hip (a bow), or
+``squat_down`` under an upright body (hips to head within 60 degrees of the world's up: a squat). A
+kicker's foot slowing in the air, or a swimmer's, is no contact. A contact is read from the input
+ankle's move into the frame, so when one begins the input's foot has stood still since the frame
+before; the anchor is the output ankle's ground position on that frame (as it was given out), at the
+input ankle's height (a style that bends the legs would otherwise plant feet in or above the input's
+floor), so the output's foot stands from the same frame as the input's (anchored on the new frame,
+the first move of every contact slid). While the contact lasts, two-bone IK (hip, knee) holds the
+output ankle on the anchor moved as the input's ankle has moved since (on frames it moved faster
+than a still foot: pinned where the input's foot is still, carried back where it walks in place);
+when it ends, the target slides from there back to the raw ankle over ``release_frames`` frames, so
+nothing pops. Where a planted foot's target is out of its leg's reach (a style that bends the body,
+a heel rising far behind it), the pelvis drops (straight down, at most ``max_drop`` leg lengths, by
+the translation of the first joint above the legs that has one: the root, or the hips under a still
+reference node) until the leg reaches; it rises back at ``rise_speed`` leg lengths a second once the
+feet no longer need it, so the body never pops (on a stream's first frame it starts where the legs
+need it). Where the output's own legs hold its planted feet above their anchors (a style that bends
+the knees: an elderly stance, an active performer's bounce on the spot), the pelvis drops too, until
+the lower of them stands on its anchor; where they reach below them (a bouncing input taken to a
+calm style), it rises as far, within as much and as long as the legs reach (``keep_bend``). The legs
+keep the output's bend, where IK alone would bend or straighten them to the input's hip height and
+carry the input's style over. A planted foot the output holds higher than the most drop is one it
+swings (its own step), and IK alone brings it down.
 The floor: no output ankle, and no toe (the ankle's first child), goes lower than the input's own
 ankle and toe have been so far (their running minimum); an ankle that would is lifted by the same IK,
 and a toe that would is raised by pitching the foot up about the ankle (lifting the ankle for a toe
@@ -102,6 +104,7 @@ class FootLock:
         self.n, self.release_frames = n_streams, max(1, release_frames)
         self.previous = np.zeros((n_streams, 2, 3))  # input ankles of the last frame (once started)
         self.anchor = np.zeros((n_streams, 2, 3))  # where a planted foot is held (while planted)
+        self.placed = np.zeros((n_streams, 2, 3))  # output ankles as the last frame gave them (once started)
         self.previous_body = np.zeros((n_streams, 3))  # the input's point between the hips at the last frame
         self.since_release = np.full((n_streams, 2), self.release_frames)  # frames since a contact ended
         self.planted = np.zeros((n_streams, 2), dtype=bool)
@@ -158,6 +161,7 @@ class FootLock:
             self.previous,
             self.previous_body,
             self.anchor,
+            self.placed,
             self.since_release,
             self.planted,
             self.started,
@@ -198,6 +202,7 @@ def _foot_lock_kernel(
     previous,
     previous_body,
     anchor,
+    placed,
     since_release,
     planted,
     started,
@@ -246,8 +251,8 @@ def _foot_lock_kernel(
         fresh, started[r] = not started[r], True  # a first frame (or a cut's) has no drop to ease from
         forward_pose(out[i], positions[i], parents, g_rot, g_pos)
         for side in range(2):
-            if now[side] and not planted[r, side]:  # a contact begins: held here, at the input's height
-                anchor[r, side] = g_pos[legs[side, 2]]
+            if now[side] and not planted[r, side]:  # a contact begins: held where it was, at the input's height
+                anchor[r, side] = g_pos[legs[side, 2]] if fresh else placed[r, side]
                 anchor[r, side, 1] = previous[r, side, 1]
             elif now[side]:  # planted: carried as the input's foot moves along its floor
                 anchor[r, side] += moved[side]
@@ -255,6 +260,8 @@ def _foot_lock_kernel(
             planted[r, side], since_release[r, side] = now[side], since
             weight[side] = 1.0 if now[side] else 1.0 - since / release
         if not enabled:
+            for side in range(2):
+                placed[r, side] = g_pos[legs[side, 2]]
             continue
         need = 0.0  # the pelvis drop that lets each planted leg reach its target, nearly straight
         if keep_bend:  # and that puts the lower planted foot of the output's own legs on its anchor, their bend kept
@@ -305,6 +312,8 @@ def _foot_lock_kernel(
                 lifted = True
         if lifted:
             forward_pose(out[i], positions[i], parents, g_rot, g_pos)
+        for side in range(2):  # the ankles as this frame gives them (pitching a toe up below keeps them)
+            placed[r, side] = g_pos[legs[side, 2]]
         for side in range(2):  # a toe still below its floor: the foot pitched up about the ankle, to the floor
             ankle, toe = legs[side, 2], toes[side]
             if toe >= 0 and floor[r, side, 1] - g_pos[toe, 1] > 1e-9:
