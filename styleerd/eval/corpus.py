@@ -30,6 +30,7 @@ from styleerd.runtime.offline import TransferOptions, transfer_motion
 
 CORPORA = ("cmu-sample", "bandai-namco-1", "xia-sample")
 XIA_STYLES = {"neutral": "normal", "old": "elderly"}  # xia-sample's styles the model has
+KEPT, SLID = 0.8, 1.0  # a take counted as losing its action under this correlation, as sliding over this (cm/s)
 
 
 def every_take(model: GeneratorWeights, data_dir: str | None = None, corpora=CORPORA) -> list[ActionClip]:
@@ -102,12 +103,17 @@ def _slide_over_input(figures: dict) -> float | None:
 
 
 def _worst_figures(figures: Callable[[dict], dict], rows: dict[str, dict]) -> dict:
-    """The worst take of each figure of ``figures(row)`` (a transfer's ``take_figures``) over ``rows``."""
+    """The worst take of each figure of ``figures(row)`` (a transfer's ``take_figures``) over ``rows``, and
+    how many takes lose the action (a correlation under ``KEPT``) or slide (planted feet over ``SLID``
+    cm/s faster than the input's)."""
+    slides = [_slide_over_input(figures(r)) for r in rows.values()]
     return {
         "correlation": _worst(rows, lambda r: figures(r)["correlation"], False),
         "error_cm": _worst(rows, lambda r: figures(r)["error_cm"], True),
         "below_floor_cm": _worst(rows, lambda r: figures(r)["below_floor_cm"], True),
         "slide_over_input_cm_s": _worst(rows, lambda r: _slide_over_input(figures(r)), True),
+        "correlation_under_kept": sum(figures(r)["correlation"] < KEPT for r in rows.values()),
+        "sliding": sum(v is not None and v > SLID for v in slides),
     }
 
 
@@ -133,7 +139,8 @@ def markdown(report: dict) -> str:
             "Every take, whole, as `styleerd transfer` runs it: per corpus the worst take of each figure (the take in "
             "brackets). Correlation: of the hands' and feet's root-relative velocities, input against output; error: "
             "root-relative joint error, cm of a 170 cm body; below floor: the output's feet under the input's lowest, "
-            "cm; slide: planted feet's median speed over the input's own, cm/s."
+            "cm; slide: planted feet's median speed over the input's own, cm/s. Counted: takes whose correlation is "
+            f"under {KEPT}, and whose planted feet slide more than {SLID} cm/s faster than the input's."
         ),
     ]
     cell = lambda w, f: "-" if w is None else f"{w['value']:{f}} ({w['take']})"
@@ -142,13 +149,17 @@ def markdown(report: dict) -> str:
             "",
             f"### {corpus}: {s['takes']} takes, {s['with_a_known_style']} in a style of the model's",
             "",
-            "| target | worst correlation | worst error (cm) | worst below floor (cm) | worst slide (cm/s) |",
-            "|---|---|---|---|---|",
+            (
+                f"| target | worst correlation | under {KEPT} | worst error (cm) | worst below floor (cm) | "
+                f"worst slide (cm/s) | sliding over {SLID} cm/s |"
+            ),
+            "|---|---|---:|---|---|---|---:|",
         ]
         rows = ([("identity", s["identity"])] if s["identity"] else []) + list(s["styles"].items())
         for name, w in rows:
             lines.append(
-                f"| {name} | {cell(w['correlation'], '.3f')} | {cell(w['error_cm'], '.1f')} | "
-                f"{cell(w['below_floor_cm'], '.2f')} | {cell(w['slide_over_input_cm_s'], '.1f')} |"
+                f"| {name} | {cell(w['correlation'], '.3f')} | {w['correlation_under_kept']} | "
+                f"{cell(w['error_cm'], '.1f')} | {cell(w['below_floor_cm'], '.2f')} | "
+                f"{cell(w['slide_over_input_cm_s'], '.1f')} | {w['sliding']} |"
             )
     return "\n".join(lines) + "\n"
