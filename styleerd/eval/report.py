@@ -278,7 +278,13 @@ def actions_section(docs: Path) -> str:
     actions, quality, streamed = docs / "actions.md", docs / "pose-quality.json", docs / "pose-streamed.json"
     if not actions.is_file():
         return ""
-    text = """## Any action, any performer: the input's pose plus the style's posture (`styleerd eval actions`)
+    report = json.loads(actions.with_suffix(".json").read_text())
+    clips = report["poses"]["input"]["clips"]
+    swims = [r["cosine_body"] for c in clips.values() if c["action"] == "swim" for r in c["styles"].values()]
+    xia = clips["xia depressed_18_000"]["styles"]["elderly"]
+    posture = [r["model"][0] for a, row in report["performers"]["actions"].items() if a != "walk" for r in row.values()]
+    span = lambda v: f"{min(v):.2f} to {max(v):.2f}"
+    text = f"""## Any action, any performer: the input's pose plus the style's posture (`styleerd eval actions`)
 
 Held-out clips of other performers, skeletons and actions, none of them in any training run (CMU
 subjects 2 and 126 from cmu-sample on their Character Creator and ASF rigs, Bandai-Namco-1's
@@ -295,7 +301,7 @@ where the style moves them relative to the root along the body's own axes (up fr
 head), so a swimmer's back bends as a walker's does; in the heading frame (up the world's) that
 change points elsewhere on a body lying down, so the swims' cosines are the lowest of the main
 table. For the clips under 0.7, a second table gives the same cosine in the body's own frame, and
-the held-out actions' mean and worst: there the swims point as the walks (0.81 to 0.98). With the
+the held-out actions' mean and worst: there the swims point as the walks ({span(swims)}). With the
 posture laid in the heading frame, as it was until then, the swims read 0.23 to 0.86 in the heading
 frame and -0.27 to 0.71 in the body's own; the three ways side by side are in
 [Model](model.md#the-postures-offsets-along-the-bodys-own-axes) (`python
@@ -305,11 +311,12 @@ joint is the same point of the body on every rig. On xia-sample's and CMU subjec
 ASF layout) the joints mapped to the model's Neck and both Shoulders start where the chest's joint
 is (`OFFSET 0 0 0`): read there, a chest bent forward moved neither, and the chest counted three
 more times against the walks' neck and shoulders. Read at the input's own joints, xia's punch into
-elderly pointed as the walks at 0.64 (0.81 now), and its size was 0.74 of theirs (1.04 now).
+elderly pointed as the walks at 0.64 ({xia["cosine"]:.2f} now), and its size was 0.74 of theirs
+({xia["size_ratio"]:.2f} now).
 Whether a style's change should point as on walks at all is measured on a real performer: on
 Bandai-Namco-1's kept-back takes, the performer's own change on walk-back, dash, byebye and guide
 points as their change on the walk at -0.21 to 0.71, and two takes of one walk agree at 0.18 to 0.96,
-where the posture's points as the walks' at 0.77 to 0.98 ("The style's change as a performer makes
+where the posture's points as the walks' at {span(posture)} ("The style's change as a performer makes
 it" below; [Model](model.md#active-on-a-punch-and-what-a-real-performers-change-looks-like), with
 why active misses on the punches).
 
