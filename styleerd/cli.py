@@ -497,9 +497,10 @@ def _eval_corpus(args: argparse.Namespace) -> None:
 
     out = check_output(args.out)
     report = evaluate_corpus(load_generator_weights(args.model), args.data, progress=print)
+    text = markdown(report)
     atomic_write_text(out.with_suffix(".json"), json.dumps(report, indent=1) + "\n")
-    atomic_write_text(out.with_suffix(".md"), markdown(report))
-    print(markdown(report))
+    atomic_write_text(out.with_suffix(".md"), text)
+    print(text)
 
 
 def _eval_clip_styles(args: argparse.Namespace) -> None:
