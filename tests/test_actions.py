@@ -52,6 +52,12 @@ def test_the_measures_on_hand_made_cases(demo_walk):
     assert A.feet_figures(placed, placed, jm, scale)["slide_cm_s"] == {"input": 0.0, "output": 0.0}
     pace = np.linalg.norm(np.diff(m.positions[:, 0, [0, 2]], axis=0), axis=-1).mean() * m.fps * scale
     assert A.feet_figures(placed, m, jm, scale)["slide_cm_s"]["output"] == pytest.approx(pace, rel=0.2)
+    # the same walk in place lying face down (a swim's kick): its feet bear no weight, so none is planted,
+    # whatever the output's feet do
+    lying = placed.rotations.copy()
+    lying[:, 0] = quat.mul(quat.from_angle_axis(np.array(np.pi / 2), np.array([1.0, 0.0, 0.0])), lying[:, 0])
+    lying = Motion(m.skeleton, lying, placed.positions, m.fps)
+    assert A.feet_figures(lying, lying, jm, scale)["slide_cm_s"] == {"input": None, "output": None}
     # the style change is read in the body's own frame: the same bent elbow on a body turned by 1.2
     # rad about the vertical gives the same change
     bend = quat.from_angle_axis(np.array([0.5]), np.array([0.0, 0.6, 0.8]))  # not about the forearm itself

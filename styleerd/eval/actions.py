@@ -567,38 +567,47 @@ def walk_clips(data_dir: str | None = None) -> list[ActionClip]:
     return out
 
 
-def _feet(m: Motion, jm: JointMap) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def _feet(m: Motion, jm: JointMap) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Global positions of the feet's joints ``[T, 2, k, 3]`` (side; ankle, and toe where mapped), of
-    the ankles ``[T, 2, 3]``, and of the body (between the hips) ``[T, 3]``."""
+    the ankles ``[T, 2, 3]``, of the body (between the hips) ``[T, 3]``, and the body's up (hips to
+    head, unit; the world's up where no head is mapped) ``[T, 3]``."""
     g = forward_positions(m.rotations, m.positions, m.skeleton.parents)
     source = {jm.target.names[t]: s for t, s in jm.pairs}
     joints = [[source[f"{p}_{s}"] for p in ("Foot", "Toes") if f"{p}_{s}" in source] for s in "LR"]
     k = min(len(side) for side in joints)
-    hips = [source[f"UpperLeg_{s}"] for s in "LR"]
-    return g[:, [side[:k] for side in joints]], g[:, [side[0] for side in joints]], g[:, hips].mean(1)
+    body = g[:, [source[f"UpperLeg_{s}"] for s in "LR"]].mean(1)
+    up = g[:, source["Head"]] - body if "Head" in source else np.broadcast_to([0.0, 1.0, 0.0], body.shape)
+    up = up / np.maximum(np.linalg.norm(up, axis=-1, keepdims=True), 1e-9)
+    return g[:, [side[:k] for side in joints]], g[:, [side[0] for side in joints]], body, up
 
 
 def feet_figures(given: Motion, output: Motion, jm: JointMap, scale: float) -> dict:
     """Below the floor (cm under the input's lowest foot point over the clip), planted feet's slide,
     and the stride (95th percentile of the ankles' horizontal gap), input and output.
 
-    A foot is planted where the input's ankle moves under 15 % of a leg length per second, or where
-    the input's body (between the hips) stands still (as slowly) and its foot is flat on its floor (every joint of it
-    within 5 % of a leg length of the lowest it goes): a walk in place, whose planted feet move back
-    under a still body as on a treadmill. The slide is the median horizontal speed (cm/s at the
-    clip's own rate) of a planted foot against its ground: the world where the input's foot is still,
-    the input's own foot where it moves along its floor (on a treadmill, or sliding in a dance)."""
-    fin, ain, body = _feet(given, jm)
-    fout, aout, _ = _feet(output, jm)
+    A foot is planted where it can bear the body's weight and the input's ankle moves under 15 % of a
+    leg length per second, or where the input's body (between the hips) stands still (as slowly) and
+    its foot is flat on its floor (every joint of it within 5 % of a leg length of the lowest it goes): a
+    walk in place, whose planted feet move back under a still body as on a treadmill. A foot bears
+    weight where its ankle is half a leg or more under the hips, or a fifth of one under an upright body
+    (hips to head within 60 degrees of the world's up: a squat), as the foot cleanup reads it; a
+    swimmer's slow feet are not planted. The slide is
+    the median horizontal speed (cm/s at the clip's own rate) of a planted foot against its ground: the
+    world where the input's foot is still, the input's own foot where it moves along its floor (on a
+    treadmill, or sliding in a dance)."""
+    fin, ain, body, up = _feet(given, jm)
+    fout, aout, _, _ = _feet(output, jm)
     floor = fin[..., 1].min()
     below = max(0.0, float(floor - fout[..., 1].min())) * scale
     leg = 0.45 * BODY_CM  # a leg is about 0.45 of the body
     velocity = lambda a: np.diff(a[..., [0, 2]], axis=0) * given.fps * scale
     v_in, v_out = velocity(ain), velocity(aout)
+    under = (body[:, None, 1] - ain[..., 1]) * scale  # how far each ankle is under the hips
+    bears = (under >= 0.5 * leg) | ((up[:, None, 1] >= 0.5) & (under >= 0.2 * leg))
     still = np.linalg.norm(v_in, axis=-1) < 0.15 * leg
     body_still = np.linalg.norm(velocity(body), axis=-1) < 0.15 * leg
     flat = (((fin[..., 1] - fin[..., 1].min(0)) * scale < 0.05 * leg).all(-1))[1:]
-    planted = still | (body_still[:, None] & flat)
+    planted = (still | (body_still[:, None] & flat)) & bears[1:]
     ground = np.where(still[..., None], 0.0, v_in)  # what a planted foot stands on moves so
     off = lambda v: np.linalg.norm(v - ground, axis=-1)[planted]
     slide = lambda v: round(float(np.median(off(v))), 2) if planted.any() else None
@@ -807,13 +816,13 @@ def action_filmstrips(
     names: tuple[str, ...] = ("dance-short_normal_001", "kick_normal_001"),
     styles: tuple[str, str] = ("elderly", "exhausted"),
 ) -> list[Path]:
-    """Per clip (Bandai-Namco-1's dance and kick), a filmstrip: the input, the identity transfer and
+    """Per clip (by default Bandai-Namco-1's dance and kick), a filmstrip: the input, the identity transfer and
     two styles with each pose path (``docs/actions-*.png``)."""
     from styleerd.eval.plots import filmstrip  # matplotlib: only for the pictures
 
     paths = []
     for clip in [c for c in held_out_clips(data_dir) if c.name in names]:
-        rows: list[tuple[str, Motion]] = [(f"input: Bandai-Namco-1 {clip.name} (held out)", clip.motion)]
+        rows: list[tuple[str, Motion]] = [(f"input: {clip.source} {clip.name} (held out)", clip.motion)]
         for pose in ("network", "input"):
             identity, styled = _transfers(clip, model, list(styles), pose)
             rows += [(f"pose {pose}: identity (-> {clip.input_style})", identity)] + [

@@ -48,18 +48,22 @@ def every_take(model: GeneratorWeights, data_dir: str | None = None, corpora=COR
     return out
 
 
-def take_figures(clip: ActionClip, output: Motion, model: GeneratorWeights) -> dict:
-    """A take's output against the take: error, correlation, feet below the floor, planted feet's slide."""
+def take_figures(clip: ActionClip, outputs: dict[str, Motion], model: GeneratorWeights) -> dict[str, dict]:
+    """A take's outputs (by target) against the take: error, correlation, feet below the floor,
+    planted feet's slide; the take's skeleton mapped once for all of them."""
     jm = _map(clip, model)
     scale = _body_scale(clip.motion.skeleton, jm)
-    error, correlation = action_kept(clip.motion, output, jm, scale)
-    feet = feet_figures(clip.motion, output, jm, scale)
-    return {
-        "error_cm": round(error, 2),
-        "correlation": round(correlation, 3),
-        "below_floor_cm": feet["below_floor_cm"],
-        "slide_cm_s": feet["slide_cm_s"],
-    }
+    figures = {}
+    for target, output in outputs.items():
+        error, correlation = action_kept(clip.motion, output, jm, scale)
+        feet = feet_figures(clip.motion, output, jm, scale)
+        figures[target] = {
+            "error_cm": round(error, 2),
+            "correlation": round(correlation, 3),
+            "below_floor_cm": feet["below_floor_cm"],
+            "slide_cm_s": feet["slide_cm_s"],
+        }
+    return figures
 
 
 def evaluate_corpus(
@@ -72,16 +76,16 @@ def evaluate_corpus(
     styles = list(model.config.styles)
     takes: dict[str, dict] = {}
     for clip in tqdm(every_take(model, data_dir, corpora), desc="takes", leave=False):
-
-        def into(target: str, given: str | None, clip: ActionClip = clip) -> dict:
-            out = transfer_motion(clip.motion, model, 30.0, TransferOptions({target: 1.0}, given), where=clip.name)
-            return take_figures(clip, out, model)
-
+        outputs = {
+            s: transfer_motion(clip.motion, model, 30.0, TransferOptions({s: 1.0}, clip.input_style), where=clip.name)
+            for s in styles
+        }
+        figures = take_figures(clip, outputs, model)
         row: dict = {"corpus": clip.source, "style": clip.input_style, "frames": clip.motion.n_frames}
         row["fps"] = round(clip.motion.fps, 3)
         if clip.input_style is not None:
-            row["identity"] = into(clip.input_style, clip.input_style)
-        row["styles"] = {s: into(s, clip.input_style) for s in styles}
+            row["identity"] = figures[clip.input_style]
+        row["styles"] = figures
         takes[f"{clip.source} {clip.name}"] = row
         if progress and len(takes) % 50 == 0:
             progress(f"{len(takes)} takes")
