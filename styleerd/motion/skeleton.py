@@ -124,12 +124,15 @@ class Skeleton:
 
 @dataclass(frozen=True)
 class BodyRoles:
-    """The joints that define facing (hips and shoulders, left and right) and the feet, and the leg length."""
+    """The joints that define facing (hips and shoulders, left and right) and the body's up (hips to
+    head), the feet, and the leg length."""
 
     left: tuple[int, ...]  # hip and shoulder: the across vector that defines facing
     right: tuple[int, ...]
     feet: tuple[int, ...]  # left foot, left toe, right foot, right toe
     leg_length: float  # hip to foot, rest pose
+    hips: int  # the pelvis joint
+    head: int  # -1 where no head joint is found
 
     @cached_property
     def joint_arrays(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -146,7 +149,7 @@ class BodyRoles:
         for side in ("left", "right"):
             if f"{side}_foot" in r:
                 r.setdefault(f"{side}_toe", r[f"{side}_foot"])
-        needed = ("left_hip", "right_hip", "left_shoulder", "right_shoulder", "left_foot", "right_foot")
+        needed = ("hips", "left_hip", "right_hip", "left_shoulder", "right_shoulder", "left_foot", "right_foot")
         missing = [role.replace("_", " ") for role in needed if role not in r]
         if missing:
             raise KeyError(f"no joint found for {', '.join(missing)}")
@@ -159,4 +162,6 @@ class BodyRoles:
             right=(r["right_hip"], r["right_shoulder"]),
             feet=(r["left_foot"], r["left_toe"], r["right_foot"], r["right_toe"]),
             leg_length=length,
+            hips=r["hips"],
+            head=r.get("head", -1),
         )

@@ -33,7 +33,6 @@ from styleerd.errors import StyleERDError
 from styleerd.model.config import RELEASE, RISE
 from styleerd.model.stored import GeneratorWeights, generator_weights
 from styleerd.motion import quat
-from styleerd.motion.humanoid import body_parts
 from styleerd.motion.skeleton import BodyRoles
 from styleerd.runtime.numpy_step import step_weights
 
@@ -484,7 +483,7 @@ def sidecar(
     """What a host needs around the graph: label orders, the state's rows, the body roles the
     features use, the skeleton and the feature normalisation (docs/ONNX.md)."""
     model = generator_weights(model)
-    c, roles, meta, parts = model.config, BodyRoles.of(model.skeleton), model.meta, body_parts(model.skeleton)
+    c, roles, meta = model.config, BodyRoles.of(model.skeleton), model.meta
     layers = state_layers(model, styles)
     return {
         "graph": graph_name,
@@ -509,8 +508,8 @@ def sidecar(
             "left": list(roles.left),
             "right": list(roles.right),
             "feet": list(roles.feet),
-            "hips": parts["hips"],
-            "head": parts["head"],
+            "hips": roles.hips,
+            "head": roles.head,
             "leg_length": roles.leg_length,
         },
         "contact_speed_leg_lengths": CONTACT_SPEED,

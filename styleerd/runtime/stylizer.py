@@ -49,7 +49,6 @@ from styleerd.model.stored import (
     toward_neutral,
 )
 from styleerd.motion import quat
-from styleerd.motion.humanoid import body_parts
 from styleerd.motion.retarget import BODY_PARTS, part_joints
 from styleerd.motion.skeleton import BodyRoles
 from styleerd.runtime.backends import make_backend
@@ -280,9 +279,8 @@ class StreamStylizer:
             threading.Lock()
         )  # steps from several threads take turns: the barrier needs all of one step's shards running
         self.skeleton = model.skeleton
-        self.roles = BodyRoles.of(self.skeleton)
-        parts = body_parts(self.skeleton)  # hips, head, left hip and shoulder, right ones: a posture's body axes
-        self.frame_joints = np.array([parts["hips"], parts["head"], *self.roles.left, *self.roles.right], np.int64)
+        self.roles = r = BodyRoles.of(self.skeleton)
+        self.frame_joints = np.array([r.hips, r.head, *r.left, *r.right], np.int64)  # a posture's body axes
         self.stats = model.stats()
         self.fps = fps
         # an inferred style's running mean: its weight for each new reading, and the frames read as they come first

@@ -15,7 +15,6 @@ from styleerd.model.classifiers import WindowClassifier
 from styleerd.model.config import RELEASE, RISE
 from styleerd.model.fmd import MotionAutoencoder, fmd_features
 from styleerd.model.generator import StyleERD
-from styleerd.motion.humanoid import body_parts
 from styleerd.motion.skeleton import BodyRoles
 from styleerd.train.batches import TrainingData, WindowSet, window_rotations
 
@@ -125,8 +124,8 @@ def towards_the_input(
             positions = (x[..., L.positions] * model.std[L.positions] + model.mean[L.positions]).unflatten(-1, (J, 3))
             moved = torch.einsum("bs,sjc->bjc", target - own, model.posture_offsets)
             if model.posture_frame == "body":  # the offsets along the body's own axes, in the heading frame
-                parts, roles = body_parts(model.skeleton), BodyRoles.of(model.skeleton)
-                axes = torch_quat.body_axes(positions, parts["hips"], parts["head"], roles.left, roles.right)
+                roles = BodyRoles.of(model.skeleton)
+                axes = torch_quat.body_axes(positions, roles.hips, roles.head, roles.left, roles.right)
                 moved = torch.einsum("bjc,btck->btjk", moved, axes.to(moved.dtype))
             else:
                 moved = moved[:, None]
