@@ -249,6 +249,9 @@ def _soup(args: argparse.Namespace) -> None:
     out = out.with_suffix("") if out.suffix in (".safetensors", ".json") else out
     meta = save_soup(args.models, out, args.weights)
     print(f"{meta['training']['kept']}; wrote {out}.safetensors")
+    posture = "its posture is the first model's" if "posture" in meta else "it has no posture"
+    print(f"{posture} and the default familiar range: measure the soup's own with 'styleerd posture {out}' and then")
+    print(f"'styleerd familiar {out}'")
 
 
 def _measured_into_model(command, name: str, text: str, func) -> argparse.ArgumentParser:

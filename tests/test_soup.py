@@ -24,9 +24,11 @@ def two_stages(tmp_path):
     return tmp_path / "a", tmp_path / "b", model, other, meta
 
 
-def test_soup_is_the_weighted_average_of_the_weights(two_stages, tmp_path):
+def test_soup_is_the_weighted_average_of_the_weights(two_stages, tmp_path, capsys):
     a, b, model, other, meta = two_stages
     assert cli.main(["soup", str(a), str(b), "--weights", "0.25", "0.75", "-o", str(tmp_path / "s")]) in (0, None)
+    said = capsys.readouterr().out
+    assert f"styleerd posture {tmp_path / 's'}" in said and f"styleerd familiar {tmp_path / 's'}" in said
     averaged, m = ckpt.load_generator(tmp_path / "s")
     sa, sb, ss = model.state_dict(), other.state_dict(), averaged.state_dict()
     for k in sa:
@@ -44,6 +46,9 @@ def test_soup_is_the_weighted_average_of_the_weights(two_stages, tmp_path):
     assert [s["weight"] for s in equal["training"]["soup"]] == [0.5, 0.5]
     # the shipped model's measured familiar range is its own, not the average's: the soup has the default
     assert "familiar" in meta and "familiar" not in m and averaged.familiar == (10.0, 16.0)
+    # its posture is the first model's, and says so
+    assert m["posture"]["offsets"] == meta["posture"]["offsets"]
+    assert m["posture"]["measured_on"].startswith(f"{a}'s (the soup's first model): {meta['posture']['measured_on']}")
 
 
 def test_soup_refuses_what_does_not_average_into_a_model(two_stages, tmp_path):

@@ -62,8 +62,14 @@ def soup(stems: list[str], weights: list[float] | None = None) -> tuple[dict[str
         "epochs_trained": meta["training"].get("epochs_trained"),
         "started_from": meta["training"]["started_from"],
     }
-    # a familiar range was measured on one model's identity pass, not the average's: ``styleerd familiar`` again
-    return tensors, {**{k: v for k, v in meta.items() if k != "familiar"}, "training": training}
+    # the posture and the familiar range were measured on one model, not on the average: the posture is kept
+    # as the first model's (nearer the soup's than none) and says so, the range is dropped for the default;
+    # ``styleerd posture`` and ``styleerd familiar`` measure the soup's own
+    kept = {k: v for k, v in meta.items() if k != "familiar"}
+    if "posture" in kept:
+        first_posture = f"{stems[0]}'s (the soup's first model): {kept['posture']['measured_on']}"
+        kept["posture"] = {**kept["posture"], "measured_on": first_posture}
+    return tensors, {**kept, "training": training}
 
 
 def save_soup(stems: list[str], out: Path, weights: list[float] | None = None) -> dict:
