@@ -174,6 +174,12 @@ BAD = {
     "nan value": (GOOD.replace("10 20 30", "10 nan 30"), 19, "'nan' of channel 7 is not finite"),
     "inf value": (GOOD.replace("11 21 31", "inf 21 31"), 20, "'inf' of channel 6 is not finite"),
     "frames count disagrees": (GOOD.replace("Frames: 2", "Frames: 1"), 20, "Frames says 1, found 2 frame lines"),
+    "huge offset": (  # finite, but a joint 1e300 units away overflowed the kinematics into a written file
+        GOOD.replace("OFFSET 0 -10 0\n\t\tCHANNELS", "OFFSET 0 -1e300 0\n\t\tCHANNELS"),
+        8,
+        "joint 'Leg' OFFSET: -1e300 is out of range",
+    ),
+    "huge end site": (GOOD.replace("\t\t\tOFFSET 0 -10 0", "\t\t\tOFFSET 0 -10 1e7"), 12, "1e7 is out of range"),
 }
 
 

@@ -58,6 +58,21 @@ def _chain(doc: gl.GLTF2, n: int) -> None:
     doc.skins[0].joints = list(doc.skins[0].joints) + list(range(first, first + n))
 
 
+def _translation_key(doc: gl.GLTF2, value: float) -> None:
+    """The first translation channel's first key value replaced by ``value`` (in the binary blob)."""
+    import numpy as np
+
+    anim = doc.animations[0]
+    sampler = next(anim.samplers[c.sampler] for c in anim.channels if c.target.path == "translation")
+    a = doc.accessors[sampler.output]
+    view = doc.bufferViews[a.bufferView]
+    blob = bytearray(doc.binary_blob())
+    at = (view.byteOffset or 0) + (a.byteOffset or 0)
+    blob[at : at + 4] = np.float32(value).tobytes()
+    a.max, a.min = None, None
+    doc.set_binary_blob(bytes(blob))
+
+
 def _key_time(doc: gl.GLTF2, value: float) -> None:
     """The time accessor's last key replaced by ``value`` (in the binary blob)."""
     import numpy as np
@@ -121,6 +136,12 @@ CASES = {
     "a child index out of range": (lambda d: d.nodes[0].children.append(10**6), "child"),
     "a skin joint out of range": (lambda d: d.skins[0].joints.append(10**6), "skin joint"),
     "NaN node translation": (lambda d: setattr(d.nodes[1], "translation", [float("nan"), 0.0, 0.0]), "NaN or infinite"),
+    "a node 1e30 away": (lambda d: setattr(d.nodes[1], "translation", [1e30, 0.0, 0.0]), "translation is out of range"),
+    "a matrix 1e30 away": (
+        lambda d: setattr(d.nodes[1], "matrix", [1.0, 0, 0, 0, 0, 1.0, 0, 0, 0, 0, 1.0, 0, 1e30, 0, 0, 1.0]),
+        "translation is out of range",
+    ),
+    "a translation key 1e30 away": (lambda d: _translation_key(d, 1e30), "translation is out of range"),
     "a rotation of 3 numbers": (lambda d: setattr(d.nodes[1], "rotation", [0.0, 0.0, 1.0]), "right length"),
     "a zero rotation": (lambda d: setattr(d.nodes[1], "rotation", [0.0, 0.0, 0.0, 0.0]), "rotation is zero"),
     "a zero-scale matrix": (lambda d: setattr(d.nodes[1], "matrix", [0.0] * 16), "zero scale"),

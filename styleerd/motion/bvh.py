@@ -78,6 +78,8 @@ class _Tokens:
             raise BVHError(self.path, line, f"{what}: {tok!r} is not a number") from None
         if not np.isfinite(value):
             raise BVHError(self.path, line, f"{what}: {tok!r} is not finite")
+        if abs(value) >= MAX_CHANNEL:  # an offset as far as no channel may move a joint is garbage too
+            raise BVHError(self.path, line, f"{what}: {tok} is out of range (|value| < {MAX_CHANNEL:g})")
         return value
 
     def rest_of_line(self, line: int) -> list[str]:
