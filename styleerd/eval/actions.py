@@ -591,10 +591,9 @@ def feet_figures(given: Motion, output: Motion, jm: JointMap, scale: float) -> d
     walk in place, whose planted feet move back under a still body as on a treadmill. A foot bears
     weight where its ankle is half a leg or more under the hips, or a fifth of one under an upright body
     (hips to head within 60 degrees of the world's up: a squat), as the foot cleanup reads it; a
-    swimmer's slow feet are not planted. The slide is
-    the median horizontal speed (cm/s at the clip's own rate) of a planted foot against its ground: the
-    world where the input's foot is still, the input's own foot where it moves along its floor (on a
-    treadmill, or sliding in a dance)."""
+    swimmer's slow feet are not planted. The slide is the median horizontal speed (cm/s at the clip's
+    own rate) of a planted foot against its ground: the world where the input's foot is still, the
+    input's own foot where it moves along its floor (on a treadmill, or sliding in a dance)."""
     fin, ain, body, up = _feet(given, jm)
     fout, aout, _, _ = _feet(output, jm)
     floor = fin[..., 1].min()
@@ -816,8 +815,8 @@ def action_filmstrips(
     names: tuple[str, ...] = ("dance-short_normal_001", "kick_normal_001"),
     styles: tuple[str, str] = ("elderly", "exhausted"),
 ) -> list[Path]:
-    """Per clip (by default Bandai-Namco-1's dance and kick), a filmstrip: the input, the identity transfer and
-    two styles with each pose path (``docs/actions-*.png``)."""
+    """Per clip (by default Bandai-Namco-1's dance and kick), a filmstrip: the input, the identity
+    transfer and two styles with each pose path (``docs/actions-*.png``)."""
     from styleerd.eval.plots import filmstrip  # matplotlib: only for the pictures
 
     paths = []

@@ -233,9 +233,7 @@ for _side in ("left", "right"):
     )
 MAX_SECONDS = 3600.0  # of an animation: an hour (a key time of 1e7 s would ask for 197 GiB)
 MAX_DEPTH = 256  # of a node tree, as the BVH reader's
-MAX_TRANSLATION = (
-    1e7  # |coordinate| of a node or key (10,000 km in metres): garbage, not a body, as the BVH reader's bound
-)
+MAX_TRANSLATION = 1e7  # |coordinate| of a node or key: 10,000 km is garbage, not a body (the BVH reader's bound)
 MAX_VALUES = (
     20_000_000  # joint frames of one animation (an hour of 150 joints at 30 fps; 0.6 GB as float64 quaternions)
 )
