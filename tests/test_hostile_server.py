@@ -200,6 +200,21 @@ ATTACKS = {
         1008,
         "no length",
     ),
+    "hello skeleton 1e30 away": (
+        [
+            _hello(
+                skeleton=bvh.format_header(
+                    type(V.skeleton)(
+                        V.skeleton.names, V.skeleton.parents, V.skeleton.offsets * 1e30, V.skeleton.channels, ()
+                    ),
+                    0,
+                    30.0,
+                )
+            )
+        ],
+        1008,
+        "is out of range",
+    ),
     "hello over 1 MB": ([_hello(name="x" * (1 << 20))], 1009, None),
     "frame of the wrong length": (_frames(VALUES, [frame(3, VALUES[0][:-1])]), 1008, "a binary frame is"),
     "frame with NaN": (_frames(VALUES, [frame(3, np.full_like(VALUES[0], np.nan))]), 1007, "is not a finite number"),
