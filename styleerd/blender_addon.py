@@ -18,7 +18,7 @@ from styleerd.model.stored import load_generator_weights
 from styleerd.models import LICENCE
 from styleerd.runtime.fbx import read_armature, write_action
 from styleerd.runtime.offline import TransferOptions, transfer_motion
-from styleerd.runtime.stylizer import target_weights
+from styleerd.runtime.stylizer import parse_mix, target_weights
 
 bl_info = {
     "name": "styleerd: motion style transfer",
@@ -48,15 +48,6 @@ def _items(names: tuple[str, ...], infer: bool = False) -> list[tuple[str, str, 
 _STYLES = _items(_model().config.styles)
 _INPUT_STYLES = _items(_model().config.input_styles, infer=True)
 _CONTENTS = _items(_model().config.contents, infer=True)
-
-
-def _parse_mix(text: str) -> dict[str, float] | None:
-    if not text.strip():
-        return None
-    try:
-        return {k.strip(): float(v) for k, v in (part.split("=") for part in text.split(","))}
-    except ValueError:
-        raise StyleERDError(f"mix {text!r}: expected style=weight,style=weight") from None
 
 
 class StyleERDSettings(bpy.types.PropertyGroup):
@@ -96,7 +87,7 @@ class STYLEERD_OT_stylise_action(bpy.types.Operator):
         source = arm.animation_data.action
         model = _model()
         try:
-            target = target_weights(model, s.style, s.intensity, _parse_mix(s.mix))
+            target = target_weights(model, s.style, s.intensity, parse_mix(s.mix))
             first, last = (int(round(x)) for x in source.frame_range)
             frames = range(first, last + 1)
             motion = read_armature(arm, frames, scene.render.fps / scene.render.fps_base)

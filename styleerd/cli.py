@@ -121,18 +121,11 @@ def _train_helper(args: argparse.Namespace) -> None:
     print(json.dumps(report, indent=1))
 
 
-def _parse_mix(text: str) -> dict[str, float]:
-    try:
-        return {k.strip(): float(v) for k, v in (part.split("=") for part in text.split(","))}
-    except ValueError:
-        raise StyleERDError(f"--mix {text!r}: expected STYLE=WEIGHT,STYLE=WEIGHT") from None
-
-
 def _transfer(args: argparse.Namespace) -> None:
     from styleerd.model.stored import load_generator_weights
     from styleerd.runtime.batch import batch_pairs, transfer_batch, transfer_one
     from styleerd.runtime.offline import TransferOptions
-    from styleerd.runtime.stylizer import part_targets, target_weights
+    from styleerd.runtime.stylizer import parse_mix, part_targets, target_weights
 
     model = load_generator_weights(args.model)
     if args.write_joint_map:
@@ -152,7 +145,7 @@ def _transfer(args: argparse.Namespace) -> None:
     ):
         if value is not None and value not in names:
             raise StyleERDError(f"{what} {value!r} is not one of: {', '.join(names)}")
-    target = target_weights(model, args.style, args.intensity, _parse_mix(args.mix) if args.mix else None)
+    target = target_weights(model, args.style, args.intensity, parse_mix(args.mix or ""))
     explicit = _read_joint_map(args.joint_map) if args.joint_map else None
     parts = part_targets(model, args.parts)  # checked once here, not once per file
     options = TransferOptions(
@@ -624,9 +617,10 @@ def _serve(args: argparse.Namespace) -> None:
 
 
 def _stream_bvh(args: argparse.Namespace) -> None:
+    from styleerd.runtime.stylizer import parse_mix
     from styleerd.serve.client import stream_bvh
 
-    mix = _parse_mix(args.mix) if args.mix else None
+    mix = parse_mix(args.mix or "")
     if args.style is None and mix is None:
         raise StyleERDError("give --style or --mix")
     if args.output:
@@ -667,6 +661,7 @@ def _load_test(args: argparse.Namespace) -> None:
 
 
 def _vmc(args: argparse.Namespace) -> None:
+    from styleerd.runtime.stylizer import parse_mix
     from styleerd.serve.vmc import run_bridge
 
     run_bridge(
@@ -674,7 +669,7 @@ def _vmc(args: argparse.Namespace) -> None:
         args.send,
         args.style,
         args.intensity,
-        _parse_mix(args.mix) if args.mix else None,
+        parse_mix(args.mix or ""),
         args.host,
         args.fps,
         args.parts,

@@ -22,7 +22,7 @@ from styleerd.model.checkpoint import load_generator
 from styleerd.models import MODELS_DIR
 from styleerd.motion import bvh
 from styleerd.motion.procedural import walk
-from styleerd.runtime.stylizer import target_weights
+from styleerd.runtime.stylizer import parse_mix, target_weights
 
 CLI = [sys.executable, "-m", "styleerd.cli"]
 
@@ -237,7 +237,7 @@ CASES = {
     "--mix weight nan": (_transfer(_walk, "--mix", "elderly=nan"), "mixture weights must be finite"),
     "--mix weight inf": (_transfer(_walk, "--mix", "elderly=inf,feminine=1"), "mixture weights must be finite"),
     "--mix negative": (_transfer(_walk, "--mix", "elderly=-1,feminine=2"), "mixture weights must be finite"),
-    "--mix not a mixture": (_transfer(_walk, "--mix", "elderly"), "expected STYLE=WEIGHT"),
+    "--mix not a mixture": (_transfer(_walk, "--mix", "elderly"), "mix 'elderly': expected STYLE=WEIGHT"),
     "--mix unknown style": (_transfer(_walk, "--mix", "zombie=1"), "unknown style 'zombie'"),
     "--intensity nan": (_transfer(_walk, "--intensity", "nan"), "intensity nan is outside"),
     "--intensity 3": (_transfer(_walk, "--intensity", "3"), "intensity 3 is outside"),
@@ -390,6 +390,16 @@ def test_huge_mixture_weights_keep_their_proportions():
     for bad in ({"elderly": float("nan")}, {"elderly": 0.0}, {"elderly": True}):
         with pytest.raises(StyleERDError, match="mixture weights"):
             target_weights(model, mix=bad)
+
+
+def test_a_written_mixture_is_read_or_refused_naming_it():
+    """``parse_mix``: what ``--mix``, stream-bvh, the VMC bridge and the Blender add-on's field read."""
+    assert parse_mix(" elderly=0.5, feminine=1.5 ") == {"elderly": 0.5, "feminine": 1.5}
+    assert parse_mix("  ") is None
+    for bad in ("elderly", "elderly=", "elderly=0.5=1", "elderly=half", ",", "=1"):
+        with pytest.raises(StyleERDError, match="expected STYLE=WEIGHT") as err:
+            parse_mix(bad)
+        assert repr(bad) in str(err.value)
 
 
 def test_a_motion_of_all_zero_channels_on_the_models_skeleton_is_stylised(tmp_path):

@@ -84,6 +84,20 @@ def label_vector(names: tuple[str, ...], weights: dict[str, float], what: str) -
     return v
 
 
+def parse_mix(text: str) -> dict[str, float] | None:
+    """A mixture written ``"elderly=0.5,feminine=0.5"`` (``--mix``, the Blender add-on's field) as
+    style -> weight; None for an empty text. The weights are checked by ``target_weights``."""
+    if not text.strip():
+        return None
+    try:
+        mix = {k.strip(): float(v) for k, v in (part.split("=") for part in text.split(","))}
+    except ValueError:
+        mix = {"": 0.0}  # refused below with the same words
+    if "" in mix:
+        raise StyleERDError(f"mix {text!r}: expected STYLE=WEIGHT,STYLE=WEIGHT, e.g. elderly=0.5,feminine=0.5")
+    return mix
+
+
 def target_weights(
     model: GeneratorWeights,
     style: str | None = None,
