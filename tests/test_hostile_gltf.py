@@ -136,10 +136,14 @@ CASES = {
     "a child index out of range": (lambda d: d.nodes[0].children.append(10**6), "child"),
     "a skin joint out of range": (lambda d: d.skins[0].joints.append(10**6), "skin joint"),
     "NaN node translation": (lambda d: setattr(d.nodes[1], "translation", [float("nan"), 0.0, 0.0]), "NaN or infinite"),
-    "a node 1e30 away": (lambda d: setattr(d.nodes[1], "translation", [1e30, 0.0, 0.0]), "translation is out of range"),
+    "a node 1e30 away": (lambda d: setattr(d.nodes[1], "translation", [1e30, 0.0, 0.0]), "transform is out of range"),
     "a matrix 1e30 away": (
         lambda d: setattr(d.nodes[1], "matrix", [1.0, 0, 0, 0, 0, 1.0, 0, 0, 0, 0, 1.0, 0, 1e30, 0, 0, 1.0]),
-        "translation is out of range",
+        "transform is out of range",
+    ),
+    "a rotation of 1e154": (  # its norm overflowed (a RuntimeWarning printed) before the file was refused
+        lambda d: setattr(d.nodes[1], "rotation", [0.0, 0.0, 0.0, 1.3407807929942597e154]),
+        "transform is out of range",
     ),
     "a translation key 1e30 away": (lambda d: _translation_key(d, 1e30), "translation is out of range"),
     "a rotation of 3 numbers": (lambda d: setattr(d.nodes[1], "rotation", [0.0, 0.0, 1.0]), "right length"),

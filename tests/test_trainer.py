@@ -454,7 +454,10 @@ def test_bench_train_step_times_the_trainers_own_step_of_two_recipes(shared_data
             "critic step (+ R1 on its steps)",
         } <= parts.keys()
         assert all(v > 0 for v in parts.values()) and abs(sum(parts.values()) - r[name]["step_ms"]) < 0.1
-    assert abs(r["speedup"] - r["before"]["epoch_s"] / r["after"]["epoch_s"]) < 0.002
+    # the ratio of the epoch times as printed (each rounded to 0.0005 s), within what that rounding and
+    # the speedup's own (0.0005) allow: a fixed 0.002 failed on 0.509 / 0.508 against 1.004
+    b, a = r["before"]["epoch_s"], r["after"]["epoch_s"]
+    assert abs(r["speedup"] - b / a) <= 0.0005 / a + 0.0005 * b / a**2 + 0.0005 + 1e-9
     assert "after / before epoch time" in bench.stdout
 
 

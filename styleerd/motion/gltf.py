@@ -233,7 +233,7 @@ for _side in ("left", "right"):
     )
 MAX_SECONDS = 3600.0  # of an animation: an hour (a key time of 1e7 s would ask for 197 GiB)
 MAX_DEPTH = 256  # of a node tree, as the BVH reader's
-MAX_TRANSLATION = 1e7  # |coordinate| of a node or key: 10,000 km is garbage, not a body (the BVH reader's bound)
+MAX_TRANSFORM = 1e7  # |value| of a node's transform or a key: 10,000 km, or a quaternion of that size, is garbage
 MAX_VALUES = (
     20_000_000  # joint frames of one animation (an hour of 150 joints at 30 fps; 0.6 GB as float64 quaternions)
 )
@@ -358,8 +358,8 @@ def _node_trs(node: gl.Node, n: int = 0) -> tuple[np.ndarray, np.ndarray, np.nda
         ) from None
     if not all(np.isfinite(v).all() for v in values):
         raise ValueError(f"node {n} ({node.name!r}): its transform has a NaN or infinite value"[:200])
-    if np.abs(values[0][:3, 3] if node.matrix is not None else values[1]).max() >= MAX_TRANSLATION:
-        raise ValueError(f"node {n} ({node.name!r}): its translation is out of range (|value| < {MAX_TRANSLATION:g})")
+    if max(float(np.abs(v).max()) for v in values) >= MAX_TRANSFORM:  # the norms below would overflow
+        raise ValueError(f"node {n} ({node.name!r}): its transform is out of range (|value| < {MAX_TRANSFORM:g})")
     if node.matrix is not None:
         scale = np.linalg.norm(m[:3, :3], axis=0)
         if (scale < 1e-12).any():
@@ -528,10 +528,10 @@ def _read(doc: gl.GLTF2, blob: bytes, animation: int | None, fps: float | None) 
             times, values = _accessor(doc, blob, sampler.input)[:, 0], _accessor(doc, blob, sampler.output)
             if not (np.isfinite(times).all() and np.isfinite(values).all()):
                 raise ValueError(f"animation channel of node {ch.target.node}: a key time or value is NaN or infinite")
-            if ch.target.path == "translation" and len(values) and np.abs(values).max() >= MAX_TRANSLATION:
+            if len(values) and np.abs(values).max() >= MAX_TRANSFORM:
                 raise ValueError(
-                    f"animation channel of node {ch.target.node}: a translation is out of range "
-                    f"(|value| < {MAX_TRANSLATION:g})"
+                    f"animation channel of node {ch.target.node}: a {ch.target.path} is out of range "
+                    f"(|value| < {MAX_TRANSFORM:g})"
                 )
             if times[0] < 0 or times[-1] > MAX_SECONDS or (np.diff(times) < 0).any():
                 raise ValueError(
