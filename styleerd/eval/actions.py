@@ -60,6 +60,7 @@ from styleerd.motion.motion import Motion
 from styleerd.motion.procedural import walk
 from styleerd.motion.resample import resample
 from styleerd.motion.retarget import JointMap, to_target
+from styleerd.runtime.cleanup import LEG_DOWN, SQUAT_DOWN, UPRIGHT
 from styleerd.runtime.offline import TransferOptions, map_skeleton, transfer_motion
 
 BODY_CM = 170.0
@@ -602,7 +603,7 @@ def feet_figures(given: Motion, output: Motion, jm: JointMap, scale: float) -> d
     velocity = lambda a: np.diff(a[..., [0, 2]], axis=0) * given.fps * scale
     v_in, v_out = velocity(ain), velocity(aout)
     under = (body[:, None, 1] - ain[..., 1]) * scale  # how far each ankle is under the hips
-    bears = (under >= 0.5 * leg) | ((up[:, None, 1] >= 0.5) & (under >= 0.2 * leg))
+    bears = (under >= LEG_DOWN * leg) | ((up[:, None, 1] >= UPRIGHT) & (under >= SQUAT_DOWN * leg))
     still = np.linalg.norm(v_in, axis=-1) < 0.15 * leg
     body_still = np.linalg.norm(velocity(body), axis=-1) < 0.15 * leg
     flat = (((fin[..., 1] - fin[..., 1].min(0)) * scale < 0.05 * leg).all(-1))[1:]

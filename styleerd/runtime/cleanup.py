@@ -50,6 +50,10 @@ from styleerd.motion.motion import Motion
 from styleerd.motion.retarget import body_parts
 from styleerd.motion.skeleton import Skeleton
 
+# a foot that can bear weight: its ankle LEG_DOWN leg lengths under its hip, or SQUAT_DOWN under a body
+# whose up (hips to head) has a cosine of at least UPRIGHT with the world's (eval.actions measures so too)
+LEG_DOWN, SQUAT_DOWN, UPRIGHT = 0.5, 0.2, 0.5
+
 
 class FootLock:
     def __init__(
@@ -64,9 +68,9 @@ class FootLock:
         max_drop: float = 0.06,
         fall_speed: float = 0.5,
         rise_speed: float = 0.1,
-        leg_down: float = 0.5,
-        squat_down: float = 0.2,
-        upright: float = 0.5,
+        leg_down: float = LEG_DOWN,
+        squat_down: float = SQUAT_DOWN,
+        upright: float = UPRIGHT,
         keep_bend: bool = True,
         cut_speed: float = 25.0,
     ):
