@@ -243,8 +243,10 @@ def _soup(args: argparse.Namespace) -> None:
     meta = save_soup(args.models, out, args.weights)
     print(f"{meta['training']['kept']}; wrote {out}.safetensors")
     posture = "its posture is the first model's" if "posture" in meta else "it has no posture"
-    print(f"{posture} and the default familiar range: measure the soup's own with 'styleerd posture {out}' and then")
-    print(f"'styleerd familiar {out}'")
+    print(
+        f"{posture} and the default familiar range: measure the soup's own with 'styleerd posture {out}' and then "
+        f"'styleerd familiar {out}'"
+    )
 
 
 def _measured_into_model(command, name: str, text: str, func) -> argparse.ArgumentParser:

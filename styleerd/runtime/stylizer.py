@@ -92,8 +92,8 @@ def parse_mix(text: str) -> dict[str, float] | None:
     try:
         mix = {k.strip(): float(v) for k, v in (part.split("=") for part in text.split(","))}
     except ValueError:
-        mix = {"": 0.0}  # refused below with the same words
-    if "" in mix:
+        mix = None
+    if mix is None or "" in mix:
         raise StyleERDError(f"mix {text!r}: expected STYLE=WEIGHT,STYLE=WEIGHT, e.g. elderly=0.5,feminine=0.5")
     return mix
 
