@@ -28,8 +28,6 @@ def _data_prepare(args: argparse.Namespace) -> None:
 
 
 def _info(args: argparse.Namespace) -> None:
-    from styleerd.motion import bvh
-
     if args.recalibrate and not args.system:
         raise StyleERDError("info: --recalibrate goes with --system")
     if args.system:
@@ -47,19 +45,12 @@ def _info(args: argparse.Namespace) -> None:
         if not args.file:
             return
     if not args.file:
-        raise StyleERDError("info: name a BVH file, or --system")
-    header, frames = bvh.stream(args.file)
-    n_frames = sum(len(chunk) for chunk in frames)  # every frame checked, in bounded memory
-    sk, fps = header.skeleton, header.fps
-    print(
-        f"{args.file}: {n_frames} frames at {fps:.6g} fps ({n_frames / fps:.2f} s), {sk.n_joints} joints, "
-        f"{sum(len(c) for c in sk.channels)} channels"
-    )
-    for j, name in enumerate(sk.names):
-        depth, p = 0, sk.parents[j]
-        while p >= 0:
-            depth, p = depth + 1, sk.parents[p]
-        print(f"  {'  ' * depth}{name}  [{' '.join(sk.channels[j])}]")
+        raise StyleERDError("info: name a motion or character file, or --system")
+    from styleerd.model.stored import load_generator_weights
+    from styleerd.runtime.offline import describe_input
+
+    explicit = _read_joint_map(args.joint_map) if args.joint_map else None
+    print(describe_input(Path(args.file), load_generator_weights(args.model), explicit))
 
 
 def _resample(args: argparse.Namespace) -> None:
@@ -882,7 +873,11 @@ def _use_commands(command: Callable[[str, str], argparse.ArgumentParser]) -> Non
     p.add_argument("--model", help=MODEL_HELP)
     p.set_defaults(func=_styles)
 
-    p = command("info", "describe a BVH file, or (--system) this machine as the engine sees it")
+    p = command(
+        "info",
+        "describe a motion or character file (BVH, glTF/VRM/VRMA, FBX): animations, skeleton, its joint mapping "
+        "onto the model; or (--system) this machine as the engine sees it",
+    )
     p.add_argument("file", nargs="?")
     p.add_argument(
         "--system",
@@ -896,7 +891,8 @@ def _use_commands(command: Callable[[str, str], argparse.ArgumentParser]) -> Non
         help="with --system: measure the numba step's settings again (after a change of hardware, or a first use "
         "on a busy machine)",
     )
-    p.add_argument("--model", help=f"with --system: the model whose step is measured; {MODEL_HELP}")
+    p.add_argument("--model", help=f"the model mapped onto (with --system: whose step is measured); {MODEL_HELP}")
+    p.add_argument("--joint-map", help="JSON object {model joint: input joint} completing the automatic mapping")
     p.set_defaults(func=_info)
 
     p = command("resample", "change a BVH file's frame rate")

@@ -81,6 +81,10 @@ def test_fbx_to_bvh_and_glb_and_bvh_to_fbx(blender_venv, character):
     assert (character / "from-fbx.glb").read_bytes()[:4] == b"glTF"
     run_checked([cli, "transfer", "walk.bvh", "--style", "elderly", "-o", "from-bvh.fbx"], cwd=character)
     assert (character / "from-bvh.fbx").read_bytes()[:18] == b"Kaydara FBX Binary"
+    lines = run_checked([cli, "info", "walk.fbx"], cwd=character).stdout.splitlines()
+    assert lines[0] == f"walk.fbx: FBX, {len(ref.skeleton.names)} joints, 1 animation(s)"
+    assert lines[1].endswith(f": {ref.n_frames} frames at {ref.fps:.6g} fps ({ref.n_frames / ref.fps:.2f} s)")
+    assert "            Hips <- mixamorig:Hips" in lines
 
 
 def test_addon_writes_a_new_action_matching_the_bvh_run(blender_venv, character):

@@ -93,3 +93,33 @@ def test_the_api_picks_a_clip_and_keeps_the_originals(robot, tmp_path):
     styleerd.transfer(robot, "elderly", output=tmp_path / "both.glb", animation="Wave", keep_original=True)
     names = [a.name for a in gl.GLTF2().load_binary(str(tmp_path / "both.glb")).animations]
     assert names[-1] == "Wave-elderly" and len(names) == 15
+
+
+def test_info_lists_a_characters_animations_skeleton_and_mapping(shared_data):
+    """What ``transfer`` would read, before running it: every animation (frames, rate, length), the
+    skeleton, the joint mapping (a VRM humanoid's); a character with no animation says what it is for."""
+
+    def info(name: str) -> str:
+        r = subprocess.run(
+            [sys.executable, "-m", "styleerd.cli", "info", str(shared_data / "characters" / name)],
+            capture_output=True,
+            text=True,
+            check=False,
+            timeout=300,
+        )
+        assert r.returncode == 0 and not r.stderr.strip(), r.stderr
+        return r.stdout
+
+    out = info("RobotExpressive.glb")
+    first, *lines = out.splitlines()
+    assert first.endswith("RobotExpressive.glb: glTF, 43 joints, 14 animation(s)")
+    doc = gl.GLTF2.load(str(shared_data / "characters" / "RobotExpressive.glb"))
+    assert [line.split(":")[0].strip() for line in lines[:14]] == [repr(a.name) for a in doc.animations]
+    assert "  'Walking': 24 frames at 24 fps (1.00 s)" in lines
+    assert "joint mapping (model <- input):" in lines and "            Hips <- Body" in lines
+    out = info("test.vrma")
+    assert "VRM Animation, a VRM humanoid, 51 joints, 1 animation(s)" in out and "31 frames at 10 fps" in out
+    assert any(line.endswith("UpperLeg_L <- leftUpperLeg") for line in out.splitlines())
+    out = info("Godette.vrm")
+    assert "VRM, a VRM humanoid, 68 joints, 0 animation(s)" in out
+    assert "no animation: a character to put a motion on (transfer --onto)" in out

@@ -246,3 +246,34 @@ def test_an_unmappable_rig_shows_its_joint_tree_and_a_map_to_edit(tmp_path):
 
 def test_optional_parts_are_a_subset_the_mapping_knows():
     assert set(OPTIONAL).isdisjoint(REQUIRED)
+
+
+def test_info_shows_a_rigs_mapping_or_why_there_is_none(shared_data, tmp_path):
+    """``styleerd info`` on a BVH: frames, rate and channels, the joint tree, and the mapping onto
+    the model (bone frames from the first frame where the rest pose is no T-pose), or the reason
+    there is none and what to do; a joint map passed is used."""
+    info = [sys.executable, "-m", "styleerd.cli", "info"]
+    cmu = shared_data / "cmu-sample.tar.xz"
+    from styleerd.data.datasets import unpack
+
+    take = unpack(cmu) / "cmu-sample" / "asf-names" / "126_01.bvh"
+    r = subprocess.run([*info, str(take)], check=False, capture_output=True, text=True)
+    assert r.returncode == 0 and not r.stderr, r.stderr
+    lines = r.stdout.splitlines()
+    assert lines[0].endswith("126_01.bvh: 2593 frames at 120 fps (21.61 s), 31 joints, 96 channels")
+    assert "  Hips  [Xposition Yposition Zposition Zrotation Yrotation Xrotation]" in lines
+    mapped = dict(line.strip().split(" <- ") for line in lines if line.startswith("  ") and " <- " in line)
+    assert {k: mapped.get(k) for k in RIG_MAPS["cmu-asf"]} == RIG_MAPS["cmu-asf"] and len(mapped) == 21
+    assert lines[-1].endswith("taken from: the first frame (the rest pose is no T- or A-pose)")
+    path = _armless(tmp_path)
+    r = subprocess.run([*info, str(path)], check=False, capture_output=True, text=True)
+    assert r.returncode == 0 and not r.stderr, r.stderr
+    assert "\n    Skeleton_torso_joint_2  [Zrotation Xrotation Yrotation]\n" in r.stdout  # the tree, indented
+    assert "no joint mapping onto the model:" in r.stdout and "no joint found for left shoulder" in r.stdout
+    assert "--write-joint-map" in r.stdout and r.stdout.count("Skeleton_torso_joint_2") == 1
+    wrong = {"Hand_L": "Skeleton_arm_joint_L__3_", "LowerArm_L": "Skeleton_arm_joint_L__3_"}
+    (tmp_path / "map.json").write_text(json.dumps(wrong))
+    r = subprocess.run(
+        [*info, str(path), "--joint-map", str(tmp_path / "map.json")], check=False, capture_output=True, text=True
+    )
+    assert r.returncode == 0 and "both mapped to 'Skeleton_arm_joint_L__3_'" in r.stdout

@@ -426,13 +426,14 @@ def problems(skeleton: Skeleton, parts: dict[str, int], P: np.ndarray | None = N
     return out
 
 
-def joint_tree(skeleton: Skeleton, limit: int = 120) -> str:
-    """The joint tree as indented text (nameless glTF nodes are called ``node<N>``), at most
-    ``limit`` lines."""
+def joint_tree(skeleton: Skeleton, limit: int = 120, notes: list[str] | None = None) -> str:
+    """The joint tree as indented text (nameless glTF nodes are called ``node<N>``), each joint's
+    line followed by its ``notes`` entry where given, at most ``limit`` lines."""
     depth = np.zeros(skeleton.n_joints, int)
     for j in range(1, skeleton.n_joints):
         depth[j] = depth[skeleton.parents[j]] + 1
-    lines = [f"  {'  ' * int(d)}{n}" for n, d in zip(skeleton.names, depth)]
+    notes = notes or [""] * skeleton.n_joints
+    lines = [f"  {'  ' * int(d)}{n}{note}" for n, d, note in zip(skeleton.names, depth, notes)]
     if len(lines) > limit:
         lines = lines[:limit] + [f"  ... and {len(lines) - limit} more"]
     return "\n".join(lines)

@@ -95,6 +95,21 @@ def part_joints(skeleton: Skeleton) -> dict[str, np.ndarray]:
     return {part: np.nonzero(owner == k)[0] for k, part in enumerate(BODY_PARTS)}
 
 
+class UnmappedSkeleton(ValueError):
+    """Body parts no joint was found for: the message names them, shows the skeleton's joint tree and
+    says how to name them; ``brief``, the same without the tree (for where the tree is shown already)."""
+
+    ADVICE = (
+        "Name them with --joint-map MAP.json, a JSON object of model joint -> your joint; --write-joint-map "
+        "MAP.json writes one with the best guesses filled in"
+    )
+
+    def __init__(self, missing: str, skeleton: Skeleton):
+        tree = joint_tree(skeleton)
+        super().__init__(f"{missing} Its joints (nameless glTF nodes are called node<N>):\n{tree}\n{self.ADVICE}")
+        self.brief = f"{missing} {self.ADVICE}"
+
+
 @dataclass(frozen=True)
 class JointMap:
     """How a source skeleton maps onto a target skeleton."""
@@ -423,11 +438,7 @@ def joint_map(
             for p in missing
         ]
         because = f" ({why})" if why else ""
-        raise ValueError(
-            f"cannot map the skeleton: no joint found for {', '.join(named)}{because}. Its joints (nameless glTF "
-            f"nodes are called node<N>):\n{joint_tree(source)}\nName them with --joint-map MAP.json, a JSON object "
-            "of model joint -> your joint; --write-joint-map MAP.json writes one with the best guesses filled in"
-        )
+        raise UnmappedSkeleton(f"cannot map the skeleton: no joint found for {', '.join(named)}{because}.", source)
     wrong = problems(source, sp)
     if wrong:
         raise ValueError(f"cannot map the skeleton: {'; '.join(wrong)}; name the joints with --joint-map")

@@ -23,9 +23,18 @@ from styleerd.motion.gltf import (
     write_gltf_animations,
     write_vrma,
 )
+from styleerd.motion.humanoid import joint_tree
 from styleerd.motion.kinematics import forward_kinematics
 from styleerd.motion.motion import Motion
-from styleerd.motion.retarget import JointMap, body_parts, guessed_joint_map, joint_map, to_source, to_target
+from styleerd.motion.retarget import (
+    JointMap,
+    UnmappedSkeleton,
+    body_parts,
+    guessed_joint_map,
+    joint_map,
+    to_source,
+    to_target,
+)
 from styleerd.motion.skeleton import Skeleton
 from styleerd.runtime.cleanup import FootLock
 from styleerd.runtime.stylizer import StreamStylizer
@@ -316,6 +325,53 @@ def source_clips(
         clips = read_gltf_clips(source, None if options.animation == "all" else [options.animation])
         return [(name, c.motion) for name, c in clips], humanoid_joint_map(model, clips[0][1], options.explicit_map)
     return [(source.stem, bvh.read(source))], options.explicit_map
+
+
+def describe_input(source: Path, model: GeneratorWeights, explicit: dict[str, str] | None = None) -> str:
+    """What ``transfer`` reads from a file (BVH, glTF, GLB, VRM, VRMA or FBX): its animations
+    (frames, rate, length), its joint tree (a BVH's with each joint's channels), and its joint
+    mapping onto the model's (a VRM humanoid's first, completed by ``explicit``), or why there is
+    none. A BVH is read in chunks, so a file of any length takes bounded memory."""
+    suffix, channels = source.suffix.lower(), None
+    if suffix in GLTF_INPUTS or suffix == ".fbx":
+        options = TransferOptions({}, explicit_map=explicit)
+        if suffix == ".fbx":
+            clips, named = source_clips(source, model, options)
+            kind, rest = "FBX", clips[0][1]
+        else:  # a character may have no animation: its rest pose is what is mapped
+            character = read_gltf_character(source)
+            kind = {".vrm": "VRM", ".vrma": "VRM Animation"}.get(suffix, "glTF")
+            kind += ", a VRM humanoid" if character.parts else ""
+            clips, named = (
+                source_clips(source, model, options)
+                if character.doc.animations
+                else ([], humanoid_joint_map(model, character, explicit))
+            )
+            rest = clips[0][1] if clips else character.motion
+        skeleton, first_pose = rest.skeleton, rest.rotations[0]
+        lines = [f"{source}: {kind}, {skeleton.n_joints} joints, {len(clips)} animation(s)"]
+        lines += [f"  {n!r}: {m.n_frames} frames at {m.fps:.6g} fps ({m.n_frames / m.fps:.2f} s)" for n, m in clips]
+        lines += [] if clips else ["  no animation: a character to put a motion on (transfer --onto)"]
+    else:
+        header, chunks = bvh.stream(source)
+        first = next(chunks, np.empty((0, 0)))
+        n_frames = len(first) + sum(len(chunk) for chunk in chunks)  # every frame checked, in bounded memory
+        skeleton, fps, named, channels = header.skeleton, header.fps, explicit, header.skeleton.channels
+        first_pose = bvh.motion_from_channels(skeleton, first[:1], fps).rotations[0] if len(first) else None
+        lines = [
+            f"{source}: {n_frames} frames at {fps:.6g} fps ({n_frames / fps:.2f} s), {skeleton.n_joints} joints, "
+            + f"{sum(len(c) for c in channels)} channels"
+        ]
+    notes = None if channels is None else [f"  [{' '.join(c)}]" for c in channels]
+    lines += ["skeleton:", joint_tree(skeleton, skeleton.n_joints, notes)]
+    try:  # map_skeleton's mapping; a refusal without the joint tree again
+        jm = joint_map(model.skeleton, skeleton, named, model.stats().reference, first_pose)
+        lines.append(f"joint mapping (model <- input):\n{jm.describe()}")
+    except UnmappedSkeleton as e:
+        lines.append(f"no joint mapping onto the model: {e.brief}")
+    except ValueError as e:
+        lines.append(f"no joint mapping onto the model: {e}")
+    return "\n".join(lines)
 
 
 def stylised_on_model(
