@@ -55,10 +55,16 @@ def _info(args: argparse.Namespace) -> None:
 
 def _resample(args: argparse.Namespace) -> None:
     from styleerd.motion import bvh
+    from styleerd.motion.gltf import GLTF_INPUTS
     from styleerd.motion.resample import resample
 
     if not 1 <= args.fps <= 1000:
         raise StyleERDError(f"--fps {args.fps:g} is outside [1, 1000]")
+    if Path(args.input).suffix.lower() in (*GLTF_INPUTS, ".fbx"):
+        raise StyleERDError(
+            f"{args.input}: resample changes a BVH file's frame rate; a glTF, VRM or FBX animation is read at its "
+            "own key rate by transfer and info"
+        )
     check_output(args.output, args.input)
     m = resample(bvh.read(args.input), args.fps)
     bvh.write(args.output, m)

@@ -278,6 +278,10 @@ CASES = {
         lambda t: ["resample", str(_walk(t)), "--fps", "nan", "-o", str(t / "o.bvh")],
         "outside [1, 1000]",
     ),
+    "resample a glTF": (
+        lambda t: ["resample", str(_touch(t / "in.vrma")), "--fps", "30", "-o", str(t / "o.bvh")],
+        "resample changes a BVH file's frame rate",
+    ),
     "resample --fps 0": (
         lambda t: ["resample", str(_walk(t)), "--fps", "0", "-o", str(t / "o.bvh")],
         "outside [1, 1000]",
