@@ -427,7 +427,7 @@ def _animation_index(doc: gl.GLTF2, animation: int | str) -> int:
     """The index of the animation named ``animation`` (or numbered), or a ValueError listing them."""
     names = animation_names(doc)
     if not names:
-        raise ValueError("no animation to stylise")
+        raise ValueError("no animation to stylise (a character: put a motion on it with transfer --onto)")
     if isinstance(animation, int) and -len(names) <= animation < len(names):
         return animation % len(names)
     if animation in names:
