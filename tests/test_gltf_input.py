@@ -168,7 +168,7 @@ def test_gltf_to_bvh_and_bad_gltf_inputs(model, tmp_path):
             30.0,
             TransferOptions({"elderly": 1.0}, input_style="normal", content="walk"),
         )
-    with pytest.raises(StyleERDError, match="the output must be .glb, .vrm or .bvh"):
+    with pytest.raises(StyleERDError, match="the output must be .glb, .vrm, .vrma or .bvh"):
         transfer_file(
             tmp_path / "c.glb",
             tmp_path / "x.fbx",

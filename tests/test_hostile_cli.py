@@ -187,7 +187,8 @@ CASES = {
         lambda t: ["resample", str(_walk(t)), "--fps", "60", "-o", str(t / "in.bvh")],
         "the output is the input file",
     ),
-    "output .txt": (_transfer(_walk, output="out.txt"), "the output must be .bvh, .glb or .fbx"),
+    "output .txt": (_transfer(_walk, output="out.txt"), "the output must be .bvh, .glb, .vrma or .fbx"),
+    "BVH to .vrm": (_transfer(_walk, output="out.vrm"), "a .vrm is a character: put the motion on one with --onto"),
     "truncated model": (lambda t: ["styles", "--model", _truncated_model(t)], "cannot load model"),
     "model without its config": (
         lambda t: ["styles", "--model", _model_without_config(t)],

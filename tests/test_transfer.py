@@ -301,7 +301,7 @@ def test_bad_files_fail_with_one_line_and_nothing_written(model, tmp_path, case)
         "slow": "5 fps is outside [10, 480]",
         "fast": "500 fps is outside [10, 480]",
         "not bvh": "not a text file",
-        "bad output": "the output must be .bvh, .glb or .fbx",
+        "bad output": "the output must be .bvh, .glb, .vrma or .fbx",
     }[case]
     if case == "empty":
         bvh.write(path, m[:0])

@@ -36,7 +36,8 @@ def transfer_one(
     """One file of any supported kind in, one out; FBX on either side goes through Blender."""
     if Path(output).suffix.lower() not in OUTPUTS:
         raise StyleERDError(
-            f"{output}: the output must be .bvh, .glb or .fbx (or .vrm from a VRM or glTF input, .vrma from a VRMA)"
+            f"{output}: the output must be .bvh, .glb, .vrma or .fbx (or .vrm from a VRM or glTF input; onto a "
+            "character of your own: --onto AVATAR)"
         )
     if Path(source).suffix.lower() == ".fbx" or Path(output).suffix.lower() == ".fbx":
         from styleerd.runtime.fbx import transfer_fbx  # imports bpy: only for FBX

@@ -213,7 +213,10 @@ def transfer_file(
     if Path(source).suffix.lower() in GLTF_INPUTS:
         return _transfer_gltf(Path(source), Path(output), model, fps, options, report)
     if kind not in (".bvh", ".glb"):
-        raise StyleERDError(f"{output}: the output must be .bvh or .glb")
+        raise StyleERDError(
+            f"{output}: from a BVH input the output must be .bvh, .glb or .vrma (.fbx with styleerd[blender]); a "
+            ".vrm is a character: put the motion on one with --onto AVATAR.vrm"
+        )
     header, chunks = bvh.stream(source, chunk)
     rows, stylizer = _stylised_stream(header, chunks, model, fps, options, report)
     if kind == ".bvh":
@@ -270,7 +273,7 @@ def _transfer_gltf(
     the input's, named NAME-STYLE) or, for one animation, as a BVH of its skeleton."""
     kind = output.suffix.lower()
     if kind not in (".bvh", ".glb", ".vrm") and not (kind == ".vrma" == source.suffix.lower()):
-        raise StyleERDError(f"{output}: from a glTF input the output must be .glb, .vrm or .bvh (.vrma from a .vrma)")
+        raise StyleERDError(f"{output}: from a glTF input the output must be .glb, .vrm, .vrma or .bvh")
     clips = read_gltf_clips(source, None if options.animation == "all" else [options.animation])
     if kind == ".bvh" and len(clips) > 1:
         raise StyleERDError(
