@@ -20,11 +20,11 @@ from styleerd.errors import StyleERDError
 from styleerd.model.stored import GeneratorWeights, load_generator_weights
 from styleerd.models import LICENCE
 from styleerd.motion import bvh
-from styleerd.motion.gltf import read_motion
+from styleerd.motion.gltf import GLTF_INPUTS, read_gltf_character, read_motion
 from styleerd.motion.motion import Motion
 from styleerd.motion.skeleton import Skeleton
 from styleerd.runtime.channels import ChannelStylizer
-from styleerd.runtime.offline import TransferOptions, transfer_file, transfer_motion
+from styleerd.runtime.offline import TransferOptions, humanoid_joint_map, transfer_file, transfer_motion
 from styleerd.runtime.stylizer import label_vector, part_targets, target_weights
 
 PathLike = str | os.PathLike
@@ -103,9 +103,10 @@ class Model:
         root_speed: bool = False,
         pose: str = "input",
     ) -> Stylizer:
-        """A live stylizer for frames on ``skeleton`` (a ``Skeleton``, a ``Motion``, or a BVH
-        or glTF file whose skeleton to use; default the model's) at ``fps`` (default: the
-        file's, else the model's). Labels left None are inferred online; ``joint_map`` names
+        """A live stylizer for frames on ``skeleton`` (a ``Skeleton``, a ``Motion``, or a BVH,
+        glTF, VRM or VRMA file whose skeleton to use, an avatar with no animation too, mapped by
+        its VRM humanoid where it has one; default the model's) at ``fps`` (default: the file's
+        animation's, else the model's). Labels left None are inferred online; ``joint_map`` names
         model joints -> your joints where the names do not say; ``cleanup`` pins planted feet;
         ``parts`` gives body parts targets of their own (``{"legs": "elderly", "arms": "input"}``
         or ``"legs=elderly,arms=input"``; ``runtime.stylizer.part_targets``); ``root_speed``
@@ -114,6 +115,11 @@ class Model:
         network's pose (``runtime.stylizer``)."""
         if skeleton is None:
             skeleton = self.skeleton
+        elif isinstance(skeleton, (str, os.PathLike)) and Path(skeleton).suffix.lower() in GLTF_INPUTS:
+            character = read_gltf_character(skeleton)  # an avatar, animated or not: its rest pose, its VRM humanoid
+            joint_map = humanoid_joint_map(self.weights, character, joint_map) or None
+            fps = fps or (read_motion(skeleton).fps if character.doc.animations else None)
+            skeleton = character.motion.skeleton
         elif isinstance(skeleton, (str, os.PathLike)):
             skeleton = read_motion(skeleton)
         if isinstance(skeleton, Motion):

@@ -17,6 +17,7 @@ from styleerd.motion.gltf import read_gltf, read_gltf_character
 from styleerd.motion.humanoid import body_parts
 from styleerd.motion.kinematics import forward_kinematics
 from styleerd.motion.procedural import rig_families
+from styleerd.motion.resample import resample
 
 CLI = [sys.executable, "-m", "styleerd.cli", "transfer"]
 
@@ -97,3 +98,27 @@ def test_the_avatar_wearing_a_motion_is_as_valid_as_the_avatar(characters, tmp_p
         return issues["numErrors"], issues["numWarnings"], sorted({m["code"] for m in issues["messages"]})
 
     assert counts(tmp_path / "o.vrm") == counts(avatar)
+
+
+def test_a_live_stylizer_on_an_avatar_with_no_animation(characters, tmp_path):
+    """``model.stylizer(skeleton="avatar.vrm")``: a VRM avatar with no animation gives its skeleton
+    (it was refused: "no animation to stylise"), its humanoid maps it, and the stream runs at the
+    model's rate; a motion worn by it, streamed frame by frame, comes out as the whole-motion
+    transfer with the same map does."""
+    import styleerd
+    from styleerd.runtime.offline import humanoid_joint_map
+
+    worn = tmp_path / "worn.bvh"
+    r = run(characters / "test.vrma", "--onto", characters / "Godette.vrm", "--style", "normal", "-o", worn)
+    assert r.returncode == 0, r.stderr
+    motion = resample(bvh.read(worn), 30.0)  # the model's rate, where a stream and a file are stepped alike
+    model = styleerd.load()
+    live = model.stylizer("elderly", skeleton=characters / "Godette.vrm", input_style="normal")
+    assert live.skeleton.names == motion.skeleton.names and live.n_channels == bvh.channel_values(motion).shape[1]
+    streamed = np.stack([live.step(frame) for frame in bvh.channel_values(motion)])
+    vrm = humanoid_joint_map(model.weights, read_gltf_character(characters / "Godette.vrm"), None)
+    whole = model.transfer(motion, "elderly", input_style="normal", joint_map=vrm)
+    assert np.abs(streamed - bvh.channel_values(whole)).max() < 1e-3  # degrees and cm: one stream, two call paths
+    assert np.abs(streamed - bvh.channel_values(motion)).max() > 5.0  # stylised, not passed through
+    animated = model.stylizer("elderly", skeleton=characters / "test.vrma")
+    assert animated.channels.fps == 10.0  # an animated file's stream rate is its animation's
