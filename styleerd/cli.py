@@ -763,9 +763,27 @@ def _grouped(helps: dict[str, str]) -> str:
     return "\n".join(lines) + "\n\n'styleerd COMMAND -h' for a command's options."
 
 
+def _target_arguments(p: argparse.ArgumentParser) -> None:
+    """--style, --intensity and --mix: the target, as transfer, stream-bvh and vmc take it."""
+    from styleerd.models import shipped_styles
+
+    p.add_argument(
+        "--style",
+        help=f"target style; the shipped model's: {', '.join(shipped_styles())} ('styleerd styles --model M' for "
+        "another)",
+    )
+    p.add_argument("--intensity", type=float, default=1.0, help="0 = neutral, 1 = full style, up to 2")
+    p.add_argument("--mix", help="a mixture instead of --style, e.g. elderly=0.5,feminine=0.5 (scaled by --intensity)")
+
+
+def _label_arguments(p: argparse.ArgumentParser) -> None:
+    """--input-style and --content: the input's labels, inferred online where not given."""
+    p.add_argument("--input-style", help="the input's style (default: inferred online from the frames)")
+    p.add_argument("--content", help="the input's content, e.g. walk (default: inferred online)")
+
+
 def _transfer_command(command: Callable[[str, str], argparse.ArgumentParser]) -> None:
     """``styleerd transfer``: one file, or many in a process pool."""
-    from styleerd.models import shipped_styles
 
     p = command(
         "transfer", "stylise BVH, glTF/VRM or FBX motion on any humanoid skeleton; several files or folders at once"
@@ -776,21 +794,14 @@ def _transfer_command(command: Callable[[str, str], argparse.ArgumentParser]) ->
         help="IN.bvh, IN.glb / .gltf / .vrm (its first skin and animation; written back as the same file) or IN.fbx "
         "(through Blender: styleerd[blender]); several files or folders with -o DIR",
     )
-    p.add_argument(
-        "--style",
-        help=f"target style; the shipped model's: {', '.join(shipped_styles())} ('styleerd styles --model M' for "
-        "another)",
-    )
-    p.add_argument("--intensity", type=float, default=1.0, help="0 = neutral, 1 = full style, up to 2")
-    p.add_argument("--mix", help="a mixture instead of --style, e.g. elderly=0.5,feminine=0.5 (scaled by --intensity)")
+    _target_arguments(p)
     p.add_argument(
         "--parts",
         help="body parts with targets of their own, the others following --style/--mix: PART=STYLE[:INTENSITY] or "
         "PART=input (its own motion), "
         "parts legs, torso, head, arms; e.g. legs=elderly,torso=exhausted:0.5,arms=input",
     )
-    p.add_argument("--input-style", help="the input's style (default: inferred online from the frames)")
-    p.add_argument("--content", help="the input's content, e.g. walk (default: inferred online)")
+    _label_arguments(p)
     p.add_argument(
         "--backend",
         default="numpy",
@@ -884,7 +895,7 @@ def _use_commands(command: Callable[[str, str], argparse.ArgumentParser]) -> Non
         "describe a motion or character file (BVH, glTF/VRM/VRMA, FBX): animations, skeleton, its joint mapping "
         "onto the model; or (--system) this machine as the engine sees it",
     )
-    p.add_argument("file", nargs="?")
+    p.add_argument("file", nargs="?", help="a BVH, glTF, GLB, VRM, VRMA or FBX file")
     p.add_argument(
         "--system",
         action="store_true",
@@ -902,16 +913,21 @@ def _use_commands(command: Callable[[str, str], argparse.ArgumentParser]) -> Non
     p.set_defaults(func=_info)
 
     p = command("resample", "change a BVH file's frame rate")
-    p.add_argument("input")
-    p.add_argument("--fps", type=float, required=True)
-    p.add_argument("-o", "--output", required=True)
+    p.add_argument("input", help="the BVH file")
+    p.add_argument("--fps", type=float, required=True, help="the new frame rate, 1 to 1000")
+    p.add_argument("-o", "--output", required=True, help="the BVH written (the same skeleton and channel layout)")
     p.set_defaults(func=_resample)
 
     p = command(
         "export-onnx", "the network step as an ONNX graph (LSTM ops, opset 15) with explicit state, for engines"
     )
     p.add_argument("--model", help=MODEL_HELP)
-    p.add_argument("-o", "--output", default="stylizer.onnx")
+    p.add_argument(
+        "-o",
+        "--output",
+        default="stylizer.onnx",
+        help="the graph (default stylizer.onnx), its sidecar beside it (.json)",
+    )
     p.add_argument(
         "--styles",
         help="only these styles' branches, e.g. elderly,feminine: a smaller, faster graph (default: every style)",
@@ -933,7 +949,7 @@ def _live_commands(command: Callable[[str, str], argparse.ArgumentParser]) -> No
     """Commands for live streams: serve, stream-bvh, vmc, load-test."""
     p = command("serve", "the real-time style server (WebSocket, docs/PROTOCOL.md) and its browser viewer")
     p.add_argument("--host", default="127.0.0.1", help="address to bind (default loopback only)")
-    p.add_argument("--port", type=_port, default=8765)
+    p.add_argument("--port", type=_port, default=8765, help="the WebSocket and viewer port (default 8765)")
     p.add_argument(
         "--workers", type=_whole(1), default=1, help="processes sharing the port (SO_REUSEPORT), e.g. one per core"
     )
@@ -991,13 +1007,10 @@ def _live_commands(command: Callable[[str, str], argparse.ArgumentParser]) -> No
     p.set_defaults(func=_serve)
 
     p = command("stream-bvh", "play a BVH to a style server in real time, as a mocap source")
-    p.add_argument("input")
+    p.add_argument("input", help="the BVH file played")
     p.add_argument("--to", default="ws://127.0.0.1:8765/", help="server URL")
-    p.add_argument("--style")
-    p.add_argument("--intensity", type=float, default=1.0)
-    p.add_argument("--mix", help="e.g. elderly=0.5,feminine=0.5")
-    p.add_argument("--input-style")
-    p.add_argument("--content")
+    _target_arguments(p)
+    _label_arguments(p)
     p.add_argument("--fast", action="store_true", help="send as fast as replies come, not in real time")
     p.add_argument(
         "--root-speed",
@@ -1017,9 +1030,7 @@ def _live_commands(command: Callable[[str, str], argparse.ArgumentParser]) -> No
     p.add_argument("--listen", type=_port, default=39539, help="UDP port to receive VMC on")
     p.add_argument("--send", type=_port, default=39540, help="UDP port to send the stylised VMC to")
     p.add_argument("--host", default="127.0.0.1", help="host to send to (and to listen on)")
-    p.add_argument("--style")
-    p.add_argument("--intensity", type=float, default=1.0)
-    p.add_argument("--mix")
+    _target_arguments(p)
     p.add_argument("--fps", type=_positive, default=30.0, help="the sender's frame rate (velocities are per second)")
     p.add_argument(
         "--parts",
@@ -1045,7 +1056,7 @@ def _live_commands(command: Callable[[str, str], argparse.ArgumentParser]) -> No
         default=1,
         help="streams on each connection, one message a frame for them all (a game's crowd)",
     )
-    p.add_argument("--seconds", type=_positive, default=60.0)
+    p.add_argument("--seconds", type=_positive, default=60.0, help="how long the clients stream (default 60)")
     p.add_argument("--workers", type=_whole(1), default=1, help="server workers")
     p.add_argument("--backend", choices=SERVE_BACKENDS, default="numba", help="the server's backend")
     p.add_argument("--threads", type=_whole(1), default=1, help="the server's threads per batched step")
@@ -1157,7 +1168,9 @@ def _evaluate_commands(command: Callable[[str, str], argparse.ArgumentParser]) -
     """Commands that measure models and the runtime."""
     p = command("evaluate", "SRA, CRA and reconstruction error of a model on real test windows")
     p.add_argument("--model", help=MODEL_HELP)
-    p.add_argument("--split", default="test", choices=["train", "val", "test"])
+    p.add_argument(
+        "--split", default="test", choices=["train", "val", "test"], help="the windows' split (default test)"
+    )
     p.add_argument("--recognisers", help="recognisers path without suffix (default: the shipped ones)")
     p.add_argument("--data", help="data folder")
     p.add_argument("--json", help="also write the figures to this JSON file")
@@ -1181,7 +1194,7 @@ def _evaluate_commands(command: Callable[[str, str], argparse.ArgumentParser]) -
     p.set_defaults(func=_bench)
 
     p = command("report", "regenerate docs/RESULTS.md: quality, ablations, runtime, online figures, pictures")
-    p.add_argument("--docs", default="docs")
+    p.add_argument("--docs", default="docs", help="the folder of RESULTS.md, its JSON and pictures (default docs)")
     p.add_argument("--steps", type=_whole(1), default=2000, help="frames timed per latency figure")
     p.add_argument(
         "--keep",
@@ -1196,7 +1209,7 @@ def _evaluate_commands(command: Callable[[str, str], argparse.ArgumentParser]) -
     p = command("filmstrip", "picture: a neutral test clip and its transfer into every style")
     p.add_argument("--model", help=MODEL_HELP)
     p.add_argument("--clip", help="Bandai-Namco-2 clip name (default: the first neutral test clip of --content)")
-    p.add_argument("--content", default="walk")
+    p.add_argument("--content", default="walk", help="the content of the clip picked (default walk)")
     p.add_argument("--data", help="data folder")
     p.add_argument("-o", "--output", default="docs/filmstrip-bandai2.png", help="a picture, or an animated GIF (.gif)")
     p.add_argument("--styles", help="only these target styles, e.g. elderly,feminine (default: every other style)")
@@ -1312,7 +1325,7 @@ def _eval_subcommands(sub: argparse._SubParsersAction) -> None:
         "ablations",
         help="train what is missing at the shipped run's budget (resumable) and tabulate the paper's ablations",
     )
-    p.add_argument("--threads", type=_whole(1), default=1)
+    p.add_argument("--threads", type=_whole(1), default=1, help="torch threads of the training runs (default 1)")
     p.add_argument(
         "--runs", help="run folders (checkpoints; default models/ablations/training, kept in git between sessions)"
     )

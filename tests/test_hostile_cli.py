@@ -517,3 +517,25 @@ def test_fuzzed_files_are_read_or_refused_with_a_bvh_error(tmp_path_factory, tex
             assert str(e).startswith(("f.bvh", str(path))) and "\n" not in str(e)
         else:
             assert np.isfinite(m.rotations).all() and np.isfinite(m.positions).all()
+
+
+def test_every_argument_of_every_command_says_what_it_is():
+    """``styleerd COMMAND -h`` is what users read: no option or positional without a help text."""
+    import argparse
+
+    from styleerd.cli import build_parser
+
+    def parsers(name: str, parser: argparse.ArgumentParser):
+        yield name, parser
+        for action in parser._actions:
+            if isinstance(action, argparse._SubParsersAction):
+                for sub, p in action.choices.items():
+                    yield from parsers(f"{name} {sub}".strip(), p)
+
+    silent = [
+        f"{name}: {'/'.join(a.option_strings) or a.dest}"
+        for name, parser in parsers("", build_parser())
+        for a in parser._actions
+        if not isinstance(a, (argparse._HelpAction, argparse._SubParsersAction)) and not a.help
+    ]
+    assert not silent, silent
