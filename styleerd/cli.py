@@ -120,7 +120,7 @@ def _train_helper(args: argparse.Namespace) -> None:
 
 def _transfer(args: argparse.Namespace) -> None:
     from styleerd.model.stored import load_generator_weights
-    from styleerd.runtime.batch import batch_pairs, transfer_batch, transfer_one
+    from styleerd.runtime.batch import batch_pairs, inert_options, transfer_batch, transfer_one
     from styleerd.runtime.offline import TransferOptions
     from styleerd.runtime.stylizer import parse_mix, part_targets, target_weights
 
@@ -165,6 +165,7 @@ def _transfer(args: argparse.Namespace) -> None:
 
         if len(args.input) != 1 or Path(args.input[0]).is_dir():
             raise StyleERDError("--onto: name one motion file")
+        _refuse_inert(inert_options([(Path(args.input[0]), out)], options, onto=True))
         done = transfer_onto(
             Path(args.input[0]), Path(args.onto), out, model, model.meta["data"]["fps"], options, print
         )
@@ -179,6 +180,7 @@ def _transfer(args: argparse.Namespace) -> None:
         raise StyleERDError(f"-o {out}: several inputs need a folder to write into")
     else:
         pairs = batch_pairs(args.input, out, f".{args.to}" if args.to else None)
+    _refuse_inert(inert_options(pairs, options))
     if len(pairs) == 1:  # one file (into a folder or not): no pool, the mapping and labels reported
         (source, output), made = pairs[0], None
         if into_folder and not output.parent.exists():
@@ -207,6 +209,11 @@ def _transfer(args: argparse.Namespace) -> None:
             + "; ".join(f"{src.name}: {why}" for src, why in failed[:3])
             + (" ..." if len(failed) > 3 else "")
         )
+
+
+def _refuse_inert(inert: list[str]) -> None:
+    if inert:
+        raise StyleERDError("changes nothing in this transfer: " + "; ".join(inert))
 
 
 def _read_joint_map(path: str) -> dict[str, str]:

@@ -189,6 +189,12 @@ CASES = {
     ),
     "output .txt": (_transfer(_walk, output="out.txt"), "the output must be .bvh, .glb, .vrma or .fbx"),
     "BVH to .vrm": (_transfer(_walk, output="out.vrm"), "a .vrm is a character: put the motion on one with --onto"),
+    "--mesh into a BVH": (_transfer(_walk, "--mesh"), "changes nothing in this transfer: --mesh"),
+    "--animation of a BVH": (_transfer(_walk, "--animation", "Walk"), "--animation: picks an animation of a glTF"),
+    "--keep-original from a BVH": (
+        _transfer(_walk, "--keep-original", output="out.glb"),
+        "--keep-original: keeps a glTF/VRM or FBX file's own animations",
+    ),
     "truncated model": (lambda t: ["styles", "--model", _truncated_model(t)], "cannot load model"),
     "model without its config": (
         lambda t: ["styles", "--model", _model_without_config(t)],

@@ -73,6 +73,24 @@ def batch_pairs(inputs: list[str | Path], output_dir: str | Path, suffix: str | 
     return pairs
 
 
+def inert_options(pairs: list[tuple[Path, Path]], options: TransferOptions, onto: bool = False) -> list[str]:
+    """The options given that would change none of these (input, output) pairs, each with what
+    it is for: an option that does nothing is refused rather than ignored."""
+    kinds = [(src.suffix.lower(), out.suffix.lower()) for src, out in pairs]
+    out = []
+    if options.mesh and (onto or not any(i in (".bvh", ".fbx") and o == ".glb" for i, o in kinds)):
+        out.append("--mesh: a body for a .glb written from a BVH or FBX motion (an avatar of --onto has its own)")
+    if options.animation != "all" and not any(i in (*GLTF_INPUTS, ".fbx") for i, _ in kinds):
+        out.append("--animation: picks an animation of a glTF, VRM or FBX file (a BVH holds one)")
+    keeps = any(i in GLTF_INPUTS and o in (".glb", ".vrm") or i == o == ".fbx" for i, o in kinds)
+    if options.keep_original and not (onto or keeps):
+        out.append(
+            "--keep-original: keeps a glTF/VRM or FBX file's own animations beside the stylised ones, written back "
+            "as .glb/.vrm or .fbx"
+        )
+    return out
+
+
 def _orphan_guard() -> None:
     """A worker ends itself when the batch's process is gone (killed with -9: no orphan goes on
     writing files)."""
