@@ -122,7 +122,7 @@ def _transfer(args: argparse.Namespace) -> None:
     from styleerd.model.stored import load_generator_weights
     from styleerd.runtime.batch import batch_pairs, inert_options, transfer_batch, transfer_one
     from styleerd.runtime.offline import TransferOptions
-    from styleerd.runtime.stylizer import parse_mix, part_targets, target_weights
+    from styleerd.runtime.stylizer import part_targets, target_weights
 
     model = load_generator_weights(args.model)
     if args.write_joint_map:
@@ -142,7 +142,7 @@ def _transfer(args: argparse.Namespace) -> None:
     ):
         if value is not None and value not in names:
             raise StyleERDError(f"{what} {value!r} is not one of: {', '.join(names)}")
-    target = target_weights(model, args.style, args.intensity, parse_mix(args.mix or ""))
+    target = target_weights(model, args.style, args.intensity, _style_or_mix(args))
     explicit = _read_joint_map(args.joint_map) if args.joint_map else None
     parts = part_targets(model, args.parts)  # checked once here, not once per file
     options = TransferOptions(
@@ -209,6 +209,20 @@ def _transfer(args: argparse.Namespace) -> None:
             + "; ".join(f"{src.name}: {why}" for src, why in failed[:3])
             + (" ..." if len(failed) > 3 else "")
         )
+
+
+def _style_or_mix(args: argparse.Namespace) -> dict[str, float] | None:
+    """``--mix`` read (None where not given), once ``--style`` or ``--mix`` is given, and not both."""
+    from styleerd.runtime.stylizer import parse_mix
+
+    mix = parse_mix(args.mix or "")
+    if args.style is not None and mix is not None:
+        raise StyleERDError(
+            f"give --style or --mix, not both: a mixture names each of its styles (--mix {args.style}=0.5,...)"
+        )
+    if args.style is None and mix is None:
+        raise StyleERDError("give --style or --mix")
+    return mix
 
 
 def _refuse_inert(inert: list[str]) -> None:
@@ -623,12 +637,9 @@ def _serve(args: argparse.Namespace) -> None:
 
 
 def _stream_bvh(args: argparse.Namespace) -> None:
-    from styleerd.runtime.stylizer import parse_mix
     from styleerd.serve.client import stream_bvh
 
-    mix = parse_mix(args.mix or "")
-    if args.style is None and mix is None:
-        raise StyleERDError("give --style or --mix")
+    mix = _style_or_mix(args)
     if args.output:
         check_output(args.output, args.input)
     print(
@@ -667,7 +678,6 @@ def _load_test(args: argparse.Namespace) -> None:
 
 
 def _vmc(args: argparse.Namespace) -> None:
-    from styleerd.runtime.stylizer import parse_mix
     from styleerd.serve.vmc import run_bridge
 
     run_bridge(
@@ -675,7 +685,7 @@ def _vmc(args: argparse.Namespace) -> None:
         args.send,
         args.style,
         args.intensity,
-        parse_mix(args.mix or ""),
+        _style_or_mix(args),
         args.host,
         args.fps,
         args.parts,

@@ -117,15 +117,8 @@ def _transfer(make_input, *extra: str, output: str = "out.bvh"):
     def argv(tmp: Path) -> list[str]:
         source = make_input(tmp)
         out = output.replace("{in}", str(source)).replace("{tmp}", str(tmp))
-        return [
-            "transfer",
-            str(source),
-            "--style",
-            "elderly",
-            "-o",
-            out if out.startswith("/") else str(tmp / out),
-            *extra,
-        ]
+        target = [] if "--mix" in extra else ["--style", "elderly"]  # a mixture is the target instead
+        return ["transfer", str(source), *target, "-o", out if out.startswith("/") else str(tmp / out), *extra]
 
     return argv
 
@@ -189,6 +182,10 @@ CASES = {
     ),
     "output .txt": (_transfer(_walk, output="out.txt"), "the output must be .bvh, .glb, .vrma or .fbx"),
     "BVH to .vrm": (_transfer(_walk, output="out.vrm"), "a .vrm is a character: put the motion on one with --onto"),
+    "--style and --mix": (
+        _transfer(_walk, "--mix", "feminine=1", "--style", "elderly"),
+        "give --style or --mix, not both",
+    ),
     "--mesh into a BVH": (_transfer(_walk, "--mesh"), "changes nothing in this transfer: --mesh"),
     "--animation of a BVH": (_transfer(_walk, "--animation", "Walk"), "--animation: picks an animation of a glTF"),
     "--keep-original from a BVH": (
