@@ -87,7 +87,8 @@ class STYLEERD_OT_stylise_action(bpy.types.Operator):
         source = arm.animation_data.action
         model = _model()
         try:
-            target = target_weights(model, s.style, s.intensity, parse_mix(s.mix))
+            mix = parse_mix(s.mix)  # typed in, it replaces the style chosen
+            target = target_weights(model, None if mix else s.style, s.intensity, mix)
             first, last = (int(round(x)) for x in source.frame_range)
             frames = range(first, last + 1)
             motion = read_armature(arm, frames, scene.render.fps / scene.render.fps_base)

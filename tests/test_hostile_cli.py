@@ -398,6 +398,9 @@ def test_huge_mixture_weights_keep_their_proportions():
     for bad in ({"elderly": float("nan")}, {"elderly": 0.0}, {"elderly": True}):
         with pytest.raises(StyleERDError, match="mixture weights"):
             target_weights(model, mix=bad)
+    with pytest.raises(StyleERDError, match="give a style or a mixture, not both"):  # the API, server, VMC bridge
+        target_weights(model, "elderly", mix={"feminine": 1.0})
+    assert target_weights(model, "elderly", mix={}) == {"elderly": 1.0}  # an empty mixture is none
 
 
 def test_a_written_mixture_is_read_or_refused_naming_it():

@@ -163,7 +163,7 @@ ATTACKS = {
     ),
     "hello mix a list": ([_hello(mix=[1, 2])], 1008, "'mix' must be an object"),
     "hello mix unknown style": ([_hello(style=None, mix={"zombie": 1})], 1008, "unknown style 'zombie'"),
-    "hello style and mix": ([_hello(mix={"feminine": 1})], 1008, "give 'style' or 'mix', not both"),
+    "hello style and mix": ([_hello(mix={"feminine": 1})], 1008, "give a style or a mixture, not both"),
     "hello style a number": ([_hello(style=5)], 1008, "'style' must be a style name"),
     "hello input_style a list": ([_hello(input_style=["normal"])], 1008, "unknown input_style"),
     "hello content an object": ([_hello(content={"a": 1})], 1008, "unknown content"),

@@ -105,12 +105,14 @@ def target_weights(
     mix: dict[str, float] | None = None,
     max_intensity: float = 2.0,
 ) -> dict[str, float]:
-    """Target weights from a style, or a mixture of styles (weights normalised to sum 1), at an
+    """Target weights from a style or (not both) a mixture of styles (weights normalised to sum 1), at an
     intensity (the rest goes to neutral; 0 = neutral, 1 = full style, above 1 exaggerates up to
     ``max_intensity``)."""
     neutral = model.config.neutral_style
     if not 0.0 <= intensity <= max_intensity:  # NaN fails this too
         raise StyleERDError(f"intensity {intensity:g} is outside [0, {max_intensity:g}]")
+    if style is not None and mix:
+        raise StyleERDError("give a style or a mixture, not both: a mixture names each of its styles")
     if mix:
         if (
             not all(isinstance(w, (int, float)) and not isinstance(w, bool) and 0 <= w < math.inf for w in mix.values())

@@ -298,8 +298,6 @@ class StyleServer:
             not isinstance(mix, dict) or not all(isinstance(v, (int, float)) for v in mix.values())
         ):
             raise ClientError(POLICY, f"'mix' must be an object of style -> weight, got {mix!r}")
-        if style is not None and mix is not None:
-            raise ClientError(POLICY, "give 'style' or 'mix', not both: a mixture names each of its styles")
         try:
             weights = target_weights(self.model, style, _number(msg, "intensity", 1.0, 0.0, 2.0), mix)
             label_vector(self.model.config.styles, weights, "style")  # names the valid styles
