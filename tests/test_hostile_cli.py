@@ -182,6 +182,10 @@ CASES = {
     ),
     "output .txt": (_transfer(_walk, output="out.txt"), "the output must be .bvh, .glb, .vrma or .fbx"),
     "BVH to .vrm": (_transfer(_walk, output="out.vrm"), "a .vrm is a character: put the motion on one with --onto"),
+    "--style with a capital": (
+        lambda t: ["transfer", str(_walk(t)), "--style", "Elderly", "-o", str(t / "o.bvh")],
+        "unknown style 'Elderly' (did you mean 'elderly'?); valid: active, elderly",
+    ),
     "--style and --mix": (
         _transfer(_walk, "--mix", "feminine=1", "--style", "elderly"),
         "give --style or --mix, not both",

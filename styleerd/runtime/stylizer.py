@@ -26,6 +26,7 @@ takes the label's place.
 
 from __future__ import annotations
 
+import difflib
 import math
 import threading
 from concurrent.futures import ThreadPoolExecutor, wait
@@ -79,7 +80,9 @@ def label_vector(names: tuple[str, ...], weights: dict[str, float], what: str) -
     v = np.zeros(len(names))
     for name, w in weights.items():
         if name not in names:
-            raise StyleERDError(f"unknown {what} {name!r}; valid: {', '.join(names)}")
+            near = difflib.get_close_matches(str(name)[:40].lower(), names, 1)  # a typo, or a capital
+            meant = f" (did you mean {near[0]!r}?)" if near else ""
+            raise StyleERDError(f"unknown {what} {name!r}{meant}; valid: {', '.join(names)}")
         v[names.index(name)] = w
     return v
 
