@@ -175,6 +175,8 @@ def _transfer(args: argparse.Namespace) -> None:
         return
     into_folder = len(args.input) > 1 or Path(args.input[0]).is_dir() or out.is_dir() or args.output.endswith(os.sep)
     if not into_folder:
+        if args.to and out.suffix.lower() != f".{args.to}":
+            raise StyleERDError(f"--to {args.to} names the kind of files written into a folder; -o {out} is one file")
         pairs = [(Path(args.input[0]), out)]
     elif out.exists() and not out.is_dir():
         raise StyleERDError(f"-o {out}: several inputs need a folder to write into")

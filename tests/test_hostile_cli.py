@@ -190,6 +190,7 @@ CASES = {
         _transfer(_walk, "--mix", "feminine=1", "--style", "elderly"),
         "give --style or --mix, not both",
     ),
+    "--to for one file": (_transfer(_walk, "--to", "glb"), "--to glb names the kind of files written into a folder"),
     "--mesh into a BVH": (_transfer(_walk, "--mesh"), "changes nothing in this transfer: --mesh"),
     "--animation of a BVH": (_transfer(_walk, "--animation", "Walk"), "--animation: picks an animation of a glTF"),
     "--keep-original from a BVH": (
