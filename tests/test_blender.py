@@ -15,6 +15,7 @@ import sys
 from pathlib import Path
 
 import numpy as np
+import pygltflib as gl
 import pytest
 from conftest import run_checked
 
@@ -85,6 +86,8 @@ def test_fbx_to_bvh_and_glb_and_bvh_to_fbx(blender_venv, character):
     assert lines[0] == f"walk.fbx: FBX, {len(ref.skeleton.names)} joints, 1 animation(s)"
     assert lines[1].endswith(f": {ref.n_frames} frames at {ref.fps:.6g} fps ({ref.n_frames / ref.fps:.2f} s)")
     assert "            Hips <- mixamorig:Hips" in lines
+    take = lines[1].split("'")[1]  # the glb's animation is named after the take
+    assert [a.name for a in gl.GLTF2().load_binary(str(character / "from-fbx.glb")).animations] == [take]
 
 
 def test_addon_writes_a_new_action_matching_the_bvh_run(blender_venv, character):

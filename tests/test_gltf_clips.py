@@ -123,3 +123,17 @@ def test_info_lists_a_characters_animations_skeleton_and_mapping(shared_data):
     out = info("Godette.vrm")
     assert "VRM, a VRM humanoid, 68 joints, 0 animation(s)" in out
     assert "no animation: a character to put a motion on (transfer --onto)" in out
+
+
+def test_a_bvhs_animation_is_named_after_its_file_in_glb_and_vrma(tmp_path):
+    """A .glb or .vrma written from a BVH names its animation after the BVH (it was 'styleerd' for
+    every file, so two clips loaded into one engine had one name)."""
+    from styleerd.motion import bvh
+    from styleerd.motion.procedural import walk
+
+    bvh.write(tmp_path / "slow walk.bvh", walk(2.0, fps=30.0))
+    for kind in ("glb", "vrma"):
+        out = tmp_path / f"out.{kind}"
+        r = run(str(tmp_path / "slow walk.bvh"), "--style", "elderly", "-o", str(out))
+        assert r.returncode == 0, r.stderr
+        assert [a.name for a in gl.GLTF2().load_binary(str(out)).animations] == ["slow walk"]

@@ -118,9 +118,11 @@ def write_glb(
     metres_per_unit: float | None = None,
     mesh: bool = False,
     rest_rotations: np.ndarray | None = None,
+    name: str = "styleerd",
 ) -> None:
     """The motion as a .glb: nodes, a skin bound in the rest pose (zero rotations, or the local
-    ``rest_rotations [J, 4]``, which then are the nodes' default rotations), one animation."""
+    ``rest_rotations [J, 4]``, which then are the nodes' default rotations), one animation
+    called ``name``."""
     sk, T = motion.skeleton, motion.n_frames
     scale = metres_per_unit or guess_metres_per_unit(motion)
     blob = bytearray()
@@ -204,7 +206,7 @@ def write_glb(
         skins=[
             gl.Skin(name="skeleton", joints=list(range(sk.n_joints)), skeleton=0, inverseBindMatrices=inverse_binds)
         ],
-        animations=[gl.Animation(name="styleerd", samplers=samplers, channels=channels)],
+        animations=[gl.Animation(name=name, samplers=samplers, channels=channels)],
         buffers=[gl.Buffer(byteLength=len(blob))],
         bufferViews=views,
         accessors=accessors,
@@ -762,8 +764,9 @@ def write_vrma(
     standing: np.ndarray,
     parts: dict[str, int],
     metres_per_unit: float = 0.01,
+    name: str = "styleerd",
 ) -> None:
-    """``motion`` as a VRM Animation (VRMC_vrm_animation 1.0): one node per joint, named and
+    """``motion`` as a VRM Animation (VRMC_vrm_animation 1.0) called ``name``: one node per joint, named and
     listed in the humanoid for the joints that play a body part (``parts``: part -> joint), at
     rest in the T-pose of VRM (facing +Z, left along +X, every node's rest rotation the
     identity, the hips as high as in ``standing``, local rotations of a standing pose); each
@@ -813,7 +816,7 @@ def write_vrma(
         scene=0,
         scenes=[gl.Scene(nodes=[0])],
         nodes=nodes,
-        animations=[gl.Animation(name="styleerd", samplers=samplers, channels=channels)],
+        animations=[gl.Animation(name=name, samplers=samplers, channels=channels)],
         buffers=[gl.Buffer(byteLength=len(blob))],
         bufferViews=views,
         accessors=accessors,

@@ -419,7 +419,7 @@ def transfer_fbx(
         if kind == ".bvh":
             bvh.write(output, outs[0][2])
         else:
-            write_glb(output, outs[0][2], mesh=options.mesh)
+            write_glb(output, outs[0][2], mesh=options.mesh, name=outs[0][0])
     else:
         _write_takes(arm, outs, options)
         export_fbx(output, arm, outs[0][3], file_fps, every_action=len(outs) > 1 or options.keep_original)

@@ -228,9 +228,8 @@ def transfer_file(
 
         atomic_write(output, write)
     else:
-        write_glb(
-            output, bvh.motion_from_channels(header.skeleton, np.concatenate(list(rows)), header.fps), mesh=options.mesh
-        )
+        motion = bvh.motion_from_channels(header.skeleton, np.concatenate(list(rows)), header.fps)
+        write_glb(output, motion, mesh=options.mesh, name=Path(source).stem)
     return TransferReport(header.n_frames, header.fps, _inferred_labels(stylizer, report))
 
 
@@ -398,7 +397,8 @@ def _transfer_to_vrma(
     on_model, jm = stylised_on_model(
         motions[0][1], model, fps, replace(options, explicit_map=explicit or None), str(source), report, lines
     )
-    write_vrma(output, on_model, jm.target_tpose, model.stats().reference, body_parts(model.skeleton))
+    reference = model.stats().reference
+    write_vrma(output, on_model, jm.target_tpose, reference, body_parts(model.skeleton), name=motions[0][0])
     return TransferReport(on_model.n_frames, on_model.fps, lines[-1] if lines else None)
 
 
