@@ -50,7 +50,24 @@ def _info(args: argparse.Namespace) -> None:
     from styleerd.runtime.offline import describe_input
 
     explicit = _read_joint_map(args.joint_map) if args.joint_map else None
-    print(describe_input(Path(args.file), load_generator_weights(args.model), explicit))
+    model = load_generator_weights(args.model)
+    if not Path(args.file).is_dir():
+        print(describe_input(Path(args.file), model, explicit))
+        return
+    from styleerd.runtime.batch import MOTION_FILES
+
+    files = sorted(p for p in Path(args.file).rglob("*") if p.suffix.lower() in MOTION_FILES and p.is_file())
+    if not files:
+        raise StyleERDError(f"{args.file}: no motion files ({', '.join(MOTION_FILES)}) in this folder")
+    mapped = unread = 0
+    for path in files:  # a file that cannot be read is said and the next one read
+        try:
+            text = describe_input(path, model, explicit, brief=True)
+        except StyleERDError as e:  # its message names the file, mostly
+            text, unread = (str(e) if str(e).startswith(str(path)) else f"{path}: {e}"), unread + 1
+        mapped += text.endswith("maps onto the model")
+        print(text)
+    print(f"{len(files)} files: {mapped} map onto the model, {len(files) - mapped - unread} do not, {unread} unread")
 
 
 def _resample(args: argparse.Namespace) -> None:
@@ -914,7 +931,9 @@ def _use_commands(command: Callable[[str, str], argparse.ArgumentParser]) -> Non
         "describe a motion or character file (BVH, glTF/VRM/VRMA, FBX): animations, skeleton, its joint mapping "
         "onto the model; or (--system) this machine as the engine sees it",
     )
-    p.add_argument("file", nargs="?", help="a BVH, glTF, GLB, VRM, VRMA or FBX file")
+    p.add_argument(
+        "file", nargs="?", help="a BVH, glTF, GLB, VRM, VRMA or FBX file; a folder: each of its files in two lines"
+    )
     p.add_argument(
         "--system",
         action="store_true",

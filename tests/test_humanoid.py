@@ -277,3 +277,29 @@ def test_info_shows_a_rigs_mapping_or_why_there_is_none(shared_data, tmp_path):
         [*info, str(path), "--joint-map", str(tmp_path / "map.json")], check=False, capture_output=True, text=True
     )
     assert r.returncode == 0 and "both mapped to 'Skeleton_arm_joint_L__3_'" in r.stdout
+
+
+def test_info_on_a_folder_says_in_two_lines_a_file_what_it_is_and_whether_it_maps(shared_data, tmp_path):
+    """Before a batch: every motion file of a folder (and below), its first line and whether it maps
+    onto the model; a file that cannot be read is said in one line and the next one read."""
+    import shutil
+
+    from styleerd.data.datasets import unpack
+
+    take = unpack(shared_data / "cmu-sample.tar.xz") / "cmu-sample" / "asf-names" / "126_01.bvh"
+    (tmp_path / "takes" / "more").mkdir(parents=True)
+    shutil.copy(take, tmp_path / "takes" / "more" / "swim.bvh")
+    shutil.copy(_armless(tmp_path), tmp_path / "takes" / "armless.bvh")
+    (tmp_path / "takes" / "broken.bvh").write_text("HIERARCHY\nROOT a\n{\n")
+    (tmp_path / "takes" / "notes.txt").write_text("not a motion")
+    info = [sys.executable, "-m", "styleerd.cli", "info", str(tmp_path / "takes")]
+    r = subprocess.run(info, check=False, capture_output=True, text=True)
+    assert r.returncode == 0 and not r.stderr, r.stderr
+    lines = r.stdout.splitlines()
+    assert len(lines) == 2 + 1 + 2 + 1 and "notes.txt" not in r.stdout
+    assert lines[0].endswith("takes/armless.bvh: 360 frames at 60 fps (6.00 s), 17 joints, 54 channels")
+    assert lines[1].startswith("  no joint mapping onto the model: cannot map the skeleton: no joint found")
+    assert lines[2].startswith(str(tmp_path / "takes" / "broken.bvh") + ":") and lines[2].count("broken.bvh") == 1
+    assert lines[3].endswith("more/swim.bvh: 2593 frames at 120 fps (21.61 s), 31 joints, 96 channels")
+    assert lines[4] == "  maps onto the model"
+    assert lines[5] == "3 files: 1 map onto the model, 1 do not, 1 unread"

@@ -329,11 +329,14 @@ def source_clips(
     return [(source.stem, bvh.read(source))], options.explicit_map
 
 
-def describe_input(source: Path, model: GeneratorWeights, explicit: dict[str, str] | None = None) -> str:
+def describe_input(
+    source: Path, model: GeneratorWeights, explicit: dict[str, str] | None = None, brief: bool = False
+) -> str:
     """What ``transfer`` reads from a file (BVH, glTF, GLB, VRM, VRMA or FBX): its animations
     (frames, rate, length), its joint tree (a BVH's with each joint's channels), and its joint
     mapping onto the model's (a VRM humanoid's first, completed by ``explicit``), or why there is
-    none. A BVH is read in chunks, so a file of any length takes bounded memory."""
+    none; ``brief``: the first line and whether it maps, each in a line. A BVH is read in chunks,
+    so a file of any length takes bounded memory."""
     suffix, channels = source.suffix.lower(), None
     if suffix in GLTF_INPUTS or suffix == ".fbx":
         options = TransferOptions({}, explicit_map=explicit)
@@ -352,8 +355,8 @@ def describe_input(source: Path, model: GeneratorWeights, explicit: dict[str, st
             rest = clips[0][1] if clips else character.motion
         skeleton, first_pose = rest.skeleton, rest.rotations[0]
         lines = [f"{source}: {kind}, {skeleton.n_joints} joints, {len(clips)} animation(s)"]
-        lines += [f"  {n!r}: {m.n_frames} frames at {m.fps:.6g} fps ({m.n_frames / m.fps:.2f} s)" for n, m in clips]
-        lines += [] if clips else ["  no animation: a character to put a motion on (transfer --onto)"]
+        details = [f"  {n!r}: {m.n_frames} frames at {m.fps:.6g} fps ({m.n_frames / m.fps:.2f} s)" for n, m in clips]
+        details += [] if clips else ["  no animation: a character to put a motion on (transfer --onto)"]
     else:
         header, chunks = bvh.stream(source)
         first = next(chunks, np.empty((0, 0)))
@@ -364,15 +367,17 @@ def describe_input(source: Path, model: GeneratorWeights, explicit: dict[str, st
             f"{source}: {n_frames} frames at {fps:.6g} fps ({n_frames / fps:.2f} s), {skeleton.n_joints} joints, "
             + f"{sum(len(c) for c in channels)} channels"
         ]
-    notes = None if channels is None else [f"  [{' '.join(c)}]" for c in channels]
-    lines += ["skeleton:", joint_tree(skeleton, skeleton.n_joints, notes)]
+        details = []
+    if not brief:
+        notes = None if channels is None else [f"  [{' '.join(c)}]" for c in channels]
+        lines += [*details, "skeleton:", joint_tree(skeleton, skeleton.n_joints, notes)]
     try:  # map_skeleton's mapping; a refusal without the joint tree again
         jm = joint_map(model.skeleton, skeleton, named, model.stats().reference, first_pose)
-        lines.append(f"joint mapping (model <- input):\n{jm.describe()}")
+        lines.append("  maps onto the model" if brief else f"joint mapping (model <- input):\n{jm.describe()}")
     except UnmappedSkeleton as e:
-        lines.append(f"no joint mapping onto the model: {e.brief}")
+        lines.append(f"{'  ' if brief else ''}no joint mapping onto the model: {e.brief}")
     except ValueError as e:
-        lines.append(f"no joint mapping onto the model: {e}")
+        lines.append(f"{'  ' if brief else ''}no joint mapping onto the model: {e}")
     return "\n".join(lines)
 
 
