@@ -509,7 +509,14 @@ def _eval_rotations(args: argparse.Namespace) -> None:
 
 def _eval_actions(args: argparse.Namespace) -> None:
     from styleerd.atomic import atomic_write_text
-    from styleerd.eval.actions import action_filmstrips, evaluate_actions, evaluate_feet, markdown, performer_changes
+    from styleerd.eval.actions import (
+        action_filmstrips,
+        evaluate_actions,
+        evaluate_feet,
+        markdown,
+        performer_changes,
+        style_recogniser,
+    )
     from styleerd.model.stored import load_generator_weights
 
     out = check_output(args.out)
@@ -517,7 +524,7 @@ def _eval_actions(args: argparse.Namespace) -> None:
     report = evaluate_actions(model, args.data, progress=print)
     report["performers"] = performer_changes(model, args.data)
     if not args.no_feet:
-        report["feet"] = evaluate_feet(model, args.data)
+        report["feet"] = evaluate_feet(model, args.data, recogniser=style_recogniser(model))
     atomic_write_text(out.with_suffix(".json"), json.dumps(report, indent=1) + "\n")
     atomic_write_text(out.with_suffix(".md"), markdown(report) + "\n")
     print(markdown(report))

@@ -304,3 +304,20 @@ def test_the_feet_line_names_the_worst_clip_and_style():
     assert A.actions_feet({"old": row("actions", {"active": {"correlation": 1.0}})}) == ""
     level = {"kick": row("actions", {"active": {"below_floor_cm": 0.0, "slide_cm_s": {"input": 1.0, "output": 1.0}}})}
     assert "every style: nothing below the input's floor" in A.actions_feet(level)
+
+
+def test_a_style_is_read_on_the_models_own_walk_and_not_on_the_input(shared_data, model):
+    """``read_as_target``: a Bandai-Namco-2 test walk into elderly is read as elderly on most windows
+    (the first, from a fresh state, less), the walk itself as normal and not as elderly; the shipped
+    recogniser is the one whose styles are the model's, and a 16-style model gets its own."""
+    recogniser = A.style_recogniser(model)
+    clip = A.bandai2_test_walks(str(shared_data), 1)[0]
+    jm = A._map(clip, model)
+    elderly = A.transfer_motion(clip.motion, model, 30.0, A.TransferOptions({"elderly": 1.0}, "normal"), where="w")
+    assert A.read_as_target(elderly, jm, model, recogniser, "elderly") >= 0.7
+    assert A.read_as_target(clip.motion, jm, model, recogniser, "normal") >= 0.9
+    assert A.read_as_target(clip.motion, jm, model, recogniser, "elderly") <= 0.1
+    short = Motion(clip.motion.skeleton, clip.motion.rotations[:20], clip.motion.positions[:20], clip.motion.fps)
+    assert A.read_as_target(short, jm, model, recogniser, "normal") is None  # shorter than a window
+    bandai12 = load_generator_weights("styleerd-bandai12")
+    assert A.style_recogniser(bandai12) is not None and A.style_recogniser(bandai12) is not recogniser

@@ -582,6 +582,38 @@ def _feet(m: Motion, jm: JointMap) -> tuple[np.ndarray, np.ndarray, np.ndarray, 
     return g[:, [side[:k] for side in joints]], g[:, [side[0] for side in joints]], body, up
 
 
+def style_recogniser(model: GeneratorWeights):
+    """The shipped style recogniser whose styles are the model's (``styleerd train-recognisers``),
+    or None where none is."""
+    from styleerd.model.checkpoint import load_recognisers
+
+    for stem in (None, "recognisers-bandai12"):
+        style, _, meta = load_recognisers(stem)
+        if tuple(meta["style"]["labels"]) == tuple(model.config.styles):
+            return style
+    return None
+
+
+def read_as_target(output: Motion, jm: JointMap, model: GeneratorWeights, recogniser, target: str) -> float | None:
+    """The share of an output's 24-frame windows (every 12 frames, on the model's skeleton at its
+    rate, as the recognisers read Bandai-Namco-2's) that the style ``recogniser`` reads as
+    ``target``; None for a clip shorter than a window."""
+    import torch
+
+    from styleerd.data.features import motion_features
+    from styleerd.data.windows import gather_windows
+
+    fps, J = float(model.meta["data"]["fps"]), model.config.n_joints
+    on_model = to_target(output if output.fps == fps else resample(output, fps), jm)
+    features = model.stats().normalize(motion_features(on_model)[0])[:, : 10 * J].astype(np.float32)
+    starts = np.arange(0, len(features) - 24 + 1, 12)
+    if not len(starts):
+        return None
+    with torch.no_grad():
+        read = recogniser(torch.from_numpy(gather_windows(features, starts, 24))).argmax(-1).numpy()
+    return round(float((read == model.config.styles.index(target)).mean()), 3)
+
+
 def feet_figures(given: Motion, output: Motion, jm: JointMap, scale: float) -> dict:
     """Below the floor (cm under the input's lowest foot point over the clip), planted feet's slide,
     and the stride (95th percentile of the ankles' horizontal gap), input and output.
@@ -624,9 +656,12 @@ def evaluate_feet(
     data_dir: str | None = None,
     poses: tuple[str, ...] = ("input", "network"),
     root_speed: tuple[bool, ...] = (False, True),
+    recogniser=None,
 ) -> dict:
     """``feet_figures`` of every walk clip into every style (and identity), per pose path and with
-    and without ``--root-speed``; the labeller's read of each walk (with inferred labels)."""
+    and without ``--root-speed``, with the share of each output's windows the style ``recogniser``
+    reads as its target (``read_as_target``, where one is given); the labeller's read of each walk
+    (with inferred labels)."""
     neutral = model.config.neutral_style
     out: dict = {}
     for clip in tqdm(walk_clips(data_dir), desc="feet", leave=False):
@@ -649,9 +684,10 @@ def evaluate_feet(
                 row[key] = {}
                 for style in model.config.styles:
                     o = TransferOptions({style: 1.0}, clip.input_style, root_speed=rs, pose=pose)
-                    row[key][style] = feet_figures(
-                        clip.motion, transfer_motion(clip.motion, model, 30.0, o, where=clip.name), jm, scale
-                    )
+                    output = transfer_motion(clip.motion, model, 30.0, o, where=clip.name)
+                    row[key][style] = feet_figures(clip.motion, output, jm, scale)
+                    if recogniser is not None:
+                        row[key][style]["read_as_target"] = read_as_target(output, jm, model, recogniser, style)
         out[clip.name] = row
     return out
 
@@ -806,6 +842,43 @@ def markdown(report: dict) -> str:
             reads = "/".join(row["labeller_reads"]) if row["labeller_reads"] else "(given)"
             lines.append(f"| {name} | {reads} | " + " | ".join(cells) + " |")
         lines.append("")
+        read = styles_read_markdown(report["feet"], report["styles"])
+        if read:
+            lines.append(read)
+    return "\n".join(lines)
+
+
+def styles_read_markdown(feet: dict, styles: list[str]) -> str:
+    """The walks' outputs as the style recogniser reads them (``read_as_target``), per pose path:
+    the mean over the target ``styles``, the least-read style, the identity read as the input's
+    own style; empty where they were not read."""
+    keys = [k for k in next(iter(feet.values())) if k.startswith("pose")]
+    first = next(iter(feet.values()))[keys[0]]
+    own = next((s for s in first if s not in styles), None)
+    if own is None or first[own].get("read_as_target") is None:
+        return ""
+    lines = [
+        (
+            "The style as a recogniser reads it: the share of each output's 24-frame windows (on the model's "
+            "skeleton) that the project's style recogniser, trained on Bandai-Namco-2's performer, reads as the "
+            "target style; the mean over the target styles, the least-read one, and in brackets the identity "
+            f"transfer's windows read as the input's own style ({own}). Where the identity is seldom read as {own}, "
+            "the recogniser takes the performer's own manner for a style."
+        ),
+        "",
+        "| clip | " + " | ".join(keys) + " |",
+        "|---|" + "---|" * len(keys),
+    ]
+    for name, row in feet.items():
+        cells = []
+        for k in keys:
+            shares = {s: row[k][s]["read_as_target"] for s in styles if row[k][s]["read_as_target"] is not None}
+            least = min(shares, key=shares.get)
+            cells.append(
+                f"{np.mean(list(shares.values())):.2f} (least: {least} {shares[least]:.2f}) "
+                f"[{row[k][own]['read_as_target']:.2f}]"
+            )
+        lines.append(f"| {name} | " + " | ".join(cells) + " |")
     return "\n".join(lines)
 
 

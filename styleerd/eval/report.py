@@ -271,6 +271,31 @@ def _training_runs(r: dict) -> str:
     )
 
 
+def _styles_read_paragraph(report: dict) -> str:
+    """What the style recogniser reads on other performers' walks (``actions.read_as_target``), per
+    pose path: the span of the mean over the styles, and the style least read."""
+    feet, styles = report.get("feet", {}), report["styles"]
+    outside = {n: r for n, r in feet.items() if not r["source"].startswith("bandai-namco-2")}
+    if not outside or next(iter(outside.values()))["pose input"][styles[0]].get("read_as_target") is None:
+        return ""
+
+    def means(pose: str) -> list[float]:
+        return [float(np.mean([r[pose][s]["read_as_target"] for s in styles])) for r in outside.values()]
+
+    mine, net = means("pose input"), means("pose network")
+    per_style = {s: float(np.mean([r["pose input"][s]["read_as_target"] for r in outside.values()])) for s in styles}
+    least = min(per_style, key=per_style.get)
+    return f"""
+Whether a style shows on other performers' walks is also read by the project's style recogniser
+(the table after "Feet and pace"): on the {len(outside)} walks of other performers and rigs, the
+default pose's outputs are read as their target on {min(mine):.2f} to {max(mine):.2f} of their windows
+(the mean over the styles; {least} on {per_style[least]:.2f} on average), the network's own pose's on
+{min(net):.2f} to {max(net):.2f}. Where the network does not rebuild a performer's walk, the default path
+turns the input's pose by the style's posture, an average pose: it carries what a style changes in the
+pose, not what it changes in the timing (active's bounce).
+"""
+
+
 def actions_section(docs: Path) -> str:
     """Issue 35's section: the held-out action table (``styleerd eval actions``: docs/actions.*),
     and the shipped model on Bandai-Namco-2 with each pose path (``eval quality --pose``,
@@ -319,7 +344,7 @@ points as their change on the walk at -0.21 to 0.71, and two takes of one walk a
 where the posture's points as the walks' at {span(posture)} ("The style's change as a performer makes
 it" below; [Model](model.md#active-on-a-punch-and-what-a-real-performers-change-looks-like), with
 why active misses on the punches).
-
+{_styles_read_paragraph(report)}
 ![a dance](actions-dance-short.png)
 
 ![a kick](actions-kick.png)
