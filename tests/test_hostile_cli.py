@@ -162,7 +162,7 @@ CASES = {
     ),
     "empty file": (lambda t: ["info", str(_touch(t / "in.bvh"))], "it is empty"),
     "binary file": (lambda t: ["info", str(_bytes(t / "in.bvh", b"\x89PNG\r\n\x1a\n\xff\xfe"))], "not a text file"),
-    "input is a folder": (lambda t: ["info", str(t)], "Is a directory"),
+    "a folder with no motion in it": (lambda t: ["info", str(t)], "no motion files (.bvh, .glb"),
     "input missing": (lambda t: ["info", str(t / "nope.bvh")], "No such file"),
     "all offsets zero": (_transfer(lambda t: _zero_offsets(t / "in.bvh")), "no length"),
     "root X of 1e30": (
