@@ -12,7 +12,7 @@ from collections.abc import Callable
 from pathlib import Path
 
 from styleerd.atomic import check_output
-from styleerd.errors import StyleERDError
+from styleerd.errors import StyleERDError, unknown_name
 
 
 def _data_prepare(args: argparse.Namespace) -> None:
@@ -158,7 +158,7 @@ def _transfer(args: argparse.Namespace) -> None:
         (args.content, c.contents, "--content"),
     ):
         if value is not None and value not in names:
-            raise StyleERDError(f"{what} {value!r} is not one of: {', '.join(names)}")
+            raise unknown_name(what, value, names)
     target = target_weights(model, args.style, args.intensity, _style_or_mix(args))
     explicit = _read_joint_map(args.joint_map) if args.joint_map else None
     parts = part_targets(model, args.parts)  # checked once here, not once per file

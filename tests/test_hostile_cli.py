@@ -182,6 +182,7 @@ CASES = {
     ),
     "output .txt": (_transfer(_walk, output="out.txt"), "the output must be .bvh, .glb, .vrma or .fbx"),
     "BVH to .vrm": (_transfer(_walk, output="out.vrm"), "a .vrm is a character: put the motion on one with --onto"),
+    "--content with a typo": (_transfer(_walk, "--content", "wlak"), "unknown --content 'wlak' (did you mean 'walk'?)"),
     "--style with a capital": (
         lambda t: ["transfer", str(_walk(t)), "--style", "Elderly", "-o", str(t / "o.bvh")],
         "unknown style 'Elderly' (did you mean 'elderly'?); valid: active, elderly",
@@ -255,7 +256,7 @@ CASES = {
     "--parts unknown style": (_transfer(_walk, "--parts", "legs=zombie"), "unknown style 'zombie'"),
     "--parts intensity nan": (_transfer(_walk, "--parts", "legs=elderly:nan"), "intensity nan is outside"),
     "--parts intensity text": (_transfer(_walk, "--parts", "arms=elderly:high"), "intensity 'high' is not a number"),
-    "--input-style unknown": (_transfer(_walk, "--input-style", "zombie"), "--input-style 'zombie' is not one of"),
+    "--input-style unknown": (_transfer(_walk, "--input-style", "zombie"), "unknown --input-style 'zombie'; valid"),
     "--joint-map missing": (_transfer(_walk, "--joint-map", "/nonexistent.json"), "--joint-map /nonexistent.json"),
     "--joint-map not an object": (
         lambda t: [

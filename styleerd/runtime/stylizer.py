@@ -26,7 +26,6 @@ takes the label's place.
 
 from __future__ import annotations
 
-import difflib
 import math
 import threading
 from concurrent.futures import ThreadPoolExecutor, wait
@@ -38,7 +37,7 @@ import numpy as np
 
 from styleerd.data.features import FeatureLayout, stream_features
 from styleerd.data.parallel import on_kernel_threads
-from styleerd.errors import StyleERDError
+from styleerd.errors import StyleERDError, unknown_name
 from styleerd.model.config import RELEASE, RISE
 from styleerd.model.stored import (
     GeneratorWeights,
@@ -80,9 +79,7 @@ def label_vector(names: tuple[str, ...], weights: dict[str, float], what: str) -
     v = np.zeros(len(names))
     for name, w in weights.items():
         if name not in names:
-            near = difflib.get_close_matches(str(name)[:40].lower(), names, 1)  # a typo, or a capital
-            meant = f" (did you mean {near[0]!r}?)" if near else ""
-            raise StyleERDError(f"unknown {what} {name!r}{meant}; valid: {', '.join(names)}")
+            raise unknown_name(what, name, names)
         v[names.index(name)] = w
     return v
 

@@ -30,7 +30,7 @@ from tqdm import tqdm
 from styleerd.data.datasets import cache_dir
 from styleerd.data.features import motion_features
 from styleerd.data.windows import gather_windows
-from styleerd.errors import StyleERDError
+from styleerd.errors import StyleERDError, unknown_name
 from styleerd.model import checkpoint as ckpt
 from styleerd.model.discriminator import Discriminator
 from styleerd.model.generator import StyleERD
@@ -105,7 +105,7 @@ def style_clips(
             raise StyleERDError(f"give one --content for every clip ({len(paths)}) or one for all, not {len(contents)}")
         for name in contents:
             if name not in c.contents:
-                raise StyleERDError(f"--content {name!r} is not one of: {', '.join(c.contents)}")
+                raise unknown_name("--content", name, c.contents)
         contents = contents * len(paths) if len(contents) == 1 else contents
     labeller, _ = ckpt.load_labeller(labeller_stem(c))
     xs, styles, cont, total = [], [], [], 0
