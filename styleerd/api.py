@@ -20,7 +20,7 @@ from styleerd.errors import StyleERDError
 from styleerd.model.stored import GeneratorWeights, load_generator_weights
 from styleerd.models import LICENCE
 from styleerd.motion import bvh
-from styleerd.motion.gltf import GLTF_INPUTS, read_gltf_character, read_motion
+from styleerd.motion.gltf import GLTF_INPUTS, read_gltf_file, read_motion
 from styleerd.motion.motion import Motion
 from styleerd.motion.skeleton import Skeleton
 from styleerd.runtime.channels import ChannelStylizer
@@ -116,9 +116,9 @@ class Model:
         if skeleton is None:
             skeleton = self.skeleton
         elif isinstance(skeleton, (str, os.PathLike)) and Path(skeleton).suffix.lower() in GLTF_INPUTS:
-            character = read_gltf_character(skeleton)  # an avatar, animated or not: its rest pose, its VRM humanoid
+            character, clips = read_gltf_file(skeleton)  # an avatar, animated or not: its rest pose, its VRM humanoid
             joint_map = humanoid_joint_map(self.weights, character, joint_map) or None
-            fps = fps or (read_motion(skeleton).fps if character.doc.animations else None)
+            fps = fps or (clips[0][1].motion.fps if clips else None)
             skeleton = character.motion.skeleton
         elif isinstance(skeleton, (str, os.PathLike)):
             skeleton = read_motion(skeleton)

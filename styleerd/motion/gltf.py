@@ -15,6 +15,7 @@ from the leg length: centimetre and metre data are recognised, anything else is 
 
 from __future__ import annotations
 
+from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -449,10 +450,8 @@ def read_gltf_character(path: str | Path) -> GltfMotion:
     avatar to put a motion on."""
     path = Path(path)
     doc, blob = _load(path)
-    try:
+    with _refused_as(path):
         return _read(doc, blob, None, None)
-    except (ValueError, KeyError, IndexError, TypeError, AttributeError) as e:
-        raise StyleERDError(f"{path}: {str(e)[:400]}") from None
 
 
 def read_gltf_clips(
@@ -462,11 +461,28 @@ def read_gltf_clips(
     each on the file's first skin, as ``read_gltf`` reads one."""
     path = Path(path)
     doc, blob = _load(path)
-    try:
+    with _refused_as(path):
         wanted = range(len(doc.animations or [])) if animations is None else animations
         indices = [_animation_index(doc, a) for a in wanted] or [_animation_index(doc, 0)]
         names = animation_names(doc)
         return [(names[k], _read(doc, blob, k, fps)) for k in indices]
+
+
+def read_gltf_file(path: str | Path) -> tuple[GltfMotion, list[tuple[str, GltfMotion]]]:
+    """A glTF/GLB/VRM file read once: its character in the rest pose (``read_gltf_character``) and
+    every animation (``read_gltf_clips``; none for a character with none)."""
+    path = Path(path)
+    doc, blob = _load(path)
+    with _refused_as(path):
+        names = animation_names(doc)
+        return _read(doc, blob, None, None), [(names[k], _read(doc, blob, k, None)) for k in range(len(names))]
+
+
+@contextmanager
+def _refused_as(path: Path):
+    """What a malformed file raises while it is read, as one StyleERDError naming the file."""
+    try:
+        yield
     except (ValueError, KeyError, IndexError, TypeError, AttributeError) as e:
         raise StyleERDError(f"{path}: {str(e)[:400]}") from None
 

@@ -19,6 +19,7 @@ from styleerd.motion.gltf import (
     GltfMotion,
     read_gltf_character,
     read_gltf_clips,
+    read_gltf_file,
     write_glb,
     write_gltf_animations,
     write_vrma,
@@ -339,19 +340,14 @@ def describe_input(
     so a file of any length takes bounded memory."""
     suffix, channels = source.suffix.lower(), None
     if suffix in GLTF_INPUTS or suffix == ".fbx":
-        options = TransferOptions({}, explicit_map=explicit)
         if suffix == ".fbx":
-            clips, named = source_clips(source, model, options)
+            clips, named = source_clips(source, model, TransferOptions({}, explicit_map=explicit))
             kind, rest = "FBX", clips[0][1]
         else:  # a character may have no animation: its rest pose is what is mapped
-            character = read_gltf_character(source)
+            character, animations = read_gltf_file(source)
             kind = {".vrm": "VRM", ".vrma": "VRM Animation"}.get(suffix, "glTF")
             kind += ", a VRM humanoid" if character.parts else ""
-            clips, named = (
-                source_clips(source, model, options)
-                if character.doc.animations
-                else ([], humanoid_joint_map(model, character, explicit))
-            )
+            clips, named = [(n, c.motion) for n, c in animations], humanoid_joint_map(model, character, explicit)
             rest = clips[0][1] if clips else character.motion
         skeleton, first_pose = rest.skeleton, rest.rotations[0]
         lines = [f"{source}: {kind}, {skeleton.n_joints} joints, {len(clips)} animation(s)"]
