@@ -600,12 +600,12 @@ def read_as_target(output: Motion, jm: JointMap, model: GeneratorWeights, recogn
     ``target``; None for a clip shorter than a window."""
     import torch
 
-    from styleerd.data.features import motion_features
     from styleerd.data.windows import gather_windows
+    from styleerd.eval.metrics import played_channels
 
-    fps, J = float(model.meta["data"]["fps"]), model.config.n_joints
+    fps = float(model.meta["data"]["fps"])
     on_model = to_target(output if output.fps == fps else resample(output, fps), jm)
-    features = model.stats().normalize(motion_features(on_model)[0])[:, : 10 * J].astype(np.float32)
+    features = played_channels(model, on_model.rotations, on_model.positions, fps)
     starts = np.arange(0, len(features) - 24 + 1, 12)
     if not len(starts):
         return None

@@ -37,6 +37,7 @@ from styleerd.data.features import motion_features
 from styleerd.data.windows import gather_windows, split_takes
 from styleerd.model.fmd import MotionAutoencoder, fmd_features
 from styleerd.model.generator import StyleERD
+from styleerd.model.stored import GeneratorWeights
 from styleerd.motion import bvh
 from styleerd.motion.kinematics import foot_contacts, forward_positions
 from styleerd.motion.motion import Motion
@@ -320,7 +321,9 @@ def root_speeds(
     return out
 
 
-def played_channels(model: StyleERD, rotations: np.ndarray, positions: np.ndarray, fps: float) -> np.ndarray:
+def played_channels(
+    model: StyleERD | GeneratorWeights, rotations: np.ndarray, positions: np.ndarray, fps: float
+) -> np.ndarray:
     """Normalised [rotations | positions | velocities] of output frames as they play (the
     stylizer's output rotations and root path), ``[T, 10J]`` float32."""
     feats, _ = motion_features(Motion(model.skeleton, rotations, positions, fps))
