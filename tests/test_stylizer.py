@@ -8,7 +8,6 @@ from styleerd.errors import StyleERDError
 from styleerd.model.generator import GeneratorConfig, StyleERD
 from styleerd.model.labeller import OnlineLabeller
 from styleerd.motion import quat
-from styleerd.motion.humanoid import limb_ends
 from styleerd.motion.kinematics import forward_kinematics
 from styleerd.motion.motion import Motion
 from styleerd.motion.skeleton import BodyRoles
@@ -140,7 +139,6 @@ def test_stream_equals_the_generator_forward_on_whole_clip_features(model, backe
                 torch.from_numpy(m.skeleton.offsets),
                 torch.from_numpy(given - given[:, :1] + moved),
                 [int(p) for p in m.skeleton.parents],
-                limb_ends(m.skeleton).tolist(),
             ).numpy()
         want = np.stack(
             [
@@ -715,7 +713,6 @@ def test_reach_turns_each_joint_by_the_shortest_arc_towards_its_childrens_target
             parents,
             first,
             children,
-            np.full(J, -1),
             np.empty((J, 4)),
             np.empty((J, 3)),
         )
@@ -738,105 +735,10 @@ def test_reach_turns_each_joint_by_the_shortest_arc_towards_its_childrens_target
             parents,
             first,
             children,
-            np.full(J, -1),
             np.empty((J, 4)),
             np.empty((J, 3)),
         )
         assert np.degrees(quat.angle_between(same, m.rotations[t])).max() < 1e-6
-
-
-def test_a_limb_puts_its_middle_joint_where_it_and_the_end_meet_their_targets_best():
-    """``_reach`` with the skeleton's two-bone limbs (``limb_ends``: shoulder to hand, hip to foot) and
-    its torch twin against scipy's optimiser: the elbow or knee lands on the point, at the upper bone's
-    length from the limb's first joint, that minimises the squared distance to its own target plus
-    the squared distance by which the lower bone misses the end's target; the lower bone then points
-    at the end's target. A foot asked up its own shin comes up, where turning one joint at a time
-    could only slide it along the shin (it stays put); with no offsets the pose is kept."""
-    from scipy.optimize import minimize
-
-    from styleerd.model import torch_quat
-    from styleerd.motion.kinematics import heading_axes
-    from styleerd.runtime.stylizer import _children, _reach
-
-    m = walking_motion(4)
-    sk, parents, J = m.skeleton, m.skeleton.parents, m.skeleton.n_joints
-    ends = limb_ends(sk)
-    assert [sk.names[j] for j in np.nonzero(ends >= 0)[0]] == [
-        "UpperLeg_L",
-        "UpperLeg_R",
-    ]  # its arms end at the forearm
-    first, children = _children(parents)
-    axes = heading_axes(np.array([0.0, 0.0, 1.0]))  # rows: +X, +Y, +Z, so the offsets are as they are
-
-    def reached(start, t, offsets, limbs):
-        _, given = forward_kinematics(m.rotations[t], m.positions[t], parents)
-        got = start.copy()
-        _reach(
-            got,
-            m.positions[t],
-            given,
-            axes,
-            offsets,
-            parents,
-            first,
-            children,
-            limbs,
-            np.empty((J, 4)),
-            np.empty((J, 3)),
-        )
-        return got, forward_kinematics(got, m.positions[t], parents)[1], given + offsets
-
-    def miss(e, elbow, end, lower):  # what the limb's middle joint at e leaves of both targets, squared
-        return np.sum((e - elbow) ** 2) + (np.linalg.norm(e - end) - lower) ** 2
-
-    def on_sphere(v, upper):  # a point at upper from the limb's first joint, by two angles
-        return upper * np.array([np.cos(v[0]) * np.cos(v[1]), np.sin(v[0]), np.cos(v[0]) * np.sin(v[1])])
-
-    rng = np.random.default_rng(11)
-    for t in range(4):
-        start = quat.normalize(m.rotations[t] + rng.normal(0, 0.1, (J, 4)))
-        offsets = rng.normal(0, 0.2, (J, 3)) * np.linalg.norm(sk.offsets, axis=-1).mean()
-        got, g, targets = reached(start, t, offsets, ends)
-        for j in np.nonzero(ends >= 0)[0]:
-            h = ends[j]
-            k = parents[h]
-            upper, lower = np.linalg.norm(m.positions[t, k]), np.linalg.norm(m.positions[t, h])
-            elbow, end = targets[k] - g[j], targets[h] - g[j]
-            d = elbow / np.linalg.norm(elbow)
-            best = minimize(
-                lambda v, *args: miss(on_sphere(v, upper=args[0]), *args[1:]),
-                [np.arcsin(d[1]), np.arctan2(d[2], d[0])],
-                args=(upper, elbow, end, lower),
-                method="Nelder-Mead",
-                options={"xatol": 1e-12, "fatol": 1e-16, "maxiter": 20000},
-            )
-            assert abs(np.linalg.norm(g[k] - g[j]) - upper) < 1e-9 * upper
-            assert np.linalg.norm(g[k] - g[j] - on_sphere(best.x, upper)) < 1e-4 * upper
-            assert miss(g[k] - g[j], elbow, end, lower) <= best.fun + 1e-8 * upper**2
-            bone, wanted = g[h] - g[k], targets[h] - g[k]
-            assert bone @ wanted / (np.linalg.norm(bone) * np.linalg.norm(wanted)) > 1 - 1e-12
-        twin = torch_quat.reach(
-            torch.from_numpy(start),
-            torch.from_numpy(sk.offsets),
-            torch.from_numpy(targets - targets[0] + offsets[0]),
-            [int(p) for p in parents],
-            ends.tolist(),
-        ).numpy()
-        assert np.degrees(quat.angle_between(twin, got)).max() < 1e-6
-
-    _, g, _ = reached(m.rotations[0], 0, np.zeros((J, 3)), ends)
-    j = int(np.nonzero(ends >= 0)[0][0])
-    h = ends[j]
-    along = np.zeros((J, 3))
-    along[h] = -0.3 * (g[h] - g[parents[h]])  # the foot asked up its shin, the knee to stay (a knee to bend)
-    _, alone, targets = reached(m.rotations[0], 0, along, np.full(J, -1))
-    assert np.linalg.norm(alone[h] - g[h]) < 1e-9 * np.linalg.norm(along[h])  # one joint at a time: it stays put
-    _, limb, _ = reached(m.rotations[0], 0, along, ends)
-    both = lambda p: np.sum((p[[parents[h], h]] - targets[[parents[h], h]]) ** 2)  # knee's miss and foot's, squared
-    assert both(limb) < 0.8 * both(alone)  # 106 against 144 here: the knee gives a little, the foot comes up
-    assert np.linalg.norm(limb[h] - targets[h]) < 0.75 * np.linalg.norm(along[h])
-    same, _, _ = reached(m.rotations[0], 0, np.zeros((J, 3)), ends)
-    assert np.degrees(quat.angle_between(same, m.rotations[0])).max() < 1e-6
 
 
 def test_streams_blended_together_get_what_each_gets_alone():
@@ -870,7 +772,6 @@ def test_streams_blended_together_get_what_each_gets_alone():
         _towards_the_input(
             *(given[rows], same[rows], out, np.ascontiguousarray(diff[rows]), posture, offsets, bounds[rows]),
             *(FAMILIAR, UNFAMILIAR, weight, translations[rows], globals_[rows], facing[rows], joints, True, sk.parents),
-            limb_ends(sk),
         )
         return out, weight
 

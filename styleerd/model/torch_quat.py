@@ -8,8 +8,6 @@ import itertools
 
 import torch
 
-from styleerd.model.config import LIMB_ROUNDS
-
 
 def mul(a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
     aw, ax, ay, az = a.unbind(-1)
@@ -77,19 +75,11 @@ def between(a: torch.Tensor, b: torch.Tensor, eps: float = 1e-12) -> torch.Tenso
     return torch.where(w > eps, normalize(q, eps), q.new_tensor([1.0, 0.0, 0.0, 0.0]))
 
 
-def reach(
-    rotations: torch.Tensor,
-    offsets: torch.Tensor,
-    targets: torch.Tensor,
-    parents: list[int],
-    limb_ends: list[int] | None = None,
-) -> torch.Tensor:
+def reach(rotations: torch.Tensor, offsets: torch.Tensor, targets: torch.Tensor, parents: list[int]) -> torch.Tensor:
     """``rotations [..., J, 4]`` (local) turned so that each joint's children go towards
     ``targets [..., J, 3]`` (relative to the root, in the root's parent frame): down the chain, each
     joint but the root by the shortest arc from its children's summed bone vectors (``offsets
-    [J, 3]``) to the summed vectors to their targets; the first joint of a two-bone limb (``limb_ends``,
-    ``runtime.stylizer.limb_ends``) so that its bone goes where ``limb_elbow`` puts it.
-    ``runtime.stylizer._reach``'s twin."""
+    [J, 3]``) to the summed vectors to their targets; ``runtime.stylizer._reach``'s twin."""
     out = list(rotations.unbind(-2))
     G, X = list(out), [torch.zeros_like(targets[..., 0, :])] * len(parents)
     for j, p in enumerate(parents):
@@ -101,33 +91,10 @@ def reach(
         if not kids:
             continue
         now = sum(mul_vec(G[j], offsets[k].expand_as(X[j])) for k in kids)
-        if limb_ends is not None and limb_ends[j] >= 0:
-            end = limb_ends[j]
-            wanted = limb_elbow(
-                targets[..., parents[end], :] - X[j],
-                targets[..., end, :] - X[j],
-                offsets[parents[end]].norm(),
-                offsets[end].norm(),
-            )
-        else:
-            wanted = sum(targets[..., k, :] - X[j] for k in kids)
+        wanted = sum(targets[..., k, :] - X[j] for k in kids)
         G[j] = mul(between(now, wanted), G[j])
         out[j] = mul(inv(G[p]), G[j])
     return torch.stack(out, -2)
-
-
-def limb_elbow(elbow: torch.Tensor, end: torch.Tensor, upper: torch.Tensor, lower: torch.Tensor) -> torch.Tensor:
-    """Where a two-bone limb's middle joint goes (``[..., 3]``, from the limb's first joint), given its
-    target ``elbow`` and the end's target ``end``: the point at ``upper`` from the first joint nearest,
-    in the least squares, to the middle joint's target and to the sphere of radius ``lower`` about the
-    end's target (from which the lower bone reaches it), by ``LIMB_ROUNDS`` rounds of projections;
-    ``runtime.stylizer._limb_elbow``'s twin."""
-    e = elbow
-    for _ in range(LIMB_ROUNDS):
-        e = upper * e / e.norm(dim=-1, keepdim=True).clamp_min(1e-12)
-        reach = e - end
-        e = 0.5 * (elbow + end + lower * reach / reach.norm(dim=-1, keepdim=True).clamp_min(1e-12))
-    return upper * e / e.norm(dim=-1, keepdim=True).clamp_min(1e-12)
 
 
 def body_axes(

@@ -437,19 +437,3 @@ def joint_tree(skeleton: Skeleton, limit: int = 120, notes: list[str] | None = N
     if len(lines) > limit:
         lines = lines[:limit] + [f"  ... and {len(lines) - limit} more"]
     return "\n".join(lines)
-
-
-TWO_BONES = (LIMBS["arm"][1:], LIMBS["leg"][:3])  # shoulder, elbow, hand; hip, knee, foot
-
-
-def limb_ends(skeleton: Skeleton) -> np.ndarray:
-    """``[J]``: for the first joint of each two-bone limb of ``skeleton`` (shoulder, elbow, hand; hip,
-    knee, foot: ``body_parts``, where they make one chain and the first joint has no other
-    child), the limb's end joint; -1 elsewhere."""
-    parts, parents = body_parts(skeleton), skeleton.parents
-    out = np.full(skeleton.n_joints, -1, np.int64)
-    for side, (first, middle, end) in itertools.product(("left", "right"), TWO_BONES):
-        j, k, h = (parts.get(f"{side}_{role}") for role in (first, middle, end))
-        if None not in (j, k, h) and parents[h] == k and parents[k] == j and (parents == j).sum() == 1:
-            out[j] = h
-    return out

@@ -15,7 +15,6 @@ from styleerd.model.classifiers import WindowClassifier
 from styleerd.model.config import RELEASE, RISE
 from styleerd.model.fmd import MotionAutoencoder, fmd_features
 from styleerd.model.generator import StyleERD
-from styleerd.motion.humanoid import limb_ends
 from styleerd.motion.skeleton import BodyRoles
 from styleerd.train.batches import TrainingData, WindowSet, window_rotations
 
@@ -130,9 +129,7 @@ def towards_the_input(
                 moved = torch.einsum("bjc,btck->btjk", moved, axes.to(moved.dtype))
             else:
                 moved = moved[:, None]
-            turned = torch_quat.reach(
-                turned, model.offsets, positions + moved, model.parents, limb_ends(model.skeleton).tolist()
-            )
+            turned = torch_quat.reach(turned, model.offsets, positions + moved, model.parents)
     rot = torch_quat.slerp(rot, turned, weight[..., None].expand(rot.shape[:-1]))
     return rot, vel + weight[..., None] * (x[..., model.layout.velocities] - same_vel)
 

@@ -55,30 +55,15 @@ function bodyAxes(g, roles) { // up from the hips to the head, left from the rig
   return [cross(up, forward), up, forward].map((v) => { const n = Math.max(Math.hypot(...v), 1e-9); return v.map((x) => x / n); });
 }
 
-// Where a two-bone limb's middle joint goes, from the limb's first joint, given its target elbow and the end's target
-// end (both from the first joint): the point at upper from the first joint nearest, in the least squares, to its
-// target and to the sphere of radius lower about the end's, by rounds rounds of projections (onnx_host's limb_elbow).
-function limbElbow(elbow, end, upper, lower, rounds) {
-  let e = elbow;
-  const onto = (v, length) => { const n = Math.max(Math.hypot(...v), 1e-12); return v.map((x) => (length * x) / n); };
-  for (let r = 0; r < rounds; r++) {
-    e = onto(e, upper);
-    const toEnd = onto(e.map((x, k) => x - end[k]), lower);
-    e = e.map((_, k) => 0.5 * (elbow[k] + end[k] + toEnd[k]));
-  }
-  return onto(e, upper);
-}
-
-// limbEnds[j]: for the first joint of a two-bone limb its end (turned towards limbElbow's place), else -1.
-function reach(rot, pos, given, targets, parents, limbEnds, rounds) {
+function reach(rot, pos, given, targets, parents) {
   rot = rot.slice();
   const gRot = rot.slice(), gPos = given.slice();
   parents.forEach((p, j) => {
     if (p < 0) return;
     gRot[j] = qmul(gRot[p], rot[j]);
     gPos[j] = qrot(gRot[p], pos[j]).map((x, k) => x + gPos[p][k]);
-    const now = [0, 0, 0];
-    let wanted = [0, 0, 0], kids = 0;
+    const now = [0, 0, 0], wanted = [0, 0, 0];
+    let kids = 0;
     for (let k = j + 1; k < parents.length; k++) {
       if (parents[k] !== j) continue;
       kids++;
@@ -86,11 +71,6 @@ function reach(rot, pos, given, targets, parents, limbEnds, rounds) {
       for (let i = 0; i < 3; i++) { now[i] += v[i]; wanted[i] += targets[k][i] - gPos[j][i]; }
     }
     if (!kids) return;
-    const end = limbEnds[j];
-    if (end >= 0) {
-      const toEnd = targets[end].map((x, i) => x - gPos[j][i]);
-      wanted = limbElbow(wanted, toEnd, Math.hypot(...now), Math.hypot(...pos[end]), rounds);
-    }
     gRot[j] = qmul(shortestArc(now, wanted), gRot[j]);
     rot[j] = qmul(inverse(gRot[p]), gRot[j]);
   });
@@ -218,8 +198,7 @@ export class StyleHost {
     if (this.moved) { // then turned so that the joints go where the posture moves the input's
       const g = this.previous, axes = this.side.posture_frame === "body" ? bodyAxes(g, this.roles) : headingAxes(heading);
       const targets = g.map((x, j) => [0, 1, 2].map((k) => x[k] + this.moved[j].reduce((sum, o, i) => sum + o * axes[i][k], 0)));
-      const limbEnds = this.side.limb_ends || this.parents.map(() => -1); // an older export: no limbs
-      turned = reach(turned, pos, g, targets, this.parents, limbEnds, this.side.limb_rounds || 0);
+      turned = reach(turned, pos, g, targets, this.parents);
     }
     return given.map((_, j) => slerp(poses.target[j], turned[j], this.unfamiliar));
   }
