@@ -40,10 +40,6 @@ class Motion:
     def n_frames(self) -> int:
         return len(self.rotations)
 
-    @property
-    def root_positions(self) -> np.ndarray:
-        return self.positions[:, 0]
-
     def __getitem__(self, frames: slice) -> Motion:
         hint = None if self.euler_hint is None else self.euler_hint[frames]
         return Motion(self.skeleton, self.rotations[frames], self.positions[frames], self.fps, hint)

@@ -49,13 +49,10 @@ class Skeleton:
         """The joints whose parent is ``j``."""
         return [int(c) for c in np.nonzero(self.parents == j)[0]]
 
-    def rotation_order(self, j: int) -> str:
-        """Euler order of joint j's rotation channels, e.g. "zxy"; axes without a channel are
-        appended in x, y, z order (their angle is always zero)."""
-        return self.rotation_orders[j]
-
     @cached_property
     def rotation_orders(self) -> tuple[str, ...]:
+        """Each joint's Euler order of its rotation channels, e.g. "zxy"; axes without a channel are
+        appended in x, y, z order (their angle is always zero)."""
         orders = []
         for chans in self.channels:
             listed = [c[0].lower() for c in chans if c in ROTATION_CHANNELS]
