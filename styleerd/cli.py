@@ -52,7 +52,7 @@ def _info(args: argparse.Namespace) -> None:
     explicit = _read_joint_map(args.joint_map) if args.joint_map else None
     model = load_generator_weights(args.model)
     if not Path(args.file).is_dir():
-        print(describe_input(Path(args.file), model, explicit))
+        print(describe_input(Path(args.file), model, explicit)[0])
         return
     from styleerd.runtime.batch import MOTION_FILES
 
@@ -62,10 +62,10 @@ def _info(args: argparse.Namespace) -> None:
     mapped = unread = 0
     for path in files:  # a file that cannot be read is said and the next one read
         try:
-            text = describe_input(path, model, explicit, brief=True)
+            text, maps = describe_input(path, model, explicit, brief=True)
         except StyleERDError as e:  # its message names the file, mostly
-            text, unread = (str(e) if str(e).startswith(str(path)) else f"{path}: {e}"), unread + 1
-        mapped += text.endswith("maps onto the model")
+            text, maps, unread = (str(e) if str(e).startswith(str(path)) else f"{path}: {e}"), False, unread + 1
+        mapped += maps
         print(text)
     print(f"{len(files)} files: {mapped} map onto the model, {len(files) - mapped - unread} do not, {unread} unread")
 

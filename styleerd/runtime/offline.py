@@ -332,12 +332,12 @@ def source_clips(
 
 def describe_input(
     source: Path, model: GeneratorWeights, explicit: dict[str, str] | None = None, brief: bool = False
-) -> str:
+) -> tuple[str, bool]:
     """What ``transfer`` reads from a file (BVH, glTF, GLB, VRM, VRMA or FBX): its animations
     (frames, rate, length), its joint tree (a BVH's with each joint's channels), and its joint
     mapping onto the model's (a VRM humanoid's first, completed by ``explicit``), or why there is
-    none; ``brief``: the first line and whether it maps, each in a line. A BVH is read in chunks,
-    so a file of any length takes bounded memory."""
+    none; ``brief``: the first line and whether it maps, each in a line. With it, whether the file
+    maps. A BVH is read in chunks, so a file of any length takes bounded memory."""
     suffix, channels = source.suffix.lower(), None
     if suffix in GLTF_INPUTS or suffix == ".fbx":
         if suffix == ".fbx":
@@ -374,7 +374,9 @@ def describe_input(
         lines.append(f"{'  ' if brief else ''}no joint mapping onto the model: {e.brief}")
     except ValueError as e:
         lines.append(f"{'  ' if brief else ''}no joint mapping onto the model: {e}")
-    return "\n".join(lines)
+    else:
+        return "\n".join(lines), True
+    return "\n".join(lines), False
 
 
 def stylised_on_model(
