@@ -91,11 +91,33 @@ def shortest_arc(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     return q / np.linalg.norm(q)
 
 
-def reach(rot: np.ndarray, pos: np.ndarray, given: np.ndarray, targets: np.ndarray, parents: list[int]) -> np.ndarray:
+def limb_elbow(elbow: np.ndarray, end: np.ndarray, upper: float, lower: float, rounds: int) -> np.ndarray:
+    """Where a two-bone limb's middle joint goes, from the limb's first joint, given its target
+    ``elbow`` and the end's target ``end`` (both from the first joint): the point at ``upper`` from the
+    first joint nearest, in the least squares, to its target and to the sphere of radius ``lower``
+    about the end's (from which the lower bone reaches it), by ``rounds`` rounds of projections."""
+    e = elbow
+    for _ in range(rounds):
+        e = upper * e / max(np.linalg.norm(e), 1e-12)
+        r = e - end
+        e = 0.5 * (elbow + end + lower * r / max(np.linalg.norm(r), 1e-12))
+    return upper * e / max(np.linalg.norm(e), 1e-12)
+
+
+def reach(
+    rot: np.ndarray,
+    pos: np.ndarray,
+    given: np.ndarray,
+    targets: np.ndarray,
+    parents: list[int],
+    limb_ends: list[int],
+    rounds: int,
+) -> np.ndarray:
     """The pose ``rot [J, 4]`` turned so that each joint's children go towards ``targets [J, 3]``
     (global): down the chain, each joint but the root by the shortest arc from its children's
-    summed bone vectors to the summed vectors to their targets (no bone turns about itself).
-    ``given``: the input's global joint positions (the root's is kept)."""
+    summed bone vectors to the summed vectors to their targets (no bone turns about itself); the
+    first joint of a two-bone limb (``limb_ends[j]``: its end, else -1) towards where ``limb_elbow``
+    puts the middle joint. ``given``: the input's global joint positions (the root's is kept)."""
     rot, g_rot, g_pos = rot.copy(), rot.copy(), given.copy()
     for j, p in enumerate(parents):
         if p < 0:
@@ -106,6 +128,10 @@ def reach(rot: np.ndarray, pos: np.ndarray, given: np.ndarray, targets: np.ndarr
         if kids:
             now = sum(qrot(g_rot[j], pos[k]) for k in kids)
             wanted = sum(targets[k] - g_pos[j] for k in kids)
+            if limb_ends[j] >= 0:
+                end = limb_ends[j]
+                upper, lower = np.linalg.norm(now), np.linalg.norm(pos[end])
+                wanted = limb_elbow(wanted, targets[end] - g_pos[j], upper, lower, rounds)
             g_rot[j] = qmul(shortest_arc(now, wanted), g_rot[j])
             rot[j] = qmul(qinv(g_rot[p]), g_rot[j])
     return rot
@@ -155,6 +181,9 @@ class Host:
         # where the posture moves each joint (in the frame posture_frame names), summed by weight; None: not measured
         offsets = np.array(s["posture_offsets"]) if s.get("posture_offsets") is not None else None
         self.body_frame = s.get("posture_frame") == "body"
+        # an older export has no limbs: every joint turned on its own
+        self.limb_ends, self.limb_rounds = s.get("limb_ends", [-1] * len(self.parents)), s.get("limb_rounds", 0)
+        self.eyes = s.get("eyes_above_head")
         self.familiar_degrees = s.get("familiar_degrees", (FAMILIAR, UNFAMILIAR))
         self.rise, self.release = s.get("unfamiliar_rise_release", (RISE, RELEASE))
         self.hips, self.head = s["roles"].get("hips", 0), s["roles"].get("head", 0)
@@ -241,7 +270,16 @@ class Host:
         if self.moved is not None:  # then turned so that the joints go where the posture moves the input's
             g = self.previous
             axes = self.body_axes(g) if self.body_frame else qrot(heading, np.eye(3))  # rows: left, up, forward
-            turned = reach(turned, pos, g, g + self.moved @ axes, self.parents)
+            moved = self.moved @ axes
+            if self.eyes is not None:  # a limb's end's rise: the smooth minimum of it and the way to the eyes
+                for m in (m for m in self.limb_ends if m >= 0 and self.moved[m, 1] > 0):
+                    rise, middle = self.moved[m, 1], self.moved[self.parents[m], 1]
+                    below = max(self.eyes + (g[self.head] - g[m]) @ axes[1], 0.0)
+                    kept = rise * below / (rise**3 + below**3) ** (1 / 3)
+                    moved[m] -= (rise - kept) * axes[1]
+                    if middle > 0:  # the limb rises as one
+                        moved[self.parents[m]] -= middle * (1 - kept / rise) * axes[1]
+            turned = reach(turned, pos, g, g + moved, self.parents, self.limb_ends, self.limb_rounds)
         return slerp(poses["target"], turned, self.unfamiliar)
 
 

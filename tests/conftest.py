@@ -72,10 +72,11 @@ def biped_skeleton(scale: float = 1.0) -> Skeleton:
     )
 
 
-def walking_motion(n_frames: int = 60, fps: float = 30.0, seed: int = 0) -> Motion:
-    """A smooth synthetic walk-like motion on ``biped_skeleton``: a turning path, swinging limbs."""
+def walking_motion(n_frames: int = 60, fps: float = 30.0, seed: int = 0, skeleton: Skeleton | None = None) -> Motion:
+    """A smooth synthetic walk-like motion on ``skeleton`` (``biped_skeleton``'s, without hands, by
+    default): a turning path, swinging limbs."""
     rng = np.random.default_rng(seed)
-    sk = biped_skeleton()
+    sk = skeleton or biped_skeleton()
     t = np.arange(n_frames) / fps
     J = sk.n_joints
     amp = rng.uniform(0.1, 0.6, size=(J, 3))

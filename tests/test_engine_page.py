@@ -17,12 +17,13 @@ pytestmark = pytest.mark.skipif(
 )
 
 
-@pytest.mark.parametrize("style", ["elderly", "feminine"])
-def test_the_browser_step_equals_the_server_and_draws(style, tmp_path):
+@pytest.mark.parametrize("style, clip", [("elderly", "walk"), ("feminine", "walk"), ("active", "guard")])
+def test_the_browser_step_equals_the_server_and_draws(style, clip, tmp_path):
+    """The guard into active: a posture that raises the hands past the eyes, whose rise is cut."""
     port = free_port()
     server = start_server(port)
     try:
-        url = f"http://127.0.0.1:{port}/static/engine.html?style={style}"
+        url = f"http://127.0.0.1:{port}/static/engine.html?style={style}&clip={clip}"
         with chromium_page(url, 1000, 500, console=True) as (page, errors):
             page.wait_for_function("window.result !== undefined", timeout=120000)
             result = page.evaluate("window.result")
@@ -35,7 +36,7 @@ def test_the_browser_step_equals_the_server_and_draws(style, tmp_path):
         assert stop_server(server) == 0
     assert not errors, errors
     assert "error" not in result, result
-    assert result["frames"] == 120 and result["style"] == style
+    assert result["frames"] == 120 and result["style"] == style and result["clip"] == clip
     assert result["max_abs_difference"] <= 1e-4, result
     assert drawn > 500 and len(pixels)  # red stick figures on the canvas
     print(json.dumps(result))  # the per-frame time in the browser (pytest -s shows it)

@@ -361,6 +361,9 @@ def test_http_abuse_is_answered_without_a_server_error(server, clip):
     assert _http(port, "/clips/%00%ff")[0] == 404
     assert _http(port, "/", {"Host": "evil.example:1234"})[0] == 403  # a rebound DNS name
     assert _http(port, "/streams", {"Host": f"localhost:{port}"})[0] == 200
+    for query, named in (("style=nope", b"valid: "), ("clip=kick", b"valid: walk, guard"), ("clip=%00", b"valid")):
+        status, body = _http(port, f"/onnx/reference.json?{query}")  # the browser step's reference clip
+        assert status == 404 and named in body, body
     probe(url, clip)
 
 

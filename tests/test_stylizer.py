@@ -8,6 +8,7 @@ from styleerd.errors import StyleERDError
 from styleerd.model.generator import GeneratorConfig, StyleERD
 from styleerd.model.labeller import OnlineLabeller
 from styleerd.motion import quat
+from styleerd.motion.humanoid import eyes_above_head, limb_ends
 from styleerd.motion.kinematics import forward_kinematics
 from styleerd.motion.motion import Motion
 from styleerd.motion.skeleton import BodyRoles
@@ -139,6 +140,7 @@ def test_stream_equals_the_generator_forward_on_whole_clip_features(model, backe
                 torch.from_numpy(m.skeleton.offsets),
                 torch.from_numpy(given - given[:, :1] + moved),
                 [int(p) for p in m.skeleton.parents],
+                limb_ends(m.skeleton).tolist(),
             ).numpy()
         want = np.stack(
             [
@@ -713,6 +715,7 @@ def test_reach_turns_each_joint_by_the_shortest_arc_towards_its_childrens_target
             parents,
             first,
             children,
+            np.full(J, -1),
             np.empty((J, 4)),
             np.empty((J, 3)),
         )
@@ -735,10 +738,175 @@ def test_reach_turns_each_joint_by_the_shortest_arc_towards_its_childrens_target
             parents,
             first,
             children,
+            np.full(J, -1),
             np.empty((J, 4)),
             np.empty((J, 3)),
         )
         assert np.degrees(quat.angle_between(same, m.rotations[t])).max() < 1e-6
+
+
+def test_a_limb_puts_its_middle_joint_where_it_and_the_end_meet_their_targets_best():
+    """``_reach`` with the skeleton's two-bone limbs (``limb_ends``: shoulder to hand, hip to foot) and
+    its torch twin against scipy's optimiser: the elbow or knee lands on the point, at the upper bone's
+    length from the limb's first joint, that minimises the squared distance to its own target plus
+    the squared distance by which the lower bone misses the end's target; the lower bone then points
+    at the end's target. A foot asked up its own shin comes up, where turning one joint at a time
+    could only slide it along the shin (it stays put); with no offsets the pose is kept."""
+    from scipy.optimize import minimize
+
+    from styleerd.model import torch_quat
+    from styleerd.motion.kinematics import heading_axes
+    from styleerd.runtime.stylizer import _children, _reach
+
+    m = walking_motion(4)
+    sk, parents, J = m.skeleton, m.skeleton.parents, m.skeleton.n_joints
+    ends = limb_ends(sk)
+    assert [sk.names[j] for j in np.nonzero(ends >= 0)[0]] == [
+        "UpperLeg_L",
+        "UpperLeg_R",
+    ]  # its arms end at the forearm
+    first, children = _children(parents)
+    axes = heading_axes(np.array([0.0, 0.0, 1.0]))  # rows: +X, +Y, +Z, so the offsets are as they are
+
+    def reached(start, t, offsets, limbs):
+        _, given = forward_kinematics(m.rotations[t], m.positions[t], parents)
+        got = start.copy()
+        _reach(
+            got,
+            m.positions[t],
+            given,
+            axes,
+            offsets,
+            parents,
+            first,
+            children,
+            limbs,
+            np.empty((J, 4)),
+            np.empty((J, 3)),
+        )
+        return got, forward_kinematics(got, m.positions[t], parents)[1], given + offsets
+
+    def miss(e, elbow, end, lower):  # what the limb's middle joint at e leaves of both targets, squared
+        return np.sum((e - elbow) ** 2) + (np.linalg.norm(e - end) - lower) ** 2
+
+    def on_sphere(v, upper):  # a point at upper from the limb's first joint, by two angles
+        return upper * np.array([np.cos(v[0]) * np.cos(v[1]), np.sin(v[0]), np.cos(v[0]) * np.sin(v[1])])
+
+    rng = np.random.default_rng(11)
+    for t in range(4):
+        start = quat.normalize(m.rotations[t] + rng.normal(0, 0.1, (J, 4)))
+        offsets = rng.normal(0, 0.2, (J, 3)) * np.linalg.norm(sk.offsets, axis=-1).mean()
+        got, g, targets = reached(start, t, offsets, ends)
+        for j in np.nonzero(ends >= 0)[0]:
+            h = ends[j]
+            k = parents[h]
+            upper, lower = np.linalg.norm(m.positions[t, k]), np.linalg.norm(m.positions[t, h])
+            elbow, end = targets[k] - g[j], targets[h] - g[j]
+            d = elbow / np.linalg.norm(elbow)
+            best = minimize(
+                lambda v, *args: miss(on_sphere(v, upper=args[0]), *args[1:]),
+                [np.arcsin(d[1]), np.arctan2(d[2], d[0])],
+                args=(upper, elbow, end, lower),
+                method="Nelder-Mead",
+                options={"xatol": 1e-12, "fatol": 1e-16, "maxiter": 20000},
+            )
+            assert abs(np.linalg.norm(g[k] - g[j]) - upper) < 1e-9 * upper
+            assert np.linalg.norm(g[k] - g[j] - on_sphere(best.x, upper)) < 1e-4 * upper
+            assert miss(g[k] - g[j], elbow, end, lower) <= best.fun + 1e-8 * upper**2
+            bone, wanted = g[h] - g[k], targets[h] - g[k]
+            assert bone @ wanted / (np.linalg.norm(bone) * np.linalg.norm(wanted)) > 1 - 1e-12
+        twin = torch_quat.reach(
+            torch.from_numpy(start),
+            torch.from_numpy(sk.offsets),
+            torch.from_numpy(targets - targets[0] + offsets[0]),
+            [int(p) for p in parents],
+            ends.tolist(),
+        ).numpy()
+        assert np.degrees(quat.angle_between(twin, got)).max() < 1e-6
+
+    _, g, _ = reached(m.rotations[0], 0, np.zeros((J, 3)), ends)
+    j = int(np.nonzero(ends >= 0)[0][0])
+    h = ends[j]
+    along = np.zeros((J, 3))
+    along[h] = -0.3 * (g[h] - g[parents[h]])  # the foot asked up its shin, the knee to stay (a knee to bend)
+    _, alone, targets = reached(m.rotations[0], 0, along, np.full(J, -1))
+    assert np.linalg.norm(alone[h] - g[h]) < 1e-9 * np.linalg.norm(along[h])  # one joint at a time: it stays put
+    _, limb, _ = reached(m.rotations[0], 0, along, ends)
+    both = lambda p: np.sum((p[[parents[h], h]] - targets[[parents[h], h]]) ** 2)  # knee's miss and foot's, squared
+    assert both(limb) < 0.8 * both(alone)  # 106 against 144 here: the knee gives a little, the foot comes up
+    assert np.linalg.norm(limb[h] - targets[h]) < 0.75 * np.linalg.norm(along[h])
+    same, _, _ = reached(m.rotations[0], 0, np.zeros((J, 3)), ends)
+    assert np.degrees(quat.angle_between(same, m.rotations[0])).max() < 1e-6
+
+
+def test_a_limb_end_the_posture_raises_rises_by_the_smooth_minimum_of_its_rise_and_the_way_to_the_eyes():
+    """``_ends_below_the_eyes`` (compiled) and its torch twin, against a direct statement of the rule:
+    a hand's (or foot's) rise r becomes (r^-3 + b^-3)^(-1/3), b how far it is below the eyes
+    (``eyes_above_head`` above the head joint), so it ends below them and rises by nearly all of r
+    when far below; none at or above them; a lowered end is kept; its middle joint's rise is scaled
+    alike; everything else keeps its offsets. The output's height rises with the input's (no hand held
+    still below the eyes)."""
+    from scipy.spatial.transform import Rotation
+
+    from styleerd.model import torch_quat
+    from styleerd.model.stored import load_generator_weights
+    from styleerd.runtime.stylizer import _ends_below_the_eyes
+
+    sk = load_generator_weights().skeleton
+    ends, head, parents = limb_ends(sk), sk.names.index("Head"), sk.parents
+    eyes = eyes_above_head(sk)
+    assert 7.0 < eyes < 9.0  # a sixth of Hips -> Head at rest (47.6 of the rig's units): about the eyes
+    tips = [int(m) for m in ends if m >= 0]
+    middles = [int(parents[m]) for m in tips]
+    assert [sk.names[m] for m in tips] == ["Hand_L", "Hand_R", "Foot_L", "Foot_R"]
+    rng = np.random.default_rng(11)
+    kinds = set()
+    for t in range(60):
+        rot = quat.from_scaled_angle_axis(rng.normal(0, 0.8, (sk.n_joints, 3)))
+        _, given = forward_kinematics(rot, sk.offsets, parents)
+        axes = Rotation.random(random_state=t).as_matrix().T  # rows: left, up, forward
+        offsets = rng.normal(0, 15.0, (sk.n_joints, 3))
+        out = np.empty_like(offsets)
+        _ends_below_the_eyes(offsets, given, axes, head, eyes, ends, parents, out)
+        others = [j for j in range(sk.n_joints) if j not in tips + middles]
+        assert np.array_equal(out[others], offsets[others])
+        assert np.array_equal(out[tips + middles][:, [0, 2]], offsets[tips + middles][:, [0, 2]])
+        for m, k in zip(tips, middles):
+            r, below = offsets[m, 1], eyes - (given[m] - given[head]) @ axes[1]
+            if r <= 0:
+                kinds.add("lowered")
+                assert out[m, 1] == r and out[k, 1] == offsets[k, 1]
+                continue
+            kinds.add("above the eyes" if below <= 0 else "below them")
+            want = 0.0 if below <= 0 else (r**-3 + below**-3) ** (-1 / 3)
+            assert abs(out[m, 1] - want) < 1e-9 and out[m, 1] <= max(below, 0.0) + 1e-12
+            assert abs(out[k, 1] - (offsets[k, 1] * want / r if offsets[k, 1] > 0 else offsets[k, 1])) < 1e-9
+        twin = torch_quat.ends_below_the_eyes(
+            torch.from_numpy(offsets @ axes),
+            torch.from_numpy(given),
+            torch.from_numpy(axes[1]),
+            head,
+            eyes,
+            ends.tolist(),
+            [int(p) for p in parents],
+        ).numpy()
+        assert np.abs(twin - out @ axes).max() < 1e-9
+    assert kinds == {"lowered", "above the eyes", "below them"}
+
+    # one hand moved up through the eyes with a rise of 20: its target climbs all the way, and ends with it
+    m, up = tips[0], np.eye(3)
+    heights, over = [], np.linspace(-40.0, 5.0, 200)
+    for h in over:
+        given = np.zeros((sk.n_joints, 3))
+        given[m, 1] = eyes + h  # h: the hand over the eyes (the head joint at 0)
+        offsets = np.zeros((sk.n_joints, 3))
+        offsets[m, 1] = 20.0
+        _ends_below_the_eyes(offsets, given, up, head, eyes, ends, parents, out)
+        heights.append(h + out[m, 1])
+    heights = np.array(heights)
+    assert np.all(np.diff(heights) > 0)  # never held still
+    assert heights[0] > -40.0 + 19.0  # far below, nearly all of the rise
+    assert heights[over < 0].max() < 0.0  # below the eyes, it stays under them
 
 
 def test_streams_blended_together_get_what_each_gets_alone():
@@ -772,6 +940,7 @@ def test_streams_blended_together_get_what_each_gets_alone():
         _towards_the_input(
             *(given[rows], same[rows], out, np.ascontiguousarray(diff[rows]), posture, offsets, bounds[rows]),
             *(FAMILIAR, UNFAMILIAR, weight, translations[rows], globals_[rows], facing[rows], joints, True, sk.parents),
+            *(limb_ends(sk), eyes_above_head(sk)),
         )
         return out, weight
 
@@ -783,15 +952,28 @@ def test_streams_blended_together_get_what_each_gets_alone():
     assert np.degrees(quat.angle_between(together, styled)).max() > 5.0  # the blend did something
 
 
+@pytest.mark.parametrize("rig", ["biped", "arms with hands"])
 @pytest.mark.parametrize("posture", ["none", "rotations", "rotations and offsets", "rotations and body offsets"])
-def test_validations_pose_input_is_the_stylizers(model, posture, monkeypatch):
+def test_validations_pose_input_is_the_stylizers(model, posture, rig, monkeypatch):
     """``train.validation.towards_the_input`` (torch, whole windows: what ``eval quality --pose
     input`` judges) gives the stylizer's pose "input" output frame by frame from a fresh state,
-    with the unfamiliarity thresholds inside this random network's range."""
+    with the unfamiliarity thresholds inside this random network's range; on the test biped, and on
+    the shipped model's skeleton, whose arms end in hands (two-bone limbs, a hand's rise cut at the
+    eyes)."""
     from styleerd.model import torch_quat
+    from styleerd.model.stored import load_generator_weights
     from styleerd.train import validation
 
-    m = walking_motion(30)
+    sk = None if rig == "biped" else load_generator_weights().skeleton
+    m = walking_motion(30, skeleton=sk)
+    if sk is not None:
+        f, _ = motion_features(walking_motion(100, skeleton=sk))
+        torch.manual_seed(0)
+        config = GeneratorConfig(sk.n_joints, STYLES, CONTENTS, neutral_layers=2, style_layers=2)
+        model = StyleERD(config, sk, FeatureStats.fit(f, sk.n_joints))
+        for p in model.parameters():
+            p.data += 0.05 * torch.randn_like(p)
+        model.eval()
     f, traj = motion_features(m)
     x = torch.as_tensor(model.stats().normalize(f), dtype=torch.float32)[None]
     rng = np.random.default_rng(7)

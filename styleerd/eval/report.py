@@ -343,7 +343,7 @@ Bandai-Namco-1's kept-back takes, the performer's own change on walk-back, dash,
 points as their change on the walk at -0.21 to 0.71, and two takes of one walk agree at 0.18 to 0.96,
 where the posture's points as the walks' at {span(posture)} ("The style's change as a performer makes
 it" below; [Model](model.md#active-on-a-punch-and-what-a-real-performers-change-looks-like), with
-why active misses on the punches).
+how active came to show on the punches).
 {_styles_read_paragraph(report)}
 ![a dance](actions-dance-short.png)
 

@@ -13,6 +13,9 @@ from styleerd.data.features import FeatureLayout
 # until ``styleerd familiar`` measures its own (``model.stored.familiar_range``). It rises by at most RISE
 # and falls by at most RELEASE a frame, so nothing pops.
 FAMILIAR, UNFAMILIAR, RISE, RELEASE = 10.0, 16.0, 0.25, 0.1
+# Rounds of projections that place a two-bone limb's middle joint (``torch_quat.limb_elbow``): the tests
+# hold the place to scipy's optimiser's.
+LIMB_ROUNDS = 20
 
 
 @dataclass

@@ -8,6 +8,8 @@ import itertools
 
 import torch
 
+from styleerd.model.config import LIMB_ROUNDS
+
 
 def mul(a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
     aw, ax, ay, az = a.unbind(-1)
@@ -75,11 +77,47 @@ def between(a: torch.Tensor, b: torch.Tensor, eps: float = 1e-12) -> torch.Tenso
     return torch.where(w > eps, normalize(q, eps), q.new_tensor([1.0, 0.0, 0.0, 0.0]))
 
 
-def reach(rotations: torch.Tensor, offsets: torch.Tensor, targets: torch.Tensor, parents: list[int]) -> torch.Tensor:
+def ends_below_the_eyes(
+    moved: torch.Tensor,
+    positions: torch.Tensor,
+    up: torch.Tensor,
+    head: int,
+    eyes: float,
+    limb_ends: list[int],
+    parents: list[int],
+) -> torch.Tensor:
+    """``moved [..., J, 3]`` (where a posture moves each joint of the input's pose ``positions [..., J,
+    3]``) with each limb's end's (``limb_ends``) rise ``r`` along ``up [..., 3]`` cut to the smooth
+    minimum ``(r^-3 + b^-3)^(-1/3)`` of itself and how far ``b`` the end is below the eyes (``eyes``
+    above the ``head`` joint; none at or above them), and its middle joint's rise cut in the same
+    proportion; ``runtime.stylizer._ends_below_the_eyes``' twin."""
+    out = list(moved.unbind(-2))
+    for m in (m for m in limb_ends if m >= 0):
+        rise = (moved[..., m, :] * up).sum(-1, keepdim=True)
+        below = eyes + ((positions[..., head, :] - positions[..., m, :]) * up).sum(-1, keepdim=True)
+        b, r = below.clamp_min(0.0), rise.clamp_min(1e-12)
+        kept = torch.where(rise > 0, r * b / (r**3 + b**3).pow(1.0 / 3.0), rise)  # what is left of the rise
+        out[m] = moved[..., m, :] - (rise - kept) * up
+        k = parents[m]
+        middle = (moved[..., k, :] * up).sum(-1, keepdim=True)
+        cut = torch.where((rise > 0) & (middle > 0), middle * (1.0 - kept / r), 0.0)
+        out[k] = moved[..., k, :] - cut * up
+    return torch.stack(out, -2)
+
+
+def reach(
+    rotations: torch.Tensor,
+    offsets: torch.Tensor,
+    targets: torch.Tensor,
+    parents: list[int],
+    limb_ends: list[int] | None = None,
+) -> torch.Tensor:
     """``rotations [..., J, 4]`` (local) turned so that each joint's children go towards
     ``targets [..., J, 3]`` (relative to the root, in the root's parent frame): down the chain, each
     joint but the root by the shortest arc from its children's summed bone vectors (``offsets
-    [J, 3]``) to the summed vectors to their targets; ``runtime.stylizer._reach``'s twin."""
+    [J, 3]``) to the summed vectors to their targets; the first joint of a two-bone limb (``limb_ends``,
+    ``runtime.stylizer.limb_ends``) so that its bone goes where ``limb_elbow`` puts it.
+    ``runtime.stylizer._reach``'s twin."""
     out = list(rotations.unbind(-2))
     G, X = list(out), [torch.zeros_like(targets[..., 0, :])] * len(parents)
     for j, p in enumerate(parents):
@@ -91,10 +129,33 @@ def reach(rotations: torch.Tensor, offsets: torch.Tensor, targets: torch.Tensor,
         if not kids:
             continue
         now = sum(mul_vec(G[j], offsets[k].expand_as(X[j])) for k in kids)
-        wanted = sum(targets[..., k, :] - X[j] for k in kids)
+        if limb_ends is not None and limb_ends[j] >= 0:
+            end = limb_ends[j]
+            wanted = limb_elbow(
+                targets[..., parents[end], :] - X[j],
+                targets[..., end, :] - X[j],
+                offsets[parents[end]].norm(),
+                offsets[end].norm(),
+            )
+        else:
+            wanted = sum(targets[..., k, :] - X[j] for k in kids)
         G[j] = mul(between(now, wanted), G[j])
         out[j] = mul(inv(G[p]), G[j])
     return torch.stack(out, -2)
+
+
+def limb_elbow(elbow: torch.Tensor, end: torch.Tensor, upper: torch.Tensor, lower: torch.Tensor) -> torch.Tensor:
+    """Where a two-bone limb's middle joint goes (``[..., 3]``, from the limb's first joint), given its
+    target ``elbow`` and the end's target ``end``: the point at ``upper`` from the first joint nearest,
+    in the least squares, to the middle joint's target and to the sphere of radius ``lower`` about the
+    end's target (from which the lower bone reaches it), by ``LIMB_ROUNDS`` rounds of projections;
+    ``runtime.stylizer._limb_elbow``'s twin."""
+    e = elbow
+    for _ in range(LIMB_ROUNDS):
+        e = upper * e / e.norm(dim=-1, keepdim=True).clamp_min(1e-12)
+        reach = e - end
+        e = 0.5 * (elbow + end + lower * reach / reach.norm(dim=-1, keepdim=True).clamp_min(1e-12))
+    return upper * e / e.norm(dim=-1, keepdim=True).clamp_min(1e-12)
 
 
 def body_axes(

@@ -437,3 +437,34 @@ def joint_tree(skeleton: Skeleton, limit: int = 120, notes: list[str] | None = N
     if len(lines) > limit:
         lines = lines[:limit] + [f"  ... and {len(lines) - limit} more"]
     return "\n".join(lines)
+
+
+def eyes_above_head(skeleton: Skeleton) -> float:
+    """How far above the head joint (the skull's base on most rigs) the eyes are, as the stylizer's
+    ceiling for a hand a posture raises: a sixth of the rest pose's chain from the hips to the head
+    (about 9 cm on a 170 cm body); 0 where either is not found."""
+    parts = body_parts(skeleton)
+    hips, j = parts.get("hips"), parts.get("head")
+    if hips is None or j is None:
+        return 0.0
+    length = 0.0
+    while j != hips and j >= 0:
+        length += float(np.linalg.norm(skeleton.offsets[j]))
+        j = int(skeleton.parents[j])
+    return length / 6.0 if j == hips else 0.0
+
+
+TWO_BONES = (LIMBS["arm"][1:], LIMBS["leg"][:3])  # shoulder, elbow, hand; hip, knee, foot
+
+
+def limb_ends(skeleton: Skeleton) -> np.ndarray:
+    """``[J]``: for the first joint of each two-bone limb of ``skeleton`` (shoulder, elbow, hand; hip,
+    knee, foot: ``body_parts``, where they make one chain and the first joint has no other
+    child), the limb's end joint; -1 elsewhere."""
+    parts, parents = body_parts(skeleton), skeleton.parents
+    out = np.full(skeleton.n_joints, -1, np.int64)
+    for side, (first, middle, end) in itertools.product(("left", "right"), TWO_BONES):
+        j, k, h = (parts.get(f"{side}_{role}") for role in (first, middle, end))
+        if None not in (j, k, h) and parents[h] == k and parents[k] == j and (parents == j).sum() == 1:
+            out[j] = h
+    return out

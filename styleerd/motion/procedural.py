@@ -85,9 +85,11 @@ def walk(
     steps_per_second: float = 1.8,
     speed: float = 125.0,
     turn_degrees_per_second: float = 12.0,
+    guard: bool = False,
 ) -> Motion:
     """A plain, neutral walk along a gentle left curve: legs swing from the hips, knees bend in
-    the swing phase, arms swing against the legs, the pelvis bobs, sways and twists."""
+    the swing phase, arms swing against the legs, the pelvis bobs, sways and twists. With ``guard``
+    the arms are held instead in a boxer's guard, the fists at the chin."""
     sk = tpose_skeleton()
     T = int(round(seconds * fps))
     t = np.arange(T) / fps
@@ -105,8 +107,16 @@ def walk(
         rot[:, j(f"{side}UpLeg")] = _rx(-24 * swing - 6 * np.maximum(forward_motion, 0))
         rot[:, j(f"{side}Leg")] = _rx(8 + 45 * np.maximum(forward_motion, 0) ** 1.5)
         rot[:, j(f"{side}Foot")] = _rx(-6 * swing)
-        rot[:, j(f"{side}Arm")] = quat.mul(_rx(-22 * -swing), _rz(-sign * 78))  # arms down, swing against the leg
-        rot[:, j(f"{side}ForeArm")] = _ry(-sign * (20 + 15 * np.maximum(-swing, 0)))  # elbows bend forward
+        if guard:  # upper arms down, forward and out; forearms up, in and forward: the fists before the chin
+            rest, bob = np.array([sign, 0.0, 0.0]), 0.05 * swing[:, None] * [0.0, 0.0, 1.0]
+            upper = quat.between(rest, np.array([0.3 * sign, -0.6, 0.6]) + bob)
+            rot[:, j(f"{side}Arm")] = upper
+            rot[:, j(f"{side}ForeArm")] = quat.mul(
+                quat.inv(upper), quat.between(rest, np.array([-0.35 * sign, 0.9, 0.15]))
+            )
+        else:
+            rot[:, j(f"{side}Arm")] = quat.mul(_rx(-22 * -swing), _rz(-sign * 78))  # arms down, swing against the leg
+            rot[:, j(f"{side}ForeArm")] = _ry(-sign * (20 + 15 * np.maximum(-swing, 0)))  # elbows bend forward
     pos = np.broadcast_to(sk.offsets, (T, sk.n_joints, 3)).copy()
     radius = speed / max(np.radians(turn_degrees_per_second), 1e-9)
     pos[:, 0, 0] = radius * (1 - np.cos(heading)) if turn_degrees_per_second else 0.0

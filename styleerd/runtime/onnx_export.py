@@ -30,9 +30,10 @@ from onnx import TensorProto, helper, numpy_helper
 from styleerd.atomic import atomic_write, atomic_write_text
 from styleerd.data.features import CONTACT_SPEED
 from styleerd.errors import StyleERDError
-from styleerd.model.config import RELEASE, RISE
+from styleerd.model.config import LIMB_ROUNDS, RELEASE, RISE
 from styleerd.model.stored import GeneratorWeights, generator_weights
 from styleerd.motion import quat
+from styleerd.motion.humanoid import eyes_above_head, limb_ends
 from styleerd.motion.skeleton import BodyRoles
 from styleerd.runtime.numpy_step import step_weights
 
@@ -523,6 +524,15 @@ def sidecar(
         # "body": along the body's own axes on the input's pose (left: right hip and shoulder to left ones, up:
         # hips to head, forward: left x up, made orthogonal); "heading": the body's heading, up the world's
         "posture_frame": model.posture_frame,
+        # per joint, for the first joint of a two-bone limb (shoulder, hip), the limb's end (hand, foot), else -1:
+        # its middle joint is put where it and the end meet their targets best together, by limb_rounds rounds
+        # of projections (``motion.humanoid.limb_ends``, ``runtime.stylizer._limb_elbow``)
+        "limb_ends": limb_ends(model.skeleton).tolist(),
+        "limb_rounds": LIMB_ROUNDS,
+        # how far above the head joint the eyes are (the skeleton's units): a limb's end the posture raises ends
+        # no higher, or than itself where higher, its middle joint's rise cut alike
+        # (``motion.humanoid.eyes_above_head``, ``runtime.stylizer._ends_below_the_eyes``)
+        "eyes_above_head": eyes_above_head(model.skeleton),
         # the identity pass's mean joint angle to the input (degrees) up to which the network's pose is kept,
         # and from which the input's pose turned by the posture is (``model.stored.familiar_range``)
         "familiar_degrees": list(model.familiar),

@@ -38,7 +38,7 @@ import numpy as np
 from styleerd.data.features import FeatureLayout, stream_features
 from styleerd.data.parallel import on_kernel_threads
 from styleerd.errors import StyleERDError, unknown_name
-from styleerd.model.config import RELEASE, RISE
+from styleerd.model.config import LIMB_ROUNDS, RELEASE, RISE
 from styleerd.model.stored import (
     GeneratorWeights,
     LabellerWeights,
@@ -49,6 +49,7 @@ from styleerd.model.stored import (
     toward_neutral,
 )
 from styleerd.motion import quat
+from styleerd.motion.humanoid import eyes_above_head, limb_ends
 from styleerd.motion.retarget import BODY_PARTS, part_joints
 from styleerd.motion.skeleton import BodyRoles
 from styleerd.runtime.backends import make_backend
@@ -297,6 +298,7 @@ class StreamStylizer:
         self.skeleton = model.skeleton
         self.roles = r = BodyRoles.of(self.skeleton)
         self.frame_joints = np.array([r.hips, r.head, *r.left, *r.right], np.int64)  # a posture's body axes
+        self.limb_ends, self.eyes = limb_ends(self.skeleton), eyes_above_head(self.skeleton)
         self.stats = model.stats()
         self.fps = fps
         # an inferred style's running mean: its weight for each new reading, and the frames read as they come first
@@ -635,7 +637,13 @@ class StreamStylizer:
             _towards_the_input_on_shards,
             *(given, same, styled, np.ascontiguousarray(weights - own, np.float64), posture, offsets, bounds),
             *(*self.model.familiar, weight, np.ascontiguousarray(positions, np.float64), g, facing),
-            *(self.frame_joints, self.model.posture_frame == "body", self.model.skeleton.parents),
+            *(
+                self.frame_joints,
+                self.model.posture_frame == "body",
+                self.model.skeleton.parents,
+                self.limb_ends,
+                self.eyes,
+            ),
         )
         return styled
 
@@ -657,14 +665,17 @@ def _children(parents):
 
 
 @nb.njit(cache=True, nogil=True)
-def _reach(rot, translations, given, axes, offsets, parents, first, kids, G, X):
+def _reach(rot, translations, given, axes, offsets, parents, first, kids, limb_ends, G, X):
     """One stream's pose ``rot [J, 4]`` (local rotations, the root's in the world) turned in place so
     that each joint's children go towards the input's joint positions ``given [J, 3]`` (global) moved
     by ``offsets [J, 3]`` (along the rows of ``axes [3, 3]``: the posture's frame, ``_frame_axes``):
     down the chain, each joint but the root turned by the shortest arc from its children's summed
     bone vectors to the vectors to their targets (so a bone's twist about itself is kept; a bone's
-    length is, so a target may be out of reach). ``first``, ``kids``: the children
-    (``_children``); ``G [J, 4]``, ``X [J, 3]``: scratch."""
+    length is, so a target may be out of reach). The first joint of a two-bone limb (``limb_ends
+    [J]``: its end joint, else -1) aims its bone where ``_limb_elbow`` puts the middle joint, so the
+    end reaches its target too: turned one joint at a time, a forearm already raised only slides the
+    hand along itself. ``first``, ``kids``: the children (``_children``); ``G [J, 4]``, ``X [J, 3]``:
+    scratch."""
     J = rot.shape[0]
     for j in range(J):
         p = parents[j]
@@ -687,17 +698,72 @@ def _reach(rot, translations, given, axes, offsets, parents, first, kids, G, X):
             vx, vy, vz = quat.mul_vec_scalars(
                 G[j, 0], G[j, 1], G[j, 2], G[j, 3], translations[k, 0], translations[k, 1], translations[k, 2]
             )
-            a, b, c = offsets[k, 0], offsets[k, 1], offsets[k, 2]
-            ox = a * axes[0, 0] + b * axes[1, 0] + c * axes[2, 0]
-            oy = a * axes[0, 1] + b * axes[1, 1] + c * axes[2, 1]
-            oz = a * axes[0, 2] + b * axes[1, 2] + c * axes[2, 2]
-            tx, ty, tz = given[k, 0] + ox - X[j, 0], given[k, 1] + oy - X[j, 1], given[k, 2] + oz - X[j, 2]
+            tx, ty, tz = _target(given, offsets, axes, X, k, j)
             cx, cy, cz, dx, dy, dz = cx + vx, cy + vy, cz + vz, dx + tx, dy + ty, dz + tz  # bones, and to targets
+        h = limb_ends[j]
+        if h >= 0:  # a limb: its middle joint where it and the end meet their targets best together
+            ex, ey, ez = _target(given, offsets, axes, X, h, j)
+            upper = np.sqrt(cx * cx + cy * cy + cz * cz)
+            lower = np.sqrt(translations[h, 0] ** 2 + translations[h, 1] ** 2 + translations[h, 2] ** 2)
+            dx, dy, dz = _limb_elbow(dx, dy, dz, ex, ey, ez, upper, lower)
         rw, rx, ry, rz = quat.between_scalars(cx, cy, cz, dx, dy, dz)  # none: no change
         G[j, 0], G[j, 1], G[j, 2], G[j, 3] = quat.mul_scalars(rw, rx, ry, rz, G[j, 0], G[j, 1], G[j, 2], G[j, 3])
         rot[j, 0], rot[j, 1], rot[j, 2], rot[j, 3] = quat.mul_scalars(
             G[p, 0], -G[p, 1], -G[p, 2], -G[p, 3], G[j, 0], G[j, 1], G[j, 2], G[j, 3]
         )
+
+
+@nb.njit(cache=True, nogil=True, inline="always")
+def _target(given, offsets, axes, X, k, j):
+    """Joint ``k``'s target (the input's ``given [J, 3]`` moved by ``offsets [J, 3]`` along the rows of
+    ``axes``) from joint ``j``'s position in ``X [J, 3]``."""
+    a, b, c = offsets[k, 0], offsets[k, 1], offsets[k, 2]
+    return (
+        given[k, 0] + a * axes[0, 0] + b * axes[1, 0] + c * axes[2, 0] - X[j, 0],
+        given[k, 1] + a * axes[0, 1] + b * axes[1, 1] + c * axes[2, 1] - X[j, 1],
+        given[k, 2] + a * axes[0, 2] + b * axes[1, 2] + c * axes[2, 2] - X[j, 2],
+    )
+
+
+@nb.njit(cache=True, nogil=True)
+def _limb_elbow(ex, ey, ez, tx, ty, tz, upper, lower):
+    """Where a two-bone limb's middle joint goes, from the limb's first joint, given its target ``e``
+    and the end's target ``t`` (both from the first joint): the point at ``upper`` from the first
+    joint nearest, in the least squares, to its target and to the sphere of radius ``lower`` about the
+    end's (from which the lower bone reaches it); ``torch_quat.limb_elbow``'s twin."""
+    x, y, z = ex, ey, ez
+    for _ in range(LIMB_ROUNDS):
+        n = upper / max(np.sqrt(x * x + y * y + z * z), 1e-12)
+        x, y, z = x * n, y * n, z * n
+        rx, ry, rz = x - tx, y - ty, z - tz
+        m = lower / max(np.sqrt(rx * rx + ry * ry + rz * rz), 1e-12)
+        x, y, z = 0.5 * (ex + tx + rx * m), 0.5 * (ey + ty + ry * m), 0.5 * (ez + tz + rz * m)
+    n = upper / max(np.sqrt(x * x + y * y + z * z), 1e-12)
+    return x * n, y * n, z * n
+
+
+@nb.njit(cache=True, nogil=True)
+def _ends_below_the_eyes(offsets, given, axes, head, eyes, limb_ends, parents, out):
+    """Into ``out``, ``offsets [J, 3]`` (along ``axes``' rows: left, up, forward) with each limb's end's
+    (``limb_ends``) rise ``r`` cut to the smooth minimum ``(r^-3 + b^-3)^(-1/3)`` of itself and how far
+    ``b`` the end is below the eyes, ``eyes`` above the ``head`` joint, in the input's pose ``given [J,
+    3]`` (``motion.humanoid.eyes_above_head``; none at or above them), and its middle joint's rise cut in
+    the same proportion, so the limb rises as one: a posture measured on walks raises hands that hang at
+    the sides, and raised as far, a guard at the chin goes over the head (a cheer, not a punch). The
+    minimum is smooth so that a hand moving up past the eyes (a swimmer's stroke) is not held still
+    below them. ``torch_quat.ends_below_the_eyes``' twin."""
+    out[:] = offsets
+    for j in range(len(limb_ends)):
+        m = limb_ends[j]
+        if m >= 0:
+            below = eyes  # how far the end is below the eyes
+            for k in range(3):
+                below += (given[head, k] - given[m, k]) * axes[1, k]
+            rise = offsets[m, 1]
+            if rise > 0.0:
+                out[m, 1] = rise * below / (rise**3 + below**3) ** (1.0 / 3.0) if below > 0.0 else 0.0
+                if offsets[parents[m], 1] > 0.0:
+                    out[parents[m], 1] *= out[m, 1] / rise
 
 
 @nb.njit(cache=True, nogil=True)
@@ -765,6 +831,8 @@ def _towards_the_input(
     frame_joints,
     body,
     parents,
+    limb_ends,
+    eyes,
 ):
     """Per stream (``[N, J, 4]`` each): its unfamiliarity ``weight`` (the identity output ``same``'s
     mean joint angle to the input ``given``, degrees, from ``familiar`` (0) to ``unfamiliar`` (1),
@@ -774,15 +842,16 @@ def _towards_the_input(
     postures' rotation vectors ``posture [styles, J, 3]`` weighted by it (``[styles, 0, 3]``: no
     posture, the network's own change inv(same) * styled), then, with posture ``offsets [styles, J,
     3]`` (``[styles, 0, 3]``: none), turned so that the joints go where the input's are moved by the
-    offsets weighted alike (``_reach``; ``translations``, ``globals_``: the input's local joint
-    translations and global positions). The offsets are along the body's own axes where ``body``
-    (from its joints ``frame_joints``), else along its heading's (from its facing directions
+    offsets weighted alike, a limb's end's rise eased below the eyes (``_ends_below_the_eyes``,
+    ``_reach``; ``translations``, ``globals_``: the input's local joint translations and global
+    positions; ``limb_ends``, ``eyes``: ``motion.humanoid``'s). The offsets are along the body's own
+    axes where ``body`` (from its joints ``frame_joints``), else along its heading's (from its facing directions
     ``facing``): ``_frame_axes``. The posture is put together only for a stream that needs it, and
     once for a run of streams with the same change of style (a crowd's)."""
     N, J = given.shape[0], given.shape[1]
     turn, reach = posture.shape[1] == J, offsets.shape[1] == J
     target, moved, G, X, axes = np.empty((J, 4)), np.empty((J, 3)), np.empty((J, 4)), np.empty((J, 3)), np.empty((3, 3))
-    change = np.empty((J, 4))
+    change, capped = np.empty((J, 4)), np.empty((J, 3))
     first, kids = _children(parents)
     last = -1  # the stream whose change of style ``change`` and ``moved`` hold: the next may share it
     for n in range(N):
@@ -829,7 +898,8 @@ def _towards_the_input(
             )
         if reach:
             _frame_axes(globals_[n], facing[n], frame_joints, body, axes)
-            _reach(target, translations[n], globals_[n], axes, moved, parents, first, kids, G, X)
+            _ends_below_the_eyes(moved, globals_[n], axes, frame_joints[1], eyes, limb_ends, parents, capped)
+            _reach(target, translations[n], globals_[n], axes, capped, parents, first, kids, limb_ends, G, X)
         for j in range(J):
             sw, sx, sy, sz = styled[n, j, 0], styled[n, j, 1], styled[n, j, 2], styled[n, j, 3]
             tw, tx, ty, tz = target[j, 0], target[j, 1], target[j, 2], target[j, 3]
@@ -866,6 +936,8 @@ def _towards_the_input_on_shards(
     frame_joints,
     body,
     parents,
+    limb_ends,
+    eyes,
 ):
     """``_towards_the_input`` on ``shards`` slices of the streams, one per thread."""
     N = given.shape[0]
@@ -888,6 +960,8 @@ def _towards_the_input_on_shards(
             frame_joints,
             body,
             parents,
+            limb_ends,
+            eyes,
         )
 
 

@@ -10,7 +10,7 @@ from urllib.parse import unquote
 
 from styleerd.data.datasets import data_root, find_clips
 from styleerd.data.windows import split_takes
-from styleerd.errors import StyleERDError
+from styleerd.errors import StyleERDError, unknown_name
 from styleerd.model.stored import GeneratorWeights
 from styleerd.motion import bvh
 from styleerd.motion.procedural import walk
@@ -19,6 +19,7 @@ from styleerd.runtime.offline import map_skeleton, run_stream
 from styleerd.runtime.stylizer import StreamStylizer, label_vector
 
 REAL_CONTENTS = ("walk", "run", "wave-both-hands", "raise-up-both-hands", "walk-turn-left")
+REFERENCE_CLIPS = ("walk", "guard")  # the generated walk, and the same with the fists held at the chin
 
 
 class DemoClips:
@@ -56,13 +57,16 @@ def _generated_walk() -> str:
     return bvh.format_bvh(walk(12.0, fps=30.0), precision=5)
 
 
-def reference_clip(model: GeneratorWeights, style: str) -> bytes:
-    """The generated walk on the model's skeleton (local rotations and translations, flat),
-    and its stylisation into ``style`` by this server's stylizer: what the in-browser step
-    (static/engine.html) reproduces and is compared with. JSON bytes."""
+def reference_clip(model: GeneratorWeights, style: str, clip: str = "walk") -> bytes:
+    """The generated walk (``clip`` "guard": with the fists held at the chin) on the model's
+    skeleton (local rotations and translations, flat), and its stylisation into ``style`` by this
+    server's stylizer: what the in-browser step (static/engine.html) reproduces and is compared
+    with. JSON bytes."""
     c = model.config
     label_vector(c.styles, {style: 1.0}, "style")  # an unknown style is refused, naming the valid ones
-    source = walk(seconds=4.0, fps=30.0)
+    if clip not in REFERENCE_CLIPS:
+        raise unknown_name("reference clip", clip, REFERENCE_CLIPS)
+    source = walk(seconds=4.0, fps=30.0, guard=clip == "guard")
     on_model = to_target(source, map_skeleton(source.skeleton, model, first_pose=source.rotations[0]))
     stylised = run_stream(StreamStylizer(model, c.neutral_style, "walk", {style: 1.0}, fps=on_model.fps), on_model)
     body = {
@@ -71,6 +75,7 @@ def reference_clip(model: GeneratorWeights, style: str) -> bytes:
         "input_style": c.neutral_style,
         "content": "walk",
         "style": style,
+        "clip": clip,
         "rotations": on_model.rotations.ravel().round(8).tolist(),
         "positions": on_model.positions.ravel().round(6).tolist(),
         "stylised": stylised.rotations.ravel().round(8).tolist(),

@@ -263,7 +263,7 @@ class StyleServer:
         self.uploads = 0  # files being read (``_upload``)
         self.clips = DemoClips(self.model, config.data)
         self._engine: dict[str, bytes] | None = None  # the in-browser step's graph and JSON, made on first request
-        self._references: dict[str, bytes] = {}
+        self._references: dict[tuple[str, str], bytes] = {}
         self.pools: dict[tuple, Pool] = {}
         self.streams: dict[int, Stream] = {}
         self.watchers: set[Watcher] = set()
@@ -1014,10 +1014,10 @@ class StyleServer:
                 }
             return self._engine[name]
         if name == "reference.json":
-            style = (query.get("style") or ["elderly"])[0]
-            if style not in self._references:  # only the model's styles get here: others are refused
-                self._references[style] = reference_clip(self.model, style)
-            return self._references[style]
+            key = (query.get("style") or ["elderly"])[0], (query.get("clip") or ["walk"])[0]
+            if key not in self._references:  # only the model's styles and the clips get here: others are refused
+                self._references[key] = reference_clip(self.model, *key)
+            return self._references[key]
         return None
 
     def _page(self, path: str, query: dict[str, list[str]] | None = None) -> Response:

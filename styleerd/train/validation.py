@@ -15,6 +15,7 @@ from styleerd.model.classifiers import WindowClassifier
 from styleerd.model.config import RELEASE, RISE
 from styleerd.model.fmd import MotionAutoencoder, fmd_features
 from styleerd.model.generator import StyleERD
+from styleerd.motion.humanoid import eyes_above_head, limb_ends
 from styleerd.motion.skeleton import BodyRoles
 from styleerd.train.batches import TrainingData, WindowSet, window_rotations
 
@@ -123,13 +124,16 @@ def towards_the_input(
             L, J = model.layout, model.config.n_joints
             positions = (x[..., L.positions] * model.std[L.positions] + model.mean[L.positions]).unflatten(-1, (J, 3))
             moved = torch.einsum("bs,sjc->bjc", target - own, model.posture_offsets)
+            roles, ends = BodyRoles.of(model.skeleton), limb_ends(model.skeleton).tolist()
             if model.posture_frame == "body":  # the offsets along the body's own axes, in the heading frame
-                roles = BodyRoles.of(model.skeleton)
                 axes = torch_quat.body_axes(positions, roles.hips, roles.head, roles.left, roles.right)
-                moved = torch.einsum("bjc,btck->btjk", moved, axes.to(moved.dtype))
+                moved, up = torch.einsum("bjc,btck->btjk", moved, axes.to(moved.dtype)), axes[..., 1, :]
             else:
-                moved = moved[:, None]
-            turned = torch_quat.reach(turned, model.offsets, positions + moved, model.parents)
+                moved, up = moved[:, None].expand_as(positions), positions.new_tensor([0.0, 1.0, 0.0])
+            moved = torch_quat.ends_below_the_eyes(
+                moved, positions, up.to(moved.dtype), roles.head, eyes_above_head(model.skeleton), ends, model.parents
+            )
+            turned = torch_quat.reach(turned, model.offsets, positions + moved, model.parents, ends)
     rot = torch_quat.slerp(rot, turned, weight[..., None].expand(rot.shape[:-1]))
     return rot, vel + weight[..., None] * (x[..., model.layout.velocities] - same_vel)
 

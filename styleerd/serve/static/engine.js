@@ -55,15 +55,30 @@ function bodyAxes(g, roles) { // up from the hips to the head, left from the rig
   return [cross(up, forward), up, forward].map((v) => { const n = Math.max(Math.hypot(...v), 1e-9); return v.map((x) => x / n); });
 }
 
-function reach(rot, pos, given, targets, parents) {
+// Where a two-bone limb's middle joint goes, from the limb's first joint, given its target elbow and the end's target
+// end (both from the first joint): the point at upper from the first joint nearest, in the least squares, to its
+// target and to the sphere of radius lower about the end's, by rounds rounds of projections (onnx_host's limb_elbow).
+function limbElbow(elbow, end, upper, lower, rounds) {
+  let e = elbow;
+  const onto = (v, length) => { const n = Math.max(Math.hypot(...v), 1e-12); return v.map((x) => (length * x) / n); };
+  for (let r = 0; r < rounds; r++) {
+    e = onto(e, upper);
+    const toEnd = onto(e.map((x, k) => x - end[k]), lower);
+    e = e.map((_, k) => 0.5 * (elbow[k] + end[k] + toEnd[k]));
+  }
+  return onto(e, upper);
+}
+
+// limbEnds[j]: for the first joint of a two-bone limb its end (turned towards limbElbow's place), else -1.
+function reach(rot, pos, given, targets, parents, limbEnds, rounds) {
   rot = rot.slice();
   const gRot = rot.slice(), gPos = given.slice();
   parents.forEach((p, j) => {
     if (p < 0) return;
     gRot[j] = qmul(gRot[p], rot[j]);
     gPos[j] = qrot(gRot[p], pos[j]).map((x, k) => x + gPos[p][k]);
-    const now = [0, 0, 0], wanted = [0, 0, 0];
-    let kids = 0;
+    const now = [0, 0, 0];
+    let wanted = [0, 0, 0], kids = 0;
     for (let k = j + 1; k < parents.length; k++) {
       if (parents[k] !== j) continue;
       kids++;
@@ -71,6 +86,11 @@ function reach(rot, pos, given, targets, parents) {
       for (let i = 0; i < 3; i++) { now[i] += v[i]; wanted[i] += targets[k][i] - gPos[j][i]; }
     }
     if (!kids) return;
+    const end = limbEnds[j];
+    if (end >= 0) {
+      const toEnd = targets[end].map((x, i) => x - gPos[j][i]);
+      wanted = limbElbow(wanted, toEnd, Math.hypot(...now), Math.hypot(...pos[end]), rounds);
+    }
     gRot[j] = qmul(shortestArc(now, wanted), gRot[j]);
     rot[j] = qmul(inverse(gRot[p]), gRot[j]);
   });
@@ -197,8 +217,18 @@ export class StyleHost {
     let turned = given.map((q, j) => normalize(qmul(q, change(j))));
     if (this.moved) { // then turned so that the joints go where the posture moves the input's
       const g = this.previous, axes = this.side.posture_frame === "body" ? bodyAxes(g, this.roles) : headingAxes(heading);
-      const targets = g.map((x, j) => [0, 1, 2].map((k) => x[k] + this.moved[j].reduce((sum, o, i) => sum + o * axes[i][k], 0)));
-      turned = reach(turned, pos, g, targets, this.parents);
+      const limbEnds = this.side.limb_ends || this.parents.map(() => -1); // an older export: no limbs
+      const offsets = this.moved.map((o) => o.slice()), eyes = this.side.eyes_above_head;
+      // a limb's end's rise: the smooth minimum of it and the way to the eyes (none above them)
+      for (const m of eyes === undefined ? [] : limbEnds.filter((m) => m >= 0 && this.moved[m][1] > 0)) {
+        const rise = this.moved[m][1], middle = this.moved[this.parents[m]][1];
+        const below = Math.max(0, eyes + [0, 1, 2].reduce((sum, k) => sum + (g[this.roles.head][k] - g[m][k]) * axes[1][k], 0));
+        const kept = (rise * below) / Math.cbrt(rise ** 3 + below ** 3);
+        offsets[m][1] = kept;
+        if (middle > 0) offsets[this.parents[m]][1] = (middle * kept) / rise; // the limb rises as one
+      }
+      const targets = g.map((x, j) => [0, 1, 2].map((k) => x[k] + offsets[j].reduce((sum, o, i) => sum + o * axes[i][k], 0)));
+      turned = reach(turned, pos, g, targets, this.parents, limbEnds, this.side.limb_rounds || 0);
     }
     return given.map((_, j) => slerp(poses.target[j], turned[j], this.unfamiliar));
   }
@@ -210,7 +240,8 @@ async function main() {
   const params = new URLSearchParams(location.search);
   const style = params.get("style") || "elderly";
   const host = await StyleHost.create();
-  const clip = await (await fetch(`/onnx/reference.json?style=${encodeURIComponent(style)}`)).json();
+  const which = params.get("clip") || "walk"; // "guard": the walk with the fists held at the chin
+  const clip = await (await fetch(`/onnx/reference.json?style=${encodeURIComponent(style)}&clip=${encodeURIComponent(which)}`)).json();
   host.setLabels(clip.input_style, clip.content, { [style]: 1 });
   const J = host.parents.length, T = clip.frames, times = [], out = [];
   let worst = 0;
@@ -231,8 +262,8 @@ async function main() {
     }
   }
   const sorted = [...times].slice(10).sort((a, b) => a - b);
-  window.result = { frames: T, style, max_abs_difference: worst, p50_ms: sorted[Math.floor(sorted.length / 2)], p99_ms: sorted[Math.floor(sorted.length * 0.99)] };
-  status.textContent = `${T} frames stylised into ${style} in the browser (onnxruntime-web, wasm): ` +
+  window.result = { frames: T, style, clip: which, max_abs_difference: worst, p50_ms: sorted[Math.floor(sorted.length / 2)], p99_ms: sorted[Math.floor(sorted.length * 0.99)] };
+  status.textContent = `${T} frames of the ${which} stylised into ${style} in the browser (onnxruntime-web, wasm): ` +
     `per frame p50 ${window.result.p50_ms.toFixed(3)} ms; largest difference from the server's output ${worst.toExponential(2)}`;
   draw(out, host.parents);
 }
