@@ -656,6 +656,18 @@ def test_the_command_line_offers_the_stylizers_poses():
     assert CLI_POSES == POSES
 
 
+def reached(start, translations, given, axes, offsets, parents, limbs=None):
+    """``runtime.stylizer._reach`` on a copy of the pose ``start`` (no two-bone limbs unless ``limbs``)."""
+    from styleerd.runtime.stylizer import _children, _reach
+
+    J = len(parents)
+    first, children = _children(parents)
+    got = start.copy()
+    limbs = np.full(J, -1) if limbs is None else limbs
+    _reach(got, translations, given, axes, offsets, parents, first, children, limbs, np.empty((J, 4)), np.empty((J, 3)))
+    return got
+
+
 def test_reach_turns_each_joint_by_the_shortest_arc_towards_its_childrens_targets():
     """``_reach`` (compiled) and its torch twin against scipy: down the chain, each joint but the root
     turned (in the world) by the shortest arc from its children's summed bone vectors to the summed
@@ -665,7 +677,7 @@ def test_reach_turns_each_joint_by_the_shortest_arc_towards_its_childrens_target
 
     from styleerd.model import torch_quat
     from styleerd.motion.kinematics import body_axes, heading_axes, heading_rotations
-    from styleerd.runtime.stylizer import _children, _frame_axes, _reach
+    from styleerd.runtime.stylizer import _children, _frame_axes
 
     m = walking_motion(5)
     sk, parents, J = m.skeleton, m.skeleton.parents, m.skeleton.n_joints
@@ -705,20 +717,7 @@ def test_reach_turns_each_joint_by_the_shortest_arc_towards_its_childrens_target
             want[j] = G[p].inv() * G[j]
         want = np.stack([w.as_quat(scalar_first=True) for w in want])
 
-        got = start.copy()
-        _reach(
-            got,
-            m.positions[t],
-            given,
-            axes,
-            offsets,
-            parents,
-            first,
-            children,
-            np.full(J, -1),
-            np.empty((J, 4)),
-            np.empty((J, 3)),
-        )
+        got = reached(start, m.positions[t], given, axes, offsets, parents)
         assert np.degrees(quat.angle_between(got, want)).max() < 1e-9
         twin = torch_quat.reach(  # in the root's parent frame, relative to the root
             torch.from_numpy(start),
@@ -728,20 +727,7 @@ def test_reach_turns_each_joint_by_the_shortest_arc_towards_its_childrens_target
         ).numpy()
         assert np.degrees(quat.angle_between(twin, want)).max() < 1e-9
 
-        same = m.rotations[t].copy()
-        _reach(
-            same,
-            m.positions[t],
-            given,
-            axes,
-            np.zeros((J, 3)),
-            parents,
-            first,
-            children,
-            np.full(J, -1),
-            np.empty((J, 4)),
-            np.empty((J, 3)),
-        )
+        same = reached(m.rotations[t], m.positions[t], given, axes, np.zeros((J, 3)), parents)
         assert np.degrees(quat.angle_between(same, m.rotations[t])).max() < 1e-6
 
 
@@ -756,7 +742,6 @@ def test_a_limb_puts_its_middle_joint_where_it_and_the_end_meet_their_targets_be
 
     from styleerd.model import torch_quat
     from styleerd.motion.kinematics import heading_axes
-    from styleerd.runtime.stylizer import _children, _reach
 
     m = walking_motion(4)
     sk, parents, J = m.skeleton, m.skeleton.parents, m.skeleton.n_joints
@@ -765,25 +750,11 @@ def test_a_limb_puts_its_middle_joint_where_it_and_the_end_meet_their_targets_be
         "UpperLeg_L",
         "UpperLeg_R",
     ]  # its arms end at the forearm
-    first, children = _children(parents)
     axes = heading_axes(np.array([0.0, 0.0, 1.0]))  # rows: +X, +Y, +Z, so the offsets are as they are
 
-    def reached(start, t, offsets, limbs):
+    def reached_at(start, t, offsets, limbs):
         _, given = forward_kinematics(m.rotations[t], m.positions[t], parents)
-        got = start.copy()
-        _reach(
-            got,
-            m.positions[t],
-            given,
-            axes,
-            offsets,
-            parents,
-            first,
-            children,
-            limbs,
-            np.empty((J, 4)),
-            np.empty((J, 3)),
-        )
+        got = reached(start, m.positions[t], given, axes, offsets, parents, limbs)
         return got, forward_kinematics(got, m.positions[t], parents)[1], given + offsets
 
     def miss(e, elbow, end, lower):  # what the limb's middle joint at e leaves of both targets, squared
@@ -796,7 +767,7 @@ def test_a_limb_puts_its_middle_joint_where_it_and_the_end_meet_their_targets_be
     for t in range(4):
         start = quat.normalize(m.rotations[t] + rng.normal(0, 0.1, (J, 4)))
         offsets = rng.normal(0, 0.2, (J, 3)) * np.linalg.norm(sk.offsets, axis=-1).mean()
-        got, g, targets = reached(start, t, offsets, ends)
+        got, g, targets = reached_at(start, t, offsets, ends)
         for j in np.nonzero(ends >= 0)[0]:
             h = ends[j]
             k = parents[h]
@@ -824,18 +795,18 @@ def test_a_limb_puts_its_middle_joint_where_it_and_the_end_meet_their_targets_be
         ).numpy()
         assert np.degrees(quat.angle_between(twin, got)).max() < 1e-6
 
-    _, g, _ = reached(m.rotations[0], 0, np.zeros((J, 3)), ends)
+    _, g, _ = reached_at(m.rotations[0], 0, np.zeros((J, 3)), ends)
     j = int(np.nonzero(ends >= 0)[0][0])
     h = ends[j]
     along = np.zeros((J, 3))
     along[h] = -0.3 * (g[h] - g[parents[h]])  # the foot asked up its shin, the knee to stay (a knee to bend)
-    _, alone, targets = reached(m.rotations[0], 0, along, np.full(J, -1))
+    _, alone, targets = reached_at(m.rotations[0], 0, along, np.full(J, -1))
     assert np.linalg.norm(alone[h] - g[h]) < 1e-9 * np.linalg.norm(along[h])  # one joint at a time: it stays put
-    _, limb, _ = reached(m.rotations[0], 0, along, ends)
+    _, limb, _ = reached_at(m.rotations[0], 0, along, ends)
     both = lambda p: np.sum((p[[parents[h], h]] - targets[[parents[h], h]]) ** 2)  # knee's miss and foot's, squared
     assert both(limb) < 0.8 * both(alone)  # 106 against 144 here: the knee gives a little, the foot comes up
     assert np.linalg.norm(limb[h] - targets[h]) < 0.75 * np.linalg.norm(along[h])
-    same, _, _ = reached(m.rotations[0], 0, np.zeros((J, 3)), ends)
+    same, _, _ = reached_at(m.rotations[0], 0, np.zeros((J, 3)), ends)
     assert np.degrees(quat.angle_between(same, m.rotations[0])).max() < 1e-6
 
 
