@@ -528,7 +528,7 @@ def _eval_actions(args: argparse.Namespace) -> None:
     atomic_write_text(out.with_suffix(".json"), json.dumps(report, indent=1) + "\n")
     atomic_write_text(out.with_suffix(".md"), markdown(report) + "\n")
     print(markdown(report))
-    for path in action_filmstrips(model, out.parent, args.data):
+    for path in action_filmstrips(model, out, args.data):
         print(f"wrote {path}")
 
 

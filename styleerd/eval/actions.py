@@ -882,26 +882,35 @@ def styles_read_markdown(feet: dict, styles: list[str]) -> str:
     return "\n".join(lines)
 
 
+FILMSTRIPS = {  # held-out clip -> the two styles its filmstrip shows
+    "dance-short_normal_001": ("elderly", "exhausted"),
+    "kick_normal_001": ("elderly", "exhausted"),
+    "punch_normal_002": ("active", "youthful"),
+}
+
+
 def action_filmstrips(
     model: GeneratorWeights,
-    folder: Path,
+    out: Path,
     data_dir: str | None = None,
-    names: tuple[str, ...] = ("dance-short_normal_001", "kick_normal_001"),
-    styles: tuple[str, str] = ("elderly", "exhausted"),
+    strips: dict[str, tuple[str, str]] = FILMSTRIPS,
 ) -> list[Path]:
-    """Per clip (by default Bandai-Namco-1's dance and kick), a filmstrip: the input, the identity
-    transfer and two styles with each pose path (``docs/actions-*.png``)."""
+    """Per clip of ``strips`` (Bandai-Namco-1's dance, kick and punch), a filmstrip: the input, the
+    identity transfer and its two styles with each pose path, named after the table ``out`` and the
+    action (``docs/actions-kick.png`` beside ``docs/actions.md``), so another model's do not overwrite
+    them."""
     from styleerd.eval.plots import filmstrip  # matplotlib: only for the pictures
 
     paths = []
-    for clip in [c for c in held_out_clips(data_dir) if c.name in names]:
+    for clip in [c for c in held_out_clips(data_dir) if c.name in strips]:
+        styles = [s for s in strips[clip.name] if s in model.config.styles]
         rows: list[tuple[str, Motion]] = [(f"input: {clip.source} {clip.name} (held out)", clip.motion)]
         for pose in ("network", "input"):
-            identity, styled = _transfers(clip, model, list(styles), pose)
+            identity, styled = _transfers(clip, model, styles, pose)
             rows += [(f"pose {pose}: identity (-> {clip.input_style})", identity)] + [
                 (f"pose {pose}: -> {s}", m) for s, m in styled.items()
             ]
-        path = folder / f"actions-{clip.action}.png"
+        path = out.with_name(f"{out.stem}-{clip.action}.png")
         filmstrip(
             rows,
             path,

@@ -349,6 +349,8 @@ how active came to show on the punches).
 
 ![a kick](actions-kick.png)
 
+![a punch](actions-punch.png)
+
 """
     text += actions.read_text()
     if quality.is_file() and streamed.is_file():
@@ -632,6 +634,8 @@ Pose `{pose}`: identity {error["mean"]:.1f} cm (worst {error["worst"]:.1f}), cor
                 f"| {style} | {a['correlation']:.2f} / {w['correlation']:.2f} | "
                 f"{a['cosine']:.2f} / {a['cosine_body']:.2f} | {a['size_ratio']:.2f} |\n"
             )
+    for picture in sorted(path.parent.glob(f"{path.stem}-*.png")):  # the filmstrips ``eval actions`` draws
+        text += f"\n![{model}: {picture.stem[len(path.stem) + 1 :]}]({picture.name})\n"
     return text + "\n"
 
 
