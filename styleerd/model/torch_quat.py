@@ -116,7 +116,7 @@ def reach(
     ``targets [..., J, 3]`` (relative to the root, in the root's parent frame): down the chain, each
     joint but the root by the shortest arc from its children's summed bone vectors (``offsets
     [J, 3]``) to the summed vectors to their targets; the first joint of a two-bone limb (``limb_ends``,
-    ``runtime.stylizer.limb_ends``) so that its bone goes where ``limb_elbow`` puts it.
+    ``motion.humanoid.limb_ends``) so that its bone goes where ``limb_elbow`` puts it.
     ``runtime.stylizer._reach``'s twin."""
     out = list(rotations.unbind(-2))
     G, X = list(out), [torch.zeros_like(targets[..., 0, :])] * len(parents)

@@ -529,8 +529,8 @@ def sidecar(
         # of projections (``motion.humanoid.limb_ends``, ``runtime.stylizer._limb_elbow``)
         "limb_ends": limb_ends(model.skeleton).tolist(),
         "limb_rounds": LIMB_ROUNDS,
-        # how far above the head joint the eyes are (the skeleton's units): a limb's end the posture raises ends
-        # no higher, or than itself where higher, its middle joint's rise cut alike
+        # how far above the head joint the eyes are (the skeleton's units): a limb's end the posture raises by r
+        # rises by the smooth minimum of r and its way to the eyes, none above them, its middle joint alike
         # (``motion.humanoid.eyes_above_head``, ``runtime.stylizer._ends_below_the_eyes``)
         "eyes_above_head": eyes_above_head(model.skeleton),
         # the identity pass's mean joint angle to the input (degrees) up to which the network's pose is kept,
