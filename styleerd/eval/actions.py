@@ -162,15 +162,7 @@ def _body_scale(skeleton, jm: JointMap) -> float:
     """cm of a 170 cm body per unit of this skeleton: the foot-to-head bone length (ankle to hip to
     hips to head, which leaves out the foot's height and the crown) is 0.9 of the body's height."""
     source = {jm.target.names[t]: s for t, s in jm.pairs}
-
-    def chain(top: int, joint: int) -> float:
-        length = 0.0
-        while joint != top and joint >= 0:
-            length += float(np.linalg.norm(skeleton.offsets[joint]))
-            joint = int(skeleton.parents[joint])
-        return length
-
-    height = chain(source["Hips"], source["Foot_L"]) + chain(source["Hips"], source["Head"])
+    height = sum(skeleton.chain_length(source["Hips"], source[end]) for end in ("Foot_L", "Head"))
     return 0.9 * BODY_CM / height
 
 

@@ -444,14 +444,10 @@ def eyes_above_head(skeleton: Skeleton) -> float:
     ceiling for a hand a posture raises: a sixth of the rest pose's chain from the hips to the head
     (about 9 cm on a 170 cm body); 0 where either is not found."""
     parts = body_parts(skeleton)
-    hips, j = parts.get("hips"), parts.get("head")
-    if hips is None or j is None:
+    hips, head = parts.get("hips"), parts.get("head")
+    if hips is None or head is None:
         return 0.0
-    length = 0.0
-    while j != hips and j >= 0:
-        length += float(np.linalg.norm(skeleton.offsets[j]))
-        j = int(skeleton.parents[j])
-    return length / 6.0 if j == hips else 0.0
+    return skeleton.chain_length(hips, head) / 6.0
 
 
 TWO_BONES = (LIMBS["arm"][1:], LIMBS["leg"][:3])  # shoulder, elbow, hand; hip, knee, foot

@@ -49,6 +49,15 @@ class Skeleton:
         """The joints whose parent is ``j``."""
         return [int(c) for c in np.nonzero(self.parents == j)[0]]
 
+    def chain_length(self, top: int, joint: int) -> float:
+        """The rest length of the bones from ``joint`` up to its ancestor ``top`` (up to the root, its
+        offset left out, where ``top`` is none of them)."""
+        length = 0.0
+        while joint != top and self.parents[joint] >= 0:
+            length += float(np.linalg.norm(self.offsets[joint]))
+            joint = int(self.parents[joint])
+        return length
+
     @cached_property
     def rotation_orders(self) -> tuple[str, ...]:
         """Each joint's Euler order of its rotation channels, e.g. "zxy"; axes without a channel are
@@ -150,15 +159,11 @@ class BodyRoles:
         missing = [role.replace("_", " ") for role in needed if role not in r]
         if missing:
             raise KeyError(f"no joint found for {', '.join(missing)}")
-        j, length = r["left_foot"], 0.0
-        while j != r["left_hip"] and j > 0:
-            length += float(np.linalg.norm(skeleton.offsets[j]))
-            j = int(skeleton.parents[j])
         return cls(
             left=(r["left_hip"], r["left_shoulder"]),
             right=(r["right_hip"], r["right_shoulder"]),
             feet=(r["left_foot"], r["left_toe"], r["right_foot"], r["right_toe"]),
-            leg_length=length,
+            leg_length=skeleton.chain_length(r["left_hip"], r["left_foot"]),
             hips=r["hips"],
             head=r.get("head", -1),
         )
